@@ -1,0 +1,129 @@
+"""`result.json` beside `.hydra/`: the one record every run leaves, from which tables and figures are rebuilt."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+import subprocess
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+RESULT_FILE = "result.json"
+RESULT_SCHEMA = 1
+_SECRET_KEY = re.compile(r"(api[_-]?key|token|secret|password|authorization)", re.IGNORECASE)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write via a temp file in the same folder and rename, so a reader never sees half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def redact_secrets(obj: Any) -> Any:
+    """Drop values under secret-looking keys. Keys naming an environment variable (`*_env`) are kept: they hold
+    the variable's name, never its value."""
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            key = str(k)
+            if _SECRET_KEY.search(key) and not key.endswith("_env") and v is not None:
+                out[key] = "<redacted>"
+            else:
+                out[key] = redact_secrets(v)
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [redact_secrets(v) for v in obj]
+    return obj
+
+
+def git_sha(start: str | os.PathLike | None = None) -> str | None:
+    """The commit of the checkout holding this package (with `-dirty` if it has local changes), or None."""
+    where = Path(start) if start else Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=where, capture_output=True, text=True,
+            timeout=5, check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return f"{sha}-dirty" if dirty else sha
+
+
+def hydra_run_info() -> dict:
+    """Output dir, config choices and overrides of the current Hydra job ({} outside Hydra)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        hc = HydraConfig.get()
+    except (ImportError, ValueError):
+        return {}
+    from omegaconf import OmegaConf
+
+    return {
+        "output_dir": hc.runtime.output_dir,
+        "choices": {k: v for k, v in OmegaConf.to_container(hc.runtime.choices).items() if not k.startswith("hydra/")},
+        "overrides": list(hc.overrides.task),
+        "job_num": hc.job.get("num"),
+    }
+
+
+def write_result(
+    out_dir: str | os.PathLike,
+    *,
+    metric: str,
+    version: str,
+    values: Any,
+    config: Mapping | None = None,
+    choices: Mapping | None = None,
+    seed: int | None = None,
+    status: str = "ok",
+    **extra: Any,
+) -> Path:
+    """Write `<out_dir>/result.json` atomically and return its path."""
+    record = {
+        "schema": RESULT_SCHEMA,
+        "metric": metric,
+        "version": version,
+        "status": status,
+        "values": values,
+        "choices": dict(choices or {}),
+        "seed": seed,
+        "git_sha": git_sha(),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **extra,
+        "config": redact_secrets(dict(config or {})),
+    }
+    return atomic_write_text(Path(out_dir) / RESULT_FILE, json.dumps(record, indent=2, default=str) + "\n")
+
+
+def read_results(root: str | os.PathLike, metric: str | None = None) -> list[dict]:
+    """Every result.json under root (optionally of one metric), each with its `path`. Unreadable files are an
+    error naming the file: a table silently missing a run is worse than no table."""
+    records = []
+    for path in sorted(Path(root).rglob(RESULT_FILE)):
+        try:
+            rec = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"cannot read {path}: {e}") from e
+        if metric is None or rec.get("metric") == metric:
+            rec["path"] = str(path)
+            records.append(rec)
+    return records

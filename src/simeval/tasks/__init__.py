@@ -1,0 +1,87 @@
+"""Task sets of each pipeline, loaded from the user's own sources.
+
+`load_tasks(pipeline, source, ...)` is the one entry: `source="auto"` takes the first configured source in the
+pipeline's order below; naming a source that is not configured, or having none, raises `SourceNotConfigured`
+whose `hint` names the config keys (and environment variables) that would provide one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from simeval.tasks import bbsea, custom, gensim, robogen
+from simeval.tasks.records import (
+    ALL_GROUPS,
+    SourceNotConfigured,
+    Task,
+    TaskSourceError,
+    groups_of,
+    select_group,
+)
+
+__all__ = ["ALL_GROUPS", "SOURCES", "SourceNotConfigured", "Task", "TaskSourceError", "groups_of", "load_tasks",
+           "select_group"]
+
+
+@dataclass(frozen=True)
+class Source:
+    name: str
+    needs: str  # the option (config key under `pipeline`) that must be set for this source
+    env: str | None  # the environment variable the shipped config reads that key from
+    load: Callable[[dict], list[Task]]
+
+
+def _template(o: dict, default: str) -> str:
+    return o.get("text_template") or default
+
+
+SOURCES: dict[str, list[Source]] = {
+    "gensim": [
+        Source("grouped_file", "grouped_file", "GENSIM_DESCS",
+               lambda o: gensim.load_grouped_texts(o["grouped_file"], "gensim", o.get("group_aliases"))),
+        Source("checkout", "root", "GENSIM_ROOT",
+               lambda o: gensim.load_gensim_checkout(o["root"], _template(o, gensim.DEFAULT_TEMPLATE))),
+    ],
+    "robogen": [
+        Source("checkout", "root", "ROBOGEN_ROOT",
+               lambda o: robogen.load_robogen_checkout(o["root"], _template(o, robogen.DEFAULT_TEMPLATE))),
+        Source("file", "tasks_path", "ROBOGEN_TASKS",
+               lambda o: robogen.load_robogen_records(o["tasks_path"], _template(o, robogen.DEFAULT_TEMPLATE))),
+    ],
+    "bbsea": [
+        Source("output", "root", "BBSEA_ROOT", lambda o: bbsea.load_bbsea_output(o["root"])),
+        Source("file", "tasks_path", "BBSEA_TASKS", lambda o: bbsea.load_bbsea_list(o["tasks_path"])),
+    ],
+    "custom": [
+        Source("file", "tasks_path", None,
+               lambda o: custom.load_custom(o["tasks_path"], o.get("name") or "custom", _template(o, "{description}"))),
+    ],
+}
+
+
+def source_hint(pipeline: str) -> str:
+    parts = []
+    for s in SOURCES[pipeline]:
+        env = f" (or env {s.env})" if s.env else ""
+        parts.append(f"pipeline.{s.needs}=...{env} for source '{s.name}'")
+    return "set " + ", or ".join(parts)
+
+
+def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
+    """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path,
+    text_template, group_aliases (the keys of the pipeline config)."""
+    if pipeline not in SOURCES:
+        raise TaskSourceError(f"unknown pipeline '{pipeline}'; known: {', '.join(SOURCES)}")
+    candidates = SOURCES[pipeline]
+    if source != "auto":
+        by_name = {s.name: s for s in candidates}
+        if source not in by_name:
+            raise TaskSourceError(
+                f"pipeline.source={source!r} is not a source of '{pipeline}'; choose auto or one of {', '.join(by_name)}"
+            )
+        candidates = [by_name[source]]
+    for s in candidates:
+        if options.get(s.needs):
+            return s.load(options)
+    raise SourceNotConfigured(pipeline, source_hint(pipeline))

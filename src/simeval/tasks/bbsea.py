@@ -1,0 +1,45 @@
+"""BBSEA tasks: from a BBSEA output folder (`trajectory/<scene>/<task description>/...`) or a list of strings.
+
+Groups follow the authors' rule: `drawer` if the description mentions a drawer, else `table-top`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
+
+PIPELINE = "bbsea"
+
+
+def bbsea_group(description: str) -> str:
+    return "drawer" if "drawer" in description.lower() else "table-top"
+
+
+def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
+    """One task per (scene, task-description folder). `root` is the output folder or its `trajectory/`."""
+    root = Path(root).expanduser()
+    traj = root / "trajectory" if (root / "trajectory").is_dir() else root
+    scenes = sorted(p for p in traj.iterdir() if p.is_dir()) if traj.is_dir() else []
+    out = []
+    for scene in scenes:
+        for task_dir in sorted(p for p in scene.iterdir() if p.is_dir()):
+            desc = task_dir.name
+            out.append(Task(PIPELINE, bbsea_group(desc), f"{scene.name}/{desc}", desc, desc, {"scene": scene.name}))
+    if not out:
+        raise TaskSourceError(f"{root}: no BBSEA tasks found (expected trajectory/<scene>/<task description>/)")
+    return out
+
+
+def load_bbsea_list(path: str | os.PathLike) -> list[Task]:
+    data = read_structured(path)
+    if isinstance(data, dict) and "tasks" in data:
+        data = data["tasks"]
+    if not isinstance(data, list):
+        raise TaskSourceError(f"{path}: expected a list of task descriptions")
+    out = []
+    for i, item in enumerate(data):
+        desc = require_text(item, f"{path}: item {i}")
+        out.append(Task(PIPELINE, bbsea_group(desc), f"task-{i}", desc, desc))
+    return out

@@ -1,0 +1,53 @@
+"""Text diversity of a pipeline's task descriptions (paper Eq. 1, Table 3). See conf/text_diversity.yaml."""
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the simeval package beside this file
+from simeval.cli import allow_multirun_anywhere  # noqa: E402
+
+log = logging.getLogger("text_diversity")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="text_diversity")
+def main(cfg: DictConfig) -> None:
+    from hydra.utils import instantiate
+
+    from simeval.diversity import text_diversity_by_group
+    from simeval.embeddings import CachedEmbedder, EmbeddingCache
+    from simeval.metrics.text_diversity import METRIC_VERSION
+    from simeval.results import hydra_run_info, write_result
+    from simeval.tasks import SourceNotConfigured, load_tasks
+
+    run = hydra_run_info()
+    config = OmegaConf.to_container(cfg, resolve=True)
+    record = dict(metric="text_diversity", version=METRIC_VERSION, config=config, choices=run["choices"],
+                  seed=cfg.seed, overrides=run["overrides"], pipeline=cfg.pipeline.name, embedding=cfg.embedding.name)
+    p = cfg.pipeline
+    try:
+        tasks = load_tasks(p.name, p.source, root=p.root, grouped_file=p.grouped_file, tasks_path=p.tasks_path,
+                           text_template=p.text_template, group_aliases=p.group_aliases)
+    except SourceNotConfigured as e:
+        if cfg.on_missing_source != "record":
+            raise
+        write_result(run["output_dir"], values={}, status="missing", missing_hint=e.hint, **record)
+        log.warning("%s: recorded as missing (%s)", p.name, e.hint)
+        return
+    embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(Path(cfg.cache_dir) / "embeddings.sqlite"))
+    with instantiate(cfg.logger, run_dir=run["output_dir"], run_config=config) as logger:
+        values = text_diversity_by_group(tasks, embedder.encode, cfg.task_group, seed=cfg.seed, **cfg.metrics)
+        path = write_result(run["output_dir"], values=values, embedded=embedder.last_misses, **record)
+        logger.log_metrics(values)
+    for group, v in values.items():
+        log.info("%s/%s [%s] n=%d div=%s", p.name, group, cfg.embedding.name, v["n"],
+                 f"{v['div']:.4f}" if "div" in v else v.get("error"))
+    log.info("wrote %s", path)
+
+
+if __name__ == "__main__":
+    allow_multirun_anywhere()
+    main()
