@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 METRIC_VERSION = "1.0"
+STATISTICS = ("div", "vendi", "cos_dist", "self_bleu")
 
 
 class DiversityInputError(ValueError):
@@ -105,31 +106,57 @@ def _ngrams(tokens: Sequence[str], n: int) -> Counter:
     return Counter(tuple(tokens[i : i + n]) for i in range(len(tokens) - n + 1))
 
 
+def _all_ngrams(tokens: Sequence[str], max_n: int) -> list[Counter]:
+    return [_ngrams(tokens, n) for n in range(1, min(max_n, len(tokens)) + 1)]
+
+
+def _bleu_against_others(tokens: Sequence[Sequence[str]], max_n: int, items: Sequence[int]) -> list[float]:
+    """BLEU of tokens[i] against every other entry of `tokens`, for each i in `items`.
+
+    Clipping needs, per n-gram, the largest count in any reference; keeping the two largest counts over all
+    texts (with their owners) gives that maximum "excluding i" in O(1), so the whole set costs O(total n-grams)
+    instead of O(N^2)."""
+    grams = [_all_ngrams(t, max_n) for t in tokens]
+    lengths = [len(t) for t in tokens]
+    top2: list[dict] = [{} for _ in range(max_n)]  # gram -> [(count, owner), (count, owner)]
+    for owner, per_order in enumerate(grams):
+        for n, counter in enumerate(per_order):
+            table = top2[n]
+            for gram, c in counter.items():
+                e = table.get(gram)
+                if e is None:
+                    table[gram] = [(c, owner), (0, -1)]
+                elif c > e[0][0]:
+                    table[gram] = [(c, owner), e[0]]
+                elif c > e[1][0]:
+                    e[1] = (c, owner)
+    scores = []
+    for i in items:
+        hyp_len = lengths[i]
+        if hyp_len == 0:
+            scores.append(0.0)
+            continue
+        log_p = 0.0
+        for n, counter in enumerate(grams[i]):
+            table, matches = top2[n], 0
+            for gram, c in counter.items():
+                (c1, o1), (c2, _) = table[gram]
+                matches += min(c, c1 if o1 != i else c2)
+            log_p += math.log((matches if matches > 0 else 0.1) / sum(counter.values()))
+        log_p /= len(grams[i])
+        ref_len = min((abs(r - hyp_len), r) for j, r in enumerate(lengths) if j != i)[1]
+        bp = 1.0 if hyp_len > ref_len else math.exp(1 - ref_len / hyp_len)
+        scores.append(float(bp * math.exp(log_p)))
+    return scores
+
+
 def bleu(hypothesis: Sequence[str], references: Sequence[Sequence[str]], max_n: int = 4) -> float:
     """Sentence BLEU with uniform weights over orders 1..min(max_n, len(hyp)), clipped counts against the
     maximum count in any reference, brevity penalty against the closest reference length, and Chen & Cherry's
     smoothing 1 (a zero match count becomes 0.1) so one missing 4-gram does not zero the score."""
     if not references:
         raise DiversityInputError("BLEU needs at least one reference")
-    if not hypothesis:
-        return 0.0
-    orders = range(1, min(max_n, len(hypothesis)) + 1)
-    log_p = 0.0
-    for n in orders:
-        hyp = _ngrams(hypothesis, n)
-        max_ref: Counter = Counter()
-        for ref in references:
-            for gram, c in _ngrams(ref, n).items():
-                if c > max_ref[gram]:
-                    max_ref[gram] = c
-        matches = sum(min(c, max_ref[g]) for g, c in hyp.items())
-        total = sum(hyp.values())
-        log_p += math.log((matches if matches > 0 else 0.1) / total)
-    log_p /= len(orders)
-    hyp_len = len(hypothesis)
-    ref_len = min((abs(len(r) - hyp_len), len(r)) for r in references)[1]
-    bp = 1.0 if hyp_len > ref_len else math.exp(1 - ref_len / hyp_len)
-    return float(bp * math.exp(log_p))
+    return _bleu_against_others([list(hypothesis)] + [list(r) for r in references], max_n, [0])[0]
 
 
 def self_bleu_per_text(texts: Sequence[str], max_n: int = 4) -> np.ndarray:
@@ -138,7 +165,7 @@ def self_bleu_per_text(texts: Sequence[str], max_n: int = 4) -> np.ndarray:
     if len(texts) < 2:
         raise DiversityInputError(f"Self-BLEU needs at least 2 texts, got {len(texts)}")
     tokens = [tokenize(t) for t in texts]
-    return np.array([bleu(tokens[i], tokens[:i] + tokens[i + 1 :], max_n) for i in range(len(tokens))])
+    return np.array(_bleu_against_others(tokens, max_n, range(len(tokens))))
 
 
 def bootstrap_ci(
@@ -169,10 +196,42 @@ def subsample_mean_std(
     return float(values.mean()), float(values.std())
 
 
-def _resampled(similarity: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    # Copies of one task drawn twice by the bootstrap are the same task, not two identical ones: they are
-    # masked like the diagonal, else resampling alone would inflate similarity and bias Eq. 1 downwards.
-    return similarity[np.ix_(idx, idx)], idx[:, None] == idx[None, :]
+def _bootstrap_draws(similarity: np.ndarray, per_text_bleu: np.ndarray, n_boot: int, seed: int,
+                     max_elements: int = 20_000_000) -> dict[str, np.ndarray]:
+    """Every statistic on `n_boot` resamples of the tasks (with replacement), vectorised over resamples.
+
+    Two draws of the same task are one task, not two identical ones: such pairs are masked like the diagonal,
+    else resampling alone would inflate similarity and bias Eq. 1 downwards. A resample in which some task has
+    no distinct partner, or Eq. 1 is undefined, is dropped (counted in the returned "dropped")."""
+    n = len(similarity)
+    idx = np.random.default_rng(seed).integers(0, n, (n_boot, n))
+    chunk = max(1, max_elements // (n * n))
+    parts: dict[str, list] = {"div": [], "vendi": [], "cos_dist": [], "self_bleu": []}
+    dropped = 0
+    for lo in range(0, n_boot, chunk):
+        ix = idx[lo : lo + chunk]
+        sub = similarity[ix[:, :, None], ix[:, None, :]]
+        valid = ix[:, :, None] != ix[:, None, :]
+        counts = valid.sum(-1)
+        row_means = np.where(valid, sub, 0.0).sum(-1) / np.maximum(counts, 1)
+        ok = np.all(counts > 0, axis=1) & np.all(row_means > 0, axis=1)
+        dropped += int((~ok).sum())
+        parts["div"].append(-np.log(np.where(row_means[ok] > 0, row_means[ok], 1.0)).mean(1))
+        parts["cos_dist"].append((1.0 - row_means[ok]).mean(1))
+        lam = np.clip(np.linalg.eigvalsh(sub[ok] / n), 0.0, None)
+        lam = lam / lam.sum(-1, keepdims=True)
+        parts["vendi"].append(np.exp(-np.sum(np.where(lam > 1e-12, lam * np.log(np.where(lam > 1e-12, lam, 1.0)), 0.0), -1)))
+        parts["self_bleu"].append(per_text_bleu[ix[ok]].mean(1))
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["dropped"] = np.array(dropped)
+    return out
+
+
+def _percentile_ci(values: np.ndarray, level: float = 0.95) -> list[float] | None:
+    if values.size < 10:
+        return None  # too few defined resamples for a percentile interval
+    alpha = (1 - level) / 2
+    return [float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))]
 
 
 def diversity_summary(
@@ -186,8 +245,9 @@ def diversity_summary(
 ) -> dict:
     """All text-diversity metrics of one task group, each with a bootstrap 95% CI over tasks.
 
-    Returns {"n", "div", "div_ci", "vendi", "vendi_ci", "cos_dist", "cos_dist_ci", "self_bleu", "self_bleu_ci"}
-    and, when `subsample_n` is given, "subsample" = {"n", "repeats", "<metric>_mean", "<metric>_std"}.
+    Returns {"n", "div", "div_ci", "vendi", "vendi_ci", "cos_dist", "cos_dist_ci", "self_bleu", "self_bleu_ci",
+    "boot": {"n_boot", "dropped"}} and, when `subsample_n` is given, "subsample" = {"n", "repeats",
+    "<metric>_mean", "<metric>_std"}. A CI is None when too few resamples are defined (tiny groups).
     """
     for i, t in enumerate(texts):
         if not isinstance(t, str) or not t.strip():
@@ -197,29 +257,26 @@ def diversity_summary(
         raise DiversityInputError(f"{len(s)} embeddings for {len(texts)} texts")
     n = len(texts)
     per_text_bleu = self_bleu_per_text(texts)
-
-    def on(idx: np.ndarray, fn) -> float:
-        sub, same = _resampled(s, idx)
-        return fn(sub, _same=same)
-
-    stats: dict[str, Callable[[np.ndarray], float]] = {
-        "div": lambda idx: on(idx, eq1_diversity),
-        "vendi": lambda idx: vendi_score(s[np.ix_(idx, idx)]),
-        "cos_dist": lambda idx: on(idx, mean_pairwise_cosine_distance),
+    out: dict = {
+        "n": n,
+        "div": eq1_diversity(s),
+        "vendi": vendi_score(s),
+        "cos_dist": mean_pairwise_cosine_distance(s),
         # Per-text Self-BLEU is computed once against the full set; the CI resamples those per-text scores.
-        "self_bleu": lambda idx: float(per_text_bleu[idx].mean()),
+        "self_bleu": float(per_text_bleu.mean()),
     }
-    out: dict = {"n": n}
-    everything = np.arange(n)
-    for offset, (name, fn) in enumerate(stats.items()):
-        out[name] = fn(everything) if name != "div" else eq1_diversity(s)
-        try:
-            out[f"{name}_ci"] = list(bootstrap_ci(fn, n, n_boot=n_boot, seed=seed + offset))
-        except DiversityInputError:
-            out[f"{name}_ci"] = None  # a resample can hit an undefined value; the point estimate still stands
+    draws = _bootstrap_draws(s, per_text_bleu, n_boot, seed)
+    for name in STATISTICS:
+        out[f"{name}_ci"] = _percentile_ci(draws[name])
+    out["boot"] = {"n_boot": n_boot, "dropped": int(draws["dropped"])}
     if subsample_n is not None:
-        # Self-BLEU grows with the number of references, so within a subsample it is recomputed on the subset.
-        stats["self_bleu"] = lambda idx: float(self_bleu_per_text([texts[i] for i in idx]).mean())
+        stats: dict[str, Callable[[np.ndarray], float]] = {
+            "div": lambda idx: eq1_diversity(s[np.ix_(idx, idx)]),
+            "vendi": lambda idx: vendi_score(s[np.ix_(idx, idx)]),
+            "cos_dist": lambda idx: mean_pairwise_cosine_distance(s[np.ix_(idx, idx)]),
+            # Self-BLEU grows with the number of references, so within a subsample it is recomputed on the subset.
+            "self_bleu": lambda idx: float(self_bleu_per_text([texts[i] for i in idx]).mean()),
+        }
         sub = {"n": int(subsample_n), "repeats": int(subsample_repeats if subsample_n < n else 1)}
         for offset, (name, fn) in enumerate(stats.items()):
             mean, std = subsample_mean_std(fn, n, subsample_n, repeats=subsample_repeats, seed=seed + 100 + offset)

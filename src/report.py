@@ -1,0 +1,34 @@
+"""Rebuild a paper table from result.json files (no rerun). See conf/report.yaml and conf/report/."""
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from simeval.cli import allow_multirun_anywhere  # noqa: E402
+
+log = logging.getLogger("report")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="report")
+def main(cfg: DictConfig) -> None:
+    from simeval.report.build import build_text_diversity_report
+
+    spec = OmegaConf.to_container(cfg.report, resolve=True)
+    if spec["metric"] != "text_diversity":
+        raise ValueError(f"report.metric={spec['metric']!r}: only text_diversity reports exist so far")
+    written = build_text_diversity_report(
+        spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
+        caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"), digits=spec.get("digits", 2),
+    )
+    print(Path(written["main"][1]).read_text())
+    for kind, paths in written.items():
+        log.info("%s: %s", kind, ", ".join(map(str, paths)))
+
+
+if __name__ == "__main__":
+    allow_multirun_anywhere()
+    main()

@@ -1,0 +1,39 @@
+"""Build every artefact of a text-diversity report spec from the result.json files under `runs_dir`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from simeval.report.tables import to_csv, write_table
+from simeval.report.text_diversity import STATISTICS, TIDY_COLUMNS, rank_agreement, table3, tidy_rows
+from simeval.results import atomic_write_text, read_results
+
+
+def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id: str, rows: list[dict],
+                                columns: list[dict], caption: str = "", statistic: str = "div", digits: int = 2,
+                                metric: str = "text_diversity") -> dict[str, list[Path]]:
+    records = read_results(runs_dir, metric)
+    if not records:
+        raise FileNotFoundError(f"no {metric} result.json under {runs_dir}: run the sweep first")
+    tidy = tidy_rows(records)
+    columns = list(columns)
+    listed = {c["embedding"] for c in columns}
+    for r in tidy:
+        if r["embedding"] not in listed:
+            listed.add(r["embedding"])
+            columns.append({"embedding": r["embedding"], "display": r["embedding"]})
+    out = Path(out_dir)
+    written = {"tidy": [atomic_write_text(out / f"{id}_tidy.csv",
+                                          to_csv(TIDY_COLUMNS, [[r[c] for c in TIDY_COLUMNS] for r in tidy]))]}
+    header, body, notes = table3(tidy, rows, columns, statistic, digits)
+    written["main"] = write_table(out / id, header, body, caption=caption, label=f"tab:{id}", notes=notes)
+    ext_rows = []
+    for stat in STATISTICS:
+        h, b, _ = table3(tidy, rows, columns, stat, digits, with_ci=True)
+        ext_rows += [[stat] + r for r in b]
+    written["extended"] = write_table(out / f"{id}_all_metrics", ["Statistic"] + h, ext_rows,
+                                      caption=caption + " All statistics with bootstrap 95% CIs over tasks.")
+    h, b = rank_agreement(tidy, rows, columns, statistic)
+    written["rank_agreement"] = write_table(out / f"{id}_rank_agreement", h, b,
+                                            caption="Agreement of embedding models on the ordering of task groups.")
+    return written

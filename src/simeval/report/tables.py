@@ -1,0 +1,66 @@
+"""Writers for a simple table (a header and rows of strings) as CSV, Markdown and LaTeX."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from simeval.results import atomic_write_text
+
+
+def to_markdown(header: list[str], rows: list[list[str]], notes: list[str] | None = None) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    if notes:
+        lines += [""] + [f"- {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def _tex_escape(s: str) -> str:
+    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"),
+                 ("$", r"\$"), ("{", r"\{"), ("}", r"\}"), ("—", "--")):
+        s = s.replace(a, b)
+    return s
+
+
+def to_latex(header: list[str], rows: list[list[str]], caption: str = "", label: str = "",
+             notes: list[str] | None = None) -> str:
+    cols = "l" * 2 + "c" * (len(header) - 2)
+    out = [r"\begin{table}[t]", r"\centering", r"\small"]
+    if caption:
+        out.append(r"\caption{" + _tex_escape(caption) + "}")
+    out += [r"\begin{tabular}{@{}" + cols + "@{}}", r"\toprule", " & ".join(map(_tex_escape, header)) + r" \\",
+            r"\midrule"]
+    previous = None
+    for r in rows:
+        first = r[0] if r[0] != previous else ""
+        if first and previous is not None:
+            out.append(r"\midrule")
+        previous = r[0]
+        out.append(" & ".join([_tex_escape(first)] + [_tex_escape(c) for c in r[1:]]) + r" \\")
+    out += [r"\bottomrule", r"\end{tabular}"]
+    if notes:
+        out.append(r"\\[2pt]{\footnotesize " + "; ".join(_tex_escape(n) for n in notes) + "}")
+    if label:
+        out.append(r"\label{" + label + "}")
+    out.append(r"\end{table}")
+    return "\n".join(out) + "\n"
+
+
+def to_csv(header: list[str], rows: list[list]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def write_table(stem: str | Path, header: list[str], rows: list[list[str]], *, caption: str = "", label: str = "",
+                notes: list[str] | None = None) -> list[Path]:
+    stem = Path(stem)
+    return [
+        atomic_write_text(stem.with_suffix(".csv"), to_csv(header, rows)),
+        atomic_write_text(stem.with_suffix(".md"), to_markdown(header, rows, notes)),
+        atomic_write_text(stem.with_suffix(".tex"), to_latex(header, rows, caption, label, notes)),
+    ]
