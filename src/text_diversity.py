@@ -38,7 +38,7 @@ def main(cfg: DictConfig) -> None:
         log.warning("%s: recorded as missing (%s)", p.name, e.hint)
         return
     embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(Path(cfg.cache_dir) / "embeddings.sqlite"))
-    with instantiate(cfg.logger, run_dir=run["output_dir"], run_config=config) as logger:
+    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         values = text_diversity_by_group(tasks, embedder.encode, cfg.task_group, seed=cfg.seed, **cfg.metrics)
         path = write_result(run["output_dir"], values=values, embedded=embedder.last_misses, **record)
         logger.log_metrics(values)

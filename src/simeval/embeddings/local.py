@@ -85,6 +85,8 @@ class SentenceTransformerBackend:
                  show_progress: bool = True) -> None:
         if batch_size < 1:
             raise ValueError(f"embedding.backend.batch_size must be >= 1, got {batch_size}")
+        if not model:
+            raise ValueError("embedding.backend.model must name a packaged model or a local model directory")
         self.model, self.device, self.batch_size, self.show_progress = model, device, batch_size, show_progress
         if model not in PACKAGED_MODELS and not Path(model).expanduser().is_dir():
             raise FileNotFoundError(

