@@ -1,0 +1,40 @@
+"""Judge-human agreement: Pearson, MAE, r/MAE, Spearman, Kendall with bootstrap CIs; Figure 3. See conf/agreement.yaml."""
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from simeval.cli import allow_multirun_anywhere  # noqa: E402
+
+log = logging.getLogger("agreement")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="agreement")
+def main(cfg: DictConfig) -> None:
+    from simeval.agreement import agreement_rows, format_rows, load_score_tables, plot_figure3
+    from simeval.metrics.agreement import METRIC_VERSION
+    from simeval.report.tables import write_table
+    from simeval.results import hydra_run_info, write_result
+
+    if not cfg.scores_path:
+        raise ValueError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
+    run = hydra_run_info()
+    out = Path(run["output_dir"])
+    rows = agreement_rows(load_score_tables(cfg.scores_path), cfg.human_column, n_boot=cfg.n_boot, seed=cfg.seed)
+    header, body = format_rows(rows)
+    write_table(out / "agreement", header, body, caption="Agreement of judges with human scores (95% bootstrap CIs).")
+    figures = plot_figure3(rows, out / "figure3", tuple(cfg.figure_formats))
+    write_result(out, metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed,
+                 config=OmegaConf.to_container(cfg, resolve=True), choices=run["choices"],
+                 figures=[str(f) for f in figures])
+    print((out / "agreement.md").read_text())
+    log.info("wrote %s and %s", out / "agreement.md", ", ".join(map(str, figures)))
+
+
+if __name__ == "__main__":
+    allow_multirun_anywhere()
+    main()

@@ -1,0 +1,76 @@
+"""Cost of judge calls: tokens from each response's `usage`, images counted per call, priced from a table in
+the judge config (USD per million input/output tokens, per image). Thread-safe; a budget is enforced by
+reserving each call's estimated cost before it is sent."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+
+class BudgetExceeded(RuntimeError):
+    pass
+
+
+@dataclass
+class Prices:
+    input_per_1m: float = 0.0
+    output_per_1m: float = 0.0
+    per_image: float = 0.0  # for providers that bill images apart from tokens
+    image_tokens: int = 765  # for estimates only: tokens one image adds to the prompt (OpenAI, 512x512 tile)
+
+    def cost(self, prompt_tokens: int, completion_tokens: int, images: int) -> float:
+        return (prompt_tokens * self.input_per_1m + completion_tokens * self.output_per_1m) / 1e6 \
+            + images * self.per_image
+
+    def estimate(self, prompt_chars: int, images: int, max_tokens: int) -> float:
+        return self.cost(prompt_chars // 4 + images * self.image_tokens, max_tokens, images)
+
+
+@dataclass
+class Ledger:
+    prices: Prices
+    budget_usd: float | None = None
+    new_calls: int = 0
+    cached_calls: int = 0
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    images: int = 0
+    cost_usd: float = 0.0  # spent by this run
+    cached_cost_usd: float = 0.0  # what the cached replies cost when they were bought
+    reserved_usd: float = 0.0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def reserve(self, estimate: float) -> None:
+        with self._lock:
+            if self.budget_usd is not None and self.cost_usd + self.reserved_usd + estimate > self.budget_usd:
+                raise BudgetExceeded(
+                    f"budget_usd={self.budget_usd:g} would be exceeded: spent {self.cost_usd:.4f}, in flight "
+                    f"{self.reserved_usd:.4f}, next call ~{estimate:.4f}")
+            self.reserved_usd += estimate
+
+    def settle(self, estimate: float, prompt_tokens: int, completion_tokens: int, images: int) -> float:
+        cost = self.prices.cost(prompt_tokens, completion_tokens, images)
+        with self._lock:
+            self.reserved_usd -= estimate
+            self.new_calls += 1
+            self.prompt_tokens += prompt_tokens
+            self.completion_tokens += completion_tokens
+            self.images += images
+            self.cost_usd += cost
+        return cost
+
+    def release(self, estimate: float) -> None:
+        with self._lock:
+            self.reserved_usd -= estimate
+
+    def record_cached(self, cost: float) -> None:
+        with self._lock:
+            self.cached_calls += 1
+            self.cached_cost_usd += cost
+
+    def totals(self) -> dict:
+        return {"new_calls": self.new_calls, "cached_calls": self.cached_calls, "prompt_tokens": self.prompt_tokens,
+                "completion_tokens": self.completion_tokens, "images": self.images,
+                "cost_usd": round(self.cost_usd, 6), "cached_cost_usd": round(self.cached_cost_usd, 6),
+                "budget_usd": self.budget_usd}

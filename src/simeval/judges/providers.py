@@ -1,0 +1,171 @@
+"""Judge providers. Each turns (system text, user text, images) into a reply with token usage:
+  - OpenAIChatProvider: any OpenAI-compatible chat-completions endpoint with images (OpenAI, Azure OpenAI, vLLM,
+    Ollama, LM Studio), over HTTP with retries (429/5xx honouring Retry-After, timeouts); 401/400 stop the run.
+  - HFVisionProvider: a local `transformers` image-text-to-text model (LLaVA, Qwen-VL, BLIP-2 class) from a path.
+Replay (answer only from the cache) is a runner mode, not a provider: see runner.run_judge(replay=True)."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import io
+import os
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+from simeval.httpretry import RetryPolicy, post_json
+
+
+@dataclass(frozen=True)
+class Image:
+    """A PNG-encoded image and its sha256 (what the cache key uses)."""
+
+    png: bytes
+    sha256: str
+
+    @classmethod
+    def from_png(cls, data: bytes) -> "Image":
+        return cls(data, hashlib.sha256(data).hexdigest())
+
+    @classmethod
+    def from_array(cls, rgb: np.ndarray) -> "Image":
+        from PIL import Image as PILImage
+
+        buf = io.BytesIO()
+        PILImage.fromarray(np.asarray(rgb, dtype=np.uint8)).save(buf, format="PNG")
+        return cls.from_png(buf.getvalue())
+
+    def data_url(self) -> str:
+        return "data:image/png;base64," + base64.b64encode(self.png).decode()
+
+
+@dataclass
+class Reply:
+    text: str
+    prompt_tokens: int
+    completion_tokens: int
+    latency_s: float
+
+
+class OpenAIChatProvider:
+    name = "openai"
+
+    def __init__(self, base_url: str, model: str, api_key_env: str | None = "OPENAI_API_KEY",
+                 api_style: str = "openai", api_version: str | None = None, temperature: float = 0.7,
+                 max_tokens: int = 64, timeout_s: float = 60.0, max_retries: int = 5, backoff_s: float = 1.0,
+                 image_detail: str = "auto", seed: int | None = None) -> None:
+        if api_style not in ("openai", "azure"):
+            raise ValueError(f"judge.provider.api_style={api_style!r}: expected openai or azure")
+        if api_style == "azure" and not api_version:
+            raise ValueError("judge.provider.api_version must be set for api_style=azure (e.g. 2024-02-15-preview)")
+        if not base_url or not model:
+            raise ValueError("judge.provider.base_url and judge.provider.model must be set")
+        if max_tokens < 1 or timeout_s <= 0:
+            raise ValueError(f"judge.provider: max_tokens must be >= 1 and timeout_s > 0, got {max_tokens}, {timeout_s}")
+        self.base_url, self.model, self.api_key_env = base_url.rstrip("/"), model, api_key_env
+        self.api_style, self.api_version, self.image_detail = api_style, api_version, image_detail
+        self.temperature, self.max_tokens, self.timeout_s, self.seed = temperature, max_tokens, timeout_s, seed
+        self.retry = RetryPolicy(max_retries=max_retries, backoff_s=backoff_s)
+        self._client = httpx.Client(limits=httpx.Limits(max_connections=64, max_keepalive_connections=64))
+
+    @property
+    def decoding(self) -> dict:
+        return {"temperature": self.temperature, "max_tokens": self.max_tokens, "seed": self.seed}
+
+    @property
+    def url(self) -> str:
+        if self.api_style == "azure":
+            return f"{self.base_url}/openai/deployments/{self.model}/chat/completions?api-version={self.api_version}"
+        return f"{self.base_url}/chat/completions"
+
+    def _headers(self) -> dict:
+        key = os.environ.get(self.api_key_env) if self.api_key_env else None
+        if not key:
+            return {}
+        return {"api-key": key} if self.api_style == "azure" else {"Authorization": f"Bearer {key}"}
+
+    def payload(self, system: str, user: str, images: list[Image]) -> dict:
+        content: list[dict] = [{"type": "text", "text": user}]
+        content += [{"type": "image_url", "image_url": {"url": im.data_url(), "detail": self.image_detail}}
+                    for im in images]
+        body = {"model": self.model, "messages": [{"role": "system", "content": system},
+                                                  {"role": "user", "content": content}],
+                "temperature": self.temperature, "max_tokens": self.max_tokens}
+        if self.seed is not None:
+            body["seed"] = self.seed
+        return body
+
+    def complete(self, system: str, user: str, images: list[Image]) -> Reply:
+        t0 = time.perf_counter()
+        body, _ = post_json(self._client, self.url, self.payload(system, user, images), headers=self._headers(),
+                            retry=self.retry, timeout_s=self.timeout_s)
+        latency = time.perf_counter() - t0
+        try:
+            text = body["choices"][0]["message"]["content"]
+        except (KeyError, IndexError, TypeError):
+            text = None  # a reply without text is an invalid reply, re-asked like an unparseable one
+        usage = body.get("usage") or {} if isinstance(body, dict) else {}
+        return Reply(text if isinstance(text, str) else "", int(usage.get("prompt_tokens") or 0),
+                     int(usage.get("completion_tokens") or 0), latency)
+
+    def close(self) -> None:
+        self._client.close()
+
+
+class HFVisionProvider:
+    """A local transformers vision-language model. Nothing is downloaded: `model_path` must be a directory."""
+
+    name = "hf"
+
+    def __init__(self, model_path: str, device: str = "cpu", max_new_tokens: int = 64, temperature: float = 0.7,
+                 batch_size: int = 1, model: str | None = None) -> None:
+        if not model_path or not Path(model_path).expanduser().is_dir():
+            raise FileNotFoundError(
+                f"judge.provider.model_path={model_path!r} is not a local model directory; simeval never downloads "
+                "weights: fetch the model yourself (e.g. `huggingface-cli download llava-hf/llava-1.5-7b-hf "
+                "--local-dir DIR`) and point model_path at DIR")
+        self.model_path, self.device = str(Path(model_path).expanduser()), device
+        self.max_new_tokens, self.temperature, self.batch_size = max_new_tokens, temperature, batch_size
+        self.model = model or Path(self.model_path).name
+        self._pipe = None
+        self._lock = threading.Lock()  # one forward pass at a time; the runner may call from several threads
+
+    @property
+    def decoding(self) -> dict:
+        return {"temperature": self.temperature, "max_new_tokens": self.max_new_tokens}
+
+    def _load(self):
+        if self._pipe is None:
+            os.environ.setdefault("HF_HUB_OFFLINE", "1")
+            from transformers import pipeline
+
+            self._pipe = pipeline("image-text-to-text", model=self.model_path, device=self.device,
+                                  model_kwargs={"local_files_only": True})
+        return self._pipe
+
+    def complete(self, system: str, user: str, images: list[Image]) -> Reply:
+        from PIL import Image as PILImage
+
+        pil = [PILImage.open(io.BytesIO(im.png)).convert("RGB") for im in images]
+        messages = [{"role": "system", "content": [{"type": "text", "text": system}]},
+                    {"role": "user", "content": [{"type": "image", "image": p} for p in pil]
+                     + [{"type": "text", "text": user}]}]
+        with self._lock:
+            pipe = self._load()
+            t0 = time.perf_counter()
+            out = pipe(text=messages, max_new_tokens=self.max_new_tokens, return_full_text=False,
+                       generate_kwargs={"do_sample": self.temperature > 0, "temperature": self.temperature or None})
+            latency = time.perf_counter() - t0
+        text = out[0]["generated_text"] if out else ""
+        tok = pipe.tokenizer if getattr(pipe, "tokenizer", None) is not None else None
+        n_in = len(tok(system + user)["input_ids"]) if tok else 0
+        n_out = len(tok(text)["input_ids"]) if tok else 0
+        return Reply(text, n_in, n_out, latency)
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,186 @@
+"""Run a judge over items: repeats, re-asks on invalid replies, concurrency, a rate limiter, the cache, the
+ledger (cost and budget), dry runs and replay-only runs."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+
+from simeval.judges.cache import CachedCall, JudgeCache, request_key
+from simeval.judges.ledger import BudgetExceeded, Ledger
+from simeval.judges.parse import parse_score
+from simeval.judges.prompts import PromptTemplate
+from simeval.judges.providers import Image
+
+
+class ReplayMiss(RuntimeError):
+    """A replay-only run met a request that is not in the cache."""
+
+
+@dataclass
+class JudgeItem:
+    item_id: str
+    metric: str
+    template: PromptTemplate
+    fields: dict
+    images: list[Image]
+    scale: tuple[float, float]
+
+    def rendered(self) -> tuple[str, str]:
+        return self.template.render(n_images=str(len(self.images)), **self.fields)
+
+
+@dataclass
+class JudgeSettings:
+    repeats: int = 5
+    max_reasks: int = 2
+    concurrency: int = 4
+    rate_limit_per_min: float | None = None
+    replay: bool = False
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.repeats < 1 or self.max_reasks < 0 or self.concurrency < 1:
+            raise ValueError(f"repeats >= 1, max_reasks >= 0, concurrency >= 1 required; got {self.repeats}, "
+                             f"{self.max_reasks}, {self.concurrency}")
+        if self.rate_limit_per_min is not None and self.rate_limit_per_min <= 0:
+            raise ValueError(f"rate_limit_per_min must be > 0 or null, got {self.rate_limit_per_min}")
+
+
+class RateLimiter:
+    """Spaces request starts at least 60/per_min seconds apart, across threads."""
+
+    def __init__(self, per_min: float | None) -> None:
+        self.interval = 60.0 / per_min if per_min else 0.0
+        self._next = 0.0
+        self._lock = threading.Lock()
+
+    def acquire(self) -> None:
+        if not self.interval:
+            return
+        with self._lock:
+            now = time.monotonic()
+            start = max(now, self._next)
+            self._next = start + self.interval
+        if start > now:
+            time.sleep(start - now)
+
+
+@dataclass
+class ScoreRecord:
+    item: str
+    metric: str
+    repeat: int
+    provider: str
+    model: str
+    template_sha256: str
+    image_sha256: list[str]
+    asks: list[dict] = field(default_factory=list)
+    score: float | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.score is not None
+
+
+def _identity(provider, item: JudgeItem, system: str, user: str, repeat: int, ask: int) -> str:
+    return request_key(provider=provider.name, model=provider.model, template_sha256=item.template.sha256,
+                       system=system, user=user, image_sha256=[im.sha256 for im in item.images],
+                       decoding=provider.decoding, repeat=repeat, ask=ask)
+
+
+def dry_run(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: Ledger, settings: JudgeSettings) -> dict:
+    """What a run would do: calls not yet cached (first asks; re-asks cannot be known), images, estimated USD."""
+    calls = images = cached = 0
+    est = 0.0
+    for item in items:
+        system, user = item.rendered()
+        for r in range(settings.repeats):
+            if cache.get(_identity(provider, item, system, user, r, 0)):
+                cached += 1
+                continue
+            calls += 1
+            images += len(item.images)
+            est += ledger.prices.estimate(len(system) + len(user), len(item.images), getattr(provider, "max_tokens", 64))
+    return {"calls": calls, "cached": cached, "images": images, "estimated_usd": round(est, 4),
+            "note": "first asks only; each unparseable reply adds a re-ask (at most max_reasks per repeat)"}
+
+
+def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: Ledger,
+              settings: JudgeSettings) -> list[ScoreRecord]:
+    """Judge every item `repeats` times. Returns records in (item, repeat) order. Stops at the first error that
+    will not heal (HTTP 401/400, budget, replay miss) after the calls in flight finish; what finished is cached."""
+    limiter = RateLimiter(settings.rate_limit_per_min)
+    stop = threading.Event()
+    slots = [(i, r) for i in range(len(items)) for r in range(settings.repeats)]
+    records: list[ScoreRecord | None] = [None] * len(slots)
+
+    def one(slot: int) -> None:
+        i, repeat = slots[slot]
+        item = items[i]
+        system, user = item.rendered()
+        rec = ScoreRecord(item.item_id, item.metric, repeat, provider.name, provider.model, item.template.sha256,
+                          [im.sha256 for im in item.images])
+        for ask in range(settings.max_reasks + 1):
+            if stop.is_set():
+                return
+            key = _identity(provider, item, system, user, repeat, ask)
+            hit = cache.get(key)
+            if hit is not None:
+                ledger.record_cached(hit.cost_usd)
+                reply, latency, cached = hit.reply, hit.latency_s, True
+            elif settings.replay:
+                raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
+                                 f"repeat {repeat} ask {ask} (model {provider.model}, template "
+                                 f"{item.template.sha256[:12]}); run once with a live judge first")
+            else:
+                estimate = ledger.prices.estimate(len(system) + len(user), len(item.images),
+                                                  getattr(provider, "max_tokens", 64))
+                ledger.reserve(estimate)
+                try:
+                    limiter.acquire()
+                    out = provider.complete(system, user, item.images)
+                except BaseException:
+                    ledger.release(estimate)
+                    raise
+                cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images))
+                cache.put(CachedCall(key, out.text, out.prompt_tokens, out.completion_tokens, len(item.images), cost,
+                                     out.latency_s, time.time()), provider=provider.name, model=provider.model,
+                          item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
+                reply, latency, cached = out.text, out.latency_s, False
+            parsed = parse_score(reply, *item.scale)
+            rec.asks.append({"ask": ask, "reply": reply, "valid": parsed.valid, "error": parsed.error,
+                             "latency_s": round(latency, 4), "cached": cached})
+            if parsed.valid:
+                rec.score = parsed.value
+                break
+        records[slot] = rec
+
+    progress = None
+    if settings.progress:
+        from tqdm import tqdm
+
+        progress = tqdm(total=len(slots), desc=f"judging ({provider.model})", unit="call", leave=False)
+    with ThreadPoolExecutor(max_workers=settings.concurrency) as pool:
+        futures = [pool.submit(one, s) for s in range(len(slots))]
+        if progress:
+            for f in futures:
+                f.add_done_callback(lambda _: progress.update(1))
+        done, pending = wait(futures, return_when=FIRST_EXCEPTION)
+        failed = next((f for f in done if f.exception() is not None), None)
+        if failed is not None:
+            stop.set()
+            for f in pending:
+                f.cancel()
+            wait(futures)
+    if progress:
+        progress.close()
+    if failed is not None:
+        exc = failed.exception()
+        if isinstance(exc, (BudgetExceeded, ReplayMiss)):
+            exc.partial = [r for r in records if r is not None]  # type: ignore[attr-defined]
+        raise exc
+    return [r for r in records if r is not None]
