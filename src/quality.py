@@ -24,7 +24,9 @@ def main(cfg: DictConfig) -> None:
     from simeval.judges.ledger import Ledger, Prices
     from simeval.judges.prompts import load_template
     from simeval.judges.runner import JudgeSettings
-    from simeval.quality import evaluate_quality, load_bundles, oracle_completion
+    from simeval.judges.ledger import BudgetExceeded
+    from simeval.judges.runner import ReplayMiss
+    from simeval.quality import evaluate_quality, judge_reliability, load_bundles, oracle_completion, summarize
     from simeval.results import atomic_write_text, hydra_run_info, write_result
 
     if not cfg.bundles_dir:
@@ -48,10 +50,16 @@ def main(cfg: DictConfig) -> None:
         captioner = instantiate(cfg.captioner.provider)
         cap_settings = JudgeSettings(1, cfg.max_reasks, cfg.captioner.concurrency,
                                      cfg.captioner.rate_limit_per_min, cfg.judge.replay)
-    out = evaluate_quality(bundles, metric=cfg.metric, mode=cfg.scene_alignment_mode,
-                           provider=instantiate(cfg.judge.provider), templates=templates, cache=cache, ledger=ledger,
-                           settings=settings, captioner=captioner, caption_settings=cap_settings,
-                           n_frames=cfg.n_frames, dry=cfg.dry_run)
+    try:
+        out = evaluate_quality(bundles, metric=cfg.metric, mode=cfg.scene_alignment_mode,
+                               provider=instantiate(cfg.judge.provider), templates=templates, cache=cache,
+                               ledger=ledger, settings=settings, captioner=captioner, caption_settings=cap_settings,
+                               n_frames=cfg.n_frames, dry=cfg.dry_run)
+    except (BudgetExceeded, ReplayMiss) as e:  # keep what finished (it is cached too), then stop loudly
+        done = getattr(e, "partial", [])
+        write_result(out_dir, values=summarize(done), errors=errors, cost=ledger.totals(), status="stopped",
+                     stopped=str(e), **meta)
+        raise
     errors.update(out["errors"])
     if cfg.dry_run:
         print(json.dumps(out["dry_run"], indent=2))
@@ -59,7 +67,8 @@ def main(cfg: DictConfig) -> None:
     lines = [json.dumps(dataclasses.asdict(r) | {"valid": r.valid}) for r in out["records"]]
     atomic_write_text(out_dir / "scores.jsonl", "\n".join(lines) + "\n")
     with instantiate(cfg.logger, _partial_=True)(run_dir=str(out_dir), run_config=config) as logger:
-        write_result(out_dir, values=out["summary"], errors=errors, cost=ledger.totals(), **meta)
+        write_result(out_dir, values=out["summary"], errors=errors, cost=ledger.totals(),
+                     reliability=judge_reliability(out["records"]), **meta)
         logger.log_metrics({"cost": ledger.totals()})
     log.info("judged %d tasks (%d failed: %s); cost %s", len(bundles), len(errors), sorted(errors), ledger.totals())
 

@@ -153,7 +153,7 @@ def caption_items(bundles: list[TaskBundle], template: PromptTemplate) -> tuple[
         try:
             for v, im in enumerate(b.scene_images()):
                 items.append(JudgeItem(f"{b.name}#view{v}", "caption", template, {"description": b.description},
-                                       [im], (float("-inf"), float("inf"))))
+                                       [im], None))
         except BundleError as e:
             errors[b.name] = str(e)
     return items, errors
@@ -175,7 +175,8 @@ def oracle_completion(bundles: list[TaskBundle]) -> dict[str, dict]:
 
 
 def summarize(records: list[ScoreRecord]) -> dict[str, dict[str, dict]]:
-    """{metric: {item: {mean, var (sample, ddof=1, as the paper's parentheses), n_valid, n_invalid, scores}}}."""
+    """{metric: {item: {mean, var (sample, ddof=1, as the paper's parentheses), n_valid, n_invalid, scores}}}.
+    (The 5-repeat variances of the paper's tables match ddof=1, e.g. scores 0,0,0,0,2 give its "0.40 (0.80)".)"""
     out: dict[str, dict[str, dict]] = {}
     for rec in records:
         entry = out.setdefault(rec.metric, {}).setdefault(rec.item, {"scores": [], "n_invalid": 0})
@@ -218,7 +219,11 @@ def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provi
         captions = {}
         for rec in cap_records:
             task = rec.item.split("#view")[0]
-            captions.setdefault(task, []).append(rec.asks[-1]["reply"].strip())
+            if rec.text is None:
+                errors[task] = f"captioner gave no caption for {rec.item}"
+                continue
+            captions.setdefault(task, []).append(rec.text)
+        captions = {t: c for t, c in captions.items() if t not in errors}
         records += cap_records
         al, al_err = alignment_items([b for b in bundles if b.name in captions], templates["scene_alignment_captions"],
                                      captions)
@@ -237,3 +242,22 @@ def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provi
     records += run_judge(items, provider, cache, ledger, settings)
     summary = summarize([r for r in records if r.metric != "caption"])
     return {"records": records, "summary": summary, "errors": errors, "captions": captions}
+
+
+def judge_reliability(records: list[ScoreRecord]) -> dict[str, dict]:
+    """Per metric, agreement of the judge with itself across repeats: Krippendorff's alpha (interval; invalid
+    replies are missing values) and ICC(1,1) on complete items. None where undefined (e.g. constant scores)."""
+    from simeval.metrics.agreement import icc_1_1, krippendorff_alpha_interval
+
+    out = {}
+    for metric in dict.fromkeys(r.metric for r in records if r.metric != "caption"):
+        recs = [r for r in records if r.metric == metric]
+        items = list(dict.fromkeys(r.item for r in recs))
+        repeats = max(r.repeat for r in recs) + 1
+        x = np.full((len(items), repeats), np.nan)
+        for r in recs:
+            if r.score is not None:
+                x[items.index(r.item), r.repeat] = r.score
+        out[metric] = {"krippendorff_alpha": krippendorff_alpha_interval(x), "icc_1_1": icc_1_1(x),
+                       "items": len(items), "repeats": repeats}
+    return out

@@ -27,7 +27,7 @@ class JudgeItem:
     template: PromptTemplate
     fields: dict
     images: list[Image]
-    scale: tuple[float, float]
+    scale: tuple[float, float] | None  # None: a free-text reply (a caption); any non-empty text is valid
 
     def rendered(self) -> tuple[str, str]:
         return self.template.render(n_images=str(len(self.images)), **self.fields)
@@ -80,10 +80,11 @@ class ScoreRecord:
     image_sha256: list[str]
     asks: list[dict] = field(default_factory=list)
     score: float | None = None
+    text: str | None = None  # the accepted reply of a free-text item
 
     @property
     def valid(self) -> bool:
-        return self.score is not None
+        return self.score is not None or self.text is not None
 
 
 def _identity(provider, item: JudgeItem, system: str, user: str, repeat: int, ask: int) -> str:
@@ -119,6 +120,15 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
     records: list[ScoreRecord | None] = [None] * len(slots)
 
     def one(slot: int) -> None:
+        if stop.is_set():
+            return
+        try:
+            judge_slot(slot)
+        except BaseException:
+            stop.set()  # set here, not by the caller: the pool would otherwise start the next queued slot first
+            raise
+
+    def judge_slot(slot: int) -> None:
         i, repeat = slots[slot]
         item = items[i]
         system, user = item.rendered()
@@ -151,11 +161,18 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                                      out.latency_s, time.time()), provider=provider.name, model=provider.model,
                           item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
                 reply, latency, cached = out.text, out.latency_s, False
-            parsed = parse_score(reply, *item.scale)
-            rec.asks.append({"ask": ask, "reply": reply, "valid": parsed.valid, "error": parsed.error,
+            if item.scale is None:
+                ok, error = bool(reply and reply.strip()), None if reply and reply.strip() else "empty reply"
+            else:
+                parsed = parse_score(reply, *item.scale)
+                ok, error = parsed.valid, parsed.error
+            rec.asks.append({"ask": ask, "reply": reply, "valid": ok, "error": error,
                              "latency_s": round(latency, 4), "cached": cached})
-            if parsed.valid:
-                rec.score = parsed.value
+            if ok:
+                if item.scale is None:
+                    rec.text = reply.strip()
+                else:
+                    rec.score = parsed.value
                 break
         records[slot] = rec
 
