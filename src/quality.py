@@ -35,7 +35,8 @@ def main(cfg: DictConfig) -> None:
     out_dir = Path(run["output_dir"])
     bundles, errors = load_bundles(cfg.bundles_dir)
     meta = dict(metric="quality", version="1.0", config=config, choices=run["choices"], seed=cfg.seed,
-                overrides=run["overrides"], judge=cfg.judge.kind)
+                overrides=run["overrides"], judge=cfg.judge.kind, label=cfg.label,
+                tasks={b.name: {"pipeline": b.pipeline} for b in bundles})
     if cfg.judge.kind == "oracle":
         values = {"task_completion": oracle_completion(bundles)}
         write_result(out_dir, values=values, errors=errors, **meta)

@@ -16,10 +16,15 @@ log = logging.getLogger("report")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")
 def main(cfg: DictConfig) -> None:
     from simeval.report.build import build_text_diversity_report
+    from simeval.report.quality_figure import build_quality_figure
 
     spec = OmegaConf.to_container(cfg.report, resolve=True)
+    if spec["metric"] == "quality":
+        written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
+        print(Path(written["table"][1]).read_text())
+        return
     if spec["metric"] != "text_diversity":
-        raise ValueError(f"report.metric={spec['metric']!r}: only text_diversity reports exist so far")
+        raise ValueError(f"report.metric={spec['metric']!r}: expected text_diversity or quality")
     written = build_text_diversity_report(
         spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
         caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"), digits=spec.get("digits", 2),

@@ -8,12 +8,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
-sys.path.insert(0, str(ROOT / "tests"))
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("WANDB_SILENT", "true")
 
-from loopback_server import LoopbackOpenAI  # noqa: E402
+from simeval.devserver import LoopbackOpenAI  # noqa: E402
 
 
 @pytest.fixture

@@ -220,7 +220,7 @@ def test_quality_end_to_end_with_failures_reported(openai_server, tmp_path, monk
 
 
 def test_killed_run_resumes_without_repeating_a_stored_call(tmp_path):
-    from loopback_server import LoopbackOpenAI
+    from simeval.devserver import LoopbackOpenAI
 
     root = make_bundles(tmp_path / "b", n=4)
     with LoopbackOpenAI(latency_s=0.05) as srv:
@@ -261,3 +261,51 @@ def test_caption_path_scores_captions_without_images(openai_server, tmp_path):
     assert len(user) == 1 and "View 4: A red block on a table." in user[0]["text"]
     rec = json.loads((tmp_path / "run" / "result.json").read_text())
     assert rec["values"]["scene_alignment"]["task0"]["mean"] == 4.0
+
+
+def test_figure4_from_two_labelled_quality_runs(openai_server, tmp_path):
+    root = make_bundles(tmp_path / "b", n=2)
+    for label, reply in (("GenSim-P", "Score: 4"), ("GenSim-G", "Score: 2")):
+        openai_server.default_reply = reply
+        res = run_quality(f"bundles_dir={root}", f"label={label}", f"judge.provider.base_url={openai_server.base_url}",
+                          "repeats=2", f"cache_dir={tmp_path / label}", f"hydra.run.dir={tmp_path / 'runs' / label}")
+        assert res.returncode == 0, res.stderr[-2000:]
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "report.py"), "report=figure4",
+                          f"report.runs_dir={tmp_path / 'runs'}", f"report.out_dir={tmp_path / 'fig'}"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (tmp_path / "fig" / "figure4.png").stat().st_size > 5_000
+    rows = (tmp_path / "fig" / "figure4.csv").read_text().splitlines()
+    assert "GenSim-P,4.00,4.00,0.00,2" in rows and "GenSim-G,2.00,2.00,0.00,2" in rows
+
+
+def test_quality_and_agreement_configs_compose():
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
+
+    with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+        for judge in ("openai", "replay", "hf", "oracle"):
+            cfg = compose("quality", overrides=[f"judge={judge}"])
+            assert cfg.judge.kind in ("model", "oracle")
+        assert compose("quality", overrides=["judge=replay"]).judge.replay is True
+        cap = compose("quality", overrides=["captioner=openai", "scene_alignment_mode=caption"]).captioner
+        assert cap.provider.temperature == 0.0 and cap.provider.model == "gpt-4o"
+        provider = instantiate(compose("quality").judge.provider)
+        assert provider.url.endswith("/chat/completions")
+        azure = compose("quality", overrides=["judge.provider.api_style=azure", "judge.provider.api_version=2024-02-15-preview",
+                                              "judge.provider.base_url=https://x.openai.azure.com"]).judge.provider
+        assert "deployments/gpt-4o/chat/completions?api-version=2024-02-15-preview" in instantiate(azure).url
+        with pytest.raises(Exception, match="not a local model directory"):
+            instantiate(compose("quality", overrides=["judge=hf"]).judge.provider)
+        for name in ("task_completion", "scene_alignment_vlm", "scene_alignment_captions", "caption"):
+            assert load_template(compose("quality").prompts[name], CONF).sha256
+        assert compose("agreement").n_boot == 2000
+
+
+def test_bad_template_is_a_clear_error(tmp_path):
+    (tmp_path / "t.txt").write_text("no separator here")
+    with pytest.raises(ValueError, match="---user---"):
+        load_template(tmp_path / "t.txt")
+    (tmp_path / "u.txt").write_text("sys {what}\n---user---\n{description}")
+    with pytest.raises(ValueError, match="unknown placeholder"):
+        load_template(tmp_path / "u.txt")

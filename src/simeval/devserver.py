@@ -1,4 +1,5 @@
-"""A real OpenAI-compatible HTTP server on 127.0.0.1 for tests, with scriptable faults.
+"""A real OpenAI-compatible HTTP server on 127.0.0.1 with scriptable faults, for tests, benchmarks and offline
+smoke runs of the judge and embedding clients (`python -m simeval.devserver` serves until interrupted).
 
 Routes: POST /v1/embeddings (deterministic hashed bag-of-words vectors) and POST /v1/chat/completions (replies
 from a script or a default). `server.faults` is a queue of actions consumed one per request, e.g.
@@ -111,3 +112,18 @@ class LoopbackOpenAI(ThreadingHTTPServer):
     def __exit__(self, *exc) -> None:
         self.shutdown()
         self.server_close()
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--latency", type=float, default=0.0, help="seconds added to every reply")
+    ap.add_argument("--reply", default="Score: 3", help="chat reply text")
+    args = ap.parse_args()
+    srv = LoopbackOpenAI(latency_s=args.latency, default_reply=args.reply)
+    print(f"serving {srv.base_url} (Ctrl-C to stop)", flush=True)
+    try:
+        srv.serve_forever()
+    except KeyboardInterrupt:
+        srv.server_close()
