@@ -17,7 +17,9 @@ GENSIM_DESCS ?= $(wildcard ../shared/data/gensim_descs_grouped.yaml)
 ROBOGEN_TASKS ?= $(wildcard ../shared/data/robogen_tasks.yaml)
 export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROOT
 
-.PHONY: help setup test test-all table3 report-table3 bench clean
+HUMAN_SCORES ?= $(wildcard ../shared/data/human_eval_tables.json)
+
+.PHONY: help setup test test-all table3 report-table3 figure3 bench clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
@@ -45,8 +47,12 @@ table3: setup ## paper Table 3: sweep pipelines x embedding models, then write o
 report-table3: setup ## rebuild Table 3 from the result.json files only (no rerun)
 	$(PY) src/report.py report=table3
 
+figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tables + figure under outputs/figures/
+	$(PY) src/agreement.py scores_path=$(HUMAN_SCORES) hydra.run.dir=outputs/figures/figure3
+
 bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/text_diversity_bench.py
+	$(PY) experiments/benchmarks/judge_bench.py
 
 clean: ## remove run folders and caches (keeps .venv and committed tables)
 	rm -rf outputs/runs outputs/multiruns outputs/table3 outputs/cache multirun
