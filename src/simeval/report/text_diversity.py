@@ -9,6 +9,8 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterable, Sequence
 
+from simeval.metrics.agreement import kendall_tau_b
+
 STATISTICS = ("div", "vendi", "cos_dist", "self_bleu")
 TIDY_COLUMNS = ["pipeline", "group", "embedding", "statistic", "value", "ci_low", "ci_high", "n", "status", "note",
                 "subsample_n", "subsample_mean", "subsample_std", "version", "git_sha", "source"]
@@ -85,27 +87,6 @@ def table3(rows: Sequence[dict], spec_rows: Sequence[dict], columns: Sequence[di
     return header, out, list(dict.fromkeys(notes))
 
 
-def kendall_tau(x: Sequence[float], y: Sequence[float]) -> float | None:
-    """Kendall's tau-b between two score lists; None (undefined) for fewer than 2 items or a constant list."""
-    if len(x) < 2:
-        return None
-    conc = disc = tie_x = tie_y = 0
-    for i, j in itertools.combinations(range(len(x)), 2):
-        dx, dy = x[i] - x[j], y[i] - y[j]
-        if dx == 0 and dy == 0:
-            continue
-        if dx == 0:
-            tie_x += 1
-        elif dy == 0:
-            tie_y += 1
-        elif (dx > 0) == (dy > 0):
-            conc += 1
-        else:
-            disc += 1
-    denom = ((conc + disc + tie_x) * (conc + disc + tie_y)) ** 0.5
-    return None if denom == 0 else (conc - disc) / denom
-
-
 def rank_agreement(rows: Sequence[dict], spec_rows: Sequence[dict], columns: Sequence[dict],
                    statistic: str = "div") -> tuple[list[str], list[list[str]]]:
     """Kendall tau between embedding models on the ordering of each pipeline's groups (`all` excluded), and
@@ -121,6 +102,6 @@ def rank_agreement(rows: Sequence[dict], spec_rows: Sequence[dict], columns: Seq
         pairs = [(ra["value"], rb["value"]) for ra, rb in pairs if ra and rb and ra["status"] == rb["status"] == "ok"]
         if not pairs:
             continue
-        tau = kendall_tau([x for x, _ in pairs], [y for _, y in pairs])
+        tau = kendall_tau_b([x for x, _ in pairs], [y for _, y in pairs])
         out.append([name, a["display"], b["display"], str(len(pairs)), "undefined" if tau is None else f"{tau:.2f}"])
     return header, out

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
+from simeval.tasks.records import Task, TaskSourceError, read_list, require_text
 
 PIPELINE = "bbsea"
 
@@ -33,11 +33,7 @@ def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
 
 
 def load_bbsea_list(path: str | os.PathLike) -> list[Task]:
-    data = read_structured(path)
-    if isinstance(data, dict) and "tasks" in data:
-        data = data["tasks"]
-    if not isinstance(data, list):
-        raise TaskSourceError(f"{path}: expected a list of task descriptions")
+    data = read_list(path, "task descriptions")
     out = []
     for i, item in enumerate(data):
         desc = require_text(item, f"{path}: item {i}")

@@ -61,6 +61,16 @@ def read_structured(path: str | os.PathLike) -> Any:
     raise TaskSourceError(f"{path}: unsupported file type '{suffix}' (expected .yaml, .yml, .json or .csv)")
 
 
+def read_list(path: str | os.PathLike, what: str) -> list:
+    """A file holding a list, or a mapping whose `tasks:` key holds one (the layout of exported task lists)."""
+    data = read_structured(path)
+    if isinstance(data, dict) and "tasks" in data:
+        data = data["tasks"]
+    if not isinstance(data, list):
+        raise TaskSourceError(f"{path}: expected a list of {what} (or a mapping with `tasks:`)")
+    return data
+
+
 def require_text(value: Any, where: str) -> str:
     if not isinstance(value, str) or not value.strip():
         raise TaskSourceError(f"{where}: expected a non-empty string, got {value!r}")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
+from simeval.tasks.records import Task, TaskSourceError, read_list, require_text
 
 PIPELINE = "robogen"
 DEFAULT_TEMPLATE = "{name}: {description}"
@@ -53,11 +53,7 @@ def load_robogen_checkout(root: str | os.PathLike, text_template: str = DEFAULT_
 def load_robogen_records(path: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[Task]:
     """Records with task_name/name, task_description/description and placement_label/group; a top-level
     `tasks:` key is accepted (the layout of an exported task list)."""
-    data = read_structured(path)
-    if isinstance(data, dict) and "tasks" in data:
-        data = data["tasks"]
-    if not isinstance(data, list):
-        raise TaskSourceError(f"{path}: expected a list of task records (or a mapping with `tasks:`)")
+    data = read_list(path, "task records")
     out = []
     for i, rec in enumerate(data):
         if not isinstance(rec, dict):
