@@ -144,8 +144,8 @@ class HFVisionProvider:
             os.environ.setdefault("HF_HUB_OFFLINE", "1")
             from transformers import pipeline
 
-            self._pipe = pipeline("image-text-to-text", model=self.model_path, device=self.device,
-                                  model_kwargs={"local_files_only": True})
+            # a local directory and HF_HUB_OFFLINE: nothing can be fetched
+            self._pipe = pipeline("image-text-to-text", model=self.model_path, device=self.device)
         return self._pipe
 
     def complete(self, system: str, user: str, images: list[Image]) -> Reply:
