@@ -1,0 +1,41 @@
+"""Import demonstrations (Ravens/CLIPort, the paper authors' GenSim/BBSEA/RoboGen files) into the episode store."""
+
+import inspect
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from simeval.cli import allow_multirun_anywhere  # noqa: E402
+
+log = logging.getLogger("import_data")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="import_data")
+def main(cfg: DictConfig) -> None:
+    from simeval.episodes.importers import IMPORTERS, import_into_store
+    from simeval.episodes.store import EpisodeStore
+    from simeval.results import hydra_run_info, write_result
+
+    if cfg.format not in IMPORTERS:
+        raise ValueError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
+    if not cfg.src:
+        raise ValueError("src is not set: src=/path/to/demonstrations")
+    importer = IMPORTERS[cfg.format]
+    options = {"image_size": tuple(cfg.image_size) if cfg.image_size else None,
+               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions)}
+    accepted = inspect.signature(importer).parameters
+    summary = import_into_store(importer(cfg.src, **{k: v for k, v in options.items() if k in accepted}),
+                                EpisodeStore(cfg.store), overwrite=cfg.overwrite)
+    run = hydra_run_info()
+    write_result(run["output_dir"], metric="import", version="1.0", values=summary, choices=run["choices"],
+                 config=OmegaConf.to_container(cfg, resolve=True))
+    log.info("%s: %d written, %d already in %s", cfg.format, summary["written"], summary["skipped"], cfg.store)
+
+
+if __name__ == "__main__":
+    allow_multirun_anywhere()
+    main()

@@ -1,0 +1,199 @@
+"""Importers of other pipelines' demonstrations into the episode store.
+
+Formats (each file is a pickle: only import files you trust, as with any pickle):
+  ravens     GenSim/CLIPort `cliport/demos.py`: <data>/<task>-<mode>/{color,action,reward,info}/<ep:06d>-<seed>.pkl
+             color uint8 (T+1, 3, H, W, 3); action list of {pose0, pose1} (position, xyzw quaternion) ending in
+             None; reward list (reward[t+1] follows action t); info list with `lang_goal`. High-level only: T steps.
+  gensim_pt  the paper authors' GenSim files <task>/episode_<i:03>_<len_high>_<len_low>.pt (torch.save'd dict)
+  bbsea_pt   the authors' BBSEA files <scene>/<task description>/<episode_id>_<True|False>.pt
+  robogen_pt the authors' RoboGen files <task>/episode_<i>_<len>.pt
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from simeval.episodes.store import Episode, EpisodeFormatError
+from simeval.tasks.bbsea import bbsea_group
+from simeval.tasks.gensim import gensim_groups
+
+
+def _resize(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    if size is None or tuple(frames.shape[1:3]) == tuple(size):
+        return np.ascontiguousarray(frames, dtype=np.uint8)
+    from PIL import Image
+
+    h, w = size
+    return np.stack([np.asarray(Image.fromarray(f).resize((w, h), Image.BILINEAR)) for f in frames]).astype(np.uint8)
+
+
+def _load_pickle(path: Path):
+    try:
+        with path.open("rb") as f:
+            return pickle.load(f)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError) as e:
+        raise EpisodeFormatError(f"{path}: unreadable pickle ({type(e).__name__}: {e})") from e
+
+
+def _load_torch(path: Path) -> dict:
+    import torch
+
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=False)  # numpy arrays inside: trusted files only
+    except Exception as e:  # torch raises many types for a damaged file; all mean "cannot read this file"
+        raise EpisodeFormatError(f"{path}: unreadable torch file ({type(e).__name__}: {e})") from e
+    if not isinstance(data, dict):
+        raise EpisodeFormatError(f"{path}: expected a dict, got {type(data).__name__}")
+    return data
+
+
+def _arr(d: dict, key: str, path: Path, dtype=None) -> np.ndarray:
+    if key not in d:
+        raise EpisodeFormatError(f"{path}: missing key '{key}' (has {sorted(d)})")
+    v = d[key]
+    v = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
+    return v.astype(dtype) if dtype is not None else v
+
+
+def _group(groups: dict | None, task: str, default: str) -> str:
+    return (groups or {}).get(task, default)
+
+
+def _pose14(pose0, pose1) -> np.ndarray:
+    (p0, q0), (p1, q1) = pose0, pose1
+    return np.concatenate([np.asarray(p0), np.asarray(q0), np.asarray(p1), np.asarray(q1)]).astype(np.float32)
+
+
+def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
+                  groups: dict | None = None) -> Iterator[Episode]:
+    root = Path(root).expanduser()
+    dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
+    if not dirs:
+        raise EpisodeFormatError(f"{root}: no Ravens demo folders (<task>-<mode>/action/*.pkl)")
+    for d in dirs:
+        task = re.sub(r"-(train|val|test)$", "", d.name)
+        for action_file in sorted((d / "action").glob("*.pkl")):
+            m = re.fullmatch(r"(\d+)-(\d+)\.pkl", action_file.name)
+            if not m:
+                continue
+            seed = int(m.group(2))
+            parts = {k: _load_pickle(d / k / action_file.name) for k in ("color", "action", "reward", "info")}
+            color = np.asarray(parts["color"], dtype=np.uint8)
+            actions = [a for a in parts["action"] if a is not None]
+            t = len(actions)
+            if color.ndim != 5 or len(color) < t or t == 0:
+                raise EpisodeFormatError(f"{d / 'color' / action_file.name}: expected (T+1, cams, H, W, 3) for {t} actions,"
+                                         f" got {color.shape}")
+            reward = np.asarray(parts["reward"], dtype=np.float32)[1 : t + 1]
+            info = parts["info"][0] if parts["info"] else {}
+            description = (info or {}).get("lang_goal") or task
+            hl = np.stack([_pose14(a["pose0"], a["pose1"]) for a in actions])
+            yield Episode(
+                pipeline="gensim", task=task, description=description,
+                group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=seed,
+                rgb={f"color_{c}": _resize(color[:t, c], image_size) for c in range(color.shape[1])},
+                state=np.zeros((t, 0), np.float32), action=hl, reward=reward, progress=np.cumsum(reward).clip(0, 1),
+                is_first=np.arange(t) == 0, is_terminal=np.arange(t) == t - 1, success=bool(reward.sum() > 0.99),
+                high_level_action=hl, high_level_step=np.arange(t),
+                scene_views=_resize(color[0], image_size), source=f"ravens:{d}",
+                extra={"mode": d.name[len(task) + 1 :] or None, "episode": int(m.group(1))})
+
+
+def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
+                     groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
+    root = Path(root).expanduser()
+    files = sorted(root.glob("*/episode_*_*_*.pt"))
+    if not files:
+        raise EpisodeFormatError(f"{root}: no GenSim episode files (<task>/episode_<i>_<H>_<L>.pt)")
+    for path in files:
+        d = _load_torch(path)
+        task = path.parent.name
+        low, high = d.get("obs_low") or {}, d.get("action_high") or {}
+        rgb = _arr(low, "rgb", path, np.uint8)
+        n = len(rgb)
+        hl = np.concatenate([_arr(high, "pose0", path, np.float32), _arr(high, "pose1", path, np.float32)], axis=1)
+        obs_high = d.get("obs_high") or {}
+        views = [obs_high[f"color_{c}"][0] for c in range(3) if f"color_{c}" in obs_high]
+        views = [_resize(np.asarray(v.numpy() if hasattr(v, "numpy") else v, np.uint8)[None], image_size)[0]
+                 for v in views]
+        same_shape = len({v.shape for v in views}) == 1  # the authors' cameras differ in size unless resized
+        yield Episode(
+            pipeline="gensim", task=task, description=(descriptions or {}).get(task, task),
+            group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=int(d.get("seed", 0)),
+            rgb={"rgb": _resize(rgb, image_size)}, state=_arr(low, "state", path, np.float32),
+            action=_arr(d, "action_low", path, np.float32), reward=np.zeros(n, np.float32),
+            is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
+            high_level_action=hl, high_level_step=np.asarray(d.get("high_step"), np.int64),
+            scene_views=np.stack(views) if views and same_shape else None,
+            source=f"gensim_pt:{path}", extra={"success_known": False})
+
+
+def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None) -> Iterator[Episode]:
+    root = Path(root).expanduser()
+    files = sorted(root.glob("*/*/*_*.pt"))
+    if not files:
+        raise EpisodeFormatError(f"{root}: no BBSEA episode files (<scene>/<task description>/<id>_<True|False>.pt)")
+    for path in files:
+        m = re.fullmatch(r"(\d+)_(True|False)\.pt", path.name)
+        if not m:
+            continue
+        d = _load_torch(path)
+        desc, scene = path.parent.name, path.parent.parent.name
+        image = _arr(d, "image", path, np.uint8)
+        yield Episode(
+            pipeline="bbsea", task=f"{scene}/{desc}", description=desc, group=bbsea_group(desc), seed=int(m.group(1)),
+            rgb={"image": _resize(image, image_size)}, state=_arr(d, "state", path, np.float32),
+            action=_arr(d, "action", path, np.float32), reward=np.zeros(len(image), np.float32),
+            is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
+            success=m.group(2) == "True", scene_views=_resize(image[:1], image_size), source=f"bbsea_pt:{path}",
+            extra={"scene": scene})
+
+
+def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
+                      groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
+    root = Path(root).expanduser()
+    files = sorted(root.glob("*/episode_*_*.pt"))
+    if not files:
+        raise EpisodeFormatError(f"{root}: no RoboGen episode files (<task>/episode_<i>_<len>.pt)")
+    for path in files:
+        m = re.fullmatch(r"episode_(\d+)_(\d+)\.pt", path.name)
+        if not m:
+            continue
+        d = _load_torch(path)
+        task = path.parent.name
+        image = _arr(d, "image", path, np.uint8)
+        yield Episode(
+            pipeline="robogen", task=task, description=(descriptions or {}).get(task, task.replace("_", " ")),
+            group=_group(groups, task, "ungrouped"), seed=int(m.group(1)), rgb={"image": _resize(image, image_size)},
+            state=_arr(d, "state", path, np.float32), action=_arr(d, "action", path, np.float32),
+            reward=np.zeros(len(image), np.float32), is_first=_arr(d, "is_first", path, bool),
+            is_terminal=_arr(d, "is_terminal", path, bool), scene_views=_resize(image[:1], image_size),
+            source=f"robogen_pt:{path}", extra={"success_known": False})
+
+
+IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt": import_bbsea_pt,
+             "robogen_pt": import_robogen_pt}
+
+
+def import_into_store(episodes: Iterator[Episode], store, *, overwrite: bool = False, progress: bool = True) -> dict:
+    """Write each episode unless it is already in the store (so an interrupted import resumes)."""
+    from tqdm import tqdm
+
+    written = skipped = 0
+    per_task: dict[str, dict] = {}
+    for ep in tqdm(episodes, desc="importing", unit="episode", disable=not progress):
+        stats = per_task.setdefault(ep.task, {"episodes": 0, "success": 0, "group": ep.group})
+        stats["episodes"] += 1
+        stats["success"] += int(ep.success)
+        if not overwrite and store.exists(ep.pipeline, ep.task, ep.seed):
+            skipped += 1
+            continue
+        store.write(ep)
+        written += 1
+    return {"written": written, "skipped": skipped, "tasks": per_task}

@@ -1,0 +1,182 @@
+"""Episode store (atomic, validated), windows for sequence models, and importers of every documented format
+(small files built here in each format)."""
+
+import json
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_into_store, import_ravens,
+                                        import_robogen_pt)
+from simeval.episodes.store import (Episode, EpisodeFormatError, EpisodeStore, WindowSpec, iter_windows, read_episode,
+                                    read_meta, write_episode)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def episode(task="stack-blocks", seed=0, t=10, group="stacking", success=True) -> Episode:
+    rng = np.random.default_rng(seed)
+    return Episode(
+        pipeline="gensim", task=task, description=f"{task} please", group=group, seed=seed,
+        rgb={"front": rng.integers(0, 255, (t, 8, 12, 3), dtype=np.uint8)},
+        state=np.arange(t * 12, dtype=np.float32).reshape(t, 12) + 1000 * seed, action=rng.normal(size=(t, 6)),
+        reward=np.r_[np.zeros(t - 1), 1.0], progress=np.linspace(0, 1, t), is_first=np.arange(t) == 0,
+        is_terminal=np.arange(t) == t - 1, success=success, high_level_action=rng.normal(size=(2, 14)),
+        high_level_step=np.array([0, t // 2]), scene_views=rng.integers(0, 255, (4, 8, 8, 3), dtype=np.uint8),
+        control_hz=30.0)
+
+
+def test_round_trip(tmp_path):
+    ep = episode()
+    path = write_episode(tmp_path / "e.h5", ep)
+    back = read_episode(path)
+    np.testing.assert_array_equal(back.rgb["front"], ep.rgb["front"])
+    np.testing.assert_allclose(back.state, ep.state)
+    assert back.success and back.high_level_step.tolist() == [0, 5] and back.scene_views.shape == (4, 8, 8, 3)
+    meta = read_meta(path)
+    assert meta["total_reward"] == 1.0 and meta["n_steps"] == 10 and meta["cameras"] == ["front"]
+
+
+def test_inconsistent_episode_is_rejected(tmp_path):
+    ep = episode()
+    ep.reward = ep.reward[:-1]
+    with pytest.raises(EpisodeFormatError, match="10 actions but lengths"):
+        write_episode(tmp_path / "e.h5", ep)
+    assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_truncated_and_foreign_files_are_clear_errors(tmp_path):
+    path = write_episode(tmp_path / "e.h5", episode())
+    data = path.read_bytes()
+    (tmp_path / "cut.h5").write_bytes(data[: len(data) // 2])
+    with pytest.raises(EpisodeFormatError, match="cut.h5"):
+        read_episode(tmp_path / "cut.h5")
+    (tmp_path / "junk.h5").write_text("hello")
+    with pytest.raises(EpisodeFormatError, match="junk.h5: not a readable HDF5"):
+        read_meta(tmp_path / "junk.h5")
+    import h5py
+
+    with h5py.File(tmp_path / "incomplete.h5", "w") as f:  # what a writer killed before marking complete leaves
+        f.attrs["schema"] = 1
+    with pytest.raises(EpisodeFormatError, match="incomplete episode"):
+        read_meta(tmp_path / "incomplete.h5")
+    with pytest.raises(EpisodeFormatError, match="not found"):
+        read_episode(tmp_path / "nope.h5")
+
+
+def test_store_index_and_first_k_per_task(tmp_path):
+    store = EpisodeStore(tmp_path)
+    for task, group in (("stack-a", "stacking"), ("place-b", "placement")):
+        for seed in (5, 1, 3):
+            store.write(episode(task, seed, group=group))
+    assert len(store.index()) == 6 and len(store.index("gensim", "stacking")) == 3
+    firsts = store.first_k_per_task(2, "gensim")
+    assert [(m["task"], m["seed"]) for m in firsts] == [("place-b", 1), ("place-b", 3), ("stack-a", 1), ("stack-a", 3)]
+    with pytest.raises(ValueError, match="fewer than the 4"):
+        store.first_k_per_task(4)
+    assert store.exists("gensim", "stack-a", 5) and not store.exists("gensim", "stack-a", 6)
+
+
+def test_windows_never_cross_episodes_unless_asked(tmp_path):
+    store = EpisodeStore(tmp_path)
+    paths = [store.write(episode("t", s, t=10)) for s in (0, 1)]
+    wins = list(iter_windows(paths, WindowSpec(length=4), camera="front"))
+    assert len(wins) == 4  # 2 per 10-step episode; the 2 leftover steps of each are not glued to the next
+    assert all(len(np.unique(w["obs/state"][:, 0] // 1000)) == 1 for w in wins)
+    assert wins[0]["rgb"].shape == (4, 8, 12, 3) and wins[0]["is_first"][0]
+    crossing = list(iter_windows(paths, WindowSpec(length=4, cross_episodes=True)))
+    assert len(crossing) == 5  # 20 steps as one stream
+    seam = crossing[2]  # steps 8..11: the end of episode 0 and the start of episode 1
+    assert seam["is_first"].tolist() == [False, False, True, False]
+    overlapping = list(iter_windows(paths[:1], WindowSpec(length=4, stride=2)))
+    assert len(overlapping) == 4
+    with pytest.raises(EpisodeFormatError, match="no camera 'top'"):
+        list(iter_windows(paths, WindowSpec(length=4), camera="top"))
+
+
+def _write_ravens(root: Path, task="stack-block-pyramid", mode="train", episodes=2, t=3):
+    d = root / f"{task}-{mode}"
+    rng = np.random.default_rng(0)
+    for e in range(episodes):
+        seed = 100 + e
+        name = f"{e:06d}-{seed}.pkl"
+        color = rng.integers(0, 255, (t + 1, 3, 24, 32, 3), dtype=np.uint8)
+        action = [{"pose0": ((0.1, 0.2, 0.0), (0, 0, 0, 1)), "pose1": ((0.3, 0.4, 0.05), (0, 0, 0.7, 0.7))}] * t + [None]
+        reward = [0.0] + [1.0 / t] * t
+        info = [{"lang_goal": "stack the blocks into a pyramid"}] * (t + 1)
+        for key, value in (("color", color), ("depth", np.zeros((t + 1, 3, 24, 32), np.float32)), ("action", action),
+                           ("reward", reward), ("info", info)):
+            (d / key).mkdir(parents=True, exist_ok=True)
+            with (d / key / name).open("wb") as f:
+                pickle.dump(value, f)
+    return d
+
+
+def test_import_ravens(tmp_path):
+    _write_ravens(tmp_path / "data")
+    eps = list(import_ravens(tmp_path / "data", image_size=(12, 16)))
+    assert len(eps) == 2
+    ep = eps[0]
+    assert ep.task == "stack-block-pyramid" and ep.group == "stacking" and ep.seed == 100
+    assert ep.description == "stack the blocks into a pyramid" and ep.success
+    assert ep.n_steps == 3 and ep.rgb["color_0"].shape == (3, 12, 16, 3) and set(ep.rgb) == {"color_0", "color_1", "color_2"}
+    assert ep.high_level_action.shape == (3, 14) and ep.high_level_action[0, 7:10].tolist() == pytest.approx([0.3, 0.4, 0.05])
+    assert ep.reward.tolist() == pytest.approx([1 / 3] * 3)
+    (tmp_path / "data" / "stack-block-pyramid-train" / "color" / "000001-101.pkl").write_bytes(b"garbage")
+    with pytest.raises(EpisodeFormatError, match="000001-101.pkl: unreadable pickle"):
+        list(import_ravens(tmp_path / "data"))
+
+
+def test_import_authors_pt_formats(tmp_path):
+    h, low = 2, 6
+    gensim = {"obs_high": {"color_0": np.zeros((h, 18, 24, 3), np.uint8), "color_1": np.zeros((h, 48, 64, 3), np.uint8)},
+              "action_high": {"pose0": np.zeros((h, 7)), "pose1": np.ones((h, 7))},
+              "obs_low": {"state": np.zeros((low, 12)), "rgb": np.zeros((low, 18, 24, 3), np.uint8),
+                          "depth": np.zeros((low, 18, 24, 1), np.float32)},
+              "action_low": np.zeros((low, 6)), "high_step": [0, 3], "is_first": np.arange(low) == 0,
+              "is_terminal": np.arange(low) == low - 1, "episode_len_high": h, "episode_len_low": low, "seed": 7}
+    (tmp_path / "g" / "place-red-in-green").mkdir(parents=True)
+    torch.save(gensim, tmp_path / "g" / "place-red-in-green" / f"episode_000_{h}_{low}.pt")
+    ep = next(import_gensim_pt(tmp_path / "g", descriptions={"place-red-in-green": "put red blocks in green bowls"}))
+    assert ep.group == "placement" and ep.state.shape == (6, 12) and ep.high_level_action.shape == (2, 14)
+    assert ep.high_level_step.tolist() == [0, 3] and ep.seed == 7 and ep.description.startswith("put red")
+    assert ep.scene_views is None  # the two cameras differ in size: no stack without image_size
+    assert next(import_gensim_pt(tmp_path / "g", image_size=(12, 16))).scene_views.shape == (2, 12, 16, 3)
+
+    bbsea = {"image": torch.zeros((5, 16, 24, 3), dtype=torch.uint8), "state": torch.zeros((5, 7)),
+             "action": torch.zeros((5, 9)), "is_first": torch.arange(5) == 0, "is_terminal": torch.arange(5) == 4}
+    d = tmp_path / "b" / "3" / "Open the drawer using the handle"
+    d.mkdir(parents=True)
+    torch.save(bbsea, d / "0_True.pt")
+    torch.save(bbsea, d / "1_False.pt")
+    eps = list(import_bbsea_pt(tmp_path / "b"))
+    assert [e.success for e in eps] == [True, False] and eps[0].group == "drawer" and eps[0].task.startswith("3/")
+
+    robogen = {"action": np.zeros((4, 7), np.float32), "state": np.zeros((4, 20)), "image": np.zeros((4, 19, 24, 3), np.uint8),
+               "is_first": np.arange(4) == 0, "is_terminal": np.arange(4) == 3, "length": 4}
+    (tmp_path / "r" / "Open_Laptop").mkdir(parents=True)
+    torch.save(robogen, tmp_path / "r" / "Open_Laptop" / "episode_2_4.pt")
+    ep = next(import_robogen_pt(tmp_path / "r", groups={"Open_Laptop": "table-top"}))
+    assert ep.group == "table-top" and ep.seed == 2 and ep.description == "Open Laptop"
+    torch.save({"image": np.zeros((4, 2, 2, 3), np.uint8)}, tmp_path / "r" / "Open_Laptop" / "episode_3_4.pt")
+    with pytest.raises(EpisodeFormatError, match="episode_3_4.pt: missing key 'state'"):
+        list(import_robogen_pt(tmp_path / "r"))
+
+
+def test_import_entrypoint_resumes(tmp_path):
+    _write_ravens(tmp_path / "data", episodes=3)
+    args = [sys.executable, str(ROOT / "src" / "import_data.py"), "format=ravens", f"src={tmp_path / 'data'}",
+            f"store={tmp_path / 'store'}", "image_size=[12,16]"]
+    res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r1'}"], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads((tmp_path / "r1" / "result.json").read_text())["values"]["written"] == 3
+    res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r2'}"], cwd=ROOT, capture_output=True, text=True)
+    values = json.loads((tmp_path / "r2" / "result.json").read_text())["values"]
+    assert values["written"] == 0 and values["skipped"] == 3
+    assert values["tasks"]["stack-block-pyramid"] == {"episodes": 3, "success": 3, "group": "stacking"}
+    assert len(EpisodeStore(tmp_path / "store").index("gensim")) == 3
