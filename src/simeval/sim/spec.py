@@ -1,0 +1,233 @@
+"""Declarative task specs (YAML) and the sampling of a task instance from a seed.
+
+    name: place-red-in-green
+    group: placement
+    description: "Put every {block.color} block into the {bowl.color} bowl."   # fields: <object>.color / .count
+    end_effector: suction            # suction | spatula
+    objects:
+      - {name: block, shape: block, colors: [red], count: [1, 3], size: [0.04, 0.04, 0.04]}
+      - {name: bowl, shape: bowl, colors: [green], count: 1, size: [0.12, 0.12, 0.05]}
+      - {name: distractor, shape: block, colors: [blue, yellow], count: [0, 2], distractor: true}
+    goals:
+      - {type: in_container, what: block, where: bowl}
+    max_primitives: 8
+
+Knobs a generalization test varies, all per episode seed: colours (one of `colors`, per object name unless
+`color_per_instance`), counts (`count: [lo, hi]`), poses (uniform over `region` or the workspace, random yaw),
+distractors (objects with `distractor: true`), and the robot's start (`home_noise`, radians).
+Goal types: in_zone, in_container (each `what` instance in some `where` instance), stack (`what`: names, each
+on the previous), on_objects (`what` across all `where` instances, e.g. a bridge deck), at_offset (`what` at
+`offset` [dx, dy] from the first `where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction`
+of the pile's particles in the zone).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import yaml
+
+from simeval.sim.objects import COLORS, FLAT, SHAPES, SimObject
+from simeval.sim.world import WORKSPACE
+
+GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone")
+
+
+class SpecError(ValueError):
+    pass
+
+
+@dataclass
+class ObjectSpec:
+    name: str
+    shape: str
+    colors: list[str]
+    count: tuple[int, int] = (1, 1)
+    size: tuple[float, float, float] = (0.04, 0.04, 0.04)
+    region: tuple[tuple[float, float], tuple[float, float]] | None = None
+    yaw: tuple[float, float] = (-math.pi, math.pi)
+    distractor: bool = False
+    color_per_instance: bool = False
+    color_as: str | None = None  # take the colour of another (earlier) object, e.g. a block matching its zone
+
+
+@dataclass
+class GoalSpec:
+    type: str
+    what: list[str]
+    where: list[str] = field(default_factory=list)
+    offset: list[list[float]] = field(default_factory=list)
+    fraction: float = 0.8
+
+
+@dataclass
+class TaskSpec:
+    name: str
+    group: str
+    description: str
+    objects: list[ObjectSpec]
+    goals: list[GoalSpec]
+    end_effector: str = "suction"
+    max_primitives: int = 10
+    home_noise: float = 0.0
+    source: str = ""
+
+    def object(self, name: str) -> ObjectSpec:
+        for o in self.objects:
+            if o.name == name:
+                return o
+        raise SpecError(f"task {self.name}: no object named '{name}'")
+
+
+def _pair(v, key: str, where: str) -> tuple:
+    if isinstance(v, (int, float)):
+        return (v, v)
+    if isinstance(v, (list, tuple)) and len(v) == 2:
+        return tuple(v)
+    raise SpecError(f"{where}: `{key}` must be a number or [low, high], got {v!r}")
+
+
+def parse_spec(data: dict, source: str = "") -> TaskSpec:
+    where = source or data.get("name", "spec")
+    if not isinstance(data, dict):
+        raise SpecError(f"{where}: a task spec is a mapping")
+    missing = [k for k in ("name", "group", "description", "objects", "goals") if k not in data]
+    if missing:
+        raise SpecError(f"{where}: missing {', '.join(missing)}")
+    objects = []
+    for i, o in enumerate(data["objects"]):
+        w = f"{where}: objects[{i}]"
+        if o.get("shape") not in SHAPES:
+            raise SpecError(f"{w}: shape {o.get('shape')!r} is not one of {', '.join(SHAPES)}")
+        colors = o.get("colors", [o.get("color", "gray")])
+        colors = [colors] if isinstance(colors, str) else list(colors)
+        bad = [c for c in colors if c not in COLORS]
+        if bad:
+            raise SpecError(f"{w}: unknown colour(s) {bad}; known: {', '.join(COLORS)}")
+        count = tuple(int(x) for x in _pair(o.get("count", 1), "count", w))
+        if not 0 <= count[0] <= count[1]:
+            raise SpecError(f"{w}: count must satisfy 0 <= low <= high, got {count}")
+        objects.append(ObjectSpec(
+            name=str(o["name"]), shape=o["shape"], colors=colors, count=count,
+            size=tuple(float(x) for x in o.get("size", (0.04, 0.04, 0.04))),
+            region=tuple(tuple(r) for r in o["region"]) if o.get("region") else None,
+            yaw=tuple(float(x) for x in _pair(o.get("yaw", [-math.pi, math.pi]), "yaw", w)),
+            distractor=bool(o.get("distractor", False)), color_per_instance=bool(o.get("color_per_instance", False)),
+            color_as=o.get("color_as")))
+        if objects[-1].color_as and objects[-1].color_as not in [x.name for x in objects[:-1]]:
+            raise SpecError(f"{w}: color_as '{objects[-1].color_as}' must name an object listed before it")
+    names = [o.name for o in objects]
+    if len(set(names)) != len(names):
+        raise SpecError(f"{where}: object names must be unique, got {names}")
+    goals = []
+    for i, g in enumerate(data["goals"]):
+        w = f"{where}: goals[{i}]"
+        if g.get("type") not in GOAL_TYPES:
+            raise SpecError(f"{w}: type {g.get('type')!r} is not one of {', '.join(GOAL_TYPES)}")
+        what = [g["what"]] if isinstance(g.get("what"), str) else list(g.get("what") or [])
+        where_ = [g["where"]] if isinstance(g.get("where"), str) else list(g.get("where") or [])
+        for n in what + where_:
+            if n not in names:
+                raise SpecError(f"{w}: names object '{n}', not among {names}")
+        goals.append(GoalSpec(g["type"], what, where_, [list(map(float, o)) for o in g.get("offset", [])],
+                              float(g.get("fraction", 0.8))))
+    return TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
+                    objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
+                    max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
+                    source=source)
+
+
+def load_spec(path: str | os.PathLike) -> TaskSpec:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as e:
+        raise SpecError(f"cannot read task spec {path}: {e}") from e
+    return parse_spec(data, str(path))
+
+
+def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
+    folder = Path(folder)
+    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml"))]
+    if not specs:
+        raise SpecError(f"{folder}: no task specs (*.yaml)")
+    return specs
+
+
+SUITES_DIR = Path(__file__).resolve().parent / "suites"
+
+
+@dataclass
+class Instance:
+    """One sampled task instance: objects with colours, sizes and poses, and the rendered description."""
+
+    spec: TaskSpec
+    seed: int
+    objects: list[SimObject]
+    poses: dict[str, tuple[np.ndarray, float]]  # object id -> (xy, yaw)
+    description: str
+
+    def by_name(self, name: str) -> list[SimObject]:
+        return [o for o in self.objects if o.name == name]
+
+
+def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) -> Instance:
+    """Colours, counts and poses from the seed. `variation` may override per object: {name: {colors, count}}."""
+    rng = np.random.default_rng(seed)
+    variation = variation or {}
+    used_colors: set[str] = set()
+    named_color: dict[str, str] = {}
+    objects: list[SimObject] = []
+    for o in spec.objects:
+        v = variation.get(o.name, {})
+        colors = list(v.get("colors", o.colors))
+        lo, hi = v.get("count", o.count) if isinstance(v.get("count", o.count), (list, tuple)) else (v["count"],) * 2
+        n = int(rng.integers(lo, hi + 1))
+        free = [c for c in colors if c not in used_colors] or colors  # distinct colours across names when possible
+        if o.color_as:
+            chosen = [named_color[o.color_as]] * n
+        elif o.color_per_instance:
+            chosen = [str(rng.choice(colors)) for _ in range(n)]
+        else:
+            chosen = [str(rng.choice(free))] * n
+        named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
+        if o.shape not in FLAT:
+            used_colors.update(chosen)
+        size = list(o.size)
+        if o.shape == "pile":
+            size[2] = size[2]  # the particle count
+        objects += [SimObject(o.name, i, o.shape, chosen[i], tuple(size)) for i in range(n)]
+    poses: dict[str, tuple[np.ndarray, float]] = {}
+    placed: list[tuple[np.ndarray, float]] = []
+    for obj in sorted(objects, key=lambda x: -x.footprint):  # big things first: they are hardest to fit
+        spec_o = spec.object(obj.name)
+        r = obj.footprint
+        if spec_o.region:  # an explicit region bounds the object's centre
+            (x0, x1), (y0, y1) = spec_o.region
+        else:  # the workspace bounds the whole footprint
+            (x0, x1), (y0, y1) = ((a + r, b - r) for a, b in WORKSPACE)
+        for _ in range(500):
+            xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
+            if all(np.linalg.norm(xy - p) > r + q + 0.025 for p, q in placed):
+                break
+        else:
+            raise SpecError(f"task {spec.name} seed {seed}: cannot place {obj.id} without overlap; enlarge the "
+                            "region or reduce counts/sizes")
+        placed.append((xy, r))
+        yaw = float(rng.uniform(*spec_o.yaw)) if obj.shape not in ("sphere", "pile", "bowl") else 0.0
+        poses[obj.id] = (xy, yaw)
+    objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
+    fields = {}
+    for o in spec.objects:
+        inst = [x for x in objects if x.name == o.name]
+        fields[o.name] = SimpleNamespace(color=inst[0].color if inst else o.colors[0], count=len(inst))
+    try:
+        description = spec.description.format(**fields)
+    except (KeyError, AttributeError) as e:
+        raise SpecError(f"task {spec.name}: description field {e} is not <object>.color or <object>.count") from e
+    return Instance(spec, seed, objects, poses, description)
