@@ -19,7 +19,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 
 HUMAN_SCORES ?= $(wildcard ../shared/data/human_eval_tables.json)
 
-.PHONY: help setup test test-all table3 report-table3 figure3 bench clean
+.PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
@@ -50,9 +50,19 @@ report-table3: setup ## rebuild Table 3 from the result.json files only (no reru
 figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tables + figure under outputs/figures/
 	$(PY) src/agreement.py scores_path=$(HUMAN_SCORES) hydra.run.dir=outputs/figures/figure3
 
+contact-sheet: setup ## one image per suite task (initial scene + final state): outputs/figures/contact_sheet_gensim.png
+	$(PY) experiments/contact_sheet.py --suite gensim
+
+oracle-table: setup ## oracle success of every suite task over 20 seeds: outputs/tables/oracle_success_gensim.md
+	$(PY) experiments/oracle_success.py --suite gensim --seeds 20
+
+collect: setup ## collect 40 oracle episodes per GenSim-style task into outputs/episodes (resumable)
+	$(PY) src/collect.py pipeline=gensim episodes=40
+
 bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/text_diversity_bench.py
 	$(PY) experiments/benchmarks/judge_bench.py
+	$(PY) experiments/benchmarks/collect_bench.py
 
 clean: ## remove run folders and caches (keeps .venv and committed tables)
 	rm -rf outputs/runs outputs/multiruns outputs/table3 outputs/cache multirun

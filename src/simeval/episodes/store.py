@@ -116,7 +116,8 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
                 "group": ep.group, "seed": int(ep.seed), "success": bool(ep.success),
                 "total_reward": float(np.sum(ep.reward)), "n_steps": ep.n_steps,
                 "cameras": json.dumps(sorted(ep.rgb)), "control_hz": float(ep.control_hz or 0.0),
-                "source": ep.source, "extra": json.dumps(ep.extra, default=str),
+                "source": ep.source,  # arrays in `extra` (e.g. a rendered final view) are not metadata
+                "extra": json.dumps({k: v for k, v in ep.extra.items() if not isinstance(v, np.ndarray)}, default=str),
             })
             f.attrs["complete"] = True  # written last: a file without it was cut short
         os.replace(tmp, path)

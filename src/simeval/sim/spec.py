@@ -32,7 +32,7 @@ from types import SimpleNamespace
 import numpy as np
 import yaml
 
-from simeval.sim.objects import COLORS, FLAT, SHAPES, SimObject
+from simeval.sim.objects import COLORS, SHAPES, SimObject
 from simeval.sim.world import WORKSPACE
 
 GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone")
@@ -196,8 +196,7 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         else:
             chosen = [str(rng.choice(free))] * n
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
-        if o.shape not in FLAT:
-            used_colors.update(chosen)
+        used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
         size = list(o.size)
         if o.shape == "pile":
             size[2] = size[2]  # the particle count

@@ -1,0 +1,55 @@
+"""Collect oracle episodes of a simeval suite into the episode store. See conf/collect.yaml."""
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from simeval.cli import allow_multirun_anywhere  # noqa: E402
+
+log = logging.getLogger("collect")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="collect")
+def main(cfg: DictConfig) -> None:
+    from simeval.collect import collect
+    from simeval.episodes.store import EpisodeStore
+    from simeval.results import hydra_run_info, write_result
+    from simeval.sim.rollout import RecordSettings
+    from simeval.sim.spec import SUITES_DIR, load_suite
+
+    if not cfg.pipeline.get("suite"):
+        raise ValueError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
+    specs = load_suite(SUITES_DIR / cfg.pipeline.suite)
+    groups = sorted({s.group for s in specs})
+    if cfg.tasks:
+        unknown = set(cfg.tasks) - {s.name for s in specs}
+        if unknown:
+            raise ValueError(f"unknown task(s) {sorted(unknown)}; suite {cfg.pipeline.suite} has "
+                             f"{', '.join(s.name for s in specs)}")
+        specs = [s for s in specs if s.name in cfg.tasks]
+    elif cfg.task_group != "all":
+        if cfg.task_group not in groups:
+            raise ValueError(f"unknown task_group '{cfg.task_group}'; available: {', '.join(groups)}, all")
+        specs = [s for s in specs if s.group == cfg.task_group]
+    if cfg.episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
+    rec = OmegaConf.to_container(cfg.record, resolve=True)
+    settings = RecordSettings(**{**rec, "cameras": tuple(rec["cameras"]), "image_size": tuple(rec["image_size"]),
+                                 "scene_view_size": tuple(rec["scene_view_size"])})
+    seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
+    summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers)
+    run = hydra_run_info()
+    write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],
+                 config=OmegaConf.to_container(cfg, resolve=True))
+    for task, t in summary["tasks"].items():
+        log.info("%-32s %-11s %d/%d oracle successes", task, t["group"], t["success"], t["episodes"])
+    log.info("%d new episodes, %d already in %s", len(summary["new"]), summary["skipped"], cfg.store)
+
+
+if __name__ == "__main__":
+    allow_multirun_anywhere()
+    main()
