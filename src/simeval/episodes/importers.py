@@ -134,6 +134,15 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
             source=f"gensim_pt:{path}", extra={"success_known": False})
 
 
+def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
+    """The BBSEA and RoboGen files share one layout: image, state, action, is_first, is_terminal."""
+    image = _arr(d, "image", path, np.uint8)
+    return Episode(rgb={"image": _resize(image, image_size)}, state=_arr(d, "state", path, np.float32),
+                   action=_arr(d, "action", path, np.float32), reward=np.zeros(len(image), np.float32),
+                   is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
+                   scene_views=_resize(image[:1], image_size), **fields)
+
+
 def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None) -> Iterator[Episode]:
     root = Path(root).expanduser()
     files = sorted(root.glob("*/*/*_*.pt"))
@@ -143,15 +152,10 @@ def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | No
         m = re.fullmatch(r"(\d+)_(True|False)\.pt", path.name)
         if not m:
             continue
-        d = _load_torch(path)
         desc, scene = path.parent.name, path.parent.parent.name
-        image = _arr(d, "image", path, np.uint8)
-        yield Episode(
-            pipeline="bbsea", task=f"{scene}/{desc}", description=desc, group=bbsea_group(desc), seed=int(m.group(1)),
-            rgb={"image": _resize(image, image_size)}, state=_arr(d, "state", path, np.float32),
-            action=_arr(d, "action", path, np.float32), reward=np.zeros(len(image), np.float32),
-            is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
-            success=m.group(2) == "True", scene_views=_resize(image[:1], image_size), source=f"bbsea_pt:{path}",
+        yield _image_state_episode(
+            path, _load_torch(path), image_size, pipeline="bbsea", task=f"{scene}/{desc}", description=desc,
+            group=bbsea_group(desc), seed=int(m.group(1)), success=m.group(2) == "True", source=f"bbsea_pt:{path}",
             extra={"scene": scene})
 
 
@@ -165,16 +169,11 @@ def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | 
         m = re.fullmatch(r"episode_(\d+)_(\d+)\.pt", path.name)
         if not m:
             continue
-        d = _load_torch(path)
         task = path.parent.name
-        image = _arr(d, "image", path, np.uint8)
-        yield Episode(
-            pipeline="robogen", task=task, description=(descriptions or {}).get(task, task.replace("_", " ")),
-            group=_group(groups, task, "ungrouped"), seed=int(m.group(1)), rgb={"image": _resize(image, image_size)},
-            state=_arr(d, "state", path, np.float32), action=_arr(d, "action", path, np.float32),
-            reward=np.zeros(len(image), np.float32), is_first=_arr(d, "is_first", path, bool),
-            is_terminal=_arr(d, "is_terminal", path, bool), scene_views=_resize(image[:1], image_size),
-            source=f"robogen_pt:{path}", extra={"success_known": False})
+        yield _image_state_episode(
+            path, _load_torch(path), image_size, pipeline="robogen", task=task,
+            description=(descriptions or {}).get(task, task.replace("_", " ")), group=_group(groups, task, "ungrouped"),
+            seed=int(m.group(1)), source=f"robogen_pt:{path}", extra={"success_known": False})
 
 
 IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt": import_bbsea_pt,
