@@ -1,0 +1,103 @@
+"""Benchmark: collection speed against the TinyRenderer bound, worker scaling, bytes on disk, window reads.
+
+- render bound: the same scene and cameras rendered in a loop with nothing else (per control step: one frame of
+  each recorded camera), measured in this run;
+- collection: oracle episodes with the same cameras, control steps recorded per second in one process;
+  target >= 70% of the render bound;
+- scaling: the same episodes with 1 and 2 worker processes (near-linear on an idle 2-core machine);
+- bytes per frame on disk, and read throughput of 40-step windows (the paper's GenSim chunk length).
+Writes outputs/bench/collect.json.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+from simeval.collect import collect  # noqa: E402
+from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows  # noqa: E402
+from simeval.sim.objects import make_object  # noqa: E402
+from simeval.sim.robot import Arm  # noqa: E402
+from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
+from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance  # noqa: E402
+from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World  # noqa: E402
+
+TASKS = ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge"]  # one per group
+CAMERAS = ("top", "front")
+
+
+def render_bound(spec_name: str, size: tuple[int, int], n: int = 60) -> float:
+    spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
+    inst = sample_instance(spec, 0)
+    with World() as w:
+        Arm(w, spec.end_effector)
+        rng = np.random.default_rng(0)
+        for o in inst.objects:
+            make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
+        w.settle(30)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            for cam in CAMERAS:
+                w.render(OBS_CAMERAS[cam], size)
+        return n / (time.perf_counter() - t0)
+
+
+def collection_rate(spec_name: str, size: tuple[int, int]) -> tuple[float, int]:
+    spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
+    t0 = time.perf_counter()
+    ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)))
+    return ep.n_steps / (time.perf_counter() - t0), ep.n_steps
+
+
+def main() -> None:
+    out: dict = {"benchmark": "collect", "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+                 "cameras": list(CAMERAS), "per_size": {}}
+    for size in ((64, 64), (128, 128)):
+        rows = {}
+        for task in TASKS:
+            bound = render_bound(task, size)
+            rate, steps = collection_rate(task, size)
+            rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
+                          "ratio": round(rate / bound, 3), "episode_steps": steps}
+        ratios = [r["ratio"] for r in rows.values()]
+        out["per_size"][f"{size[0]}x{size[1]}"] = {"tasks": rows, "mean_ratio": round(float(np.mean(ratios)), 3),
+                                                 "target_ratio": 0.7, "meets_target": float(np.mean(ratios)) >= 0.7}
+    specs = [load_spec(SUITES_DIR / "gensim" / f"{t}.yaml") for t in TASKS]
+    settings = RecordSettings(cameras=CAMERAS, image_size=(64, 64), scene_view_size=(64, 64))
+    timing = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers in (1, 2):
+            store = EpisodeStore(Path(tmp) / f"w{workers}")
+            t0 = time.perf_counter()
+            summary = collect(specs, range(2), store, settings, workers=workers, progress=False)
+            timing[workers] = time.perf_counter() - t0
+        steps = sum(r["steps"] for r in summary["new"])
+        size_bytes = sum(r["bytes"] for r in summary["new"])
+        paths = store.paths()
+        t0 = time.perf_counter()
+        windows = sum(1 for _ in iter_windows(paths, WindowSpec(length=40), camera="top"))
+        read_s = time.perf_counter() - t0
+    out["scaling"] = {"episodes": len(specs) * 2, "seconds_1_worker": round(timing[1], 2),
+                      "seconds_2_workers": round(timing[2], 2), "speedup": round(timing[1] / timing[2], 2)}
+    out["disk"] = {"bytes_per_step_all_cameras": round(size_bytes / steps), "bytes_per_frame": round(
+        size_bytes / steps / len(CAMERAS)), "raw_bytes_per_frame": 64 * 64 * 3, "compression": "gzip per frame"}
+    out["windows"] = {"length": 40, "windows": windows, "windows_per_s": round(windows / read_s, 1),
+                      "frames_per_s": round(windows * 40 / read_s, 1)}
+    path = ROOT / "outputs" / "bench" / "collect.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=2) + "\n")
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
