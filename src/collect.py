@@ -41,7 +41,8 @@ def main(cfg: DictConfig) -> None:
     settings = RecordSettings(**{**rec, "cameras": tuple(rec["cameras"]), "image_size": tuple(rec["image_size"]),
                                  "scene_view_size": tuple(rec["scene_view_size"])})
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
-    summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers)
+    summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers,
+                      variation=OmegaConf.to_container(cfg.variation, resolve=True))
     run = hydra_run_info()
     write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],
                  config=OmegaConf.to_container(cfg, resolve=True))

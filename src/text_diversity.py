@@ -30,7 +30,7 @@ def main(cfg: DictConfig) -> None:
     p = cfg.pipeline
     try:
         tasks = load_tasks(p.name, p.source, root=p.root, grouped_file=p.grouped_file, tasks_path=p.tasks_path,
-                           text_template=p.text_template, group_aliases=p.group_aliases)
+                           suite=p.suite, text_template=p.text_template, group_aliases=p.group_aliases)
     except SourceNotConfigured as e:
         if cfg.on_missing_source != "record":
             raise

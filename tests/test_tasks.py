@@ -151,8 +151,8 @@ def test_bad_sources_give_clear_errors(tmp_path):
     with pytest.raises(SourceNotConfigured, match="BBSEA_ROOT") as e:
         load_tasks("bbsea")
     assert "pipeline.tasks_path" in e.value.hint
-    with pytest.raises(TaskSourceError, match="choose auto or one of grouped_file, checkout"):
-        load_tasks("gensim", source="suite", root="x")
+    with pytest.raises(TaskSourceError, match="choose auto or one of grouped_file, checkout, suite"):
+        load_tasks("gensim", source="episodes", root="x")
 
 
 def test_unknown_group_lists_the_available_ones(tmp_path):
@@ -160,3 +160,11 @@ def test_unknown_group_lists_the_available_ones(tmp_path):
     path.write_text(yaml.safe_dump({"push": ["a", "b"]}))
     with pytest.raises(TaskSourceError, match="unknown task_group 'pull'; available: push, all"):
         select_group(load_tasks("custom", tasks_path=str(path)), "pull")
+
+
+def test_simeval_suite_is_a_named_source_only():
+    tasks = load_tasks("gensim", source="suite", suite="gensim")
+    assert {t.group for t in tasks} == {"placement", "stacking", "piles", "assembling"}
+    assert all(t.text.startswith(f"Task: {t.name} \n Description: ") for t in tasks)
+    with pytest.raises(SourceNotConfigured):  # auto never falls back to the suite
+        load_tasks("gensim", suite="gensim")

@@ -15,17 +15,21 @@ from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, load_spec
 
 
-def _collect_one(spec_path: str, seed: int, store_root: str, settings: dict, pipeline: str) -> dict:
+def _collect_one(spec_path: str, seed: int, store_root: str, settings: dict, pipeline: str,
+                 variation: dict | None = None) -> dict:
     spec = load_spec(spec_path)
     t0 = time.perf_counter()
-    ep = run_episode(spec, seed, RecordSettings(**settings), pipeline=pipeline)
+    known = {o.name for o in spec.objects} | {"robot"}
+    own = {k: v for k, v in (variation or {}).items() if k in known}  # each task takes the knobs it has
+    ep = run_episode(spec, seed, RecordSettings(**settings), pipeline=pipeline, variation=own)
     path = EpisodeStore(store_root).write(ep)
     return {"task": spec.name, "seed": seed, "success": ep.success, "steps": ep.n_steps,
             "seconds": time.perf_counter() - t0, "bytes": os.path.getsize(path)}
 
 
 def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore, settings: RecordSettings,
-            *, pipeline: str = "gensim", workers: int = 0, progress: bool = True) -> dict:
+            *, pipeline: str = "gensim", workers: int = 0, progress: bool = True,
+            variation: dict | None = None) -> dict:
     """Returns {"new": [per-episode dicts], "skipped": n, "tasks": {task: {episodes, success, rate, group}}}."""
     from tqdm import tqdm
 
@@ -36,12 +40,12 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     bar = tqdm(total=len(todo), desc=f"collecting ({workers} workers)", unit="episode", disable=not progress)
     if workers == 1:
         for s, seed in todo:
-            new.append(_collect_one(s.source, seed, str(store.root), asdict(settings), pipeline))
+            new.append(_collect_one(s.source, seed, str(store.root), asdict(settings), pipeline, variation))
             bar.update(1)
     else:
         with ProcessPoolExecutor(workers) as pool:
-            futures = [pool.submit(_collect_one, s.source, seed, str(store.root), asdict(settings), pipeline)
-                       for s, seed in todo]
+            futures = [pool.submit(_collect_one, s.source, seed, str(store.root), asdict(settings), pipeline,
+                                   variation) for s, seed in todo]
             for f in as_completed(futures):
                 new.append(f.result())  # a crashed episode stops the run with its error; finished ones are kept
                 bar.update(1)

@@ -35,11 +35,15 @@ class RecordSettings:
 
 def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = None, pipeline: str = "gensim",
                 variation: dict | None = None, final_frame_size: tuple[int, int] | None = None) -> Episode:
+    """`variation` overrides the spec's knobs for this episode: {object name: {colors, count}} and
+    {"robot": {"home_noise": radians}} for the robot's start (what a generalization test varies)."""
     settings = settings or RecordSettings()
+    variation = dict(variation or {})
+    home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
     inst = sample_instance(spec, seed, variation)
     rng = np.random.default_rng(seed + 7919)
     with World(settings.control_hz) as world:
-        arm = Arm(world, spec.end_effector, spec.home_noise, rng)
+        arm = Arm(world, spec.end_effector, home_noise, rng)
         for obj in inst.objects:
             xy, yaw = inst.poses[obj.id]
             make_object(world.c, obj, xy, yaw, rng, TABLE_Z)

@@ -180,6 +180,9 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
     """Colours, counts and poses from the seed. `variation` may override per object: {name: {colors, count}}."""
     rng = np.random.default_rng(seed)
     variation = variation or {}
+    unknown = set(variation) - {o.name for o in spec.objects}
+    if unknown:
+        raise SpecError(f"task {spec.name}: variation names unknown object(s) {sorted(unknown)}")
     used_colors: set[str] = set()
     named_color: dict[str, str] = {}
     objects: list[SimObject] = []

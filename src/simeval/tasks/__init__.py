@@ -30,6 +30,19 @@ class Source:
     needs: str  # the option (config key under `pipeline`) that must be set for this source
     env: str | None  # the environment variable the shipped config reads that key from
     load: Callable[[dict], list[Task]]
+    auto: bool = True  # tried by source=auto; False: only when named
+
+
+def load_suite_tasks(pipeline: str, suite: str, text_template: str = "{description}") -> list[Task]:
+    """simeval's own PyBullet suite: one task per spec, its description rendered for seed 0."""
+    from simeval.sim.spec import SUITES_DIR, load_suite, sample_instance
+
+    out = []
+    for spec in load_suite(SUITES_DIR / suite):
+        desc = sample_instance(spec, 0).description
+        out.append(Task(pipeline, spec.group, spec.name, desc, text_template.format(name=spec.name, description=desc),
+                        {"spec": spec.source}))
+    return out
 
 
 def _template(o: dict, default: str) -> str:
@@ -42,6 +55,9 @@ SOURCES: dict[str, list[Source]] = {
                lambda o: gensim.load_grouped_texts(o["grouped_file"], "gensim", o.get("group_aliases"))),
         Source("checkout", "root", "GENSIM_ROOT",
                lambda o: gensim.load_gensim_checkout(o["root"], _template(o, gensim.DEFAULT_TEMPLATE))),
+        # Not tried by auto: a Table 3 "GenSim" row must never silently become simeval's own suite.
+        Source("suite", "suite", None, lambda o: load_suite_tasks("gensim", o["suite"], _template(
+            o, gensim.DEFAULT_TEMPLATE)), auto=False),
     ],
     "robogen": [
         Source("checkout", "root", "ROBOGEN_ROOT",
@@ -62,14 +78,14 @@ SOURCES: dict[str, list[Source]] = {
 
 def source_hint(pipeline: str) -> str:
     parts = []
-    for s in SOURCES[pipeline]:
+    for s in (x for x in SOURCES[pipeline] if x.auto):
         env = f" (or env {s.env})" if s.env else ""
         parts.append(f"pipeline.{s.needs}=...{env} for source '{s.name}'")
     return "set " + ", or ".join(parts)
 
 
 def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
-    """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path,
+    """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path, suite,
     text_template, group_aliases (the keys of the pipeline config)."""
     if pipeline not in SOURCES:
         raise TaskSourceError(f"unknown pipeline '{pipeline}'; known: {', '.join(SOURCES)}")
@@ -82,6 +98,6 @@ def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
             )
         candidates = [by_name[source]]
     for s in candidates:
-        if options.get(s.needs):
+        if options.get(s.needs) and (s.auto or source != "auto"):
             return s.load(options)
     raise SourceNotConfigured(pipeline, source_hint(pipeline))
