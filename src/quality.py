@@ -29,11 +29,17 @@ def main(cfg: DictConfig) -> None:
     from simeval.quality import evaluate_quality, judge_reliability, load_bundles, oracle_completion, summarize
     from simeval.results import atomic_write_text, hydra_run_info, write_result
 
-    if not cfg.bundles_dir:
-        raise ValueError("bundles_dir is not set: bundles_dir=DIR (or env SIMEVAL_BUNDLES)")
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     out_dir = Path(run["output_dir"])
-    bundles, errors = load_bundles(cfg.bundles_dir)
+    bundles_dir = cfg.bundles_dir
+    if cfg.episodes.store:  # judge episodes of the store: export them as bundles into the run folder first
+        from simeval.episodes.bundles import export_bundles
+
+        bundles_dir = out_dir / "bundles"
+        export_bundles(cfg.episodes.store, bundles_dir, **{k: v for k, v in cfg.episodes.items() if k != "store"})
+    if not bundles_dir:
+        raise ValueError("set bundles_dir=DIR (or env SIMEVAL_BUNDLES), or episodes.store=DIR (an episode store)")
+    bundles, errors = load_bundles(bundles_dir)
     meta = dict(metric="quality", version="1.0", config=config, choices=run["choices"], seed=cfg.seed,
                 overrides=run["overrides"], judge=cfg.judge.kind, label=cfg.label,
                 tasks={b.name: {"pipeline": b.pipeline} for b in bundles})
