@@ -261,3 +261,29 @@ def judge_reliability(records: list[ScoreRecord]) -> dict[str, dict]:
         out[metric] = {"krippendorff_alpha": krippendorff_alpha_interval(x), "icc_1_1": icc_1_1(x),
                        "items": len(items), "repeats": repeats}
     return out
+
+
+def resolve_bundles_dir(bundles_dir: str | None, episodes: dict, out_dir: Path) -> Path:
+    """The bundles to judge: `bundles_dir`, or the episodes of a store (`episodes["store"]`) exported as bundles
+    into `<out_dir>/bundles` (the other `episodes` keys go to export_bundles)."""
+    if episodes.get("store"):
+        from simeval.episodes.bundles import export_bundles
+
+        target = Path(out_dir) / "bundles"
+        export_bundles(episodes["store"], target, **{k: v for k, v in episodes.items() if k != "store"})
+        return target
+    if not bundles_dir:
+        raise ValueError("set bundles_dir=DIR (or env SIMEVAL_BUNDLES), or episodes.store=DIR (an episode store)")
+    return Path(bundles_dir)
+
+
+def write_scores(path: Path, records: list[ScoreRecord]) -> Path:
+    """Per-item provenance, one JSON line per (task, metric, repeat): model, template and image hashes, every
+    raw reply with its parse and latency, the accepted score."""
+    import dataclasses
+    import json
+
+    from simeval.results import atomic_write_text
+
+    lines = [json.dumps(dataclasses.asdict(r) | {"valid": r.valid}) for r in records]
+    return atomic_write_text(path, "\n".join(lines) + "\n")
