@@ -2,6 +2,7 @@
 (small files built here in each format)."""
 
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -80,6 +81,17 @@ def test_store_index_and_first_k_per_task(tmp_path):
     with pytest.raises(ValueError, match="fewer than the 4"):
         store.first_k_per_task(4)
     assert store.exists("gensim", "stack-a", 5) and not store.exists("gensim", "stack-a", 6)
+
+
+def test_stale_temp_files_of_killed_writers_are_removed(tmp_path):
+    store = EpisodeStore(tmp_path)
+    path = store.write(episode("t", 0))
+    old, fresh = path.parent / ".episode_000001.abc.tmp", path.parent / ".episode_000002.def.tmp"
+    old.write_bytes(b"half")
+    fresh.write_bytes(b"in progress")
+    os.utime(old, (0, 0))
+    assert store.remove_stale_temp_files() == 1 and not old.exists() and fresh.exists()
+    assert len(store.index()) == 1  # neither kind of temp file is ever taken for an episode
 
 
 def test_windows_never_cross_episodes_unless_asked(tmp_path):

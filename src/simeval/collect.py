@@ -34,6 +34,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     from tqdm import tqdm
 
     workers = workers or os.cpu_count() or 1
+    store.remove_stale_temp_files()
     todo = [(s, seed) for s in specs for seed in seeds if not store.exists(pipeline, s.name, seed)]
     skipped = len(specs) * len(seeds) - len(todo)
     new: list[dict] = []

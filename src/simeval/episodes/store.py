@@ -184,6 +184,19 @@ class EpisodeStore:
     def write(self, ep: Episode) -> Path:
         return write_episode(self.path_for(ep.pipeline, ep.task, ep.seed), ep)
 
+    def remove_stale_temp_files(self, older_than_s: float = 600.0) -> int:
+        """Delete temp files that killed writers left behind (readers never see them; they only take space).
+        Only old ones: a concurrent writer's fresh temp file is left alone."""
+        import time
+
+        removed = 0
+        if self.root.is_dir():
+            for tmp in self.root.glob("*/*/.episode_*.tmp"):
+                if time.time() - tmp.stat().st_mtime > older_than_s:
+                    tmp.unlink(missing_ok=True)
+                    removed += 1
+        return removed
+
     def paths(self, pipeline: str | None = None, task: str | None = None) -> list[Path]:
         base = self.root / _safe(pipeline) if pipeline else self.root
         pattern = f"{_safe(task)}/episode_*.h5" if task else ("*/episode_*.h5" if pipeline else "*/*/episode_*.h5")
