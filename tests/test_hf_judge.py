@@ -76,3 +76,17 @@ def test_quality_with_the_local_judge_records_unparseable_replies(tiny_llava, tm
     assert entry["n_valid"] + entry["n_invalid"] == 2
     for x in lines:  # whatever the noise said, it was parsed honestly: a number only if it was a valid score
         assert (x["score"] is None) == all(not a["valid"] for a in x["asks"])
+
+
+def test_concurrent_requests_are_batched(tiny_llava):
+    from concurrent.futures import ThreadPoolExecutor
+
+    provider = HFVisionProvider(str(tiny_llava), max_new_tokens=3, temperature=0.0, batch_size=4, batch_wait_s=0.5)
+    sizes = []
+    run_batch = provider._run_batch
+    provider._run_batch = lambda convs: sizes.append(len(convs)) or run_batch(convs)
+    frames = [Image.from_array(np.full((40, 40, 3), 50))]
+    with ThreadPoolExecutor(8) as pool:
+        replies = list(pool.map(lambda i: provider.complete("You grade.", f"task {i}", frames), range(8)))
+    assert sum(sizes) == 8 and max(sizes) > 1 and len(sizes) < 8  # 8 requests in fewer, larger forward passes
+    assert all(r.text for r in replies)

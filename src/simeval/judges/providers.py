@@ -12,6 +12,7 @@ import io
 import os
 import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,22 +119,31 @@ class OpenAIChatProvider:
 
 
 class HFVisionProvider:
-    """A local transformers vision-language model. Nothing is downloaded: `model_path` must be a directory."""
+    """A local transformers vision-language model. Nothing is downloaded: `model_path` must be a directory.
+
+    Batching: requests arriving together from the runner's threads (judge.concurrency) are gathered, up to
+    `batch_size` or for at most `batch_wait_s`, and run as one pipeline call; the first waiting thread leads."""
 
     name = "hf"
 
     def __init__(self, model_path: str, device: str = "cpu", max_new_tokens: int = 64, temperature: float = 0.7,
-                 batch_size: int = 1, model: str | None = None) -> None:
+                 batch_size: int = 1, batch_wait_s: float = 0.05, model: str | None = None) -> None:
         if not model_path or not Path(model_path).expanduser().is_dir():
             raise FileNotFoundError(
                 f"judge.provider.model_path={model_path!r} is not a local model directory; simeval never downloads "
                 "weights: fetch the model yourself (e.g. `huggingface-cli download llava-hf/llava-1.5-7b-hf "
                 "--local-dir DIR`) and point model_path at DIR")
+        if batch_size < 1 or batch_wait_s < 0:
+            raise ValueError(f"judge.provider: batch_size >= 1 and batch_wait_s >= 0 required, got {batch_size}, "
+                             f"{batch_wait_s}")
         self.model_path, self.device = str(Path(model_path).expanduser()), device
-        self.max_new_tokens, self.temperature, self.batch_size = max_new_tokens, temperature, batch_size
+        self.max_new_tokens, self.temperature = max_new_tokens, temperature
+        self.batch_size, self.batch_wait_s = batch_size, batch_wait_s
         self.model = model or Path(self.model_path).name
         self._pipe = None
-        self._lock = threading.Lock()  # one forward pass at a time; the runner may call from several threads
+        self._cv = threading.Condition()
+        self._pending: list[tuple[list, Future]] = []
+        self._leading = False
 
     @property
     def decoding(self) -> dict:
@@ -148,24 +158,61 @@ class HFVisionProvider:
             self._pipe = pipeline("image-text-to-text", model=self.model_path, device=self.device)
         return self._pipe
 
+    def _run_batch(self, conversations: list[list]) -> list[str]:
+        pipe = self._load()
+        out = pipe(text=conversations, batch_size=len(conversations), max_new_tokens=self.max_new_tokens,
+                   return_full_text=False,
+                   generate_kwargs={"do_sample": self.temperature > 0, "temperature": self.temperature or None})
+        texts = []
+        for item in out:
+            item = item[0] if isinstance(item, list) else item
+            texts.append(item.get("generated_text", "") if isinstance(item, dict) else str(item))
+        return texts
+
+    def _lead(self) -> None:
+        """Run batches until no request is waiting; the caller's own request is in the first one."""
+        first = True
+        while True:
+            with self._cv:
+                if first:
+                    deadline = time.monotonic() + self.batch_wait_s
+                    while len(self._pending) < self.batch_size and (left := deadline - time.monotonic()) > 0:
+                        self._cv.wait(left)
+                    first = False
+                batch, self._pending = self._pending[: self.batch_size], self._pending[self.batch_size :]
+                if not batch:
+                    self._leading = False
+                    return
+            try:
+                texts = self._run_batch([conv for conv, _ in batch])
+                for (_, fut), text in zip(batch, texts):
+                    fut.set_result(text)
+            except BaseException as e:  # every request of the failed batch gets the error
+                for _, fut in batch:
+                    if not fut.done():
+                        fut.set_exception(e)
+
     def complete(self, system: str, user: str, images: list[Image]) -> Reply:
         from PIL import Image as PILImage
 
         pil = [PILImage.open(io.BytesIO(im.png)).convert("RGB") for im in images]
-        messages = [{"role": "system", "content": [{"type": "text", "text": system}]},
-                    {"role": "user", "content": [{"type": "image", "image": p} for p in pil]
-                     + [{"type": "text", "text": user}]}]
-        with self._lock:
-            pipe = self._load()
-            t0 = time.perf_counter()
-            out = pipe(text=messages, max_new_tokens=self.max_new_tokens, return_full_text=False,
-                       generate_kwargs={"do_sample": self.temperature > 0, "temperature": self.temperature or None})
-            latency = time.perf_counter() - t0
-        text = out[0]["generated_text"] if out else ""
-        tok = pipe.tokenizer if getattr(pipe, "tokenizer", None) is not None else None
+        conversation = [{"role": "system", "content": [{"type": "text", "text": system}]},
+                        {"role": "user", "content": [{"type": "image", "image": p} for p in pil]
+                         + [{"type": "text", "text": user}]}]
+        fut: Future = Future()
+        t0 = time.perf_counter()
+        with self._cv:
+            self._pending.append((conversation, fut))
+            self._cv.notify_all()
+            lead = not self._leading
+            self._leading = True
+        if lead:
+            self._lead()
+        text = fut.result()
+        tok = getattr(self._pipe, "tokenizer", None)
         n_in = len(tok(system + user)["input_ids"]) if tok else 0
         n_out = len(tok(text)["input_ids"]) if tok else 0
-        return Reply(text, n_in, n_out, latency)
+        return Reply(text, n_in, n_out, time.perf_counter() - t0)
 
     def close(self) -> None:
         pass
