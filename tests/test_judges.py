@@ -204,6 +204,10 @@ def test_quality_end_to_end_with_failures_reported(openai_server, tmp_path, monk
     assert rec["values"]["task_completion"]["task0"] == {"scores": [3.0, 3.0], "n_invalid": 0, "n_valid": 2,
                                                          "mean": 3.0, "var": 0.0}
     assert rec["cost"]["new_calls"] == 10 and rec["cost"]["cost_usd"] > 0
+    per = rec["cost"]["by_metric_pipeline"]
+    assert per["scene_alignment/gensim"]["new_calls"] == 4 and per["task_completion/gensim"]["new_calls"] == 6
+    assert per["scene_alignment/gensim"]["images"] == 16 and per["task_completion/gensim"]["images"] == 48
+    assert sum(v["cost_usd"] for v in per.values()) == pytest.approx(rec["cost"]["cost_usd"], abs=1e-5)
     lines = [json.loads(x) for x in (tmp_path / "run" / "scores.jsonl").read_text().splitlines()]
     assert len(lines) == 10 and all(len(x["template_sha256"]) == 64 and x["asks"][0]["reply"] for x in lines)
     assert sum(len(x["image_sha256"]) for x in lines) == 2 * 2 * 4 + 3 * 2 * 8  # 4 views, 8 frames

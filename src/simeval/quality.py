@@ -122,7 +122,7 @@ def completion_items(bundles: list[TaskBundle], template: PromptTemplate, n_fram
             errors[b.name] = str(e)
             continue
         items.append(JudgeItem(b.name, "task_completion", template, {"description": b.description}, frames,
-                               SCALES["task_completion"]))
+                               SCALES["task_completion"], b.pipeline))
     return items, errors
 
 
@@ -134,13 +134,14 @@ def alignment_items(bundles: list[TaskBundle], template: PromptTemplate,
         try:
             if captions is None:
                 items.append(JudgeItem(b.name, "scene_alignment", template, {"description": b.description},
-                                       b.scene_images(), SCALES["scene_alignment"]))
+                                       b.scene_images(), SCALES["scene_alignment"], b.pipeline))
             else:
                 if b.name not in captions:
                     raise BundleError(f"{b.name}: no captions")
                 text = "\n".join(f"View {i + 1}: {c}" for i, c in enumerate(captions[b.name]))
                 items.append(JudgeItem(b.name, "scene_alignment", template,
-                                       {"description": b.description, "captions": text}, [], SCALES["scene_alignment"]))
+                                       {"description": b.description, "captions": text}, [], SCALES["scene_alignment"],
+                                       b.pipeline))
         except BundleError as e:
             errors[b.name] = str(e)
     return items, errors
@@ -153,7 +154,7 @@ def caption_items(bundles: list[TaskBundle], template: PromptTemplate) -> tuple[
         try:
             for v, im in enumerate(b.scene_images()):
                 items.append(JudgeItem(f"{b.name}#view{v}", "caption", template, {"description": b.description},
-                                       [im], None))
+                                       [im], None, b.pipeline))
         except BundleError as e:
             errors[b.name] = str(e)
     return items, errors

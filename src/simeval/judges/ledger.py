@@ -39,7 +39,13 @@ class Ledger:
     cost_usd: float = 0.0  # spent by this run
     cached_cost_usd: float = 0.0  # what the cached replies cost when they were bought
     reserved_usd: float = 0.0
+    by_label: dict = field(default_factory=dict)  # "metric/pipeline" -> the same counters, for result.json
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def _bucket(self, label: str | None) -> dict:
+        return self.by_label.setdefault(label or "unlabelled", {
+            "new_calls": 0, "cached_calls": 0, "prompt_tokens": 0, "completion_tokens": 0, "images": 0,
+            "cost_usd": 0.0, "cached_cost_usd": 0.0})
 
     def reserve(self, estimate: float) -> None:
         with self._lock:
@@ -49,28 +55,34 @@ class Ledger:
                     f"{self.reserved_usd:.4f}, next call ~{estimate:.4f}")
             self.reserved_usd += estimate
 
-    def settle(self, estimate: float, prompt_tokens: int, completion_tokens: int, images: int) -> float:
+    def settle(self, estimate: float, prompt_tokens: int, completion_tokens: int, images: int,
+               label: str | None = None) -> float:
         cost = self.prices.cost(prompt_tokens, completion_tokens, images)
         with self._lock:
             self.reserved_usd -= estimate
-            self.new_calls += 1
-            self.prompt_tokens += prompt_tokens
-            self.completion_tokens += completion_tokens
-            self.images += images
-            self.cost_usd += cost
+            for target in (self.__dict__, self._bucket(label)):
+                target["new_calls"] += 1
+                target["prompt_tokens"] += prompt_tokens
+                target["completion_tokens"] += completion_tokens
+                target["images"] += images
+                target["cost_usd"] += cost
         return cost
 
     def release(self, estimate: float) -> None:
         with self._lock:
             self.reserved_usd -= estimate
 
-    def record_cached(self, cost: float) -> None:
+    def record_cached(self, cost: float, label: str | None = None) -> None:
         with self._lock:
-            self.cached_calls += 1
-            self.cached_cost_usd += cost
+            for target in (self.__dict__, self._bucket(label)):
+                target["cached_calls"] += 1
+                target["cached_cost_usd"] += cost
 
     def totals(self) -> dict:
         return {"new_calls": self.new_calls, "cached_calls": self.cached_calls, "prompt_tokens": self.prompt_tokens,
                 "completion_tokens": self.completion_tokens, "images": self.images,
                 "cost_usd": round(self.cost_usd, 6), "cached_cost_usd": round(self.cached_cost_usd, 6),
-                "budget_usd": self.budget_usd}
+                "budget_usd": self.budget_usd,
+                "by_metric_pipeline": {k: {**v, "cost_usd": round(v["cost_usd"], 6),
+                                           "cached_cost_usd": round(v["cached_cost_usd"], 6)}
+                                       for k, v in sorted(self.by_label.items())}}

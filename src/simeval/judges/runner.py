@@ -28,6 +28,11 @@ class JudgeItem:
     fields: dict
     images: list[Image]
     scale: tuple[float, float] | None  # None: a free-text reply (a caption); any non-empty text is valid
+    pipeline: str | None = None  # for the cost ledger's per metric/pipeline totals
+
+    @property
+    def cost_label(self) -> str:
+        return f"{self.metric}/{self.pipeline or 'unknown'}"
 
     def rendered(self) -> tuple[str, str]:
         return self.template.render(n_images=str(len(self.images)), **self.fields)
@@ -140,7 +145,7 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
             key = _identity(provider, item, system, user, repeat, ask)
             hit = cache.get(key)
             if hit is not None:
-                ledger.record_cached(hit.cost_usd)
+                ledger.record_cached(hit.cost_usd, item.cost_label)
                 reply, latency, cached = hit.reply, hit.latency_s, True
             elif settings.replay:
                 raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
@@ -156,7 +161,8 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                 except BaseException:
                     ledger.release(estimate)
                     raise
-                cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images))
+                cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images),
+                                     item.cost_label)
                 cache.put(CachedCall(key, out.text, out.prompt_tokens, out.completion_tokens, len(item.images), cost,
                                      out.latency_s, time.time()), provider=provider.name, model=provider.model,
                           item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
