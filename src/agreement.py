@@ -15,6 +15,8 @@ log = logging.getLogger("agreement")
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="agreement")
 def main(cfg: DictConfig) -> None:
+    from hydra.utils import instantiate
+
     from simeval.agreement import agreement_rows, format_rows, load_score_tables, plot_figure3
     from simeval.metrics.agreement import METRIC_VERSION
     from simeval.report.tables import write_table
@@ -28,9 +30,13 @@ def main(cfg: DictConfig) -> None:
     header, body = format_rows(rows)
     write_table(out / "agreement", header, body, caption="Agreement of judges with human scores (95% bootstrap CIs).")
     figures = plot_figure3(rows, out / "figure3", tuple(cfg.figure_formats))
-    write_result(out, metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed,
-                 config=OmegaConf.to_container(cfg, resolve=True), choices=run["choices"],
-                 figures=[str(f) for f in figures])
+    config = OmegaConf.to_container(cfg, resolve=True)
+    with instantiate(cfg.logger, _partial_=True)(run_dir=str(out), run_config=config) as logger:
+        write_result(out, metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed, config=config,
+                     choices=run["choices"], figures=[str(f) for f in figures])
+        logger.log_metrics({f"{r['table']}/{r['pipeline']}/{r['judge']}": {"r_over_mae": r["r_over_mae"],
+                                                                          "pearson": r["pearson"], "mae": r["mae"]}
+                            for r in rows})
     print((out / "agreement.md").read_text())
     log.info("wrote %s and %s", out / "agreement.md", ", ".join(map(str, figures)))
 

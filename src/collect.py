@@ -15,6 +15,8 @@ log = logging.getLogger("collect")
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="collect")
 def main(cfg: DictConfig) -> None:
+    from hydra.utils import instantiate
+
     from simeval.collect import collect
     from simeval.episodes.store import EpisodeStore
     from simeval.results import hydra_run_info, write_result
@@ -43,9 +45,11 @@ def main(cfg: DictConfig) -> None:
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
     summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers,
                       variation=OmegaConf.to_container(cfg.variation, resolve=True))
-    run = hydra_run_info()
-    write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],
-                 config=OmegaConf.to_container(cfg, resolve=True))
+    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
+    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
+        write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],
+                     config=config)
+        logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})
     for task, t in summary["tasks"].items():
         log.info("%-32s %-11s %d/%d oracle successes", task, t["group"], t["success"], t["episodes"])
     log.info("%d new episodes, %d already in %s", len(summary["new"]), summary["skipped"], cfg.store)

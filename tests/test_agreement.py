@@ -87,13 +87,14 @@ def test_paper_tables(shared_data):
 
 def test_agreement_entrypoint_writes_figure3(shared_data, tmp_path):
     res = subprocess.run([sys.executable, str(ROOT / "src" / "agreement.py"),
-                          f"scores_path={shared_data / 'human_eval_tables.json'}", "n_boot=100",
+                          f"scores_path={shared_data / 'human_eval_tables.json'}", "n_boot=100", "logger=wandb",
                           f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     assert (tmp_path / "figure3.png").stat().st_size > 10_000 and (tmp_path / "figure3.pdf").is_file()
     rec = json.loads((tmp_path / "result.json").read_text())
     assert rec["metric"] == "agreement" and len(rec["values"]) == 27
     assert "undefined" in (tmp_path / "agreement.md").read_text()
+    assert list(tmp_path.glob("wandb/offline-run-*/run-*.wandb"))  # mirrored to an offline W&B run
 
 
 def test_bad_score_files(tmp_path):

@@ -85,7 +85,8 @@ class WandbLogger(NullLogger):
         )
 
     def log_metrics(self, metrics: Mapping, step: int | None = None) -> None:
-        self.run.log(_flatten(metrics), step=step)
+        # None is "undefined" (e.g. Pearson of a constant column): left out rather than charted as a value
+        self.run.log({k: v for k, v in _flatten(metrics).items() if v is not None}, step=step)
 
     def log_summary(self, values: Mapping) -> None:
         self.run.summary.update(json.loads(json.dumps(_flatten(values), default=str)))
