@@ -31,6 +31,13 @@ def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id
     for stat in STATISTICS:
         h, b, _ = table3(tidy, rows, columns, stat, digits, with_ci=True)
         ext_rows += [[stat] + r for r in b]
+    # the same statistics at a common subsample size (mean over random subsets), so group sizes do not matter
+    common = [{**r, "value": r["subsample_mean"], "ci_low": None, "ci_high": None}
+              for r in tidy if r["status"] == "ok" and r["subsample_mean"] is not None]
+    sizes = sorted({r["subsample_n"] for r in common})
+    for stat in STATISTICS:
+        _, b, _ = table3(common, rows, columns, stat, digits)
+        ext_rows += [[f"{stat} @ N={'/'.join(map(str, sizes))}"] + r for r in b]
     written["extended"] = write_table(out / f"{id}_all_metrics", ["Statistic"] + h, ext_rows,
                                       caption=caption + " All statistics with bootstrap 95% CIs over tasks.")
     h, b = rank_agreement(tidy, rows, columns, statistic)
