@@ -60,13 +60,16 @@ class Ledger:
         cost = self.prices.cost(prompt_tokens, completion_tokens, images)
         with self._lock:
             self.reserved_usd -= estimate
-            for target in (self.__dict__, self._bucket(label)):
-                target["new_calls"] += 1
-                target["prompt_tokens"] += prompt_tokens
-                target["completion_tokens"] += completion_tokens
-                target["images"] += images
-                target["cost_usd"] += cost
+            self._add(label, new_calls=1, prompt_tokens=prompt_tokens, completion_tokens=completion_tokens,
+                      images=images, cost_usd=cost)
         return cost
+
+    def _add(self, label: str | None, **deltas: float) -> None:
+        """Add to the run's totals and to the metric/pipeline bucket (caller holds the lock)."""
+        bucket = self._bucket(label)
+        for key, delta in deltas.items():
+            setattr(self, key, getattr(self, key) + delta)
+            bucket[key] += delta
 
     def release(self, estimate: float) -> None:
         with self._lock:
@@ -74,9 +77,7 @@ class Ledger:
 
     def record_cached(self, cost: float, label: str | None = None) -> None:
         with self._lock:
-            for target in (self.__dict__, self._bucket(label)):
-                target["cached_calls"] += 1
-                target["cached_cost_usd"] += cost
+            self._add(label, cached_calls=1, cached_cost_usd=cost)
 
     def totals(self) -> dict:
         return {"new_calls": self.new_calls, "cached_calls": self.cached_calls, "prompt_tokens": self.prompt_tokens,
