@@ -37,6 +37,15 @@ def test_429_with_retry_after_and_500_are_retried(openai_server):
     assert gap >= 0.2  # Retry-After was honoured
 
 
+def test_unparseable_retry_after_falls_back_to_backoff(openai_server):
+    from simeval.httpretry import parse_retry_after
+
+    assert parse_retry_after("soon") is None and parse_retry_after("2") == 2.0
+    assert parse_retry_after("Wed, 21 Oct 2015 07:28:00 GMT") == 0.0  # a date in the past: no wait
+    openai_server.faults.append({"status": 429, "retry_after": "soon"})
+    assert _backend(openai_server).embed(["a"]).shape == (1, 64) and len(openai_server.requests) == 2
+
+
 def test_timeouts_are_retried_then_fail_clearly(openai_server):
     openai_server.faults.extend([{"hang": 1.0}])
     b = OpenAIEmbeddingBackend(base_url=openai_server.base_url, model="m", timeout_s=0.2, backoff_s=0.01)

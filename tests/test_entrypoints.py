@@ -43,6 +43,13 @@ def test_shipped_embedding_configs_instantiate_without_loading_models():
             instantiate(hf)
 
 
+def test_latex_escaping_is_single_pass():
+    from simeval.report.tables import to_latex
+
+    tex = to_latex(["A", "B"], [[r"path\to_x", "{1} & 5%"]])
+    assert r"path\textbackslash{}to\_x & \{1\} \& 5\%" in tex
+
+
 def test_logger_group_composes():
     with initialize_config_dir(version_base="1.3", config_dir=CONF):
         for name in ("none", "csv", "wandb"):

@@ -130,3 +130,19 @@ def test_quality_judges_episodes_of_the_store(tmp_path):
     assert all(v["mean"] == 10.0 for v in values.values())  # the oracle solved both: full marks from ground truth
     bundle = tmp_path / "q" / "bundles" / "stack-two-blocks__seed0"
     assert len(list((bundle / "scene").glob("*.png"))) == 4 and len(list((bundle / "frames").glob("*.png"))) > 8
+
+
+@pytest.mark.parametrize("data,match", [
+    (None, "a task spec is a mapping, got NoneType"),
+    ({"name": "t", "group": "g", "description": "d", "objects": ["block"], "goals": []}, "an object is a mapping"),
+    ({"name": "t", "group": "g", "description": "d", "objects": [{"shape": "block"}], "goals": []}, "at least `name`"),
+    ({"name": "t", "group": "g", "description": "d", "objects": [], "goals": ["stack"]}, "a goal is a mapping"),
+])
+def test_malformed_specs_are_spec_errors_not_crashes(data, match, tmp_path):
+    with pytest.raises(SpecError, match=match):
+        parse_spec(data, "t.yaml")
+    (tmp_path / "empty.yaml").write_text("")
+    with pytest.raises(SpecError, match="empty.yaml: a task spec is a mapping"):
+        from simeval.sim.spec import load_spec
+
+        load_spec(tmp_path / "empty.yaml")

@@ -75,19 +75,18 @@ def sample_frame_indices(n_total: int, n_frames: int) -> list[int]:
 
 
 def read_video_frames(path: Path, n_frames: int) -> list[np.ndarray]:
+    """The sampled frames of a video, decoded as a stream: one pass counts the frames, a second keeps only the
+    sampled ones, so memory holds `n_frames` frames however long the trajectory is."""
     import imageio.v3 as iio
 
     try:
-        frames = iio.imread(path, plugin="pyav") if _has_pyav() else np.stack(list(iio.imiter(path)))
+        total = sum(1 for _ in iio.imiter(path))
+        wanted = set(sample_frame_indices(total, n_frames))
+        return [frame for i, frame in enumerate(iio.imiter(path)) if i in wanted]
+    except BundleError:
+        raise
     except Exception as e:  # imageio raises many types for a damaged video; all mean the same to the user
         raise BundleError(f"unreadable video {path}: {type(e).__name__}: {e}") from e
-    return [frames[i] for i in sample_frame_indices(len(frames), n_frames)]
-
-
-def _has_pyav() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("av") is not None
 
 
 def load_bundles(root: str | os.PathLike) -> tuple[list[TaskBundle], dict[str, str]]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from pathlib import Path
 
 from simeval.results import atomic_write_text
@@ -17,11 +18,14 @@ def to_markdown(header: list[str], rows: list[list[str]], notes: list[str] | Non
     return "\n".join(lines) + "\n"
 
 
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "_": r"\_", "#": r"\#", "$": r"\$", "{": r"\{",
+        "}": r"\}", "—": "--"}
+_TEX_CHARS = re.compile("|".join(re.escape(c) for c in _TEX))
+
+
 def _tex_escape(s: str) -> str:
-    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"),
-                 ("$", r"\$"), ("{", r"\{"), ("}", r"\}"), ("—", "--")):
-        s = s.replace(a, b)
-    return s
+    # one pass: sequential replaces would escape the braces that \textbackslash{} itself introduces
+    return _TEX_CHARS.sub(lambda m: _TEX[m.group()], s)
 
 
 def to_latex(header: list[str], rows: list[list[str]], caption: str = "", label: str = "",

@@ -92,50 +92,59 @@ def _pair(v, key: str, where: str) -> tuple:
     raise SpecError(f"{where}: `{key}` must be a number or [low, high], got {v!r}")
 
 
+def _names(value) -> list[str]:
+    """A name or a list of names, as a list."""
+    return [value] if isinstance(value, str) else list(value or [])
+
+
+def _parse_object(o, w: str, earlier: list[ObjectSpec]) -> ObjectSpec:
+    if not isinstance(o, dict) or "name" not in o:
+        raise SpecError(f"{w}: an object is a mapping with at least `name` and `shape`, got {o!r}")
+    if o.get("shape") not in SHAPES:
+        raise SpecError(f"{w}: shape {o.get('shape')!r} is not one of {', '.join(SHAPES)}")
+    colors = _names(o.get("colors", o.get("color", "gray")))
+    bad = [c for c in colors if c not in COLORS]
+    if bad:
+        raise SpecError(f"{w}: unknown colour(s) {bad}; known: {', '.join(COLORS)}")
+    count = tuple(int(x) for x in _pair(o.get("count", 1), "count", w))
+    if not 0 <= count[0] <= count[1]:
+        raise SpecError(f"{w}: count must satisfy 0 <= low <= high, got {count}")
+    if o.get("color_as") and o["color_as"] not in [x.name for x in earlier]:
+        raise SpecError(f"{w}: color_as '{o['color_as']}' must name an object listed before it")
+    return ObjectSpec(
+        name=str(o["name"]), shape=o["shape"], colors=colors, count=count,
+        size=tuple(float(x) for x in o.get("size", (0.04, 0.04, 0.04))),
+        region=tuple(tuple(r) for r in o["region"]) if o.get("region") else None,
+        yaw=tuple(float(x) for x in _pair(o.get("yaw", [-math.pi, math.pi]), "yaw", w)),
+        distractor=bool(o.get("distractor", False)), color_per_instance=bool(o.get("color_per_instance", False)),
+        color_as=o.get("color_as"))
+
+
+def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
+    if not isinstance(g, dict) or g.get("type") not in GOAL_TYPES:
+        raise SpecError(f"{w}: a goal is a mapping whose type is one of {', '.join(GOAL_TYPES)}, got {g!r}")
+    what, where = _names(g.get("what")), _names(g.get("where"))
+    for n in what + where:
+        if n not in names:
+            raise SpecError(f"{w}: names object '{n}', not among {names}")
+    return GoalSpec(g["type"], what, where, [list(map(float, o)) for o in g.get("offset", [])],
+                    float(g.get("fraction", 0.8)))
+
+
 def parse_spec(data: dict, source: str = "") -> TaskSpec:
-    where = source or data.get("name", "spec")
     if not isinstance(data, dict):
-        raise SpecError(f"{where}: a task spec is a mapping")
+        raise SpecError(f"{source or 'spec'}: a task spec is a mapping, got {type(data).__name__}")
+    where = source or data.get("name", "spec")
     missing = [k for k in ("name", "group", "description", "objects", "goals") if k not in data]
     if missing:
         raise SpecError(f"{where}: missing {', '.join(missing)}")
-    objects = []
+    objects: list[ObjectSpec] = []
     for i, o in enumerate(data["objects"]):
-        w = f"{where}: objects[{i}]"
-        if o.get("shape") not in SHAPES:
-            raise SpecError(f"{w}: shape {o.get('shape')!r} is not one of {', '.join(SHAPES)}")
-        colors = o.get("colors", [o.get("color", "gray")])
-        colors = [colors] if isinstance(colors, str) else list(colors)
-        bad = [c for c in colors if c not in COLORS]
-        if bad:
-            raise SpecError(f"{w}: unknown colour(s) {bad}; known: {', '.join(COLORS)}")
-        count = tuple(int(x) for x in _pair(o.get("count", 1), "count", w))
-        if not 0 <= count[0] <= count[1]:
-            raise SpecError(f"{w}: count must satisfy 0 <= low <= high, got {count}")
-        objects.append(ObjectSpec(
-            name=str(o["name"]), shape=o["shape"], colors=colors, count=count,
-            size=tuple(float(x) for x in o.get("size", (0.04, 0.04, 0.04))),
-            region=tuple(tuple(r) for r in o["region"]) if o.get("region") else None,
-            yaw=tuple(float(x) for x in _pair(o.get("yaw", [-math.pi, math.pi]), "yaw", w)),
-            distractor=bool(o.get("distractor", False)), color_per_instance=bool(o.get("color_per_instance", False)),
-            color_as=o.get("color_as")))
-        if objects[-1].color_as and objects[-1].color_as not in [x.name for x in objects[:-1]]:
-            raise SpecError(f"{w}: color_as '{objects[-1].color_as}' must name an object listed before it")
+        objects.append(_parse_object(o, f"{where}: objects[{i}]", objects))
     names = [o.name for o in objects]
     if len(set(names)) != len(names):
         raise SpecError(f"{where}: object names must be unique, got {names}")
-    goals = []
-    for i, g in enumerate(data["goals"]):
-        w = f"{where}: goals[{i}]"
-        if g.get("type") not in GOAL_TYPES:
-            raise SpecError(f"{w}: type {g.get('type')!r} is not one of {', '.join(GOAL_TYPES)}")
-        what = [g["what"]] if isinstance(g.get("what"), str) else list(g.get("what") or [])
-        where_ = [g["where"]] if isinstance(g.get("where"), str) else list(g.get("where") or [])
-        for n in what + where_:
-            if n not in names:
-                raise SpecError(f"{w}: names object '{n}', not among {names}")
-        goals.append(GoalSpec(g["type"], what, where_, [list(map(float, o)) for o in g.get("offset", [])],
-                              float(g.get("fraction", 0.8))))
+    goals = [_parse_goal(g, f"{where}: goals[{i}]", names) for i, g in enumerate(data["goals"])]
     return TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
                     objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
                     max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
