@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_into_store, import_ravens,
+from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_ravens,
                                         import_robogen_pt)
 from simeval.episodes.store import (Episode, EpisodeFormatError, EpisodeStore, WindowSpec, iter_windows, read_episode,
                                     read_meta, write_episode)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import email.utils
 import random
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import httpx
@@ -47,7 +47,6 @@ class Attempt:
     error: str | None
     latency_s: float
     waited_s: float = 0.0
-    extra: dict = field(default_factory=dict)
 
 
 def parse_retry_after(value: str | None) -> float | None:

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import csv
-import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -78,7 +77,6 @@ class WandbLogger(NullLogger):
         import wandb  # lazy: importing wandb costs ~1 s
 
         os.environ.setdefault("WANDB_SILENT", "true")
-        self._wandb = wandb
         self.run = wandb.init(
             project=project, entity=entity, mode=mode, name=name, group=group, tags=list(tags or []),
             dir=str(run_dir), config=redact_secrets(dict(run_config or {})), reinit="finish_previous",
@@ -87,9 +85,6 @@ class WandbLogger(NullLogger):
     def log_metrics(self, metrics: Mapping, step: int | None = None) -> None:
         # None is "undefined" (e.g. Pearson of a constant column): left out rather than charted as a value
         self.run.log({k: v for k, v in _flatten(metrics).items() if v is not None}, step=step)
-
-    def log_summary(self, values: Mapping) -> None:
-        self.run.summary.update(json.loads(json.dumps(_flatten(values), default=str)))
 
     def finish(self, exit_code: int = 0) -> None:
         if self.run is not None:

@@ -81,7 +81,6 @@ def hydra_run_info() -> dict:
         "output_dir": hc.runtime.output_dir,
         "choices": {k: v for k, v in OmegaConf.to_container(hc.runtime.choices).items() if not k.startswith("hydra/")},
         "overrides": list(hc.overrides.task),
-        "job_num": hc.job.get("num"),
     }
 
 

@@ -58,19 +58,15 @@ def _check_square(similarity: np.ndarray) -> np.ndarray:
     return s
 
 
-def _offdiag_row_means(s: np.ndarray, same: np.ndarray | None = None) -> np.ndarray:
-    """Mean of each row over the pairs that count: j != i, and (for bootstrap) not a copy of the same task."""
-    valid = ~np.eye(len(s), dtype=bool) if same is None else ~same
-    counts = valid.sum(axis=1)
-    if np.any(counts == 0):
-        raise DiversityInputError("a task has no other distinct task to be compared with")
-    return np.where(valid, s, 0.0).sum(axis=1) / counts
+def _offdiag_row_means(s: np.ndarray) -> np.ndarray:
+    """Mean of each row over j != i."""
+    return (s.sum(axis=1) - np.diag(s)) / (len(s) - 1)
 
 
-def eq1_diversity(similarity: np.ndarray, *, _same: np.ndarray | None = None) -> float:
+def eq1_diversity(similarity: np.ndarray) -> float:
     """The paper's Eq. 1 on a (N, N) similarity matrix (diagonal removed)."""
     s = _check_square(similarity)
-    row_means = _offdiag_row_means(s, _same)
+    row_means = _offdiag_row_means(s)
     bad = np.flatnonzero(row_means <= 0)
     if bad.size:
         raise DiversityInputError(
@@ -89,10 +85,10 @@ def vendi_score(similarity: np.ndarray) -> float:
     return float(np.exp(-np.sum(lam * np.log(lam))))
 
 
-def mean_pairwise_cosine_distance(similarity: np.ndarray, *, _same: np.ndarray | None = None) -> float:
+def mean_pairwise_cosine_distance(similarity: np.ndarray) -> float:
     """Mean of 1 - S_ij over ordered pairs i != j."""
     s = _check_square(similarity)
-    return float(np.mean(1.0 - _offdiag_row_means(s, _same)))
+    return float(np.mean(1.0 - _offdiag_row_means(s)))
 
 
 _TOKEN = re.compile(r"\w+|[^\w\s]")
@@ -216,11 +212,12 @@ def _bootstrap_draws(similarity: np.ndarray, per_text_bleu: np.ndarray, n_boot: 
         row_means = np.where(valid, sub, 0.0).sum(-1) / np.maximum(counts, 1)
         ok = np.all(counts > 0, axis=1) & np.all(row_means > 0, axis=1)
         dropped += int((~ok).sum())
-        parts["div"].append(-np.log(np.where(row_means[ok] > 0, row_means[ok], 1.0)).mean(1))
+        parts["div"].append(-np.log(row_means[ok]).mean(1))
         parts["cos_dist"].append((1.0 - row_means[ok]).mean(1))
         lam = np.clip(np.linalg.eigvalsh(sub[ok] / n), 0.0, None)
         lam = lam / lam.sum(-1, keepdims=True)
-        parts["vendi"].append(np.exp(-np.sum(np.where(lam > 1e-12, lam * np.log(np.where(lam > 1e-12, lam, 1.0)), 0.0), -1)))
+        log_lam = np.log(np.where(lam > 1e-12, lam, 1.0))  # 0 log 0 = 0, as vendi_score drops those eigenvalues
+        parts["vendi"].append(np.exp(-np.sum(lam * log_lam, -1)))
         parts["self_bleu"].append(per_text_bleu[ix[ok]].mean(1))
     out = {k: np.concatenate(v) for k, v in parts.items()}
     out["dropped"] = np.array(dropped)

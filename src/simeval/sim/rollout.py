@@ -51,11 +51,12 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         views = np.stack([world.render(v, settings.scene_view_size) for v in SCENE_VIEWS])
         frames = {c: [] for c in settings.cameras}
         states, actions, progress = [], [], []
-        counter = [0]
+        control_steps = 0
 
         def log(action: np.ndarray) -> None:
-            counter[0] += 1
-            if (counter[0] - 1) % settings.record_every:
+            nonlocal control_steps
+            control_steps += 1
+            if (control_steps - 1) % settings.record_every:
                 return
             for cam in settings.cameras:
                 frames[cam].append(world.render(OBS_CAMERAS[cam], settings.image_size))
@@ -76,7 +77,7 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         final, success = task_progress(world, inst)
         final_view = world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
     t = len(actions)
-    if t == 0:  # nothing to do (already solved): log one step so the episode is well formed
+    if t == 0:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
         raise RuntimeError(f"{spec.name} seed {seed}: the oracle made no move; is the task solved at start?")
     prog = np.asarray(progress, np.float32)
     prog[-1] = final

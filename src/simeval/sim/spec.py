@@ -209,10 +209,7 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
             chosen = [str(rng.choice(free))] * n
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
         used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
-        size = list(o.size)
-        if o.shape == "pile":
-            size[2] = size[2]  # the particle count
-        objects += [SimObject(o.name, i, o.shape, chosen[i], tuple(size)) for i in range(n)]
+        objects += [SimObject(o.name, i, o.shape, chosen[i], o.size) for i in range(n)]
     poses: dict[str, tuple[np.ndarray, float]] = {}
     placed: list[tuple[np.ndarray, float]] = []
     for obj in sorted(objects, key=lambda x: -x.footprint):  # big things first: they are hardest to fit

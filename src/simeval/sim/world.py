@@ -7,7 +7,6 @@ import contextlib
 import math
 import os
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +56,6 @@ class World:
         self.plane = self.c.loadURDF("plane.urdf", [0, 0, TABLE_Z - 1e-3])
         self.c.changeVisualShape(self.plane, -1, rgbaColor=[0.72, 0.58, 0.42, 1.0], textureUniqueId=-1)  # a wooden table
         self.c.changeDynamics(self.plane, -1, lateralFriction=0.6)
-        self.step_hooks: list[Callable[[np.ndarray], None]] = []
 
     def step(self, n: int | None = None) -> None:
         for _ in range(n or self.substeps):
