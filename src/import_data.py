@@ -27,9 +27,9 @@ def main(cfg: DictConfig) -> None:
     importer = IMPORTERS[cfg.format]
     options = {"image_size": tuple(cfg.image_size) if cfg.image_size else None,
                "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions)}
-    accepted = inspect.signature(importer).parameters
-    summary = import_into_store(importer(cfg.src, **{k: v for k, v in options.items() if k in accepted}),
-                                EpisodeStore(cfg.store), overwrite=cfg.overwrite)
+    accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
+    summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
+                                **{k: v for k, v in options.items() if k in accepted})
     run = hydra_run_info()
     write_result(run["output_dir"], metric="import", version="1.0", values=summary, choices=run["choices"],
                  config=OmegaConf.to_container(cfg, resolve=True))

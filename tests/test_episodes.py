@@ -188,7 +188,13 @@ def test_import_entrypoint_resumes(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads((tmp_path / "r1" / "result.json").read_text())["values"]["written"] == 3
     res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r2'}"], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
     values = json.loads((tmp_path / "r2" / "result.json").read_text())["values"]
     assert values["written"] == 0 and values["skipped"] == 3
     assert values["tasks"]["stack-block-pyramid"] == {"episodes": 3, "success": 3, "group": "stacking"}
     assert len(EpisodeStore(tmp_path / "store").index("gensim")) == 3
+    # a resumed import does not even read the sources of episodes it already holds
+    (tmp_path / "data" / "stack-block-pyramid-train" / "color" / "000000-100.pkl").write_bytes(b"damaged later")
+    res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r3'}"], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads((tmp_path / "r3" / "result.json").read_text())["values"]["skipped"] == 3

@@ -11,9 +11,6 @@ Writes outputs/bench/collect.json.
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -21,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, machine, save  # noqa: E402
+
 sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.collect import collect  # noqa: E402
@@ -60,7 +59,7 @@ def collection_rate(spec_name: str, size: tuple[int, int]) -> tuple[float, int]:
 
 
 def main() -> None:
-    out: dict = {"benchmark": "collect", "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+    out: dict = {"benchmark": "collect", "machine": machine(),
                  "cameras": list(CAMERAS), "per_size": {}}
     for size in ((64, 64), (128, 128)):
         rows = {}
@@ -93,10 +92,7 @@ def main() -> None:
         size_bytes / steps / len(CAMERAS)), "raw_bytes_per_frame": 64 * 64 * 3, "compression": "gzip per frame"}
     out["windows"] = {"length": 40, "windows": windows, "windows_per_s": round(windows / read_s, 1),
                       "frames_per_s": round(windows * 40 / read_s, 1)}
-    path = ROOT / "outputs" / "bench" / "collect.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2) + "\n")
-    print(json.dumps(out, indent=2))
+    save("collect", out)
 
 
 if __name__ == "__main__":

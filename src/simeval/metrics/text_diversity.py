@@ -25,6 +25,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from simeval.metrics.bootstrap import percentile_interval
+
 METRIC_VERSION = "1.0"
 STATISTICS = ("div", "vendi", "cos_dist", "self_bleu")
 
@@ -164,21 +166,6 @@ def self_bleu_per_text(texts: Sequence[str], max_n: int = 4) -> np.ndarray:
     return np.array(_bleu_against_others(tokens, max_n, range(len(tokens))))
 
 
-def bootstrap_ci(
-    statistic: Callable[[np.ndarray], float],
-    n_items: int,
-    *,
-    n_boot: int = 1000,
-    seed: int = 0,
-    level: float = 0.95,
-) -> tuple[float, float]:
-    """Percentile bootstrap over items: `statistic(indices)` is evaluated on `n_boot` resamples with replacement."""
-    rng = np.random.default_rng(seed)
-    values = np.array([statistic(rng.integers(0, n_items, n_items)) for _ in range(n_boot)])
-    alpha = (1 - level) / 2
-    return float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))
-
-
 def subsample_mean_std(
     statistic: Callable[[np.ndarray], float], n_items: int, size: int, *, repeats: int = 50, seed: int = 0
 ) -> tuple[float, float]:
@@ -224,13 +211,6 @@ def _bootstrap_draws(similarity: np.ndarray, per_text_bleu: np.ndarray, n_boot: 
     return out
 
 
-def _percentile_ci(values: np.ndarray, level: float = 0.95) -> list[float] | None:
-    if values.size < 10:
-        return None  # too few defined resamples for a percentile interval
-    alpha = (1 - level) / 2
-    return [float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))]
-
-
 def diversity_summary(
     embeddings: np.ndarray,
     texts: Sequence[str],
@@ -264,7 +244,7 @@ def diversity_summary(
     }
     draws = _bootstrap_draws(s, per_text_bleu, n_boot, seed)
     for name in STATISTICS:
-        out[f"{name}_ci"] = _percentile_ci(draws[name])
+        out[f"{name}_ci"] = percentile_interval(draws[name])
     out["boot"] = {"n_boot": n_boot, "dropped": int(draws["dropped"])}
     if subsample_n is not None:
         stats: dict[str, Callable[[np.ndarray], float]] = {

@@ -10,8 +10,7 @@ import itertools
 from collections.abc import Iterable, Sequence
 
 from simeval.metrics.agreement import kendall_tau_b
-
-STATISTICS = ("div", "vendi", "cos_dist", "self_bleu")
+from simeval.metrics.text_diversity import STATISTICS
 TIDY_COLUMNS = ["pipeline", "group", "embedding", "statistic", "value", "ci_low", "ci_high", "n", "status", "note",
                 "subsample_n", "subsample_mean", "subsample_std", "version", "git_sha", "source"]
 

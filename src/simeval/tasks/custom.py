@@ -9,20 +9,20 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from simeval.tasks.gensim import load_grouped_texts
+from simeval.tasks.gensim import grouped_tasks
 from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
 
 
 def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template: str = "{description}") -> list[Task]:
     data = read_structured(path)
     if isinstance(data, dict):
-        return load_grouped_texts(path, pipeline)
+        return grouped_tasks(data, path, pipeline)
     if not isinstance(data, list) or not data:
         raise TaskSourceError(f"{path}: expected a mapping group -> list, a list of strings, or a list of records")
     if all(isinstance(x, str) for x in data):
         group = Path(path).stem
-        return [Task(pipeline, group, f"{group}-{i}", s, s) for i, s in
-                enumerate(require_text(x, f"{path}: item {i}") for i, x in enumerate(data))]
+        texts = [require_text(x, f"{path}: item {i}") for i, x in enumerate(data)]
+        return [Task(pipeline, group, f"{group}-{i}", t, t) for i, t in enumerate(texts)]
     out = []
     for i, rec in enumerate(data):
         if not isinstance(rec, dict):

@@ -91,7 +91,12 @@ def load_grouped_texts(
     path: str | os.PathLike, pipeline: str, group_aliases: dict[str, str] | None = None
 ) -> list[Task]:
     """A YAML/JSON mapping group -> list of strings, verbatim and in order, duplicates included."""
-    data = read_structured(path)
+    return grouped_tasks(read_structured(path), path, pipeline, group_aliases)
+
+
+def grouped_tasks(data, path: str | os.PathLike, pipeline: str, group_aliases: dict[str, str] | None = None
+                  ) -> list[Task]:
+    """Tasks from an already parsed mapping group -> list of strings (`path` names it in errors)."""
     if not isinstance(data, dict) or not data:
         raise TaskSourceError(f"{path}: expected a mapping of group -> list of strings, got {type(data).__name__}")
     aliases = dict(group_aliases or {})

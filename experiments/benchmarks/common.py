@@ -1,0 +1,24 @@
+"""What every benchmark script shares: where results go and how they are written."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def machine() -> dict:
+    return {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
+
+
+def save(name: str, result: dict) -> Path:
+    """Write outputs/bench/<name>.json and print it."""
+    path = ROOT / "outputs" / "bench" / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(result, indent=2) + "\n"
+    path.write_text(text)
+    print(text, end="")
+    return path
