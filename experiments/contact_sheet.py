@@ -27,7 +27,7 @@ def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
     spec = load_spec(path)
     ep = run_episode(spec, seed, RecordSettings(cameras=(), scene_view_size=(size, size)),
                      final_frame_size=(size, size))
-    return spec.name, spec.group, ep.description, ep.scene_views[0], np.asarray(ep.extra["final_view"], np.uint8), ep.success
+    return spec.name, spec.group, ep.description, ep.scene_views[0], ep.final_view, ep.success
 
 
 def main() -> None:

@@ -39,6 +39,9 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(back.rgb["front"], ep.rgb["front"])
     np.testing.assert_allclose(back.state, ep.state)
     assert back.success and back.high_level_step.tolist() == [0, 5] and back.scene_views.shape == (4, 8, 8, 3)
+    assert back.final_view is None  # optional; stored as a dataset when an episode has one
+    ep.final_view = ep.scene_views[0]
+    np.testing.assert_array_equal(read_episode(write_episode(tmp_path / "f.h5", ep)).final_view, ep.scene_views[0])
     meta = read_meta(path)
     assert meta["total_reward"] == 1.0 and meta["n_steps"] == 10 and meta["cameras"] == ["front"]
 

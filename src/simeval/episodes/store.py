@@ -57,6 +57,7 @@ class Episode:
     high_level_action: np.ndarray | None = None  # (H, K)
     high_level_step: np.ndarray | None = None  # (H,)
     scene_views: np.ndarray | None = None  # (V, h, w, 3)
+    final_view: np.ndarray | None = None  # (h, w, 3) the first scene view rendered after the episode (optional)
     control_hz: float | None = None
     source: str = "simeval"
     extra: dict = field(default_factory=dict)
@@ -111,13 +112,14 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
                 f.create_dataset("high_level/step", data=np.asarray(ep.high_level_step, np.int64))
             if ep.scene_views is not None:
                 f.create_dataset("scene_views", data=np.asarray(ep.scene_views, np.uint8), compression=compression)
+            if ep.final_view is not None:
+                f.create_dataset("final_view", data=np.asarray(ep.final_view, np.uint8), compression=compression)
             f.attrs.update({
                 "schema": SCHEMA, "pipeline": ep.pipeline, "task": ep.task, "description": ep.description,
                 "group": ep.group, "seed": int(ep.seed), "success": bool(ep.success),
                 "total_reward": float(np.sum(ep.reward)), "n_steps": ep.n_steps,
                 "cameras": json.dumps(sorted(ep.rgb)), "control_hz": float(ep.control_hz or 0.0),
-                "source": ep.source,  # arrays in `extra` (e.g. a rendered final view) are not metadata
-                "extra": json.dumps({k: v for k, v in ep.extra.items() if not isinstance(v, np.ndarray)}, default=str),
+                "source": ep.source, "extra": json.dumps(ep.extra, default=str),
             })
             f.attrs["complete"] = True  # written last: a file without it was cut short
         os.replace(tmp, path)
@@ -166,6 +168,7 @@ def read_episode(path: str | os.PathLike, cameras: list[str] | None = None) -> E
                 high_level_action=f["high_level/action"][()] if hl else None,
                 high_level_step=f["high_level/step"][()] if hl else None,
                 scene_views=f["scene_views"][()] if "scene_views" in f else None,
+                final_view=f["final_view"][()] if "final_view" in f else None,
                 control_hz=float(a["control_hz"]) or None, source=a["source"], extra=json.loads(a.get("extra", "{}")))
     except (KeyError, OSError) as e:
         raise EpisodeFormatError(f"{path}: damaged episode ({type(e).__name__}: {e})") from e
@@ -235,7 +238,6 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
     """Fixed-length windows {key: (L, ...)} (+ "rgb" (L, H, W, 3) if `camera`). Without cross_episodes a window
     never spans two episodes (an episode shorter than L yields nothing); with it, episodes are read as one
     stream in order, as the DreamerV3 loaders of the paper's authors do, and `is_first` marks the seams."""
-    import h5py
 
     stride = spec.stride or spec.length
     if spec.length < 1 or stride < 1:
@@ -243,8 +245,7 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
     buffer: dict[str, list[np.ndarray]] = {}
     for p in paths:
         p = Path(p)
-        _open(p).close()  # validates the file with a clear error before reading
-        with h5py.File(p, "r") as f:
+        with _open(p) as f:  # a damaged or incomplete file is a clear error naming it
             data = {k: f[k] for k in keys}
             if camera is not None:
                 if f"obs/rgb/{camera}" not in f:

@@ -88,6 +88,5 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         reward=reward, progress=prog, is_first=np.arange(t) == 0, is_terminal=np.arange(t) == t - 1,
         success=bool(success), high_level_action=np.stack(hl_actions) if hl_actions else np.zeros((0, 14), np.float32),
         high_level_step=np.asarray(hl_steps, np.int64), scene_views=views, control_hz=settings.control_hz,
-        source="simeval-suite",
-        extra={"objects": {o.id: {"shape": o.shape, "color": o.color} for o in inst.objects},
-               **({"final_view": final_view} if final_view is not None else {})})
+        source="simeval-suite", final_view=final_view,
+        extra={"objects": {o.id: {"shape": o.shape, "color": o.color} for o in inst.objects}})
