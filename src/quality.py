@@ -33,7 +33,10 @@ def main(cfg: DictConfig) -> None:
                 overrides=run["overrides"], judge=cfg.judge.kind, label=cfg.label,
                 tasks={b.name: {"pipeline": b.pipeline} for b in bundles})
     if cfg.judge.kind == "oracle":
-        write_result(out_dir, values={"task_completion": q.oracle_completion(bundles)}, errors=errors, **meta)
+        scores = q.oracle_completion(bundles)
+        errors.update({b.name: "no ground truth (success or progress) in task.yaml" for b in bundles
+                       if b.name not in scores})
+        write_result(out_dir, values={"task_completion": scores}, errors=errors, **meta)
         return
     ledger = Ledger(Prices(**cfg.judge.prices), cfg.budget_usd)
     settings = JudgeSettings(cfg.repeats, cfg.max_reasks, cfg.judge.concurrency, cfg.judge.rate_limit_per_min,

@@ -178,6 +178,17 @@ def test_import_authors_pt_formats(tmp_path):
     torch.save(robogen, tmp_path / "r" / "Open_Laptop" / "episode_2_4.pt")
     ep = next(import_robogen_pt(tmp_path / "r", groups={"Open_Laptop": "table-top"}))
     assert ep.group == "table-top" and ep.seed == 2 and ep.description == "Open Laptop"
+    assert not ep.success_known and ep.progress is None  # these files record neither
+    from simeval.episodes.bundles import export_bundles
+    from simeval.quality import load_bundles, oracle_completion
+
+    store = EpisodeStore(tmp_path / "store")
+    store.write(ep)
+    back = read_episode(store.path_for("robogen", "Open_Laptop", 2))
+    assert not back.success_known and back.progress is None
+    export_bundles(store.root, tmp_path / "bundles")
+    bundles, _ = load_bundles(tmp_path / "bundles")
+    assert bundles[0].ground_truth == {} and oracle_completion(bundles) == {}  # unknown is not scored as 0
     torch.save({"image": np.zeros((4, 2, 2, 3), np.uint8)}, tmp_path / "r" / "Open_Laptop" / "episode_3_4.pt")
     with pytest.raises(EpisodeFormatError, match="episode_3_4.pt: missing key 'state'"):
         list(import_robogen_pt(tmp_path / "r"))
@@ -194,7 +205,8 @@ def test_import_entrypoint_resumes(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     values = json.loads((tmp_path / "r2" / "result.json").read_text())["values"]
     assert values["written"] == 0 and values["skipped"] == 3
-    assert values["tasks"]["stack-block-pyramid"] == {"episodes": 3, "success": 3, "group": "stacking"}
+    assert values["tasks"]["stack-block-pyramid"] == {"episodes": 3, "success": 3, "success_unknown": 0,
+                                                      "group": "stacking"}
     assert len(EpisodeStore(tmp_path / "store").index("gensim")) == 3
     # a resumed import does not even read the sources of episodes it already holds
     (tmp_path / "data" / "stack-block-pyramid-train" / "color" / "000000-100.pkl").write_bytes(b"damaged later")

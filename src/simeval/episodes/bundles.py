@@ -38,8 +38,10 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         frames = ep.rgb[cam]
         for k, i in enumerate(np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))):
             Image.fromarray(frames[i]).save(d / "frames" / f"{k:05d}.png")
-        truth = {"success": bool(ep.success)}
-        if ep.progress is not None and ep.source == "simeval-suite":
+        truth = {}  # only what the source recorded: judge=oracle must not score an unknown as a failure
+        if ep.success_known:
+            truth["success"] = bool(ep.success)
+        if ep.progress is not None:
             truth["progress"] = float(ep.progress[-1])
         atomic_write_text(d / "task.yaml", yaml.safe_dump({
             "name": f"{ep.task}#{ep.seed}", "description": ep.description, "pipeline": ep.pipeline,

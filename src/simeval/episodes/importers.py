@@ -161,7 +161,7 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
             is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
             high_level_action=hl, high_level_step=np.asarray(d.get("high_step"), np.int64),
             scene_views=np.stack(views) if views and same_shape else None,
-            source=f"gensim_pt:{path}", extra={"success_known": False})
+            source=f"gensim_pt:{path}", success_known=False)
 
 
 def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
@@ -201,7 +201,7 @@ def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | 
         yield _image_state_episode(
             path, _load_torch(path), image_size, pipeline="robogen", task=task,
             description=(descriptions or {}).get(task, task.replace("_", " ")), group=_group(groups, task, "ungrouped"),
-            seed=int(m.group(1)), source=f"robogen_pt:{path}", extra={"success_known": False})
+            seed=int(m.group(1)), source=f"robogen_pt:{path}", success_known=False)
 
 
 IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt": import_bbsea_pt,
@@ -223,13 +223,14 @@ def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike,
     for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress):
         if isinstance(item, Stored):
             meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
-            task, group, success, is_new = item.task, meta["group"], meta["success"], False
+            task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
         else:
-            task, group, success = item.task, item.group, item.success
+            task, group, success, known = item.task, item.group, item.success, item.success_known
             is_new = overwrite or not store.exists(item.pipeline, item.task, item.seed)
-        stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "group": group})
+        stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "success_unknown": 0, "group": group})
         stats["episodes"] += 1
-        stats["success"] += int(success)
+        stats["success"] += int(known and success)
+        stats["success_unknown"] += int(not known)  # the source does not say: not counted as a failure
         if is_new:
             store.write(item)
             written += 1

@@ -10,13 +10,14 @@ Per step (T steps; datasets under the file root):
   obs/state          float32 (T, D)        proprioception (D may be 0 when a source has none)
   action             float32 (T, A)        low-level action
   reward             float32 (T,)          reward; `progress` float32 (T,) partial progress in [0, 1]
+                                           (zeros, with attrs progress_known=False, when the source has none)
   is_first, is_terminal  bool (T,)
 Per episode:
   high_level/action  float32 (H, K)        high-level actions (e.g. pick and place poses, 14-d)
   high_level/step    int64  (H,)           low-level index where each starts
   scene_views        uint8  (V, h, w, 3)   views of the initial scene for the judges (optional)
-  attrs: schema, pipeline, task, description, group, seed, success, total_reward, n_steps, cameras, control_hz,
-         source, complete
+  attrs: schema, pipeline, task, description, group, seed, success, success_known, progress_known, total_reward,
+         n_steps, cameras, control_hz, source, complete
 """
 
 from __future__ import annotations
@@ -52,8 +53,9 @@ class Episode:
     reward: np.ndarray  # (T,)
     is_first: np.ndarray  # (T,)
     is_terminal: np.ndarray  # (T,)
-    progress: np.ndarray | None = None  # (T,)
+    progress: np.ndarray | None = None  # (T,); None when the source does not record it
     success: bool = False
+    success_known: bool = True  # False for sources that do not record success (the authors' GenSim/RoboGen files)
     high_level_action: np.ndarray | None = None  # (H, K)
     high_level_step: np.ndarray | None = None  # (H,)
     scene_views: np.ndarray | None = None  # (V, h, w, 3)
@@ -117,6 +119,7 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
             f.attrs.update({
                 "schema": SCHEMA, "pipeline": ep.pipeline, "task": ep.task, "description": ep.description,
                 "group": ep.group, "seed": int(ep.seed), "success": bool(ep.success),
+                "success_known": bool(ep.success_known), "progress_known": ep.progress is not None,
                 "total_reward": float(np.sum(ep.reward)), "n_steps": ep.n_steps,
                 "cameras": json.dumps(sorted(ep.rgb)), "control_hz": float(ep.control_hz or 0.0),
                 "source": ep.source, "extra": json.dumps(ep.extra, default=str),
@@ -164,7 +167,9 @@ def read_episode(path: str | os.PathLike, cameras: list[str] | None = None) -> E
                 pipeline=a["pipeline"], task=a["task"], description=a["description"], group=a["group"],
                 seed=int(a["seed"]), rgb={c: f[f"obs/rgb/{c}"][()] for c in cams}, state=f["obs/state"][()],
                 action=f["action"][()], reward=f["reward"][()], is_first=f["is_first"][()],
-                is_terminal=f["is_terminal"][()], progress=f["progress"][()], success=bool(a["success"]),
+                is_terminal=f["is_terminal"][()], success=bool(a["success"]),
+                progress=f["progress"][()] if a.get("progress_known", True) else None,
+                success_known=bool(a.get("success_known", True)),
                 high_level_action=f["high_level/action"][()] if hl else None,
                 high_level_step=f["high_level/step"][()] if hl else None,
                 scene_views=f["scene_views"][()] if "scene_views" in f else None,
