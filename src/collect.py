@@ -21,27 +21,14 @@ def main(cfg: DictConfig) -> None:
     from simeval.episodes.store import EpisodeStore
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.rollout import RecordSettings
-    from simeval.sim.spec import SUITES_DIR, load_suite
+    from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
 
     if not cfg.pipeline.get("suite"):
         raise ValueError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
-    specs = load_suite(SUITES_DIR / cfg.pipeline.suite)
-    groups = sorted({s.group for s in specs})
-    if cfg.tasks:
-        unknown = set(cfg.tasks) - {s.name for s in specs}
-        if unknown:
-            raise ValueError(f"unknown task(s) {sorted(unknown)}; suite {cfg.pipeline.suite} has "
-                             f"{', '.join(s.name for s in specs)}")
-        specs = [s for s in specs if s.name in cfg.tasks]
-    elif cfg.task_group != "all":
-        if cfg.task_group not in groups:
-            raise ValueError(f"unknown task_group '{cfg.task_group}'; available: {', '.join(groups)}, all")
-        specs = [s for s in specs if s.group == cfg.task_group]
+    specs = select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), cfg.tasks, cfg.task_group)
     if cfg.episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
-    rec = OmegaConf.to_container(cfg.record, resolve=True)
-    settings = RecordSettings(**{**rec, "cameras": tuple(rec["cameras"]), "image_size": tuple(rec["image_size"]),
-                                 "scene_view_size": tuple(rec["scene_view_size"])})
+    settings = RecordSettings(**OmegaConf.to_container(cfg.record, resolve=True))
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
     summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers,
                       variation=OmegaConf.to_container(cfg.variation, resolve=True))

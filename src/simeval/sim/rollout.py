@@ -26,6 +26,9 @@ class RecordSettings:
     record_every: int = 1  # log every k-th control step (1 = the full control rate)
 
     def __post_init__(self) -> None:
+        # configs give lists; the settings travel to worker processes and into keys, so keep them immutable
+        self.cameras, self.image_size = tuple(self.cameras), tuple(self.image_size)
+        self.scene_view_size = tuple(self.scene_view_size)
         unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
         if unknown:
             raise ValueError(f"unknown camera(s) {unknown}; known: {', '.join(OBS_CAMERAS)}")

@@ -171,6 +171,21 @@ def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
 SUITES_DIR = Path(__file__).resolve().parent / "suites"
 
 
+def select_specs(specs: list[TaskSpec], tasks: list[str] | None = None, group: str = "all") -> list[TaskSpec]:
+    """Named tasks, or one group's tasks, or all; unknown names list what exists."""
+    if tasks:
+        unknown = set(tasks) - {s.name for s in specs}
+        if unknown:
+            raise SpecError(f"unknown task(s) {sorted(unknown)}; available: {', '.join(s.name for s in specs)}")
+        return [s for s in specs if s.name in tasks]
+    if group == "all":
+        return list(specs)
+    groups = sorted({s.group for s in specs})
+    if group not in groups:
+        raise SpecError(f"unknown task_group '{group}'; available: {', '.join(groups)}, all")
+    return [s for s in specs if s.group == group]
+
+
 @dataclass
 class Instance:
     """One sampled task instance: objects with colours, sizes and poses, and the rendered description."""
