@@ -2,19 +2,17 @@
 
 import inspect
 import logging
-import sys
-from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simeval.cli import allow_multirun_anywhere  # noqa: E402
+from simeval.cli import exit_cleanly_on_user_error, launch
 
 log = logging.getLogger("import_data")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="import_data")
+@exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     from simeval.episodes.importers import IMPORTERS, import_into_store
     from simeval.episodes.store import EpisodeStore
@@ -37,5 +35,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    allow_multirun_anywhere()
-    main()
+    launch(main)

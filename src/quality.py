@@ -2,20 +2,19 @@
 
 import json
 import logging
-import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simeval.cli import allow_multirun_anywhere  # noqa: E402
+from simeval.cli import exit_cleanly_on_user_error, launch
 
 log = logging.getLogger("quality")
 CONF = Path(__file__).resolve().parent.parent / "conf"
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="quality")
+@exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
@@ -69,5 +68,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    allow_multirun_anywhere()
-    main()
+    launch(main)

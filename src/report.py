@@ -1,19 +1,18 @@
 """Rebuild a paper table from result.json files (no rerun). See conf/report.yaml and conf/report/."""
 
 import logging
-import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simeval.cli import allow_multirun_anywhere  # noqa: E402
+from simeval.cli import exit_cleanly_on_user_error, launch
 
 log = logging.getLogger("report")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")
+@exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     from simeval.report.build import build_text_diversity_report
     from simeval.report.quality_figure import build_quality_figure
@@ -35,5 +34,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    allow_multirun_anywhere()
-    main()
+    launch(main)

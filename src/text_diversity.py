@@ -1,19 +1,18 @@
 """Text diversity of a pipeline's task descriptions (paper Eq. 1, Table 3). See conf/text_diversity.yaml."""
 
 import logging
-import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the simeval package beside this file
-from simeval.cli import allow_multirun_anywhere  # noqa: E402
+from simeval.cli import exit_cleanly_on_user_error, launch
 
 log = logging.getLogger("text_diversity")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="text_diversity")
+@exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
@@ -49,5 +48,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    allow_multirun_anywhere()
-    main()
+    launch(main)

@@ -65,3 +65,52 @@ def test_wandb_offline_finishes_on_error_and_never_stores_secrets(tmp_path, monk
     files = [p for p in tmp_path.rglob("*") if p.is_file()]
     assert any(p.suffix == ".wandb" for p in files)
     assert not any(b"sk-leak-me" in p.read_bytes() for p in files)
+
+
+def test_redaction_keeps_counts_and_catches_key_shaped_values():
+    cfg = {"max_tokens": 300, "image_tokens": 85, "api_key_env": "OPENAI_API_KEY", "access_token": "abc",
+           "notes": ["sk-abcdefghijklmnopqrstuvwx", "plain"], "hf": {"path": "hf_ABCDEFGHIJKLMNOPQRSTUVWXYZ"}}
+    assert redact_secrets(cfg) == {"max_tokens": 300, "image_tokens": 85, "api_key_env": "OPENAI_API_KEY",
+                                   "access_token": "<redacted>", "notes": ["<redacted>", "plain"],
+                                   "hf": {"path": "<redacted>"}}
+
+
+def test_result_json_is_strict_and_world_readable_under_the_umask(tmp_path):
+    import numpy as np
+
+    old = os.umask(0o022)
+    try:
+        path = write_result(tmp_path, metric="m", version="1", values={"a": float("nan"), "b": np.float32(0.5),
+                                                                       "c": [float("inf"), np.int64(3)]})
+    finally:
+        os.umask(old)
+    rec = json.loads(path.read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+    assert rec["values"] == {"a": None, "b": 0.5, "c": [None, 3]}
+    assert path.stat().st_mode & 0o777 == 0o644
+
+
+def test_key_typed_on_the_command_line_stops_before_hydra_saves_it(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    proc = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"),
+                           "judge.provider.api_key_env=sk-abcdefghijklmnopqrstuvwx", f"hydra.run.dir={tmp_path}/run"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "judge.provider.api_key_env" in proc.stderr
+    assert "sk-abcdefghijklmnopqrstuvwx" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_user_error_is_one_line_and_exit_2(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    cmd = [sys.executable, str(ROOT / "src" / "text_diversity.py"), "pipeline=custom",
+           f"pipeline.tasks_path={tmp_path}/missing.yaml", f"hydra.run.dir={tmp_path}/run"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "HYDRA_FULL_ERROR": ""})
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and "missing.yaml" in proc.stderr.strip().splitlines()[-1]

@@ -1,10 +1,28 @@
-"""Command-line conveniences shared by the Hydra entrypoints under `src/`."""
+"""Command-line conveniences shared by the Hydra entrypoints under `src/`.
+
+Every entrypoint is written as::
+
+    @hydra.main(version_base="1.3", config_path="../conf", config_name="NAME")
+    @exit_cleanly_on_user_error
+    def main(cfg): ...
+
+    if __name__ == "__main__":
+        launch(main)
+"""
 
 from __future__ import annotations
 
+import functools
+import os
 import sys
+from collections.abc import Callable
+from typing import Any
+
+from simeval.errors import UserError
+from simeval.secrets import key_shaped_overrides
 
 MULTIRUN_FLAGS = ("-m", "--multirun")
+USER_ERROR_EXIT = 2
 
 
 def move_multirun_flag_first(argv: list[str]) -> list[str]:
@@ -29,3 +47,39 @@ def move_multirun_flag_first(argv: list[str]) -> list[str]:
 def allow_multirun_anywhere() -> None:
     """Rewrite sys.argv in place; call before the `@hydra.main` function."""
     sys.argv[:] = move_multirun_flag_first(sys.argv)
+
+
+def _fail(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(USER_ERROR_EXIT)
+
+
+def refuse_secrets_on_command_line(argv: list[str]) -> None:
+    """Stop before Hydra writes the overrides to `.hydra/`: a key typed as a value would be stored in clear."""
+    for key, why in key_shaped_overrides(argv[1:]):
+        _fail(f"override {key}=... looks like a secret ({why}); put the secret in an environment variable and give "
+              f"its name (e.g. judge.provider.api_key_env=OPENAI_API_KEY), never the value")
+
+
+def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a Hydra task function (under `@hydra.main`): a UserError or a config-access error becomes one
+    line on stderr and exit status 2. HYDRA_FULL_ERROR=1 re-raises for the full traceback."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except (UserError, OmegaConfBaseException) as e:
+            if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                raise
+            _fail(str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)
+
+    return wrapper
+
+
+def launch(main: Callable[[], Any]) -> None:
+    """Run an entrypoint's `main` after the argv fixes every entrypoint shares."""
+    refuse_secrets_on_command_line(sys.argv)
+    allow_multirun_anywhere()
+    main()

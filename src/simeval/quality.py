@@ -20,12 +20,13 @@ import yaml
 from simeval.judges.prompts import PromptTemplate
 from simeval.judges.providers import Image
 from simeval.judges.runner import JudgeItem, ScoreRecord
+from simeval.errors import UserError
 
 SCALES = {"scene_alignment": (1.0, 5.0), "task_completion": (0.0, 10.0)}
 METRICS = tuple(SCALES)
 
 
-class BundleError(ValueError):
+class BundleError(UserError):
     pass
 
 

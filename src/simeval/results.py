@@ -4,17 +4,26 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
-import re
 import subprocess
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from simeval.secrets import redact_secrets
+
 RESULT_FILE = "result.json"
 RESULT_SCHEMA = 1
-_SECRET_KEY = re.compile(r"(api[_-]?key|token|secret|password|authorization)", re.IGNORECASE)
+
+
+def umask_file_mode() -> int:
+    """The mode a plainly created file gets (0o666 less the umask). mkstemp makes 0o600 files; a shared store or
+    outputs folder needs the mode other writers' files have."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
@@ -23,6 +32,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, umask_file_mode())
         with os.fdopen(fd, "w") as f:
             f.write(text)
             f.flush()
@@ -34,21 +44,25 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
-def redact_secrets(obj: Any) -> Any:
-    """Drop values under secret-looking keys. Keys naming an environment variable (`*_env`) are kept: they hold
-    the variable's name, never its value."""
+def strict_json_value(obj: Any) -> Any:
+    """obj with NaN/Infinity replaced by None and numpy scalars/arrays by Python values, so `json.dumps(...,
+    allow_nan=False)` succeeds: result.json is read by tools (jq, JavaScript, W&B) that reject bare NaN."""
     if isinstance(obj, Mapping):
-        out = {}
-        for k, v in obj.items():
-            key = str(k)
-            if _SECRET_KEY.search(key) and not key.endswith("_env") and v is not None:
-                out[key] = "<redacted>"
-            else:
-                out[key] = redact_secrets(v)
-        return out
-    if isinstance(obj, (list, tuple)):
-        return [redact_secrets(v) for v in obj]
-    return obj
+        return {str(k): strict_json_value(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set)):
+        return [strict_json_value(v) for v in obj]
+    if hasattr(obj, "tolist") and callable(obj.tolist):  # numpy scalars and arrays
+        return strict_json_value(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    return str(obj)
+
+
+def dumps_strict(obj: Any, **kwargs: Any) -> str:
+    """json.dumps that never writes NaN/Infinity (see strict_json_value)."""
+    return json.dumps(strict_json_value(obj), allow_nan=False, **kwargs)
 
 
 def git_sha(start: str | os.PathLike | None = None) -> str | None:
@@ -110,7 +124,7 @@ def write_result(
         **extra,
         "config": redact_secrets(dict(config or {})),
     }
-    return atomic_write_text(Path(out_dir) / RESULT_FILE, json.dumps(record, indent=2, default=str) + "\n")
+    return atomic_write_text(Path(out_dir) / RESULT_FILE, dumps_strict(record, indent=2) + "\n")
 
 
 def read_results(root: str | os.PathLike, metric: str | None = None) -> list[dict]:

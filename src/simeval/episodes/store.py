@@ -31,12 +31,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from simeval.errors import UserError
 
 SCHEMA = 1
 STEP_KEYS = ("obs/state", "action", "reward", "progress", "is_first", "is_terminal")
 
 
-class EpisodeFormatError(ValueError):
+class EpisodeFormatError(UserError):
     """An episode file is missing, truncated, incomplete or not in this format; the message names the file."""
 
 

@@ -26,12 +26,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from simeval.metrics.bootstrap import percentile_interval
+from simeval.errors import UserError
 
 METRIC_VERSION = "1.0"
 STATISTICS = ("div", "vendi", "cos_dist", "self_bleu")
 
 
-class DiversityInputError(ValueError):
+class DiversityInputError(UserError):
     """The input cannot give a defined diversity value; the message says why and which item."""
 
 

@@ -34,11 +34,12 @@ import yaml
 
 from simeval.sim.objects import COLORS, SHAPES, SimObject
 from simeval.sim.world import WORKSPACE
+from simeval.errors import UserError
 
 GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone")
 
 
-class SpecError(ValueError):
+class SpecError(UserError):
     pass
 
 

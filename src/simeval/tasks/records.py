@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from simeval.errors import UserError
 
 ALL_GROUPS = "all"
 
 
-class TaskSourceError(ValueError):
+class TaskSourceError(UserError):
     """A task source is missing, unreadable or malformed; the message names the file and what is wrong."""
 
 
