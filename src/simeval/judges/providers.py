@@ -19,7 +19,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from simeval.httpretry import RetryPolicy, post_json
+from simeval.httpretry import RetryPolicy, api_key_from_env, check_key_transport, post_json
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,12 @@ class OpenAIChatProvider:
     def __init__(self, base_url: str, model: str, api_key_env: str | None = "OPENAI_API_KEY",
                  api_style: str = "openai", api_version: str | None = None, temperature: float = 0.7,
                  max_tokens: int = 64, timeout_s: float = 60.0, max_retries: int = 5, backoff_s: float = 1.0,
-                 image_detail: str = "auto", seed: int | None = None) -> None:
+                 image_detail: str = "auto", seed: int | None = None, allow_insecure_http: bool = False,
+                 config_key: str = "judge.provider") -> None:
+        """`config_key` is where this provider sits in the config (judge.provider, captioner.provider), for error
+        messages. The key is read, and checked to travel only over https or to loopback (unless
+        `allow_insecure_http`), when the first request is sent: a UserError raised here in the constructor would
+        reach the user wrapped by Hydra's instantiate, as a traceback."""
         if api_style not in ("openai", "azure"):
             raise ValueError(f"judge.provider.api_style={api_style!r}: expected openai or azure")
         if api_style == "azure" and not api_version:
@@ -71,6 +76,8 @@ class OpenAIChatProvider:
         self.base_url, self.model, self.api_key_env = base_url.rstrip("/"), model, api_key_env
         self.api_style, self.api_version, self.image_detail = api_style, api_version, image_detail
         self.temperature, self.max_tokens, self.timeout_s, self.seed = temperature, max_tokens, timeout_s, seed
+        self.allow_insecure_http, self.config_key = bool(allow_insecure_http), config_key
+        self._auth: dict | None = None
         self.retry = RetryPolicy(max_retries=max_retries, backoff_s=backoff_s)
         self._client = httpx.Client(limits=httpx.Limits(max_connections=64, max_keepalive_connections=64))
 
@@ -85,10 +92,14 @@ class OpenAIChatProvider:
         return f"{self.base_url}/chat/completions"
 
     def _headers(self) -> dict:
-        key = os.environ.get(self.api_key_env) if self.api_key_env else None
-        if not key:
-            return {}
-        return {"api-key": key} if self.api_style == "azure" else {"Authorization": f"Bearer {key}"}
+        if self._auth is None:
+            key = api_key_from_env(self.api_key_env, config_key=self.config_key)
+            if key:
+                check_key_transport(self.base_url, config_key=self.config_key, key_env=self.api_key_env,
+                                    allow_insecure_http=self.allow_insecure_http)
+            self._auth = ({"api-key": key} if self.api_style == "azure" else {"Authorization": f"Bearer {key}"}) \
+                if key else {}
+        return self._auth
 
     def payload(self, system: str, user: str, images: list[Image]) -> dict:
         content: list[dict] = [{"type": "text", "text": user}]

@@ -158,7 +158,9 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
             if stop.is_set():
                 return
             key = _identity(provider, item, system, user, repeat, ask)
-            hit = cache.get(key)
+            # claim: a miss leaves this run holding the key's lease until put()/release(); a request another
+            # process is asking right now is waited for, not paid twice
+            hit = cache.get(key) if settings.replay else cache.claim(key)
             if hit is not None:
                 ledger.record_cached(hit.cost_usd, item.cost_label)
                 reply, latency, cached = hit.reply, hit.latency_s, True
@@ -168,12 +170,17 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                                  f"{item.template.sha256[:12]}); run once with a live judge first")
             else:
                 estimate = _estimate(ledger, provider, item, system, user)
-                ledger.reserve(estimate)
+                try:
+                    ledger.reserve(estimate)
+                except BaseException:
+                    cache.release(key)
+                    raise
                 try:
                     limiter.acquire()
                     out = provider.complete(system, user, item.images)
                 except BaseException:
                     ledger.release(estimate)
+                    cache.release(key)
                     raise
                 cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images),
                                      item.cost_label)

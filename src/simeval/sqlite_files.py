@@ -1,0 +1,36 @@
+"""Opening the SQLite caches (judge calls, embeddings) so that a damaged, locked or unopenable file stops the run
+with one line naming the file and what to do, instead of a traceback from deep inside sqlite3."""
+
+from __future__ import annotations
+
+import contextlib
+import sqlite3
+from collections.abc import Iterator
+from pathlib import Path
+
+from simeval.errors import UserError
+
+
+def sqlite_user_error(path: Path, e: sqlite3.Error, *, what: str, advice: str, timeout_s: float) -> UserError:
+    """A UserError for an sqlite3 error on the cache file `path`: locked, unopenable, or damaged."""
+    said = " ".join(str(e).split()) or type(e).__name__
+    if isinstance(e, sqlite3.OperationalError) and ("locked" in said or "busy" in said):
+        return UserError(
+            f"{path}: the {what} is locked by another process (waited {timeout_s:g} s; sqlite: {said}); another run "
+            "may be writing to it, or a program holds a transaction open on it (a sqlite3 shell, a run on a network "
+            "filesystem): let it finish or close it, then re-run")
+    if isinstance(e, sqlite3.OperationalError) and ("unable to open" in said or "readonly" in said
+                                                     or "read-only" in said or "disk I/O" in said):
+        return UserError(f"{path}: cannot open or write the {what} (sqlite: {said}); check that its folder exists "
+                         "and is writable, or point cache_dir=... elsewhere")
+    side = f"{path.name}-wal, {path.name}-shm"
+    return UserError(f"{path}: the {what} is damaged or not an SQLite file (sqlite: {said}); {advice} "
+                     f"(with any {side} beside it), then re-run")
+
+
+@contextlib.contextmanager
+def friendly_errors(path: Path, *, what: str, advice: str, timeout_s: float) -> Iterator[None]:
+    try:
+        yield
+    except sqlite3.Error as e:
+        raise sqlite_user_error(path, e, what=what, advice=advice, timeout_s=timeout_s) from e
