@@ -4,7 +4,8 @@ smoke runs of the judge and embedding clients (`python -m simeval.devserver` ser
 Routes: POST /v1/embeddings (deterministic hashed bag-of-words vectors) and POST /v1/chat/completions (replies
 from a script or a default). `server.faults` is a queue of actions consumed one per request, e.g.
 {"status": 429, "retry_after": "0.1"}, {"status": 500}, {"status": 401}, {"delay": 0.5}, {"hang": 5},
-{"raw": "not json"}, {"reply": "Score: 3"}. Every request is recorded in `server.requests`.
+{"raw": "not json"}, {"reply": "Score: 3"}; a status action may add `"message"` (the error body's message) and
+`"headers"` (e.g. {"retry-after-ms": "50"}). Every request is recorded in `server.requests`.
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class _Handler(BaseHTTPRequestHandler):
         time.sleep(action.get("delay", srv.latency_s))
         if "status" in action:
             headers = {"Retry-After": action["retry_after"]} if "retry_after" in action else {}
+            headers.update(action.get("headers", {}))
             self._send(action["status"], json.dumps({"error": {"message": action.get("message", "scripted")}}).encode(),
                        headers)
             return

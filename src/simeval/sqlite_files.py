@@ -12,7 +12,8 @@ from simeval.errors import UserError
 
 
 def sqlite_user_error(path: Path, e: sqlite3.Error, *, what: str, advice: str, timeout_s: float) -> UserError:
-    """A UserError for an sqlite3 error on the cache file `path`: locked, unopenable, or damaged."""
+    """A UserError for an sqlite3 error on the cache file `path`: locked, unopenable, or damaged (then `advice`,
+    where `{sidecars}` names the -wal/-shm files to move with it, says what to do)."""
     said = " ".join(str(e).split()) or type(e).__name__
     if isinstance(e, sqlite3.OperationalError) and ("locked" in said or "busy" in said):
         return UserError(
@@ -23,9 +24,9 @@ def sqlite_user_error(path: Path, e: sqlite3.Error, *, what: str, advice: str, t
                                                      or "read-only" in said or "disk I/O" in said):
         return UserError(f"{path}: cannot open or write the {what} (sqlite: {said}); check that its folder exists "
                          "and is writable, or point cache_dir=... elsewhere")
-    side = f"{path.name}-wal, {path.name}-shm"
-    return UserError(f"{path}: the {what} is damaged or not an SQLite file (sqlite: {said}); {advice} "
-                     f"(with any {side} beside it), then re-run")
+    sidecars = f"{path.name}-wal and {path.name}-shm"  # a stale -wal beside a new file would be replayed into it
+    return UserError(f"{path}: the {what} is damaged or not an SQLite file (sqlite: {said}); "
+                     + advice.format(sidecars=sidecars))
 
 
 @contextlib.contextmanager

@@ -12,7 +12,8 @@ import numpy as np
 
 from simeval.sqlite_files import friendly_errors
 
-ADVICE = "delete it or move it aside (it only saves recomputing embeddings; a re-run rebuilds it)"
+ADVICE = ("delete it or move it aside (with any {sidecars} beside it), then re-run; it only saves recomputing "
+          "embeddings, and the re-run rebuilds it")
 
 
 def embedding_key(model_id: str, text: str) -> str:

@@ -49,8 +49,9 @@ class CachedCall:
     created: float
 
 
-ADVICE = ("it holds replies that were paid for, so move it aside rather than deleting it (sqlite3's .recover "
-          "may save some of them); a new cache is created and the missing replies are asked, and paid, again")
+ADVICE = ("it holds replies that were paid for, so move it aside (with any {sidecars} beside it) rather than "
+          "delete it, then re-run: a new cache is created and the missing replies are asked, and paid for, again "
+          "(sqlite3's .recover may save some of the old ones)")
 _CALL_COLUMNS = "key, reply, prompt_tokens, completion_tokens, images, cost_usd, latency_s, created"
 
 
