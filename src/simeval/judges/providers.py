@@ -65,14 +65,15 @@ class OpenAIChatProvider:
         messages. The key is read, and checked to travel only over https or to loopback (unless
         `allow_insecure_http`), when the first request is sent: a UserError raised here in the constructor would
         reach the user wrapped by Hydra's instantiate, as a traceback."""
+        k = config_key
         if api_style not in ("openai", "azure"):
-            raise ValueError(f"judge.provider.api_style={api_style!r}: expected openai or azure")
+            raise ValueError(f"{k}.api_style={api_style!r}: expected openai or azure")
         if api_style == "azure" and not api_version:
-            raise ValueError("judge.provider.api_version must be set for api_style=azure (e.g. 2024-02-15-preview)")
+            raise ValueError(f"{k}.api_version must be set for api_style=azure (e.g. 2024-02-15-preview)")
         if not base_url or not model:
-            raise ValueError("judge.provider.base_url and judge.provider.model must be set")
+            raise ValueError(f"{k}.base_url and {k}.model must be set")
         if max_tokens < 1 or timeout_s <= 0:
-            raise ValueError(f"judge.provider: max_tokens must be >= 1 and timeout_s > 0, got {max_tokens}, {timeout_s}")
+            raise ValueError(f"{k}: max_tokens must be >= 1 and timeout_s > 0, got {max_tokens}, {timeout_s}")
         self.base_url, self.model, self.api_key_env = base_url.rstrip("/"), model, api_key_env
         self.api_style, self.api_version, self.image_detail = api_style, api_version, image_detail
         self.temperature, self.max_tokens, self.timeout_s, self.seed = temperature, max_tokens, timeout_s, seed
