@@ -8,6 +8,7 @@ from simeval.embeddings.cache import EmbeddingCache
 from simeval.embeddings.local import SentenceTransformerBackend, resolve_packaged_model
 from simeval.embeddings.remote import OpenAIEmbeddingBackend
 from simeval.httpretry import FatalHTTPError
+from simeval.errors import UserError
 
 
 def _backend(srv, **kw):
@@ -90,7 +91,7 @@ def test_cache_is_keyed_by_model(openai_server, tmp_path):
 
 
 def test_local_model_errors_are_clear(tmp_path):
-    with pytest.raises(FileNotFoundError, match="neither a packaged model"):
+    with pytest.raises(UserError, match="neither a packaged model"):
         SentenceTransformerBackend(model=str(tmp_path / "missing"))
     with pytest.raises(ValueError, match="unknown packaged model"):
         resolve_packaged_model("no-such-model")

