@@ -18,7 +18,8 @@ the loop over draws). 2000 resamples at n = 100 take milliseconds instead of sec
 
 Reliability of one judge over repeats, from an (items, repeats) array with NaN for an invalid reply:
     krippendorff alpha (interval) = 1 - D_o / D_e               (missing values allowed)
-        D_o = 1/n_. sum_u sum_{c != k in u} (x_c - x_k)^2 / (m_u - 1),   D_e = sum_{c != k, all} (x_c - x_k)^2 / (n_. (n_. - 1))
+        D_o = 1/n_. sum_u sum_{c != k in u} (x_c - x_k)^2 / (m_u - 1)
+        D_e = sum_{c != k, all pairable values} (x_c - x_k)^2 / (n_. (n_. - 1))
         over units u with m_u >= 2 values, n_. = number of pairable values
     icc(1,1)                      = (MSB - MSW) / (MSB + (k - 1) MSW)   (complete rows only; Shrout & Fleiss 1979)
         MSB = k/(n-1) sum_i (mean_i - grand)^2,   MSW = 1/(n(k-1)) sum_ij (x_ij - mean_i)^2
