@@ -12,8 +12,9 @@ Higher means less similar, i.e. more diverse. Also here, each a pure function of
 
 BLEU-4 here is NLTK's sentence_bleu with SmoothingFunction().method1 (a zero match count becomes 0.1), closest
 reference length for the brevity penalty, except for texts of k < 4 tokens: those average only the k orders they
-have (NLTK with weights (1/k,)*k), where NLTK's default weights count each missing order as a smoothed 0.1 and so
-score "push" against "push it" 0.18 instead of 1.0 (tests/test_reference_crosschecks.py checks both cases).
+have (NLTK with weights (1/k,)*k), where NLTK's default weights count each missing order as a smoothed 0.1: "open
+the drawer" against an identical reference scores 1.0 here and 0.1^(1/4) = 0.56 in NLTK (tests/test_reference_
+crosschecks.py checks both). Texts of 4 or more tokens score exactly as in NLTK.
 
 Shapes: `embeddings` (N, D) float; `similarity` (N, N) float, symmetric, diagonal ignored; `texts` list of N str.
 Returns plain floats; `diversity_summary` returns a dict of them with 95% CIs over tasks.
