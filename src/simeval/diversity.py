@@ -12,6 +12,23 @@ from simeval.tasks import ALL_GROUPS, Task, groups_of, select_group
 EACH = "each"
 
 
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _check_settings(n_boot, subsample_n, subsample_repeats) -> None:
+    """The `metrics:` block of conf/text_diversity.yaml, checked before any work (UserError names the key)."""
+    if not _is_int(n_boot) or n_boot < 10:
+        raise DiversityInputError(f"metrics.n_boot must be an integer >= 10 (bootstrap resamples for the div and "
+                                  f"cos_dist intervals; fewer can give no interval), got {n_boot!r}")
+    if not (subsample_n is None or subsample_n == "auto" or (_is_int(subsample_n) and subsample_n >= 2)):
+        raise DiversityInputError(f"metrics.subsample_n must be auto, null, or an integer >= 2 (tasks per random "
+                                  f"subset), got {subsample_n!r}")
+    if not _is_int(subsample_repeats) or subsample_repeats < 1:
+        raise DiversityInputError(f"metrics.subsample_repeats must be an integer >= 1 (random subsets per group), "
+                                  f"got {subsample_repeats!r}")
+
+
 def text_diversity_by_group(
     tasks: Sequence[Task],
     encode: Callable[[list[str]], np.ndarray],
@@ -28,6 +45,7 @@ def text_diversity_by_group(
     recorded as {"n": .., "error": reason} so the other groups still report; a single requested group raises.
     `subsample_n="auto"` uses the smallest group's size so every group is also compared at a common N.
     """
+    _check_settings(n_boot, subsample_n, subsample_repeats)
     tasks = list(tasks)
     if not tasks:
         raise DiversityInputError("no tasks loaded")
@@ -38,8 +56,10 @@ def text_diversity_by_group(
     if subsample_n == "auto":
         sizes = [len(v) for v in chosen.values() if len(v) >= 2]
         subsample_n = min(sizes) if sizes else None
-    elif subsample_n is not None and not isinstance(subsample_n, int):
-        raise ValueError(f"metrics.subsample_n must be auto, an int or null, got {subsample_n!r}")
+    elif subsample_n is not None and subsample_n > max(len(v) for v in chosen.values()):
+        raise DiversityInputError(
+            f"metrics.subsample_n={subsample_n} is larger than every task group here (largest: "
+            f"{max(len(v) for v in chosen.values())} tasks); use auto, null, or an integer in [2, that size]")
     out: dict[str, dict] = {}
     for group, members in chosen.items():
         group_texts = [t.text for t in members]
