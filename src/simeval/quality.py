@@ -86,20 +86,20 @@ def sample_frame_indices(n_total: int, n_frames: int) -> list[int]:
 
 
 def count_video_frames(path: Path) -> int | None:
-    """Frames of the first video stream, counted by demuxing its packets with ffmpeg (`-c copy`: nothing is
-    decoded); None when ffmpeg is missing or cannot tell."""
-    import re
+    """Frames of the first video stream, counted from its packets (ffmpeg `-c copy -f framecrc` lists one line
+    per packet; nothing is decoded); None when ffmpeg is missing or cannot tell."""
     import subprocess
 
     try:
         import imageio_ffmpeg
 
-        res = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-hide_banner", "-i", str(path), "-map",
-                              "0:v:0", "-c", "copy", "-f", "null", "-"], capture_output=True, timeout=120)
+        res = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path), "-map",
+                              "0:v:0", "-c", "copy", "-f", "framecrc", "-"], capture_output=True, timeout=120)
     except (ImportError, OSError, RuntimeError, subprocess.SubprocessError):
         return None
-    counts = re.findall(r"frame=\s*(\d+)", res.stderr.decode(errors="ignore"))
-    return int(counts[-1]) if res.returncode == 0 and counts else None
+    if res.returncode != 0:
+        return None
+    return sum(1 for line in res.stdout.decode(errors="ignore").splitlines() if line and not line.startswith("#"))
 
 
 def read_video_frames(path: Path, n_frames: int) -> list[np.ndarray]:
@@ -186,8 +186,11 @@ def load_bundles(root: str | os.PathLike) -> tuple[list[TaskBundle], dict[str, s
                 if meta.get(key) is not None and not isinstance(meta[key], (str, int)):
                     raise BundleError(f"{meta_path}: `{key}` must be a string, got {meta[key]!r}")
             truth = validate_ground_truth(meta.get("ground_truth"), str(meta_path))
-        except (yaml.YAMLError, BundleError, UnicodeDecodeError) as e:
-            errors[d.name] = str(e).replace("\n", " ")
+        except BundleError as e:
+            errors[d.name] = str(e)
+            continue
+        except (yaml.YAMLError, UnicodeDecodeError) as e:
+            errors[d.name] = f"{meta_path}: not readable YAML ({' '.join(str(e).split())})"
             continue
         pipeline = None if meta.get("pipeline") is None else str(meta["pipeline"])
         bundles.append(TaskBundle(str(meta.get("name", d.name)), d, meta["description"], pipeline, truth, meta))
