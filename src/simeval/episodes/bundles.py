@@ -28,7 +28,14 @@ def task_identity(task: str, seed: int) -> str:
 
 
 def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
-    metas = EpisodeStore(store_root).first_k_per_task(per_task, pipeline, group)
+    store = EpisodeStore(store_root)
+    try:  # the first k of each task of each pipeline (a task name may exist under several pipelines)
+        pipelines = [pipeline] if pipeline else sorted({m["pipeline"] for m in store.index(None, group)})
+        metas = [m for p in pipelines for m in store.first_k_per_task(per_task, p, group)]
+    except UserError:
+        raise
+    except ValueError as e:  # fewer episodes than episodes.per_task asks for
+        raise UserError(f"{store_root}: {e} (episodes.per_task={per_task})") from e
     if not metas:
         raise UserError(f"no episodes in {store_root} (pipeline={pipeline}, group={group})")
     seen: dict[str, str] = {}
