@@ -51,7 +51,7 @@ def make_bundles(root: Path, n: int = 3, corrupt: str | None = None, video: str 
         (d / "scene").mkdir(parents=True)
         (d / "frames").mkdir()
         (d / "task.yaml").write_text(yaml.safe_dump({"description": f"stack block {t} on the pallet",
-                                                     "pipeline": "gensim", "ground_truth": {"progress": t / 2}}))
+                                                     "pipeline": "gensim", "ground_truth": {"progress": min(t / 2, 1.0)}}))
         for v in range(4):
             (d / "scene" / f"view{v}.png").write_bytes(_png(100 * t + v))
         for f in range(12):
@@ -71,7 +71,7 @@ def make_bundles(root: Path, n: int = 3, corrupt: str | None = None, video: str 
 
 
 def _items(n=2, metric="scene_alignment", template="scene_alignment_vlm"):
-    tpl = load_template(f"prompts/{template}.txt", CONF)
+    tpl = load_template(f"builtin:{template}")
     return [JudgeItem(f"t{i}", metric, tpl, {"description": f"task {i}"}, [Image.from_png(_png(i))], (1, 5))
             for i in range(n)]
 
@@ -302,7 +302,7 @@ def test_quality_and_agreement_configs_compose():
         with pytest.raises(Exception, match="not a local model directory"):
             instantiate(compose("quality", overrides=["judge=hf"]).judge.provider)
         for name in ("task_completion", "scene_alignment_vlm", "scene_alignment_captions", "caption"):
-            assert load_template(compose("quality").prompts[name], CONF).sha256
+            assert load_template(compose("quality").prompts[name]).sha256
         assert compose("agreement").n_boot == 2000
 
 

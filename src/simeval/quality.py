@@ -5,11 +5,19 @@ A task bundle is a folder:
     <root>/<task>/scene/*.png      the views of the initial scene (the paper uses 4), sorted by file name
     <root>/<task>/trajectory.mp4   or frames/*.png: the trajectory, from which `n_frames` are sampled evenly
                                    (first and last included) in order
-Unreadable parts are a per-task error: the other tasks are still judged and the failures are reported.
+A task's name (task.yaml `name:`, else the folder name) is its identity: two bundles with one name are an error.
+Ground truth is validated (success: true/false; progress: a number in [0, 1]). Unreadable parts and bad ground
+truth are a per-task error: the other tasks are still judged and the failures are reported. A task with no valid
+score at all (every reply unparseable, or nothing readable) is a failed task; a run where every task failed has
+status "failed".
+
+`run_quality` is the whole run as one call (the Hydra entrypoint src/quality.py only builds its arguments).
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +30,8 @@ from simeval.judges.providers import Image
 from simeval.judges.runner import JudgeItem, ScoreRecord
 from simeval.errors import UserError
 
+log = logging.getLogger(__name__)
+VERSION = "1.1"  # 1.1: tasks with no valid score are failed tasks; ground truth validated; progress not clipped
 SCALES = {"scene_alignment": (1.0, 5.0), "task_completion": (0.0, 10.0)}
 METRICS = tuple(SCALES)
 
@@ -75,12 +85,41 @@ def sample_frame_indices(n_total: int, n_frames: int) -> list[int]:
     return sorted(set(np.linspace(0, n_total - 1, min(n_frames, n_total)).round().astype(int).tolist()))
 
 
+def count_video_frames(path: Path) -> int | None:
+    """Frames of the first video stream, counted from its packets (ffmpeg `-c copy -f framecrc` lists one line
+    per packet; nothing is decoded); None when ffmpeg is missing or cannot tell."""
+    import subprocess
+
+    try:
+        import imageio_ffmpeg
+
+        res = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path), "-map",
+                              "0:v:0", "-c", "copy", "-f", "framecrc", "-"], capture_output=True, timeout=120)
+    except (ImportError, OSError, RuntimeError, subprocess.SubprocessError):
+        return None
+    if res.returncode != 0:
+        return None
+    return sum(1 for line in res.stdout.decode(errors="ignore").splitlines() if line and not line.startswith("#"))
+
+
 def read_video_frames(path: Path, n_frames: int) -> list[np.ndarray]:
-    """The sampled frames of a video, decoded as a stream: one pass counts the frames, a second keeps only the
-    sampled ones, so memory holds `n_frames` frames however long the trajectory is."""
+    """The sampled frames of a video, decoded once as a stream that keeps only the sampled frames (memory holds
+    `n_frames` frames however long the trajectory is). The frame count comes from the container's packets (no
+    decoding); should the decoded count differ from it, the video is decoded a second time with the true count."""
     import imageio.v3 as iio
 
     try:
+        total = count_video_frames(path)
+        if total:
+            wanted = set(sample_frame_indices(total, n_frames))
+            kept, decoded = {}, 0
+            for i, frame in enumerate(iio.imiter(path)):
+                decoded = i + 1
+                if i in wanted:
+                    kept[i] = frame
+            if decoded == total:
+                return [kept[i] for i in sorted(kept)]
+            log.warning("%s: the container lists %d frames but %d were decoded; decoding again", path, total, decoded)
         total = sum(1 for _ in iio.imiter(path))
         wanted = set(sample_frame_indices(total, n_frames))
         return [frame for i, frame in enumerate(iio.imiter(path)) if i in wanted]
@@ -90,11 +129,52 @@ def read_video_frames(path: Path, n_frames: int) -> list[np.ndarray]:
         raise BundleError(f"unreadable video {path}: {type(e).__name__}: {e}") from e
 
 
+def validate_ground_truth(gt, where: str) -> dict:
+    """task.yaml's `ground_truth`, checked: {success: bool, progress: float in [0, 1]}, either optional (null is
+    unknown). Raises BundleError naming `where`, the key and the value."""
+    if gt is None:
+        return {}
+    if not isinstance(gt, dict):
+        raise BundleError(f"{where}: ground_truth must be a mapping like {{success: true, progress: 0.7}}, "
+                          f"got {type(gt).__name__} {gt!r}")
+    unknown = sorted(str(k) for k in gt if k not in ("success", "progress"))
+    if unknown:
+        raise BundleError(f"{where}: ground_truth has unknown key(s) {unknown}; valid: success, progress")
+    out = {}
+    if gt.get("success") is not None:
+        if not isinstance(gt["success"], bool):
+            raise BundleError(f"{where}: ground_truth.success must be true or false, got {gt['success']!r} "
+                              f"({type(gt['success']).__name__})")
+        out["success"] = gt["success"]
+    if gt.get("progress") is not None:
+        p = gt["progress"]
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(p) or not 0 <= p <= 1:
+            raise BundleError(f"{where}: ground_truth.progress must be a number in [0, 1], got {p!r} "
+                              f"({type(p).__name__})")
+        out["progress"] = float(p)
+    return out
+
+
+def check_unique_names(bundles: list[TaskBundle], where: str) -> None:
+    """A task's name is its identity in result.json: two bundles with one name would be merged. Raises a
+    BundleError naming every folder (or episode file) that shares a name."""
+    by_name: dict[str, list[str]] = {}
+    for b in bundles:
+        by_name.setdefault(b.name, []).append(str(b.path))
+    dups = {n: paths for n, paths in by_name.items() if len(paths) > 1}
+    if dups:
+        name, paths = next(iter(sorted(dups.items())))
+        more = f" (and {len(dups) - 1} more shared name(s))" if len(dups) > 1 else ""
+        raise BundleError(f"{where}: task name {name!r} is used by {len(paths)} bundles: {' and '.join(paths)}; "
+                          f"a task's name (task.yaml `name:`, else its folder name) must be unique{more}")
+
+
 def load_bundles(root: str | os.PathLike) -> tuple[list[TaskBundle], dict[str, str]]:
-    """(bundles, errors by folder name). A missing root is an error; a bad bundle is reported and skipped."""
+    """(bundles, errors by folder name). A missing root, or two bundles with one task name, is an error; a bad
+    bundle (task.yaml unreadable, no description, bad ground truth) is reported and skipped."""
     root = Path(root).expanduser()
     if not root.is_dir():
-        raise FileNotFoundError(f"bundles_dir {root} does not exist (expected <root>/<task>/task.yaml)")
+        raise BundleError(f"bundles_dir {root} does not exist (expected <root>/<task>/task.yaml)")
     bundles, errors = [], {}
     for d in sorted(p for p in root.iterdir() if p.is_dir()):
         meta_path = d / "task.yaml"
@@ -102,13 +182,21 @@ def load_bundles(root: str | os.PathLike) -> tuple[list[TaskBundle], dict[str, s
             meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) if meta_path.is_file() else None
             if not isinstance(meta, dict) or not isinstance(meta.get("description"), str):
                 raise BundleError(f"{meta_path}: needs a mapping with a `description` string")
-        except (yaml.YAMLError, BundleError, UnicodeDecodeError) as e:
+            for key in ("name", "pipeline"):
+                if meta.get(key) is not None and not isinstance(meta[key], (str, int)):
+                    raise BundleError(f"{meta_path}: `{key}` must be a string, got {meta[key]!r}")
+            truth = validate_ground_truth(meta.get("ground_truth"), str(meta_path))
+        except BundleError as e:
             errors[d.name] = str(e)
             continue
-        bundles.append(TaskBundle(str(meta.get("name", d.name)), d, meta["description"], meta.get("pipeline"),
-                                  meta.get("ground_truth"), meta))
+        except (yaml.YAMLError, UnicodeDecodeError) as e:
+            errors[d.name] = f"{meta_path}: not readable YAML ({' '.join(str(e).split())})"
+            continue
+        pipeline = None if meta.get("pipeline") is None else str(meta["pipeline"])
+        bundles.append(TaskBundle(str(meta.get("name", d.name)), d, meta["description"], pipeline, truth, meta))
     if not bundles and not errors:
-        raise FileNotFoundError(f"{root}: no task bundles (<task>/task.yaml) found")
+        raise BundleError(f"{root}: no task bundles (<task>/task.yaml) found")
+    check_unique_names(bundles, str(root))
     return bundles, errors
 
 
@@ -164,9 +252,9 @@ def oracle_completion(bundles: list[TaskBundle]) -> dict[str, dict]:
     """Completion 0-10 from simulator ground truth: 10 x progress (partial reward in [0, 1]), else 10 x success."""
     out = {}
     for b in bundles:
-        gt = b.ground_truth or {}
+        gt = validate_ground_truth(b.ground_truth, str(b.path))
         if "progress" in gt:
-            score = 10.0 * float(np.clip(float(gt["progress"]), 0.0, 1.0))
+            score = 10.0 * gt["progress"]
         elif "success" in gt:
             score = 10.0 if gt["success"] else 0.0
         else:
@@ -198,38 +286,39 @@ def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provi
                      cache, ledger, settings, captioner=None, caption_settings=None, n_frames: int = 8,
                      dry: bool = False) -> dict:
     """Judge the bundles. Returns {"records": [ScoreRecord], "summary": summarize(...), "errors": {task: msg},
-    "captions": {task: [..]}} or, with `dry`, {"dry_run": {...}, "errors": ...}."""
+    "captions": {task: [..]}} or, with `dry`, {"dry_run": {...}, "errors": ...} (every bundle that would be
+    skipped is in errors: its images are read, nothing is sent)."""
     from simeval.judges.runner import dry_run, run_judge
 
     if metric not in (*METRICS, "all"):
-        raise ValueError(f"metric={metric!r}: expected scene_alignment, task_completion or all")
+        raise UserError(f"metric={metric!r}: expected scene_alignment, task_completion or all")
     if mode not in ("vlm", "caption"):
-        raise ValueError(f"scene_alignment_mode={mode!r}: expected vlm or caption")
+        raise UserError(f"scene_alignment_mode={mode!r}: expected vlm or caption")
     wanted = METRICS if metric == "all" else (metric,)
-    items, errors, captions, records = [], {}, None, []
+    items, errors, captions, records, plan = [], {}, None, [], {}
     if "scene_alignment" in wanted and mode == "caption":
         if captioner is None:
-            raise ValueError("scene_alignment_mode=caption needs a captioner (captioner=openai or captioner=hf)")
+            raise UserError("scene_alignment_mode=caption needs a captioner (captioner=openai or captioner=hf)")
         cap_items, cap_errors = caption_items(bundles, templates["caption"])
         errors.update(cap_errors)
         if dry:
-            plan = dry_run(cap_items, captioner, cache, ledger, caption_settings)
-            return {"dry_run": {"captions": plan, "note": "judge calls on captions follow the captions"},
-                    "errors": errors}
-        cap_records = run_judge(cap_items, captioner, cache, ledger, caption_settings)
-        captions = {}
-        for rec in cap_records:
-            task = rec.item.split("#view")[0]
-            if rec.text is None:
-                errors[task] = f"captioner gave no caption for {rec.item}"
-                continue
-            captions.setdefault(task, []).append(rec.text)
-        captions = {t: c for t, c in captions.items() if t not in errors}
-        records += cap_records
-        al, al_err = alignment_items([b for b in bundles if b.name in captions], templates["scene_alignment_captions"],
-                                     captions)
-        items += al
-        errors.update(al_err)
+            plan = {"captions": dry_run(cap_items, captioner, cache, ledger, caption_settings),
+                    "note": "judge calls on captions follow the captions"}
+        else:
+            cap_records = run_judge(cap_items, captioner, cache, ledger, caption_settings)
+            captions = {}
+            for rec in cap_records:
+                task = rec.item.split("#view")[0]
+                if rec.text is None:
+                    errors[task] = f"captioner gave no caption for {rec.item}"
+                    continue
+                captions.setdefault(task, []).append(rec.text)
+            captions = {t: c for t, c in captions.items() if t not in errors}
+            records += cap_records
+            al, al_err = alignment_items([b for b in bundles if b.name in captions],
+                                         templates["scene_alignment_captions"], captions)
+            items += al
+            errors.update(al_err)
     elif "scene_alignment" in wanted:
         al, al_err = alignment_items(bundles, templates["scene_alignment_vlm"])
         items += al
@@ -239,10 +328,28 @@ def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provi
         items += tc
         errors.update({k: (errors[k] + "; " + v if k in errors else v) for k, v in tc_err.items()})
     if dry:
-        return {"dry_run": dry_run(items, provider, cache, ledger, settings), "errors": errors}
+        return {"dry_run": {**plan, **dry_run(items, provider, cache, ledger, settings)}, "errors": errors}
     records += run_judge(items, provider, cache, ledger, settings)
     summary = summarize([r for r in records if r.metric != "caption"])
     return {"records": records, "summary": summary, "errors": errors, "captions": captions}
+
+
+def no_score_errors(summary: dict[str, dict[str, dict]], records: list[ScoreRecord]) -> dict[str, str]:
+    """{task: message} for every (task, metric) whose replies held no valid score, e.g. "task_completion: no
+    valid score in 15 replies (last: no 'Score: X' in reply)"."""
+    asks: dict[tuple[str, str], list[dict]] = {}
+    for r in records:
+        asks.setdefault((r.metric, r.item), []).extend(r.asks)
+    out: dict[str, str] = {}
+    for metric, per_item in summary.items():
+        for task, entry in per_item.items():
+            if entry["n_valid"]:
+                continue
+            replies = asks.get((metric, task), [])
+            last = next((a["error"] for a in reversed(replies) if a.get("error")), None)
+            msg = f"{metric}: no valid score in {len(replies)} replies" + (f" (last: {last})" if last else "")
+            out[task] = out[task] + "; " + msg if task in out else msg
+    return out
 
 
 def judge_reliability(records: list[ScoreRecord]) -> dict[str, dict]:
@@ -264,9 +371,10 @@ def judge_reliability(records: list[ScoreRecord]) -> dict[str, dict]:
     return out
 
 
-def resolve_bundles_dir(bundles_dir: str | None, episodes: dict, out_dir: Path) -> Path:
+def resolve_bundles_dir(bundles_dir: str | None, episodes: dict | None, out_dir: Path) -> Path:
     """The bundles to judge: `bundles_dir`, or the episodes of a store (`episodes["store"]`) exported as bundles
-    into `<out_dir>/bundles` (the other `episodes` keys go to export_bundles)."""
+    into `<out_dir>/bundles` (the other `episodes` keys go to export_bundles). A VLM judge needs the images."""
+    episodes = episodes or {}
     if episodes.get("store"):
         from simeval.episodes.bundles import export_bundles
 
@@ -274,17 +382,136 @@ def resolve_bundles_dir(bundles_dir: str | None, episodes: dict, out_dir: Path) 
         export_bundles(episodes["store"], target, **{k: v for k, v in episodes.items() if k != "store"})
         return target
     if not bundles_dir:
-        raise ValueError("set bundles_dir=DIR (or env SIMEVAL_BUNDLES), or episodes.store=DIR (an episode store)")
+        raise UserError("set bundles_dir=DIR (or env SIMEVAL_BUNDLES), or episodes.store=DIR (an episode store)")
     return Path(bundles_dir)
 
 
 def write_scores(path: Path, records: list[ScoreRecord]) -> Path:
-    """Per-item provenance, one JSON line per (task, metric, repeat): model, template and image hashes, every
-    raw reply with its parse and latency, the accepted score."""
+    """Per-item provenance, one strict JSON line (no NaN) per (task, metric, repeat): model, template and image
+    hashes, every raw reply with its parse and latency, the accepted score."""
     import dataclasses
-    import json
 
-    from simeval.results import atomic_write_text
+    from simeval.results import atomic_write_text, dumps_strict
 
-    lines = [json.dumps(dataclasses.asdict(r) | {"valid": r.valid}) for r in records]
-    return atomic_write_text(path, "\n".join(lines) + "\n")
+    lines = [dumps_strict(dataclasses.asdict(r) | {"valid": r.valid}) for r in records]
+    return atomic_write_text(path, "\n".join(lines) + ("\n" if lines else ""))
+
+
+@dataclass
+class QualityOutcome:
+    """What a run did. `status`: ok (at least one task scored), failed (every task failed: no valid score at all),
+    dry_run (nothing sent; `plan` says what would be). `summary` is the one line the entrypoint logs; `error` the
+    one line it prints when the run failed."""
+    status: str
+    values: dict
+    errors: dict[str, str]
+    scored: list[str]
+    failed: list[str]
+    summary: str
+    cost: dict | None = None
+    plan: dict | None = None
+    error: str | None = None
+    records: list = field(default_factory=list)
+    result_path: Path | None = None
+
+
+def _tasks_and_errors(judge: str, bundles_dir, episodes: dict | None, out_dir: Path):
+    if judge == "oracle" and (episodes or {}).get("store"):  # ground truth from the store's metadata: no export
+        from simeval.episodes.bundles import store_tasks
+
+        return store_tasks(episodes["store"], **{k: v for k, v in episodes.items()
+                                                 if k in ("pipeline", "group", "per_task")})
+    return load_bundles(resolve_bundles_dir(bundles_dir, episodes, out_dir))
+
+
+def _outcome_of(values: dict, names: list[str], errors: dict[str, str]) -> tuple[list[str], list[str]]:
+    scored = sorted({t for per_item in values.values() for t, e in per_item.items() if e.get("n_valid")})
+    failed = sorted(set(names) - set(scored))
+    return scored, failed
+
+
+def _summary_line(judge: str, scored: list[str], failed: list[str], cost: dict | None) -> str:
+    n = len(scored) + len(failed)
+    line = f"quality ({judge}): {n} tasks, {len(scored)} scored, {len(failed)} failed"
+    if failed:
+        line += f" ({', '.join(failed[:5])}{', ...' if len(failed) > 5 else ''})"
+    if cost is not None:
+        line += (f"; {cost['new_calls']} new calls (${cost['cost_usd']:.4f}), {cost['invalid_calls']} of them paid "
+                 f"for nothing (no valid score, ${cost['invalid_cost_usd']:.4f}); {cost['cached_calls']} cached")
+    return line
+
+
+def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | None = None,
+                episodes: dict | None = None, judge: str = "model", provider=None, templates: dict | None = None,
+                cache=None, ledger=None, settings=None, captioner=None, caption_settings=None,
+                metric: str = "all", mode: str = "vlm", n_frames: int = 8, dry_run: bool = False,
+                logger=None, meta: dict | None = None) -> QualityOutcome:
+    """One quality run, writing `<out_dir>/result.json` (and scores.jsonl for a model judge).
+
+    Tasks come from `bundles_dir`, or from an episode store (`episodes={"store": DIR, "pipeline", "group",
+    "per_task", "camera", "max_frames"}`): `judge="oracle"` reads the store's ground truth directly; a model
+    judge gets the episodes exported as bundles into `<out_dir>/bundles`. A model judge needs `provider`,
+    `templates` ({name: PromptTemplate}), `cache` (JudgeCache), `ledger` (Ledger) and `settings` (JudgeSettings);
+    the caption path also `captioner` and `caption_settings`. `meta` is added to result.json (config, choices,
+    seed, overrides, label); `logger` (anything with log_metrics) gets the cost.
+    A budget or replay stop writes status "stopped" with what finished and re-raises."""
+    from simeval.results import write_result
+
+    if judge not in ("model", "oracle"):
+        raise UserError(f"judge kind {judge!r}: expected model or oracle")
+    out_dir = Path(out_dir)
+    bundles, errors = _tasks_and_errors(judge, bundles_dir, episodes, out_dir)
+    names = [b.name for b in bundles] + [k for k in errors if k not in {b.name for b in bundles}]
+    result = dict(metric="quality", version=VERSION, judge=judge, **(meta or {}),
+                  tasks={b.name: {"pipeline": b.pipeline} for b in bundles})
+    records, cost, extra = [], None, {}
+    if judge == "oracle":
+        values = {"task_completion": oracle_completion(bundles)}
+        errors.update({b.name: "no ground truth (success or progress) recorded" for b in bundles
+                       if b.name not in values["task_completion"]})
+        if dry_run:
+            plan = {"calls": 0, "bundles": len(names), "skipped": len(errors), "skip": dict(sorted(errors.items()))}
+            return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {len(errors)} of {len(names)} tasks "
+                                  f"skipped (see skip)", plan=plan)
+    else:
+        from simeval.judges.ledger import BudgetExceeded
+        from simeval.judges.runner import ReplayMiss
+
+        if provider is None or templates is None or cache is None or ledger is None or settings is None:
+            raise ValueError("a model judge needs provider, templates, cache, ledger and settings")
+        try:
+            out = evaluate_quality(bundles, metric=metric, mode=mode, provider=provider, templates=templates,
+                                   cache=cache, ledger=ledger, settings=settings, captioner=captioner,
+                                   caption_settings=caption_settings, n_frames=n_frames, dry=dry_run)
+        except (BudgetExceeded, ReplayMiss) as e:  # keep what finished (it is cached too), then stop loudly
+            write_result(out_dir, values=summarize(getattr(e, "partial", [])), errors=errors, cost=ledger.totals(),
+                         status="stopped", stopped=str(e), **result)
+            raise
+        errors.update(out["errors"])
+        if dry_run:
+            plan = {**out["dry_run"], "bundles": len(names), "skipped": len(errors),
+                    "skip": dict(sorted(errors.items()))}
+            return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {plan['calls']} calls; {len(errors)} "
+                                  f"of {len(names)} bundles skipped in part or whole (see skip)", plan=plan)
+        records, values = out["records"], out["summary"]
+        for task, msg in no_score_errors(values, records).items():
+            errors[task] = errors[task] + "; " + msg if task in errors else msg
+        write_scores(out_dir / "scores.jsonl", records)
+        cost = ledger.totals()
+        extra = {"cost": cost, "reliability": judge_reliability(records)}
+    scored, failed = _outcome_of(values, names, errors)
+    summary = _summary_line(judge, scored, failed, cost)
+    status, error = "ok", None
+    if not scored:
+        status = "failed"
+        first = failed[0] if failed else None
+        error = (f"every task failed ({len(failed)} of {len(names)}; {first}: {errors.get(first, 'not scored')})"
+                 + (f"; {cost['invalid_calls']} new calls paid for nothing" if cost else "")
+                 + f"; details in {out_dir / 'result.json'}")
+    path = write_result(out_dir, values=values, errors=dict(sorted(errors.items())), status=status,
+                        **({"error": error} if error else {}), scored=len(scored), failed=failed, summary=summary,
+                        **extra, **result)
+    if logger is not None and cost is not None:
+        logger.log_metrics({"cost": cost})
+    return QualityOutcome(status, values, errors, scored, failed, summary, cost=cost, error=error, records=records,
+                          result_path=path)

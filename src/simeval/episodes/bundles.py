@@ -1,6 +1,14 @@
-"""Task bundles for the quality judges (the folder layout documented in simeval/quality.py) exported from the
-episode store: the description, the ground truth (success, final progress) for judge=oracle, the scene views,
-and up to `max_frames` trajectory frames of one camera spread evenly over the episode (first and last kept)."""
+"""The episode store as quality tasks.
+
+- `store_tasks`: each episode's identity and ground truth (success, final progress), read from the store's
+  metadata for judge=oracle: no frame is decoded and nothing is written.
+- `export_bundles`: task bundles (the folder layout documented in simeval/quality.py) for the model judges, which
+  need images: the description, the ground truth, the scene views, and up to `max_frames` trajectory frames of
+  one camera spread evenly over the episode (first and last kept).
+
+A task's identity is `<task>#<seed>`; two episodes with one identity (the same task and seed under two
+pipelines, when no `pipeline` is chosen) are an error naming both files.
+"""
 
 from __future__ import annotations
 
@@ -11,7 +19,61 @@ import numpy as np
 import yaml
 
 from simeval.episodes.store import EpisodeStore, read_episode
+from simeval.errors import UserError
 from simeval.results import atomic_write_text
+
+
+def task_identity(task: str, seed: int) -> str:
+    return f"{task}#{seed}"
+
+
+def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
+    store = EpisodeStore(store_root)
+    try:  # the first k of each task of each pipeline (a task name may exist under several pipelines)
+        pipelines = [pipeline] if pipeline else sorted({m["pipeline"] for m in store.index(None, group)})
+        metas = [m for p in pipelines for m in store.first_k_per_task(per_task, p, group)]
+    except UserError:
+        raise
+    except ValueError as e:  # fewer episodes than episodes.per_task asks for
+        raise UserError(f"{store_root}: {e} (episodes.per_task={per_task})") from e
+    if not metas:
+        raise UserError(f"no episodes in {store_root} (pipeline={pipeline}, group={group})")
+    seen: dict[str, str] = {}
+    for m in metas:
+        ident = task_identity(m["task"], m["seed"])
+        if ident in seen:
+            raise UserError(f"{store_root}: task {ident!r} is in two episodes: {seen[ident]} and {m['path']}; "
+                            f"choose one pipeline (episodes.pipeline=...)")
+        seen[ident] = m["path"]
+    return metas
+
+
+def store_tasks(store_root: str | os.PathLike, *, pipeline: str | None = None, group: str | None = None,
+                per_task: int = 1) -> tuple[list, dict[str, str]]:
+    """(tasks, errors) for judge=oracle: TaskBundles whose `path` is the episode file and whose ground truth is
+    what the episode recorded (success if `success_known`, the last progress if `progress_known`; an unknown is
+    left out, never scored as 0). An episode whose recorded truth is invalid is a per-task error."""
+    import h5py
+
+    from simeval.quality import BundleError, TaskBundle, validate_ground_truth
+
+    tasks, errors = [], {}
+    for m in _episodes(store_root, pipeline, group, per_task):
+        truth = {}
+        if m.get("success_known", True):
+            truth["success"] = bool(m["success"])
+        if m.get("progress_known", True):
+            with h5py.File(m["path"], "r") as f:
+                if len(f["progress"]):
+                    truth["progress"] = float(f["progress"][-1])
+        ident = task_identity(m["task"], m["seed"])
+        try:
+            truth = validate_ground_truth(truth, m["path"])
+        except BundleError as e:
+            errors[ident] = str(e)
+            continue
+        tasks.append(TaskBundle(ident, Path(m["path"]), m["description"], m["pipeline"], truth, m))
+    return tasks, errors
 
 
 def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *, pipeline: str | None = None,
@@ -19,16 +81,12 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
                    max_frames: int = 64) -> list[Path]:
     from PIL import Image
 
-    store = EpisodeStore(store_root)
-    metas = store.first_k_per_task(per_task, pipeline, group)
-    if not metas:
-        raise FileNotFoundError(f"no episodes in {store_root} (pipeline={pipeline}, group={group})")
     out, written = Path(out_dir), []
-    for meta in metas:
+    for meta in _episodes(store_root, pipeline, group, per_task):
         ep = read_episode(meta["path"])
         cam = camera or next(iter(ep.rgb))
         if cam not in ep.rgb:
-            raise ValueError(f"{meta['path']}: no camera '{cam}' (has {sorted(ep.rgb)})")
+            raise UserError(f"{meta['path']}: no camera '{cam}' (has {sorted(ep.rgb)}); set episodes.camera")
         d = out / f"{ep.task.replace('/', '_')}__seed{ep.seed}"
         (d / "scene").mkdir(parents=True, exist_ok=True)
         (d / "frames").mkdir(exist_ok=True)
@@ -44,7 +102,7 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         if ep.progress is not None:
             truth["progress"] = float(ep.progress[-1])
         atomic_write_text(d / "task.yaml", yaml.safe_dump({
-            "name": f"{ep.task}#{ep.seed}", "description": ep.description, "pipeline": ep.pipeline,
+            "name": task_identity(ep.task, ep.seed), "description": ep.description, "pipeline": ep.pipeline,
             "group": ep.group, "ground_truth": truth, "episode": str(meta["path"])}, sort_keys=False))
         written.append(d)
     return written

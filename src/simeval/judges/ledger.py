@@ -38,6 +38,8 @@ class Ledger:
     images: int = 0
     cost_usd: float = 0.0  # spent by this run
     cached_cost_usd: float = 0.0  # what the cached replies cost when they were bought
+    invalid_calls: int = 0  # new calls whose reply held no valid score: paid for nothing
+    invalid_cost_usd: float = 0.0
     reserved_usd: float = 0.0
     by_label: dict = field(default_factory=dict)  # "metric/pipeline" -> the same counters, for result.json
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -45,7 +47,7 @@ class Ledger:
     def _bucket(self, label: str | None) -> dict:
         return self.by_label.setdefault(label or "unlabelled", {
             "new_calls": 0, "cached_calls": 0, "prompt_tokens": 0, "completion_tokens": 0, "images": 0,
-            "cost_usd": 0.0, "cached_cost_usd": 0.0})
+            "cost_usd": 0.0, "cached_cost_usd": 0.0, "invalid_calls": 0, "invalid_cost_usd": 0.0})
 
     def reserve(self, estimate: float) -> None:
         with self._lock:
@@ -79,11 +81,18 @@ class Ledger:
         with self._lock:
             self._add(label, cached_calls=1, cached_cost_usd=cost)
 
+    def record_invalid(self, cost: float, label: str | None = None) -> None:
+        """A new (paid) call whose reply was unparseable or out of range: counted as paid for nothing."""
+        with self._lock:
+            self._add(label, invalid_calls=1, invalid_cost_usd=cost)
+
     def totals(self) -> dict:
         return {"new_calls": self.new_calls, "cached_calls": self.cached_calls, "prompt_tokens": self.prompt_tokens,
                 "completion_tokens": self.completion_tokens, "images": self.images,
                 "cost_usd": round(self.cost_usd, 6), "cached_cost_usd": round(self.cached_cost_usd, 6),
+                "invalid_calls": self.invalid_calls, "invalid_cost_usd": round(self.invalid_cost_usd, 6),
                 "budget_usd": self.budget_usd,
                 "by_metric_pipeline": {k: {**v, "cost_usd": round(v["cost_usd"], 6),
-                                           "cached_cost_usd": round(v["cached_cost_usd"], 6)}
+                                           "cached_cost_usd": round(v["cached_cost_usd"], 6),
+                                           "invalid_cost_usd": round(v["invalid_cost_usd"], 6)}
                                        for k, v in sorted(self.by_label.items())}}

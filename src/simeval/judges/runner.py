@@ -189,6 +189,8 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                           item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
                 reply, latency, cached = out.text, out.latency_s, False
             value, error = _accept(item, reply)
+            if value is None and not cached:  # a paid reply that gave nothing: the summary counts these
+                ledger.record_invalid(cost, item.cost_label)
             rec.asks.append({"ask": ask, "reply": reply, "valid": value is not None, "error": error,
                              "latency_s": round(latency, 4), "cached": cached})
             if isinstance(value, str):
