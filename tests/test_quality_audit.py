@@ -186,3 +186,15 @@ def test_run_quality_is_a_plain_call_and_prompts_are_package_data(openai_server,
         load_template("builtin:nope")
     lines = (ROOT / "src" / "quality.py").read_text().splitlines()
     assert len(lines) <= 60  # the entrypoint only wires objects into run_quality
+
+
+def test_budget_stop_keeps_what_finished_and_ends_in_one_line(openai_server, tmp_path):
+    root = make_bundles(tmp_path / "b", n=3)
+    res = _quality(f"bundles_dir={root}", f"judge.provider.base_url={openai_server.base_url}", "repeats=2",
+                   "budget_usd=0.012", "judge.concurrency=1", f"cache_dir={tmp_path / 'cache'}",
+                   f"hydra.run.dir={tmp_path / 'run'}")
+    last = res.stderr.strip().splitlines()[-1]
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert last.startswith("error: budget_usd=0.012 would be exceeded")
+    rec = strict_json((tmp_path / "run" / "result.json").read_text())
+    assert rec["status"] == "stopped" and 0 < rec["cost"]["new_calls"] < 10

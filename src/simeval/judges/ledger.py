@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
+from simeval.errors import UserError
 
 
-class BudgetExceeded(RuntimeError):
-    pass
+class BudgetExceeded(UserError, RuntimeError):
+    """The run reached budget_usd; what finished is cached and in result.json (status "stopped"). A UserError so
+    the entrypoint prints one line: raising budget_usd and re-running continues where it stopped."""
 
 
 @dataclass

@@ -14,10 +14,11 @@ from simeval.judges.ledger import BudgetExceeded, Ledger
 from simeval.judges.parse import parse_score
 from simeval.judges.prompts import PromptTemplate
 from simeval.judges.providers import Image
+from simeval.errors import UserError
 
 
-class ReplayMiss(RuntimeError):
-    """A replay-only run met a request that is not in the cache."""
+class ReplayMiss(UserError, RuntimeError):
+    """A replay-only run met a request that is not in the cache (a UserError: the entrypoint prints one line)."""
 
 
 @dataclass
