@@ -139,6 +139,7 @@ def test_config_errors_are_clear_and_fast(tmp_path):
     assert res.returncode == 0 and "pipeline: bbsea, custom, gensim, robogen" in res.stdout
 
 
+@pytest.mark.timeout(900)  # two real embedding models over 6 sweep jobs: ~90 s on 2 busy cores; its sweep may take 900
 def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     """The whole `make table3` path on the authors' file: sweep -> result.json -> report -> table3.csv."""
     env = {"GENSIM_DESCS": str(shared_data / "gensim_descs_grouped.yaml"),
