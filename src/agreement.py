@@ -17,15 +17,17 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.agreement import agreement_rows, format_rows, load_score_tables, plot_figure3
+    from simeval.errors import UserError
     from simeval.metrics.agreement import METRIC_VERSION
     from simeval.report.tables import write_table
     from simeval.results import hydra_run_info, write_result
 
     if not cfg.scores_path:
-        raise ValueError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
+        raise UserError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
     run = hydra_run_info()
     out = Path(run["output_dir"])
-    rows = agreement_rows(load_score_tables(cfg.scores_path), cfg.human_column, n_boot=cfg.n_boot, seed=cfg.seed)
+    tables = load_score_tables(cfg.scores_path, human=cfg.human_column)  # validated: a UserError names file/row/column
+    rows = agreement_rows(tables, cfg.human_column, n_boot=cfg.n_boot, seed=cfg.seed)
     header, body = format_rows(rows)
     write_table(out / "agreement", header, body, caption="Agreement of judges with human scores (95% bootstrap CIs).")
     figures = plot_figure3(rows, out / "figure3", tuple(cfg.figure_formats))

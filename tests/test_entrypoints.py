@@ -23,14 +23,39 @@ def run(script, *args, env=None, cwd=ROOT, timeout=300):
                           capture_output=True, text=True, timeout=timeout)
 
 
-@pytest.mark.parametrize("pipeline", ["gensim", "robogen", "bbsea", "custom"])
-@pytest.mark.parametrize("embedding", ["minilm", "mpnet", "openai", "hf"])
-def test_every_pipeline_and_embedding_composes(pipeline, embedding):
+def _load_like_the_entrypoint(p):
+    from simeval.tasks import load_tasks
+
+    return load_tasks(p.name, p.source, root=p.root, grouped_file=p.grouped_file, tasks_path=p.tasks_path,
+                      suite=p.suite, text_template=p.text_template, group_aliases=p.group_aliases)
+
+
+def test_every_pipeline_config_loads_its_tasks_with_the_paper_groups(shared_data, tmp_path, monkeypatch):
+    """Each shipped pipeline config, fed to the loader as src/text_diversity.py does, gives the paper's groups and
+    text format (the config's aliases, templates and env sources are what make this true)."""
+    from simeval.tasks import groups_of, select_group
+
+    bbsea = tmp_path / "bbsea.yaml"
+    bbsea.write_text(yaml.safe_dump(["Open the drawer", "Put the red block in the bin"]))
+    monkeypatch.setenv("GENSIM_DESCS", str(shared_data / "gensim_descs_grouped.yaml"))
+    monkeypatch.setenv("ROBOGEN_TASKS", str(shared_data / "robogen_tasks.yaml"))
+    monkeypatch.setenv("BBSEA_TASKS", str(bbsea))
+    for var in ("GENSIM_ROOT", "ROBOGEN_ROOT", "BBSEA_ROOT"):
+        monkeypatch.delenv(var, raising=False)
+    expected = {
+        "gensim": ({"stacking": 37, "placement": 19, "piles": 11, "assembling": 14}, "Task: build-bridge \n Description: "),
+        "robogen": ({"table-top": 21, "ground": 25}, "Adjust Chair Position: The robot arm will adjust"),
+        "bbsea": ({"drawer": 1, "table-top": 1}, "Open the drawer"),
+        "custom": ({"push": 3, "stack": 3}, "push the red block to the zone"),
+    }
     with initialize_config_dir(version_base="1.3", config_dir=CONF):
-        cfg = compose("text_diversity", overrides=[f"pipeline={pipeline}", f"embedding={embedding}", "debug=tiny"])
-    assert cfg.pipeline.name == pipeline and cfg.embedding.name == embedding
-    assert cfg.metrics.n_boot == 20  # the debug overlay applied
-    assert {"source", "root", "grouped_file", "tasks_path", "text_template", "group_aliases"} <= set(cfg.pipeline)
+        for pipeline, (groups, first_text) in expected.items():
+            overrides = [f"pipeline={pipeline}", "debug=tiny"]
+            if pipeline == "custom":
+                overrides.append(f"pipeline.tasks_path={_custom_tasks(tmp_path)}")
+            tasks = _load_like_the_entrypoint(compose("text_diversity", overrides=overrides).pipeline)
+            assert {g: len(select_group(tasks, g)) for g in groups_of(tasks)} == groups, pipeline
+            assert tasks[0].text.startswith(first_text), pipeline
 
 
 def test_shipped_embedding_configs_instantiate_without_loading_models():
@@ -50,12 +75,28 @@ def test_latex_escaping_is_single_pass():
     assert r"path\textbackslash{}to\_x & \{1\} \& 5\%" in tex
 
 
-def test_logger_group_composes():
+def test_logger_configs_write_what_they_promise(tmp_path, monkeypatch):
+    """Each logger config, instantiated as the entrypoints do: none writes nothing, csv writes metrics.csv, and
+    wandb stays offline by its config alone (no WANDB_MODE) and never stores a secret from the run config."""
+    monkeypatch.delenv("WANDB_MODE", raising=False)
+    monkeypatch.setenv("WANDB_API_KEY", "")  # an online run would fail to log in, not upload
+    run_config = {"judge": {"provider": {"api_key": "sk-never-stored-anywhere-123456"}}}
     with initialize_config_dir(version_base="1.3", config_dir=CONF):
         for name in ("none", "csv", "wandb"):
             cfg = compose("text_diversity", overrides=[f"logger={name}"])
-            assert cfg.logger._target_.startswith("simeval.loggers.")
-        assert compose("text_diversity", overrides=["logger=wandb"]).logger.mode == "offline"
+            run_dir = tmp_path / name
+            run_dir.mkdir()
+            with instantiate(cfg.logger, _partial_=True)(run_dir=str(run_dir), run_config=run_config) as logger:
+                logger.log_metrics({"all": {"div": 0.5, "n": 3}})
+            files = [p for p in run_dir.rglob("*") if p.is_file()]
+            if name == "none":
+                assert files == []
+            elif name == "csv":
+                assert (run_dir / "metrics.csv").read_text().splitlines() == ["step,key,value", ",all/div,0.5",
+                                                                              ",all/n,3"]
+            else:
+                assert list(run_dir.glob("wandb/offline-run-*/run-*.wandb")), files
+            assert not any(b"sk-never-stored" in p.read_bytes() for p in files)
 
 
 def _custom_tasks(tmp_path):
@@ -98,6 +139,7 @@ def test_config_errors_are_clear_and_fast(tmp_path):
     assert res.returncode == 0 and "pipeline: bbsea, custom, gensim, robogen" in res.stdout
 
 
+@pytest.mark.timeout(900)  # two real embedding models over 6 sweep jobs: ~90 s on 2 busy cores; its sweep may take 900
 def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     """The whole `make table3` path on the authors' file: sweep -> result.json -> report -> table3.csv."""
     env = {"GENSIM_DESCS": str(shared_data / "gensim_descs_grouped.yaml"),

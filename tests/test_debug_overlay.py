@@ -1,0 +1,69 @@
+"""`debug=tiny` shrinks the expensive knobs of every entrypoint, and touches nothing else (Hydra's compose API)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+PRIMARIES = sorted(p.stem for p in CONF.glob("*.yaml"))
+
+# entrypoint -> {dotted key: (default, with debug=tiny)}
+SHRINKS = {
+    "text_diversity": {"metrics.n_boot": (1000, 20), "metrics.subsample_repeats": (50, 3)},
+    "agreement": {"n_boot": (2000, 50)},
+    "quality": {"repeats": (5, 2), "max_reasks": (2, 1), "n_frames": (8, 2), "episodes.max_frames": (64, 8)},
+    "collect": {"episodes": (40, 2), "record.image_size": ([64, 64], [32, 32]),
+                "record.scene_view_size": ([128, 128], [64, 64])},
+    "import_data": {"image_size": (None, [32, 32])},
+    "report": {},  # reads result.json files only: nothing to shrink, but debug=tiny is accepted
+}
+
+
+def _leaves(cfg, prefix=""):
+    out = {}
+    for key, value in cfg.items():
+        if isinstance(value, dict):
+            out.update(_leaves(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _compose(name, *overrides):
+    with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+        return OmegaConf.to_container(compose(name, overrides=list(overrides)), resolve=False)
+
+
+def test_every_entrypoint_has_an_expectation():
+    assert set(PRIMARIES) == set(SHRINKS)
+    overlays = {p.parent.name for p in CONF.glob("debug/*/tiny.yaml")}
+    assert overlays <= set(PRIMARIES), "conf/debug/<name>/ must be named after a primary config"
+
+
+@pytest.mark.parametrize("name", PRIMARIES)
+def test_debug_tiny_shrinks_only_the_expensive_knobs(name):
+    plain, tiny = _leaves(_compose(name)), _leaves(_compose(name, "debug=tiny"))
+    assert set(tiny) == set(plain), "the overlay added or removed keys"
+    changed = {k: (plain[k], tiny[k]) for k in plain if plain[k] != tiny[k]}
+    assert changed == {k: tuple(v) for k, v in SHRINKS[name].items()}
+
+
+def test_debug_tiny_composes_with_the_table3_sweep():
+    cfg = _compose("text_diversity", "experiment=table3", "debug=tiny")
+    assert cfg["metrics"] == {"n_boot": 20, "subsample_n": 10, "subsample_repeats": 3}
+
+
+def test_debug_tiny_reaches_the_saved_config_of_a_real_run(shared_data, tmp_path):
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "agreement.py"), "debug=tiny",
+                          f"scores_path={shared_data / 'human_eval_tables.json'}", f"hydra.run.dir={tmp_path}"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    rec = json.loads((tmp_path / "result.json").read_text())
+    assert rec["config"]["n_boot"] == 50 and "metrics" not in rec["config"]
+    assert rec["choices"]["debug"] == "tiny" and rec["choices"]["debug/agreement"] == "tiny"
