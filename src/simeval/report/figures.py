@@ -19,5 +19,8 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fmt = path.suffix.lstrip(".").lower()
-    fig.savefig(path, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
+    import matplotlib
+
+    with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
+        fig.savefig(path, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
     return path
