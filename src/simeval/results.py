@@ -69,7 +69,8 @@ def _flat(d: Mapping, prefix: str = "") -> dict:
 def identity_difference(a: Mapping, b: Mapping) -> str:
     """`model ('x' vs 'y'), settings.n_boot (1000 vs 20)`: the keys where two identities differ."""
     fa, fb = _flat(a), _flat(b)
-    return ", ".join(f"{k} ({fa.get(k)!r} vs {fb.get(k)!r})" for k in sorted(set(fa) | set(fb)) if fa.get(k) != fb.get(k))
+    keys = [k for k in sorted(set(fa) | set(fb)) if fa.get(k) != fb.get(k)]
+    return ", ".join(f"{k} ({fa.get(k)!r} vs {fb.get(k)!r})" for k in keys)
 
 
 def umask_file_mode() -> int:

@@ -27,17 +27,16 @@ def _get(d, *keys):
 
 
 def judge_settings(rec: dict) -> dict:
-    """What must agree between runs that feed one point: from the record's identity when it has one, else from
-    its config (records written before identities existed)."""
-    ident = record_identity(rec)
-    if "judge" in ident and isinstance(ident["judge"], dict):
-        return {k: v for k, v in ident.items() if k not in ("seed", "label", "tasks", "metric")}
+    """What must agree between runs that feed one point: the judge as the record's config names it, plus whatever
+    its `identity` names beyond what may vary between runs of one point (seed, label, pipeline, tasks)."""
     cfg = rec.get("config") or {}
-    return {"version": rec.get("version"), "judge": rec.get("judge") or _get(cfg, "judge", "kind"),
-            "judge_model": _get(cfg, "judge", "provider", "model") or _get(cfg, "judge", "provider", "model_path"),
-            "scene_alignment_mode": cfg.get("scene_alignment_mode"), "captioner": _get(cfg, "captioner", "kind"),
-            "captioner_model": _get(cfg, "captioner", "provider", "model")
-            or _get(cfg, "captioner", "provider", "model_path")}
+    settings = {"version": rec.get("version"), "judge": rec.get("judge") or _get(cfg, "judge", "kind"),
+                "judge_model": _get(cfg, "judge", "provider", "model") or _get(cfg, "judge", "provider", "model_path"),
+                "scene_alignment_mode": cfg.get("scene_alignment_mode"), "captioner": _get(cfg, "captioner", "kind"),
+                "captioner_model": _get(cfg, "captioner", "provider", "model")
+                or _get(cfg, "captioner", "provider", "model_path")}
+    varying = ("metric", "seed", "label", "pipeline", "tasks", "task_group")
+    return {**settings, **{k: v for k, v in record_identity(rec).items() if k not in varying}}
 
 
 def quality_points(records: list[dict]) -> list[dict]:
@@ -68,11 +67,11 @@ def quality_points(records: list[dict]) -> list[dict]:
     for label, tasks in points.items():
         per_task = {m: [float(np.mean(t[m])) for t in tasks.values() if t[m]]
                     for m in ("scene_alignment", "task_completion")}
+        means = {m: float(np.mean(v)) if v else None for m, v in per_task.items()}
         variances = [float(np.mean(t["var"])) for t in tasks.values() if t["var"]]
         out.append({"label": label, "n_alignment": len(per_task["scene_alignment"]),
                     "n_completion": len(per_task["task_completion"]), "n_tasks": len(tasks),
-                    "scene_alignment": float(np.mean(per_task["scene_alignment"])) if per_task["scene_alignment"] else None,
-                    "task_completion": float(np.mean(per_task["task_completion"])) if per_task["task_completion"] else None,
+                    "scene_alignment": means["scene_alignment"], "task_completion": means["task_completion"],
                     "mean_var": float(np.mean(variances)) if variances else 0.0})
     return out
 
