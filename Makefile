@@ -19,7 +19,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 
 HUMAN_SCORES ?= $(wildcard ../shared/data/human_eval_tables.json)
 
-.PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean
+.PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
@@ -65,5 +65,17 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/judge_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py
 
-clean: ## remove run folders and caches (keeps .venv and committed tables)
-	rm -rf outputs/runs outputs/multiruns outputs/table3 outputs/cache multirun
+# Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
+# `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.
+CACHE_DIR := outputs/cache
+
+clean: ## remove run folders (keeps .venv, committed tables and outputs/cache: see clean-caches)
+	rm -rf outputs/runs outputs/multiruns outputs/table3 multirun
+	@if [ -d $(CACHE_DIR) ]; then echo "kept $(CACHE_DIR)/ (embedding and paid judge-call caches); \`make clean-caches\` deletes it"; fi
+
+clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite (PAID judge calls; listed first)
+	@if [ -d $(CACHE_DIR) ]; then \
+	  echo "deleting $(CACHE_DIR)/ (judge_calls.sqlite holds paid judge calls; a rerun pays for them again):"; \
+	  find $(CACHE_DIR) -type f -exec ls -lh {} + | awk '{print "  " $$5 "  " $$NF}'; \
+	  rm -rf $(CACHE_DIR); \
+	else echo "no $(CACHE_DIR)/: nothing to delete"; fi

@@ -34,7 +34,7 @@ def main(cfg: DictConfig) -> None:
     config = OmegaConf.to_container(cfg, resolve=True)
     with instantiate(cfg.logger, _partial_=True)(run_dir=str(out), run_config=config) as logger:
         write_result(out, metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed, config=config,
-                     choices=run["choices"], figures=[str(f) for f in figures])
+                     choices=run["choices"], figures=[f.name for f in figures])  # relative to the run folder
         logger.log_metrics({f"{r['table']}/{r['pipeline']}/{r['judge']}": {"r_over_mae": r["r_over_mae"],
                                                                           "pearson": r["pearson"], "mae": r["mae"]}
                             for r in rows})

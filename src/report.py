@@ -7,6 +7,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 log = logging.getLogger("report")
 
@@ -23,7 +24,7 @@ def main(cfg: DictConfig) -> None:
         print(Path(written["table"][1]).read_text())
         return
     if spec["metric"] != "text_diversity":
-        raise ValueError(f"report.metric={spec['metric']!r}: expected text_diversity or quality")
+        raise UserError(f"report.metric={spec['metric']!r}: expected text_diversity or quality")
     written = build_text_diversity_report(
         spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
         caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"), digits=spec.get("digits", 2),

@@ -20,12 +20,19 @@ def main(cfg: DictConfig) -> None:
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.metrics.text_diversity import METRIC_VERSION
     from simeval.results import hydra_run_info, write_result
+    from simeval.report.text_diversity import tasks_fingerprint
     from simeval.tasks import SourceNotConfigured, load_tasks
 
     run = hydra_run_info()
     config = OmegaConf.to_container(cfg, resolve=True)
+    backend = config["embedding"]["backend"]
+    # what the numbers are of (see simeval.results.make_identity); the report merges runs by it
+    identity = dict(pipeline=cfg.pipeline.name, source=cfg.pipeline.source, tasks_sha=None, task_group=cfg.task_group,
+                    embedding=cfg.embedding.name, model=backend.get("model_id") or backend.get("model"),
+                    settings=config["metrics"])
     record = dict(metric="text_diversity", version=METRIC_VERSION, config=config, choices=run["choices"],
-                  seed=cfg.seed, overrides=run["overrides"], pipeline=cfg.pipeline.name, embedding=cfg.embedding.name)
+                  seed=cfg.seed, overrides=run["overrides"], pipeline=cfg.pipeline.name, embedding=cfg.embedding.name,
+                  identity=identity)
     p = cfg.pipeline
     try:
         tasks = load_tasks(p.name, p.source, root=p.root, grouped_file=p.grouped_file, tasks_path=p.tasks_path,
@@ -36,6 +43,7 @@ def main(cfg: DictConfig) -> None:
         write_result(run["output_dir"], values={}, status="missing", missing_hint=e.hint, **record)
         log.warning("%s: recorded as missing (%s)", p.name, e.hint)
         return
+    identity["tasks_sha"] = tasks_fingerprint(tasks)
     embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(Path(cfg.cache_dir) / "embeddings.sqlite"))
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         values = text_diversity_by_group(tasks, embedder.encode, cfg.task_group, seed=cfg.seed, **cfg.metrics)

@@ -124,6 +124,11 @@ def test_text_diversity_end_to_end_with_multirun_flag_after_an_override(tmp_path
     assert (results[0].parent / ".hydra" / "config.yaml").is_file()
     assert (results[0].parent / "metrics.csv").is_file()
     assert set(json.loads(results[1].read_text())["values"]) == {"push"}
+    # the identity the report merges by: the same tasks and model, a different task_group
+    ident, ident1 = rec["identity"], json.loads(results[1].read_text())["identity"]
+    assert ident["pipeline"] == "custom" and ident["embedding"] == "openai" and ident["seed"] == 0
+    assert ident["model"] == "text-embedding-3-small" and ident["settings"]["n_boot"] == 20
+    assert (ident["task_group"], ident1["task_group"]) == ("each", "push") and ident["tasks_sha"] == ident1["tasks_sha"]
     assert len(openai_server.requests) == 1  # the second job found every text in the cache
 
 

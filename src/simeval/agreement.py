@@ -322,6 +322,8 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from simeval.report.figures import save_figure
+
     tables = list(dict.fromkeys(r["table"] for r in rows))
     widths = [max(2, len({r["judge"] for r in rows if r["table"] == t})) for t in tables]
     fig, axes = plt.subplots(1, len(tables), figsize=(sum(widths) * 1.3 + 1, 3.6),
@@ -350,9 +352,6 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
     fig.tight_layout()
     out = []
     for fmt in formats:
-        path = Path(stem).with_suffix(f".{fmt}")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=150)
-        out.append(path)
+        out.append(save_figure(fig, Path(stem).with_suffix(f".{fmt}"), dpi=150))  # no dates in the file
     plt.close(fig)
     return out

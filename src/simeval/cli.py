@@ -124,6 +124,9 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 def launch(main: Callable[[], Any]) -> None:
     """Run an entrypoint's `main` after the argv fixes every entrypoint shares."""
+    from simeval.results import register_run_suffix_resolver
+
     refuse_secrets_on_command_line(sys.argv)
     allow_multirun_anywhere()
+    register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders
     main()

@@ -1,4 +1,11 @@
-"""`result.json` beside `.hydra/`: the one record every run leaves, from which tables and figures are rebuilt."""
+"""`result.json` beside `.hydra/`: the one record every run leaves, from which tables and figures are rebuilt.
+
+Every record carries an `identity`: what the numbers are *of* (metric, version, pipeline, task source, task group,
+model, settings) and which repeat they are (seed). A report uses it to put each record in its table cell, to
+average repeated seeds, and to refuse to merge two records that claim one cell with different settings (see
+simeval.report.text_diversity). Run folders are unique per process (`${run_suffix:}` in conf/hydra/default.yaml),
+so two runs started in the same second never share a folder or overwrite each other's result.json.
+"""
 
 from __future__ import annotations
 
@@ -12,10 +19,58 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from simeval.errors import UserError
 from simeval.secrets import redact_secrets
 
 RESULT_FILE = "result.json"
 RESULT_SCHEMA = 1
+REPEAT_KEYS = ("seed",)  # identity keys that name a repeat of the same measurement, not a different one
+
+
+def run_suffix() -> str:
+    """`<pid>-<6 random hex>`: with the microsecond timestamp in conf/hydra/default.yaml it makes a run folder
+    unique even for runs started at once on several machines that share a filesystem."""
+    return f"{os.getpid()}-{os.urandom(3).hex()}"
+
+
+def register_run_suffix_resolver() -> None:
+    """Register `${run_suffix:}` for the run/sweep folder names. Cached like Hydra's `${now:}`: the run folder is
+    resolved more than once per run and the sweep config copies the cache to every job, so all agree."""
+    from omegaconf import OmegaConf
+
+    if not OmegaConf.has_resolver("run_suffix"):
+        OmegaConf.register_new_resolver("run_suffix", run_suffix, use_cache=True)
+
+
+def make_identity(metric: str, version: str, seed: int | None = None, **fields: Any) -> dict:
+    """The `identity` stored in result.json: metric, version and seed plus what the entrypoint names (pipeline,
+    source, task_group, model, settings, ...). Values are made JSON-plain so two identities compare with ==."""
+    return strict_json_value({"metric": metric, "version": version, **fields, "seed": seed})
+
+
+def record_identity(rec: Mapping) -> dict:
+    """A record's identity; for records written before identities existed, the fields that were there."""
+    if isinstance(rec.get("identity"), Mapping):
+        return dict(rec["identity"])
+    legacy = {k: rec.get(k) for k in ("pipeline", "embedding", "label", "judge") if k in rec}
+    return make_identity(rec.get("metric"), rec.get("version"), rec.get("seed"), **legacy)
+
+
+def _flat(d: Mapping, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def identity_difference(a: Mapping, b: Mapping) -> str:
+    """`model ('x' vs 'y'), settings.n_boot (1000 vs 20)`: the keys where two identities differ."""
+    fa, fb = _flat(a), _flat(b)
+    keys = [k for k in sorted(set(fa) | set(fb)) if fa.get(k) != fb.get(k)]
+    return ", ".join(f"{k} ({fa.get(k)!r} vs {fb.get(k)!r})" for k in keys)
 
 
 def umask_file_mode() -> int:
@@ -108,9 +163,11 @@ def write_result(
     choices: Mapping | None = None,
     seed: int | None = None,
     status: str = "ok",
+    identity: Mapping | None = None,
     **extra: Any,
 ) -> Path:
-    """Write `<out_dir>/result.json` atomically and return its path."""
+    """Write `<out_dir>/result.json` atomically and return its path. `identity` (see make_identity) names what
+    the values are of; metric, version and seed are filled in from the arguments."""
     record = {
         "schema": RESULT_SCHEMA,
         "metric": metric,
@@ -119,6 +176,8 @@ def write_result(
         "values": values,
         "choices": dict(choices or {}),
         "seed": seed,
+        "identity": make_identity(metric, version, seed, **{k: v for k, v in (identity or {}).items()
+                                                          if k not in ("metric", "version", "seed")}),
         "git_sha": git_sha(),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         **extra,
@@ -135,7 +194,7 @@ def read_results(root: str | os.PathLike, metric: str | None = None) -> list[dic
         try:
             rec = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError) as e:
-            raise ValueError(f"cannot read {path}: {e}") from e
+            raise UserError(f"cannot read {path}: {e}") from e
         if metric is None or rec.get("metric") == metric:
             rec["path"] = str(path)
             records.append(rec)

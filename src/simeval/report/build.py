@@ -1,11 +1,17 @@
-"""Build every artefact of a text-diversity report spec from the result.json files under `runs_dir`."""
+"""Build every artefact of a text-diversity report spec from the result.json files under `runs_dir`.
+
+`<id>.{csv,md,tex}`, `<id>_all_metrics.*`, `<id>_rank_agreement.*` and `<id>_tidy.csv` depend only on the numbers
+and settings in the records, so they are committed; `<id>_sources.csv` (which result.json, git sha and time each
+cell came from) is not (.gitignore)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from simeval.report.tables import to_csv, write_table
-from simeval.report.text_diversity import STATISTICS, TIDY_COLUMNS, rank_agreement, table3, tidy_rows
+from simeval.errors import UserError
+from simeval.report.text_diversity import (SOURCE_COLUMNS, STATISTICS, TIDY_COLUMNS, rank_agreement, source_rows,
+                                           table3, tidy_rows)
 from simeval.results import atomic_write_text, read_results
 
 
@@ -14,7 +20,7 @@ def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id
                                 metric: str = "text_diversity") -> dict[str, list[Path]]:
     records = read_results(runs_dir, metric)
     if not records:
-        raise FileNotFoundError(f"no {metric} result.json under {runs_dir}: run the sweep first")
+        raise UserError(f"no {metric} result.json under {runs_dir}: run the sweep first")
     tidy = tidy_rows(records)
     columns = list(columns)
     listed = {c["embedding"] for c in columns}
@@ -24,7 +30,9 @@ def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id
             columns.append({"embedding": r["embedding"], "display": r["embedding"]})
     out = Path(out_dir)
     written = {"tidy": [atomic_write_text(out / f"{id}_tidy.csv",
-                                          to_csv(TIDY_COLUMNS, [[r[c] for c in TIDY_COLUMNS] for r in tidy]))]}
+                                          to_csv(TIDY_COLUMNS, [[r[c] for c in TIDY_COLUMNS] for r in tidy]))],
+               "sources": [atomic_write_text(out / f"{id}_sources.csv",
+                                             to_csv(SOURCE_COLUMNS, source_rows(records, relative_to=Path.cwd())))]}
     header, body, notes = table3(tidy, rows, columns, statistic, digits)
     written["main"] = write_table(out / id, header, body, caption=caption, label=f"tab:{id}", notes=notes)
     ext_rows = []

@@ -1,0 +1,198 @@
+"""Reports merge runs by their identity: unique run folders, repeated seeds averaged, conflicting records refused,
+partial re-runs keep the other groups, Figure 4 counts distinct tasks."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from omegaconf import OmegaConf
+
+from simeval.errors import UserError
+from simeval.report.build import build_text_diversity_report
+from simeval.report.quality_figure import build_quality_figure, quality_points
+from simeval.metrics.text_diversity import STATISTICS
+from simeval.report.text_diversity import tidy_rows
+from simeval.results import read_results, register_run_suffix_resolver, write_result
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = yaml.safe_load((ROOT / "conf" / "report" / "table3.yaml").read_text())
+SETTINGS = {"n_boot": 1000, "subsample_n": "auto", "subsample_repeats": 50}
+
+
+def _group(div, n=5):
+    return {"n": n, **{s: div for s in STATISTICS},
+            "div_ci": [div - 0.1, div + 0.1], "subsample": {"n": 3, "div_mean": div}}
+
+
+def td_record(root, name, *, values, pipeline="gensim", embedding="minilm", seed=0, task_group="each",
+              model="sentence-transformers/all-MiniLM-L6-v2", settings=SETTINGS, created=None, sha="abc"):
+    path = write_result(Path(root) / name, metric="text_diversity", version="2.0", values=values, seed=seed,
+                        pipeline=pipeline, embedding=embedding,
+                        identity=dict(pipeline=pipeline, source="auto", tasks_sha="t1", task_group=task_group,
+                                      embedding=embedding, model=model, settings=settings))
+    rec = json.loads(path.read_text())
+    rec["created"] = created or rec["created"]
+    rec["git_sha"] = sha
+    path.write_text(json.dumps(rec))
+    return path
+
+
+EACH = {"stacking": _group(0.4), "placement": _group(0.5), "all": _group(0.7, n=10)}
+
+
+def _table(out):
+    return {(r["Method"], r["Task Group"]): r for r in csv.DictReader((out / "table3.csv").open())}
+
+
+def _build(runs, out):
+    return build_text_diversity_report(runs, out, id="table3", rows=SPEC["rows"], columns=SPEC["columns"],
+                                       caption=SPEC["caption"])
+
+
+# --- identity in result.json and unique run folders ----------------------------------------------------------
+
+def test_write_result_records_an_identity(tmp_path):
+    path = write_result(tmp_path, metric="m", version="1.0", values={}, seed=3, identity={"pipeline": "gensim",
+                                                                                           "seed": 99})
+    assert json.loads(path.read_text())["identity"] == {"metric": "m", "version": "1.0", "pipeline": "gensim",
+                                                        "seed": 3}
+
+
+@pytest.mark.parametrize("conf,key", [("hydra/default.yaml", "hydra.run.dir"),
+                                      ("hydra/default.yaml", "hydra.sweep.dir"),
+                                      ("experiment/table3.yaml", "hydra.sweep.dir")])
+def test_run_folders_started_in_the_same_second_differ(conf, key):
+    """Two runs whose clocks read the same second (here: the same microsecond) still get two folders."""
+    from hydra.core.utils import setup_globals
+
+    register_run_suffix_resolver()
+    node = yaml.safe_load((ROOT / "conf" / conf).read_text())
+    node = node if conf.startswith("experiment") else {"hydra": node}
+    try:
+        OmegaConf.register_new_resolver("now", lambda pattern: "2026-01-01_00-00-00-000000", replace=True)
+        dirs = {OmegaConf.select(OmegaConf.merge(node, {"hydra": {"job": {"name": "x", "num": 0}}}), key)
+                for _ in range(2)}
+    finally:
+        setup_globals()  # Hydra's own ${now:}
+    assert len(dirs) == 2, dirs
+
+
+def test_two_runs_started_together_keep_both_results(tmp_path):
+    """The whole path: two processes launched at once, default run folders, two result.json files."""
+    env = {**os.environ, "BBSEA_ROOT": "", "BBSEA_TASKS": "", "PYTHONPATH": str(ROOT / "src")}
+    args = [sys.executable, str(ROOT / "src" / "text_diversity.py"), "pipeline=bbsea", "on_missing_source=record"]
+    procs = [subprocess.Popen(args, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for _ in range(2)]
+    for p in procs:
+        assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-2000:]
+    results = list((tmp_path / "outputs" / "runs").rglob("result.json"))
+    assert len(results) == 2
+    assert json.loads(results[0].read_text())["identity"]["pipeline"] == "bbsea"
+
+
+# --- Table 3 merging ------------------------------------------------------------------------------------------
+
+def test_repeated_seeds_are_averaged_with_their_spread(tmp_path):
+    td_record(tmp_path / "runs", "a", values=EACH, seed=0)
+    td_record(tmp_path / "runs", "b", values={**EACH, "stacking": _group(0.6)}, seed=1)
+    _build(tmp_path / "runs", tmp_path / "out")
+    row = _table(tmp_path / "out")[("GenSim", "Stacking")]
+    assert row["MiniLM-L6-v2"] == "0.50 ± 0.14"
+    assert _table(tmp_path / "out")[("GenSim", "Placement")]["MiniLM-L6-v2"] == "0.50 ± 0.00"
+    assert "x ± s: mean and standard deviation over repeated seeds" in (tmp_path / "out" / "table3.md").read_text()
+    tidy = [r for r in csv.DictReader((tmp_path / "out" / "table3_tidy.csv").open())
+            if r["group"] == "stacking" and r["statistic"] == "div"]
+    assert [(r["n_seeds"], r["seeds"], float(r["value"])) for r in tidy] == [("2", "0;1", 0.5)]
+
+
+def test_a_rerun_of_the_same_seed_replaces_the_older_one(tmp_path):
+    td_record(tmp_path / "runs", "a", values=EACH, created="2026-01-01T00:00:00+00:00")
+    td_record(tmp_path / "runs", "b", values={**EACH, "stacking": _group(0.45)}, created="2026-01-02T00:00:00+00:00")
+    rows = [r for r in tidy_rows(read_results(tmp_path / "runs")) if r["group"] == "stacking"
+            and r["statistic"] == "div"]
+    assert [(r["value"], r["n_seeds"]) for r in rows] == [(0.45, 1)]
+
+
+def test_two_records_claiming_one_cell_with_different_settings_are_refused(tmp_path):
+    a = td_record(tmp_path / "runs", "a", values=EACH, embedding="hf", model="/models/one")
+    b = td_record(tmp_path / "runs", "b", values=EACH, embedding="hf", model="/models/two", seed=1)
+    with pytest.raises(UserError) as e:
+        _build(tmp_path / "runs", tmp_path / "out")
+    msg = str(e.value)
+    assert str(a) in msg and str(b) in msg and "model ('/models/one' vs '/models/two')" in msg
+    assert "embedding.name=" in msg and "\n" not in msg
+    # the entrypoint: one line on stderr, exit 2
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "report.py"), f"report.runs_dir={tmp_path / 'runs'}",
+                          f"report.out_dir={tmp_path / 'out'}"], cwd=ROOT, capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, timeout=300)
+    assert res.returncode == 2 and res.stderr.strip() == f"error: {msg}"
+
+
+def test_different_metric_settings_are_refused_too(tmp_path):
+    td_record(tmp_path / "runs", "a", values=EACH)
+    td_record(tmp_path / "runs", "b", values={"stacking": _group(0.4)}, task_group="stacking",
+              settings={**SETTINGS, "n_boot": 20})
+    with pytest.raises(UserError, match=r"settings.n_boot \(1000 vs 20\)"):
+        _build(tmp_path / "runs", tmp_path / "out")
+
+
+def test_a_partial_rerun_keeps_the_other_groups_and_says_where_rows_come_from(tmp_path):
+    td_record(tmp_path / "runs", "a_each", values=EACH, created="2026-01-01T00:00:00+00:00")
+    td_record(tmp_path / "runs", "b_stacking", values={"stacking": _group(0.42)}, task_group="stacking",
+              created="2026-01-02T00:00:00+00:00")
+    _build(tmp_path / "runs", tmp_path / "out")
+    table = _table(tmp_path / "out")
+    assert table[("GenSim", "Stacking")]["MiniLM-L6-v2"] == "0.42"  # the newer run of that group
+    assert table[("GenSim", "Placement")]["MiniLM-L6-v2"] == "0.50"  # kept from the complete run
+    assert table[("GenSim", "All")]["MiniLM-L6-v2"] == "0.70"
+    md = (tmp_path / "out" / "table3.md").read_text()
+    assert ("GenSim [MiniLM-L6-v2] rows come from different runs: Stacking from task_group=stacking, seed 0; "
+            "Placement, All from task_group=each, seed 0") in md
+    sources = list(csv.DictReader((tmp_path / "out" / "table3_sources.csv").open()))
+    assert {(r["group"], Path(r["path"]).parent.name) for r in sources} == {
+        ("stacking", "b_stacking"), ("placement", "a_each"), ("all", "a_each")}
+
+
+def test_missing_is_noted_only_without_values(tmp_path):
+    write_result(tmp_path / "runs" / "m", metric="text_diversity", version="2.0", values={}, status="missing",
+                 pipeline="gensim", embedding="minilm", missing_hint="set pipeline.grouped_file=...")
+    td_record(tmp_path / "runs", "a", values=EACH)
+    _build(tmp_path / "runs", tmp_path / "out")
+    assert "GenSim [MiniLM-L6-v2] missing" not in (tmp_path / "out" / "table3.md").read_text()
+
+
+# --- Figure 4 -------------------------------------------------------------------------------------------------
+
+def q_record(root, name, *, tasks=("a", "b", "c"), label=None, model="gpt-4o", score=3.0):
+    values = {"scene_alignment": {t: {"mean": score, "var": 0.1} for t in tasks},
+              "task_completion": {t: {"mean": 2 * score, "var": 0.2} for t in tasks}}
+    return write_result(Path(root) / name, metric="quality", version="1.0", values=values, judge="model",
+                        label=label, tasks={t: {"pipeline": "gensim"} for t in tasks},
+                        config={"judge": {"kind": "model", "provider": {"model": model}},
+                                "scene_alignment_mode": "vlm", "captioner": {"kind": "none"}})
+
+
+def test_figure4_counts_a_rerun_of_the_same_bundles_once(tmp_path):
+    for i in range(7):
+        q_record(tmp_path / "runs", f"r{i}", score=3.0 + (i % 2))
+    [point] = quality_points(read_results(tmp_path / "runs"))
+    assert point["n_tasks"] == 3 and point["scene_alignment"] == pytest.approx(3 + 3 / 7)
+    written = build_quality_figure(tmp_path / "runs", tmp_path / "out")
+    row = next(csv.DictReader(written["table"][0].open()))
+    assert row["Tasks"] == "3"
+
+
+def test_figure4_refuses_two_judges_in_one_point(tmp_path):
+    a = q_record(tmp_path / "runs", "a", model="gpt-4o")
+    b = q_record(tmp_path / "runs", "b", model="llava")
+    with pytest.raises(UserError) as e:
+        quality_points(read_results(tmp_path / "runs"))
+    assert str(a) in str(e.value) and str(b) in str(e.value) and "judge_model ('gpt-4o' vs 'llava')" in str(e.value)
+    q_record(tmp_path / "runs2", "a", model="gpt-4o", label="GenSim-gpt")
+    q_record(tmp_path / "runs2", "b", model="llava", label="GenSim-llava")
+    assert len(quality_points(read_results(tmp_path / "runs2"))) == 2
