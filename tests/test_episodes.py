@@ -14,8 +14,8 @@ import torch
 
 from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_ravens,
                                         import_robogen_pt)
-from simeval.episodes.store import (Episode, EpisodeFormatError, EpisodeStore, WindowSpec, iter_windows, read_episode,
-                                    read_meta, write_episode)
+from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_episode, read_meta, write_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +30,13 @@ def episode(task="stack-blocks", seed=0, t=10, group="stacking", success=True) -
         is_terminal=np.arange(t) == t - 1, success=success, high_level_action=rng.normal(size=(2, 14)),
         high_level_step=np.array([0, t // 2]), scene_views=rng.integers(0, 255, (4, 8, 8, 3), dtype=np.uint8),
         control_hz=30.0)
+
+
+def test_the_simulator_builds_episodes_without_the_storage_layer():
+    code = "import sys, simeval.sim.rollout; print('simeval.episodes.store' in sys.modules)"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert res.stdout.strip() == "False"
 
 
 def test_round_trip(tmp_path):

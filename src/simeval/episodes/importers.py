@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simeval.episodes.store import Episode, EpisodeFormatError, read_meta
+from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.episodes.store import read_meta
 from simeval.tasks.bbsea import bbsea_group
 from simeval.tasks.gensim import gensim_groups
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.episodes.store import Episode
+from simeval.episodes.episode import Episode
 from simeval.sim.goals import task_progress
 from simeval.sim.objects import make_object
 from simeval.sim.oracle import next_primitive
