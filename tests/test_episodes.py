@@ -220,3 +220,49 @@ def test_import_entrypoint_resumes(tmp_path):
     res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r3'}"], cwd=ROOT, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads((tmp_path / "r3" / "result.json").read_text())["values"]["skipped"] == 3
+
+
+def test_store_files_get_the_normal_file_mode(tmp_path):
+    from simeval.results import umask_file_mode
+
+    old = os.umask(0o022)  # what a shared store's writers typically run with
+    try:
+        path = EpisodeStore(tmp_path).write(episode())
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644  # readable by the group and others, as plainly created files
+    assert umask_file_mode() == 0o666 & ~old  # (the helper the store uses follows the umask in force)
+
+
+def _corrupt_chunk(path: Path, dataset: str, index: int) -> None:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        info = f[dataset].id.get_chunk_info(index)
+    with path.open("r+b") as fh:
+        fh.seek(info.byte_offset)
+        fh.write(b"\xff" * info.size)
+
+
+def test_a_damaged_chunk_read_through_windows_names_the_file(tmp_path):
+    path = EpisodeStore(tmp_path).write(episode(t=10))
+    _corrupt_chunk(path, "obs/rgb/front", 6)
+    windows = iter_windows([path], WindowSpec(length=4), camera="front")
+    assert next(windows)["rgb"].shape == (4, 8, 12, 3)  # frames 0-3 are intact and still read
+    with pytest.raises(EpisodeFormatError, match=r"episode_000000\.h5: damaged episode"):
+        next(windows)
+    with pytest.raises(EpisodeFormatError, match=r"episode_000000\.h5: damaged episode"):
+        list(iter_windows([path], WindowSpec(length=4, cross_episodes=True), camera="front"))
+
+
+def test_an_unreadable_stored_episode_is_moved_aside_not_trusted(tmp_path, caplog):
+    store = EpisodeStore(tmp_path)
+    good = store.write(episode(seed=0))
+    empty = store.path_for("gensim", "stack-blocks", 1)
+    empty.write_bytes(b"")  # what a full disk or a crashed copy leaves
+    assert store.exists_intact("gensim", "stack-blocks", 0)
+    assert not store.exists_intact("gensim", "stack-blocks", 1) and not empty.exists()
+    aside = list(empty.parent.glob("episode_000001.h5.corrupt-*"))
+    assert len(aside) == 1 and aside[0].stat().st_size == 0
+    assert "episode_000001.h5: unreadable episode moved aside" in caplog.text
+    assert store.paths() == [good]  # the file moved aside is not taken for an episode

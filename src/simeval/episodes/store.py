@@ -22,7 +22,9 @@ Per episode:
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import re
 import tempfile
@@ -33,6 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.results import umask_file_mode
+
+log = logging.getLogger(__name__)
 
 SCHEMA = 1
 STEP_KEYS = ("obs/state", "action", "reward", "progress", "is_first", "is_terminal")
@@ -50,6 +55,7 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+    os.fchmod(fd, umask_file_mode())  # mkstemp makes 0600 files; a shared store needs the mode others' files get
     os.close(fd)
     try:
         with h5py.File(tmp, "w") as f:
@@ -143,6 +149,28 @@ class EpisodeStore:
     def exists(self, pipeline: str, task: str, seed: int) -> bool:
         return self.path_for(pipeline, task, seed).is_file()
 
+    def exists_intact(self, pipeline: str, task: str, seed: int) -> bool:
+        """Whether a readable episode is stored. An unreadable file at the path (0 bytes, damaged, another
+        format) is moved aside as `<name>.corrupt-<time>` with a warning, so the episode is made again instead
+        of blocking every later run; the bytes are kept for inspection."""
+        path = self.path_for(pipeline, task, seed)
+        if not path.is_file():
+            return False
+        try:
+            read_meta(path)
+            return True
+        except EpisodeFormatError as e:
+            self.move_aside(path, str(e))
+            return False
+
+    def move_aside(self, path: Path, why: str) -> Path:
+        import time
+
+        aside = path.with_name(f"{path.name}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}")
+        os.replace(path, aside)
+        log.warning("%s: unreadable episode moved aside to %s; it will be made again (%s)", path, aside.name, why)
+        return aside
+
     def write(self, ep: Episode) -> Path:
         return write_episode(self.path_for(ep.pipeline, ep.task, ep.seed), ep)
 
@@ -185,6 +213,15 @@ class EpisodeStore:
         return out
 
 
+@contextlib.contextmanager
+def _damage_names(path: Path) -> Iterator[None]:
+    """h5py reports a damaged dataset or chunk as KeyError/OSError without the file name; add it."""
+    try:
+        yield
+    except (KeyError, OSError) as e:
+        raise EpisodeFormatError(f"{path}: damaged episode ({type(e).__name__}: {e})") from e
+
+
 @dataclass
 class WindowSpec:
     length: int
@@ -205,18 +242,22 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
     for p in paths:
         p = Path(p)
         with _open(p) as f:  # a damaged or incomplete file is a clear error naming it
-            data = {k: f[k] for k in keys}
-            if camera is not None:
-                if f"obs/rgb/{camera}" not in f:
-                    raise EpisodeFormatError(f"{p}: no camera '{camera}' (has {json.loads(f.attrs['cameras'])})")
-                data["rgb"] = f[f"obs/rgb/{camera}"]
-            n = len(data["action"])
+            if camera is not None and f"obs/rgb/{camera}" not in f:
+                raise EpisodeFormatError(f"{p}: no camera '{camera}' (has {json.loads(f.attrs['cameras'])})")
+            with _damage_names(p):
+                data = {k: f[k] for k in keys}
+                if camera is not None:
+                    data["rgb"] = f[f"obs/rgb/{camera}"]
+                n = len(data["action"])
             if not spec.cross_episodes:
                 for start in range(0, n - spec.length + 1, stride):
-                    yield {k: v[start : start + spec.length] for k, v in data.items()}
+                    with _damage_names(p):  # slices are read lazily; a damaged chunk is reported with its file
+                        window = {k: v[start : start + spec.length] for k, v in data.items()}
+                    yield window
                 continue
-            for k, v in data.items():
-                buffer.setdefault(k, []).append(v[()])
+            with _damage_names(p):
+                for k, v in data.items():
+                    buffer.setdefault(k, []).append(v[()])
         if spec.cross_episodes:
             stream = {k: np.concatenate(v) for k, v in buffer.items()}
             total = len(stream["action"])
