@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.errors import UserError
 from simeval.results import umask_file_mode
 
 log = logging.getLogger(__name__)
@@ -200,7 +201,7 @@ class EpisodeStore:
     def first_k_per_task(self, k: int, pipeline: str | None = None, group: str | None = None) -> list[dict]:
         """The protocol of the paper's 10/20/40 episodes: the first k episodes of each task, by seed."""
         if k < 1:
-            raise ValueError(f"episodes per task must be >= 1, got {k}")
+            raise UserError(f"episodes per task must be >= 1, got {k}")
         by_task: dict[str, list[dict]] = {}
         for m in self.index(pipeline, group):
             by_task.setdefault(m["task"], []).append(m)
@@ -208,7 +209,7 @@ class EpisodeStore:
         for task, metas in sorted(by_task.items()):
             metas.sort(key=lambda m: m["seed"])
             if len(metas) < k:
-                raise ValueError(f"task '{task}' has {len(metas)} episodes, fewer than the {k} asked for")
+                raise UserError(f"task '{task}' has {len(metas)} episodes, fewer than the {k} asked for")
             out += metas[:k]
         return out
 
@@ -237,7 +238,7 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
 
     stride = spec.stride or spec.length
     if spec.length < 1 or stride < 1:
-        raise ValueError(f"window length and stride must be >= 1, got {spec.length}, {stride}")
+        raise UserError(f"window length and stride must be >= 1, got {spec.length}, {stride}")
     buffer: dict[str, list[np.ndarray]] = {}
     for p in paths:
         p = Path(p)
