@@ -173,8 +173,8 @@ def test_collection_is_parallel_resumable_and_deterministic(tmp_path):
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
 def test_a_plain_kill_of_the_collector_stops_its_workers(tmp_path):
-    proc = subprocess.Popen(_collect(tmp_path / "store", tmp_path / "r"), cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen(_collect(tmp_path / "store", tmp_path / "r"), cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)  # Hydra logs to stdout
     try:
         deadline = time.time() + 120
         while len(_children(proc.pid)) < 2 and time.time() < deadline:
@@ -183,9 +183,9 @@ def test_a_plain_kill_of_the_collector_stops_its_workers(tmp_path):
         workers = _children(proc.pid)
         assert len(workers) >= 2
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
-        assert proc.returncode == 128 + signal.SIGTERM and "run the same command again to resume" in err
-        assert "Traceback" not in err
+        out, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 128 + signal.SIGTERM and "run the same command again to resume" in out, out
+        assert "Traceback" not in out
         assert _wait_until_none_runs(workers, 5) == set()
     finally:
         _kill_group(proc.pid)

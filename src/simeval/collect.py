@@ -32,6 +32,7 @@ PARENT_POLL_S = 0.5
 def _die_with_parent(parent: int) -> None:
     """Worker initializer: stop when the collector dies, however it dies (kill -9 included)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the collector decides
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the collector's handler, inherited through fork
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -80,7 +81,7 @@ def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
             bar.update(1)
     except BaseException:
         for p in list((getattr(pool, "_processes", None) or {}).values()):  # no public way to stop running work
-            p.terminate()
+            p.kill()  # an episode cut short leaves at most a temp file, never a file a reader accepts
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     else:
