@@ -168,7 +168,10 @@ class EpisodeStore:
         import time
 
         aside = path.with_name(f"{path.name}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}")
-        os.replace(path, aside)
+        try:
+            os.replace(path, aside)
+        except FileNotFoundError:  # another run on the same store moved it first
+            return aside
         log.warning("%s: unreadable episode moved aside to %s; it will be made again (%s)", path, aside.name, why)
         return aside
 
