@@ -6,6 +6,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 log = logging.getLogger("collect")
 
@@ -22,14 +23,21 @@ def main(cfg: DictConfig) -> None:
     from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
 
     if not cfg.pipeline.get("suite"):
-        raise ValueError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
-    specs = select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), cfg.tasks, cfg.task_group)
-    if cfg.episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
+        raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
+    tasks = cfg.tasks if cfg.tasks is None or isinstance(cfg.tasks, str) else list(cfg.tasks)
+    specs = select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), tasks, cfg.task_group)
+    if isinstance(cfg.episodes, bool) or not isinstance(cfg.episodes, int) or cfg.episodes < 1:
+        raise UserError(f"episodes must be a whole number >= 1, got {cfg.episodes!r}")
     settings = RecordSettings(**OmegaConf.to_container(cfg.record, resolve=True))
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
-    summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name, workers=cfg.workers,
-                      variation=OmegaConf.to_container(cfg.variation, resolve=True))
+    variation = cfg.variation
+    if OmegaConf.is_config(variation):
+        variation = OmegaConf.to_container(variation, resolve=True)
+    try:
+        summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name,
+                          workers=cfg.workers, variation=variation)
+    except KeyboardInterrupt:  # the library has logged what was kept; no traceback for a Ctrl-C
+        raise SystemExit(130) from None
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],

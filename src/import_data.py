@@ -7,6 +7,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 log = logging.getLogger("import_data")
 
@@ -14,16 +15,17 @@ log = logging.getLogger("import_data")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="import_data")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.episodes.importers import IMPORTERS, import_into_store
+    from simeval.episodes.importers import IMPORTERS, image_size_option, import_into_store
     from simeval.episodes.store import EpisodeStore
     from simeval.results import hydra_run_info, write_result
 
     if cfg.format not in IMPORTERS:
-        raise ValueError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
+        raise UserError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
     if not cfg.src:
-        raise ValueError("src is not set: src=/path/to/demonstrations")
+        raise UserError("src is not set: src=/path/to/demonstrations")
     importer = IMPORTERS[cfg.format]
-    options = {"image_size": tuple(cfg.image_size) if cfg.image_size else None,
+    size = OmegaConf.to_container(cfg.image_size) if OmegaConf.is_config(cfg.image_size) else cfg.image_size
+    options = {"image_size": image_size_option(size, "image_size"),
                "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions)}
     accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,

@@ -4,6 +4,7 @@
 import json
 import os
 import pickle
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,8 +15,8 @@ import torch
 
 from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_ravens,
                                         import_robogen_pt)
-from simeval.episodes.store import (Episode, EpisodeFormatError, EpisodeStore, WindowSpec, iter_windows, read_episode,
-                                    read_meta, write_episode)
+from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_episode, read_meta, write_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +31,13 @@ def episode(task="stack-blocks", seed=0, t=10, group="stacking", success=True) -
         is_terminal=np.arange(t) == t - 1, success=success, high_level_action=rng.normal(size=(2, 14)),
         high_level_step=np.array([0, t // 2]), scene_views=rng.integers(0, 255, (4, 8, 8, 3), dtype=np.uint8),
         control_hz=30.0)
+
+
+def test_the_simulator_builds_episodes_without_the_storage_layer():
+    code = "import sys, simeval.sim.rollout; print('simeval.episodes.store' in sys.modules)"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert res.stdout.strip() == "False"
 
 
 def test_round_trip(tmp_path):
@@ -213,3 +221,130 @@ def test_import_entrypoint_resumes(tmp_path):
     res = subprocess.run([*args, f"hydra.run.dir={tmp_path / 'r3'}"], cwd=ROOT, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads((tmp_path / "r3" / "result.json").read_text())["values"]["skipped"] == 3
+
+
+def test_store_files_get_the_normal_file_mode(tmp_path):
+    from simeval.results import umask_file_mode
+
+    old = os.umask(0o022)  # what a shared store's writers typically run with
+    try:
+        path = EpisodeStore(tmp_path).write(episode())
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644  # readable by the group and others, as plainly created files
+    assert umask_file_mode() == 0o666 & ~old  # (the helper the store uses follows the umask in force)
+
+
+def _corrupt_chunk(path: Path, dataset: str, index: int) -> None:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        info = f[dataset].id.get_chunk_info(index)
+    with path.open("r+b") as fh:
+        fh.seek(info.byte_offset)
+        fh.write(b"\xff" * info.size)
+
+
+def test_a_damaged_chunk_read_through_windows_names_the_file(tmp_path):
+    path = EpisodeStore(tmp_path).write(episode(t=10))
+    _corrupt_chunk(path, "obs/rgb/front", 6)
+    windows = iter_windows([path], WindowSpec(length=4), camera="front")
+    assert next(windows)["rgb"].shape == (4, 8, 12, 3)  # frames 0-3 are intact and still read
+    with pytest.raises(EpisodeFormatError, match=r"episode_000000\.h5: damaged episode"):
+        next(windows)
+    with pytest.raises(EpisodeFormatError, match=r"episode_000000\.h5: damaged episode"):
+        list(iter_windows([path], WindowSpec(length=4, cross_episodes=True), camera="front"))
+
+
+def test_an_unreadable_stored_episode_is_moved_aside_not_trusted(tmp_path, caplog):
+    store = EpisodeStore(tmp_path)
+    good = store.write(episode(seed=0))
+    empty = store.path_for("gensim", "stack-blocks", 1)
+    empty.write_bytes(b"")  # what a full disk or a crashed copy leaves
+    assert store.exists_intact("gensim", "stack-blocks", 0)
+    assert not store.exists_intact("gensim", "stack-blocks", 1) and not empty.exists()
+    aside = list(empty.parent.glob("episode_000001.h5.corrupt-*"))
+    assert len(aside) == 1 and aside[0].stat().st_size == 0
+    assert "episode_000001.h5: unreadable episode moved aside" in caplog.text
+    assert store.paths() == [good]  # the file moved aside is not taken for an episode
+
+
+def _robogen_file(folder: Path, image, name="episode_0_4.pt") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save({"action": np.zeros((4, 7), np.float32), "state": np.zeros((4, 20)), "image": image,
+                "is_first": np.arange(4) == 0, "is_terminal": np.arange(4) == 3}, folder / name)
+    return folder / name
+
+
+def test_importers_convert_float_images_by_range(tmp_path):
+    rng = np.random.default_rng(0)
+    unit = rng.uniform(0, 1, (4, 6, 8, 3)).astype(np.float32)  # what RoboGen renders: floats in [0, 1]
+    _robogen_file(tmp_path / "a" / "Open_Laptop", unit)
+    ep = next(import_robogen_pt(tmp_path / "a"))
+    np.testing.assert_array_equal(ep.rgb["image"], np.round(unit * 255).astype(np.uint8))
+    assert ep.rgb["image"].mean() > 100  # not the black frames a plain cast gives
+    _robogen_file(tmp_path / "b" / "Open_Laptop", torch.tensor(unit * 255, dtype=torch.float64))
+    np.testing.assert_array_equal(next(import_robogen_pt(tmp_path / "b")).rgb["image"], np.round(unit * 255))
+    bad = _robogen_file(tmp_path / "c" / "Open_Laptop", unit * 2 - 1)  # [-1, 1]: no range to guess from
+    with pytest.raises(EpisodeFormatError, match=r"episode_0_4\.pt: images 'image' are float32, values in \[-0.99"):
+        next(import_robogen_pt(tmp_path / "c"))
+    assert bad.exists()
+    _write_ravens(tmp_path / "r", episodes=1)  # the other importers convert the same way
+    color_file = next((tmp_path / "r").glob("*/color/*.pkl"))
+    color = pickle.loads(color_file.read_bytes())
+    color_file.write_bytes(pickle.dumps(color.astype(np.float32) / 255))
+    np.testing.assert_array_equal(next(import_ravens(tmp_path / "r")).rgb["color_0"], color[:-1, 0])
+
+
+def test_an_import_replaces_an_unreadable_stored_episode(tmp_path, caplog):
+    from simeval.episodes.importers import import_into_store
+
+    _write_ravens(tmp_path / "data", episodes=2)
+    store = EpisodeStore(tmp_path / "store")
+    empty = store.path_for("gensim", "stack-block-pyramid", 100)
+    empty.parent.mkdir(parents=True)
+    empty.write_bytes(b"")
+    summary = import_into_store(import_ravens, tmp_path / "data", store, progress=False)
+    assert summary["written"] == 2 and len(store.index()) == 2
+    assert "unreadable episode moved aside" in caplog.text
+
+
+def _import(tmp_path, *args):
+    return subprocess.run([sys.executable, str(ROOT / "src" / "import_data.py"), f"store={tmp_path / 'store'}",
+                           f"hydra.run.dir={tmp_path / 'run'}", *args], cwd=ROOT, capture_output=True, text=True)
+
+
+def _one_line_error(res, *expected):
+    """Exit status 2 and one line of error (after the progress bar, which shows how far the run got)."""
+    assert res.returncode == 2, res.stderr[-2000:]
+    lines = [x for x in res.stderr.strip().splitlines() if not re.match(r"(importing|collecting).*(it|episode)/s]", x)]
+    assert "Traceback" not in res.stderr and len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    for text in expected:
+        assert text in res.stderr, res.stderr
+
+
+def test_import_entrypoint_errors_are_one_line(tmp_path):
+    data = _write_ravens(tmp_path / "data", episodes=1).parent
+    _one_line_error(_import(tmp_path, "format=ravens", f"src={data}", "image_size=[12]"),
+                    "error: image_size must be null (keep the source size) or [H, W]", "got [12]")
+    action = next((data).glob("*/action/*.pkl"))
+    action.write_bytes(pickle.dumps([{"pose0": ((0, 0, 0), (0, 0, 0, 1))}, None]))  # pose1 missing
+    _one_line_error(_import(tmp_path, "format=ravens", f"src={data}"),
+                    f"{action}: action 0 is not {{pose0, pose1}}", "got ['pose0']")
+    scene = tmp_path / "bbsea" / "3"
+    scene.mkdir(parents=True)
+    bad = os.fsencode(scene) + b"/Open the dr\xe9wer"  # a Latin-1 name copied onto a UTF-8 system
+    os.mkdir(bad)
+    with open(os.path.join(bad, b"0_True.pt"), "wb") as f:
+        torch.save({"image": np.zeros((2, 4, 4, 3), np.uint8)}, f)
+    _one_line_error(_import(tmp_path, "format=bbsea_pt", f"src={tmp_path / 'bbsea'}"),
+                    f"{scene}/Open the dr\\xe9wer: folder name is not valid UTF-8; rename it")
+
+
+def test_bbsea_task_folders_must_have_utf8_names(tmp_path):
+    from simeval.tasks import load_tasks
+    from simeval.tasks.records import TaskSourceError
+
+    os.makedirs(os.fsencode(tmp_path / "trajectory" / "0") + b"/Put the \xe9 block in the drawer")
+    with pytest.raises(TaskSourceError, match=r"trajectory/0/Put the \\xe9 block in the drawer: folder name is not"):
+        load_tasks("bbsea", root=str(tmp_path))

@@ -71,9 +71,30 @@ def test_an_episode_records_what_the_authors_logged():
     assert ep.state.shape == (t, 12) and ep.action.shape == (t, 6)  # 6 joint pos + 6 vel; joint targets
     assert ep.high_level_action.shape[1] == 14 and np.all(np.diff(ep.high_level_step) > 0)
     assert ep.scene_views.shape == (4, 48, 48, 3) and ep.scene_views.std() > 5  # 4 views with something in them
-    assert ep.reward.sum() == pytest.approx(ep.progress[-1]) and ep.progress[-1] == 1.0
+    assert ep.progress[0] == 0.0 and ep.progress[-1] == 1.0  # not solved at the start, solved at the end
     assert ep.is_first[0] and ep.is_terminal[-1] and ep.is_first.sum() == ep.is_terminal.sum() == 1
     assert ep.control_hz == 30.0 and "stack" in ep.description.lower()
+
+
+def test_reward_comes_when_and_where_a_goal_is_met():
+    """Two blocks, each to the zone of its colour (two goals): progress reaches 0.5 during the first
+    pick-and-place and 1.0 during the second, and each primitive during which a goal is met places its block
+    inside that goal's zone, located from the seed's sampled poses (zones do not move), not from progress."""
+    spec = SUITE["put-blocks-in-matching-zones"]
+    ep = run_episode(spec, 0, RecordSettings(cameras=()))
+    inst = sample_instance(spec, 0)
+    starts = list(ep.high_level_step) + [ep.n_steps]
+    assert len(starts) == 3  # two pick-and-place primitives
+    for goal, (level, zone) in enumerate(((0.5, "zone_a0"), (1.0, "zone_b0"))):
+        first = int(np.argmax(ep.progress >= level))  # the step where the goal first counts as met
+        assert ep.progress[first] >= level and ep.progress[:first].max(initial=0) < level
+        prim = int(np.searchsorted(starts, first, side="right")) - 1
+        assert prim == goal and ep.reward[first] > 0  # met during its own primitive, rewarded at that step
+        zone_xy, _ = inst.poses[zone]
+        place_xy = ep.high_level_action[prim, 7:9]
+        assert np.linalg.norm(place_xy - zone_xy) < 0.05  # the 0.10 m zone's half-width: placed inside it
+    assert ep.progress[: starts[1]].max() == 0.5 and ep.progress[-1] == 1.0 and ep.success
+    assert ep.reward[: int(np.argmax(ep.progress > 0))].sum() == 0  # nothing before the first block lands
 
 
 @pytest.mark.parametrize("task", ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge"])
@@ -88,15 +109,54 @@ def _collect(store, run_dir, *extra):
             f"hydra.run.dir={run_dir}", *extra]
 
 
+def _children(pid: int) -> set[int]:
+    kids = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                kids.add(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):  # a process that ended while we looked
+            pass
+    return kids
+
+
+def _running(pid: int) -> bool:
+    try:  # a zombie (state Z) has stopped; only its parent has not collected it yet
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _kill_group(pgid: int) -> None:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except ProcessLookupError:  # every process of the group has ended
+        pass
+
+
+def _wait_until_none_runs(pids: set[int], seconds: float) -> set[int]:
+    deadline = time.time() + seconds
+    while {p for p in pids if _running(p)} and time.time() < deadline:
+        time.sleep(0.1)
+    return {p for p in pids if _running(p)}
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
 def test_collection_is_parallel_resumable_and_deterministic(tmp_path):
     store = tmp_path / "store"
     proc = subprocess.Popen(_collect(store, tmp_path / "r1"), cwd=ROOT, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.time() + 120
-    while not list(store.rglob("episode_*.h5")) and time.time() < deadline:
-        time.sleep(0.1)
-    os.killpg(proc.pid, signal.SIGKILL)  # the collector and its workers, mid-run
-    proc.wait()
+    try:
+        deadline = time.time() + 120
+        while not list(store.rglob("episode_*.h5")) and time.time() < deadline:
+            time.sleep(0.1)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2
+        os.kill(proc.pid, signal.SIGKILL)  # the collector only, mid-run: nothing can clean up after it
+        proc.wait()
+        assert _wait_until_none_runs(workers, 5) == set()  # its workers stop too, rather than run on under init
+    finally:
+        _kill_group(proc.pid)  # whatever is left, so a failure leaves no process behind
     done_before = len(EpisodeStore(store).paths())
     assert 1 <= done_before < 6
     res = subprocess.run(_collect(store, tmp_path / "r2"), cwd=ROOT, capture_output=True, text=True, timeout=600)
@@ -109,6 +169,26 @@ def test_collection_is_parallel_resumable_and_deterministic(tmp_path):
     stored = read_episode(EpisodeStore(store).path_for("gensim", "put-block-in-zone", 2))
     np.testing.assert_array_equal(stored.rgb["top"], again.rgb["top"])  # same seed, same episode
     np.testing.assert_allclose(stored.state, again.state)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
+def test_a_plain_kill_of_the_collector_stops_its_workers(tmp_path):
+    proc = subprocess.Popen(_collect(tmp_path / "store", tmp_path / "r"), cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)  # Hydra logs to stdout
+    try:
+        deadline = time.time() + 120
+        while len(_children(proc.pid)) < 2 and time.time() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # the workers are running episodes
+        workers = _children(proc.pid)
+        assert len(workers) >= 2
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 128 + signal.SIGTERM and "run the same command again to resume" in out, out
+        assert "Traceback" not in out
+        assert _wait_until_none_runs(workers, 5) == set()
+    finally:
+        _kill_group(proc.pid)
 
 
 def test_collect_rejects_unknown_tasks(tmp_path):

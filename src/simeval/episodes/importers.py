@@ -20,8 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from simeval.episodes.store import Episode, EpisodeFormatError, read_meta
-from simeval.tasks.bbsea import bbsea_group
+from simeval.episodes.episode import Episode, EpisodeFormatError
+from simeval.episodes.store import read_meta
+from simeval.errors import UserError
+from simeval.tasks.bbsea import bbsea_group, utf8_name
 from simeval.tasks.gensim import gensim_groups
 
 
@@ -52,7 +54,41 @@ def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tup
     return found
 
 
+def image_size_option(value, key: str = "image_size") -> tuple[int, int] | None:
+    """None (keep the source resolution) or [H, W] with both >= 1, as a tuple; else a UserError naming `key`."""
+    if value is None:
+        return None
+    ok = (isinstance(value, (list, tuple)) and len(value) == 2
+          and all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) and x >= 1 for x in value))
+    if not ok:
+        raise UserError(f"{key} must be null (keep the source size) or [H, W] with whole numbers H, W >= 1, "
+                        f"got {value!r}")
+    return int(value[0]), int(value[1])
+
+
+def _uint8_images(v, path: Path, key: str) -> np.ndarray:
+    """Images as uint8, converted by their range: uint8 as is; integers in [0, 255] cast; floats in [0, 1]
+    scaled by 255 (a plain cast would make every frame black); floats in [0, 255] rounded. A float image whose
+    values all lie in [0, 1] is taken as [0, 1] (a [0, 255] image that dark is black either way). Any other range
+    is refused rather than guessed."""
+    v = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
+    if v.dtype == np.uint8 or v.size == 0:
+        return v.astype(np.uint8, copy=False)
+    if v.dtype.kind in "iufb":
+        lo, hi = float(np.min(v)), float(np.max(v))  # NaN propagates, and fails every test below
+        if v.dtype.kind == "f" and 0 <= lo and hi <= 1:
+            return np.round(v * 255).astype(np.uint8)
+        if 0 <= lo and hi <= 255:
+            return np.round(v).astype(np.uint8) if v.dtype.kind == "f" else v.astype(np.uint8)
+        seen = f"values in [{lo:g}, {hi:g}]"
+    else:
+        seen = "not numbers"
+    raise EpisodeFormatError(f"{path}: images '{key}' are {v.dtype}, {seen}; expected uint8, or floats in [0, 1] or "
+                             "[0, 255]")
+
+
 def _resize(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    size = image_size_option(size)
     if size is None or tuple(frames.shape[1:3]) == tuple(size):
         return np.ascontiguousarray(frames, dtype=np.uint8)
     from PIL import Image
@@ -98,6 +134,19 @@ def _pose14(pose0, pose1) -> np.ndarray:
     return np.concatenate([np.asarray(p0), np.asarray(q0), np.asarray(p1), np.asarray(q1)]).astype(np.float32)
 
 
+def _ravens_pose14(action, path: Path, index: int) -> np.ndarray:
+    """One Ravens action {pose0, pose1}, each (position xyz, quaternion xyzw), as the 14-d pick/place pose."""
+    try:
+        pose = _pose14(action["pose0"], action["pose1"])
+        if pose.shape != (14,):
+            raise ValueError(f"{pose.size} numbers, not 3 + 4 per pose")
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        got = sorted(action) if isinstance(action, dict) else type(action).__name__
+        raise EpisodeFormatError(f"{path}: action {index} is not {{pose0, pose1}} of ((x, y, z), (qx, qy, qz, qw)) "
+                                 f"(got {got}; {type(e).__name__}: {e})") from e
+    return pose
+
+
 def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                   groups: dict | None = None, stored: IsStored = _never) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
@@ -115,7 +164,10 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
                 yield Stored("gensim", task, seed)
                 continue
             parts = {k: _load_pickle(d / k / action_file.name) for k in ("color", "action", "reward", "info")}
-            color = np.asarray(parts["color"], dtype=np.uint8)
+            color = _uint8_images(parts["color"], d / "color" / action_file.name, "color")
+            if not isinstance(parts["action"], (list, tuple)):
+                raise EpisodeFormatError(f"{d / 'action' / action_file.name}: expected a list of actions, got "
+                                         f"{type(parts['action']).__name__}")
             actions = [a for a in parts["action"] if a is not None]
             t = len(actions)
             if color.ndim != 5 or len(color) < t or t == 0:
@@ -124,7 +176,7 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
             reward = np.asarray(parts["reward"], dtype=np.float32)[1 : t + 1]
             info = parts["info"][0] if parts["info"] else {}
             description = (info or {}).get("lang_goal") or task
-            hl = np.stack([_pose14(a["pose0"], a["pose1"]) for a in actions])
+            hl = np.stack([_ravens_pose14(a, d / "action" / action_file.name, i) for i, a in enumerate(actions)])
             yield Episode(
                 pipeline="gensim", task=task, description=description,
                 group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=seed,
@@ -145,13 +197,12 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
         d = _load_torch(path)
         task = path.parent.name
         low, high = d.get("obs_low") or {}, d.get("action_high") or {}
-        rgb = _arr(low, "rgb", path, np.uint8)
+        rgb = _uint8_images(_arr(low, "rgb", path), path, "obs_low.rgb")
         n = len(rgb)
         hl = np.concatenate([_arr(high, "pose0", path, np.float32), _arr(high, "pose1", path, np.float32)], axis=1)
         obs_high = d.get("obs_high") or {}
         views = [obs_high[f"color_{c}"][0] for c in range(3) if f"color_{c}" in obs_high]
-        views = [_resize(np.asarray(v.numpy() if hasattr(v, "numpy") else v, np.uint8)[None], image_size)[0]
-                 for v in views]
+        views = [_resize(_uint8_images(v, path, "obs_high.color")[None], image_size)[0] for v in views]
         same_shape = len({v.shape for v in views}) == 1  # the authors' cameras differ in size unless resized
         yield Episode(
             pipeline="gensim", task=task, description=(descriptions or {}).get(task, task),
@@ -166,7 +217,7 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
 
 def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
     """The BBSEA and RoboGen files share one layout: image, state, action, is_first, is_terminal."""
-    image = _arr(d, "image", path, np.uint8)
+    image = _uint8_images(_arr(d, "image", path), path, "image")
     return Episode(rgb={"image": _resize(image, image_size)}, state=_arr(d, "state", path, np.float32),
                    action=_arr(d, "action", path, np.float32), reward=np.zeros(len(image), np.float32),
                    is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
@@ -178,7 +229,7 @@ def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | No
     root = Path(root).expanduser()
     for path, m in _episode_files(root, "*/*/*.pt", r"(\d+)_(True|False)\.pt",
                                   "BBSEA: <scene>/<task description>/<id>_<True|False>.pt"):
-        desc, scene = path.parent.name, path.parent.parent.name
+        desc, scene = utf8_name(path.parent), utf8_name(path.parent.parent)
         if stored("bbsea", f"{scene}/{desc}", int(m.group(1))):
             yield Stored("bbsea", f"{scene}/{desc}", int(m.group(1)))
             continue
@@ -217,7 +268,7 @@ def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike,
     from tqdm import tqdm
 
     if "stored" in inspect.signature(importer).parameters:
-        options["stored"] = _never if overwrite else store.exists
+        options["stored"] = _never if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0
     per_task: dict[str, dict] = {}
     for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress):
@@ -226,7 +277,7 @@ def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike,
             task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
         else:
             task, group, success, known = item.task, item.group, item.success, item.success_known
-            is_new = overwrite or not store.exists(item.pipeline, item.task, item.seed)
+            is_new = overwrite or not store.exists_intact(item.pipeline, item.task, item.seed)
         stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "success_unknown": 0, "group": group})
         stats["episodes"] += 1
         stats["success"] += int(known and success)

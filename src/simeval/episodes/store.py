@@ -22,67 +22,26 @@ Per episode:
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import re
 import tempfile
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.errors import UserError
+from simeval.results import umask_file_mode
+
+log = logging.getLogger(__name__)
 
 SCHEMA = 1
 STEP_KEYS = ("obs/state", "action", "reward", "progress", "is_first", "is_terminal")
-
-
-class EpisodeFormatError(UserError):
-    """An episode file is missing, truncated, incomplete or not in this format; the message names the file."""
-
-
-@dataclass
-class Episode:
-    pipeline: str
-    task: str
-    description: str
-    group: str
-    seed: int
-    rgb: dict[str, np.ndarray]  # camera -> (T, H, W, 3) uint8
-    state: np.ndarray  # (T, D)
-    action: np.ndarray  # (T, A)
-    reward: np.ndarray  # (T,)
-    is_first: np.ndarray  # (T,)
-    is_terminal: np.ndarray  # (T,)
-    progress: np.ndarray | None = None  # (T,); None when the source does not record it
-    success: bool = False
-    success_known: bool = True  # False for sources that do not record success (the authors' GenSim/RoboGen files)
-    high_level_action: np.ndarray | None = None  # (H, K)
-    high_level_step: np.ndarray | None = None  # (H,)
-    scene_views: np.ndarray | None = None  # (V, h, w, 3)
-    final_view: np.ndarray | None = None  # (h, w, 3) the first scene view rendered after the episode (optional)
-    control_hz: float | None = None
-    source: str = "simeval"
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def n_steps(self) -> int:
-        return int(len(self.action))
-
-    def validate(self) -> None:
-        t = self.n_steps
-        arrays = {"state": self.state, "reward": self.reward, "is_first": self.is_first,
-                  "is_terminal": self.is_terminal, **{f"rgb/{k}": v for k, v in self.rgb.items()}}
-        if self.progress is not None:
-            arrays["progress"] = self.progress
-        bad = {k: len(v) for k, v in arrays.items() if len(v) != t}
-        if bad:
-            raise EpisodeFormatError(f"{self.task} seed {self.seed}: {t} actions but lengths {bad}")
-        for cam, frames in self.rgb.items():
-            if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
-                raise EpisodeFormatError(f"camera {cam}: expected uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}")
-        if (self.high_level_action is None) != (self.high_level_step is None):
-            raise EpisodeFormatError("high_level_action and high_level_step go together")
 
 
 def _safe(name: str) -> str:
@@ -97,6 +56,7 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+    os.fchmod(fd, umask_file_mode())  # mkstemp makes 0600 files; a shared store needs the mode others' files get
     os.close(fd)
     try:
         with h5py.File(tmp, "w") as f:
@@ -190,6 +150,31 @@ class EpisodeStore:
     def exists(self, pipeline: str, task: str, seed: int) -> bool:
         return self.path_for(pipeline, task, seed).is_file()
 
+    def exists_intact(self, pipeline: str, task: str, seed: int) -> bool:
+        """Whether a readable episode is stored. An unreadable file at the path (0 bytes, damaged, another
+        format) is moved aside as `<name>.corrupt-<time>` with a warning, so the episode is made again instead
+        of blocking every later run; the bytes are kept for inspection."""
+        path = self.path_for(pipeline, task, seed)
+        if not path.is_file():
+            return False
+        try:
+            read_meta(path)
+            return True
+        except EpisodeFormatError as e:
+            self.move_aside(path, str(e))
+            return False
+
+    def move_aside(self, path: Path, why: str) -> Path:
+        import time
+
+        aside = path.with_name(f"{path.name}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}")
+        try:
+            os.replace(path, aside)
+        except FileNotFoundError:  # another run on the same store moved it first
+            return aside
+        log.warning("%s: unreadable episode moved aside to %s; it will be made again (%s)", path, aside.name, why)
+        return aside
+
     def write(self, ep: Episode) -> Path:
         return write_episode(self.path_for(ep.pipeline, ep.task, ep.seed), ep)
 
@@ -219,7 +204,7 @@ class EpisodeStore:
     def first_k_per_task(self, k: int, pipeline: str | None = None, group: str | None = None) -> list[dict]:
         """The protocol of the paper's 10/20/40 episodes: the first k episodes of each task, by seed."""
         if k < 1:
-            raise ValueError(f"episodes per task must be >= 1, got {k}")
+            raise UserError(f"episodes per task must be >= 1, got {k}")
         by_task: dict[str, list[dict]] = {}
         for m in self.index(pipeline, group):
             by_task.setdefault(m["task"], []).append(m)
@@ -227,9 +212,18 @@ class EpisodeStore:
         for task, metas in sorted(by_task.items()):
             metas.sort(key=lambda m: m["seed"])
             if len(metas) < k:
-                raise ValueError(f"task '{task}' has {len(metas)} episodes, fewer than the {k} asked for")
+                raise UserError(f"task '{task}' has {len(metas)} episodes, fewer than the {k} asked for")
             out += metas[:k]
         return out
+
+
+@contextlib.contextmanager
+def _damage_names(path: Path) -> Iterator[None]:
+    """h5py reports a damaged dataset or chunk as KeyError/OSError without the file name; add it."""
+    try:
+        yield
+    except (KeyError, OSError) as e:
+        raise EpisodeFormatError(f"{path}: damaged episode ({type(e).__name__}: {e})") from e
 
 
 @dataclass
@@ -247,23 +241,27 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
 
     stride = spec.stride or spec.length
     if spec.length < 1 or stride < 1:
-        raise ValueError(f"window length and stride must be >= 1, got {spec.length}, {stride}")
+        raise UserError(f"window length and stride must be >= 1, got {spec.length}, {stride}")
     buffer: dict[str, list[np.ndarray]] = {}
     for p in paths:
         p = Path(p)
         with _open(p) as f:  # a damaged or incomplete file is a clear error naming it
-            data = {k: f[k] for k in keys}
-            if camera is not None:
-                if f"obs/rgb/{camera}" not in f:
-                    raise EpisodeFormatError(f"{p}: no camera '{camera}' (has {json.loads(f.attrs['cameras'])})")
-                data["rgb"] = f[f"obs/rgb/{camera}"]
-            n = len(data["action"])
+            if camera is not None and f"obs/rgb/{camera}" not in f:
+                raise EpisodeFormatError(f"{p}: no camera '{camera}' (has {json.loads(f.attrs['cameras'])})")
+            with _damage_names(p):
+                data = {k: f[k] for k in keys}
+                if camera is not None:
+                    data["rgb"] = f[f"obs/rgb/{camera}"]
+                n = len(data["action"])
             if not spec.cross_episodes:
                 for start in range(0, n - spec.length + 1, stride):
-                    yield {k: v[start : start + spec.length] for k, v in data.items()}
+                    with _damage_names(p):  # slices are read lazily; a damaged chunk is reported with its file
+                        window = {k: v[start : start + spec.length] for k, v in data.items()}
+                    yield window
                 continue
-            for k, v in data.items():
-                buffer.setdefault(k, []).append(v[()])
+            with _damage_names(p):
+                for k, v in data.items():
+                    buffer.setdefault(k, []).append(v[()])
         if spec.cross_episodes:
             stream = {k: np.concatenate(v) for k, v in buffer.items()}
             total = len(stream["action"])

@@ -4,16 +4,18 @@ where each starts."""
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.episodes.store import Episode
+from simeval.episodes.episode import Episode
+from simeval.errors import UserError
 from simeval.sim.goals import task_progress
 from simeval.sim.objects import make_object
 from simeval.sim.oracle import next_primitive
 from simeval.sim.robot import Arm
-from simeval.sim.spec import TaskSpec, sample_instance
+from simeval.sim.spec import TaskSpec, check_variation, sample_instance
 from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, World
 
 
@@ -26,14 +28,29 @@ class RecordSettings:
     record_every: int = 1  # log every k-th control step (1 = the full control rate)
 
     def __post_init__(self) -> None:
-        # configs give lists; the settings travel to worker processes and into keys, so keep them immutable
-        self.cameras, self.image_size = tuple(self.cameras), tuple(self.image_size)
-        self.scene_view_size = tuple(self.scene_view_size)
+        # configs give lists; the settings travel to worker processes and into keys, so keep them immutable.
+        # Messages name the config keys (record.*), where these values come from on the command line.
+        self.cameras = (self.cameras,) if isinstance(self.cameras, str) else tuple(self.cameras or ())
+        self.image_size = image_size_pair(self.image_size, "record.image_size")
+        self.scene_view_size = image_size_pair(self.scene_view_size, "record.scene_view_size")
         unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
         if unknown:
-            raise ValueError(f"unknown camera(s) {unknown}; known: {', '.join(OBS_CAMERAS)}")
-        if self.record_every < 1:
-            raise ValueError(f"record_every must be >= 1, got {self.record_every}")
+            raise UserError(f"record.cameras: unknown camera(s) {unknown}; known: {', '.join(OBS_CAMERAS)}")
+        every = self.record_every
+        if isinstance(every, bool) or not isinstance(every, numbers.Integral) or every < 1:
+            raise UserError(f"record.record_every must be an integer >= 1, got {self.record_every!r}")
+        hz = self.control_hz
+        if isinstance(hz, bool) or not isinstance(hz, numbers.Real) or not hz > 0:
+            raise UserError(f"record.control_hz must be a number > 0, got {self.control_hz!r}")
+
+
+def image_size_pair(value, key: str) -> tuple[int, int]:
+    """[H, W] with both >= 1, as a tuple; anything else is a UserError naming `key`."""
+    ok = (isinstance(value, (list, tuple)) and len(value) == 2
+          and all(isinstance(x, numbers.Integral) and not isinstance(x, bool) and x >= 1 for x in value))
+    if not ok:
+        raise UserError(f"{key} must be [H, W] with whole numbers H, W >= 1, got {value!r}")
+    return int(value[0]), int(value[1])
 
 
 def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = None, pipeline: str = "gensim",
@@ -41,7 +58,7 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
     """`variation` overrides the spec's knobs for this episode: {object name: {colors, count}} and
     {"robot": {"home_noise": radians}} for the robot's start (what a generalization test varies)."""
     settings = settings or RecordSettings()
-    variation = dict(variation or {})
+    variation = check_variation([spec], variation)
     home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
     inst = sample_instance(spec, seed, variation)
     rng = np.random.default_rng(seed + 7919)

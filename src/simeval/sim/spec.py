@@ -172,8 +172,11 @@ def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
 SUITES_DIR = Path(__file__).resolve().parent / "suites"
 
 
-def select_specs(specs: list[TaskSpec], tasks: list[str] | None = None, group: str = "all") -> list[TaskSpec]:
-    """Named tasks, or one group's tasks, or all; unknown names list what exists."""
+def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:
+    """Named tasks, or one group's tasks, or all; unknown names list what exists. A single name may be given as
+    a string (`tasks=stack-two-blocks` on the command line), not only as a one-element list."""
+    if isinstance(tasks, str):  # a string is one name, not a sequence of one-letter names
+        tasks = [tasks]
     if tasks:
         unknown = set(tasks) - {s.name for s in specs}
         if unknown:
@@ -185,6 +188,66 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | None = None, group: s
     if group not in groups:
         raise SpecError(f"unknown task_group '{group}'; available: {', '.join(groups)}, all")
     return [s for s in specs if s.group == group]
+
+
+OBJECT_KNOBS = ("colors", "count")
+ROBOT_KNOBS = ("home_noise",)
+
+
+def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
+    """Validate a variation {object name: {colors, count}, robot: {home_noise}} against the tasks it is for and
+    return it normalised (a single colour may be given as a string). Every object it names must belong to at
+    least one of `specs`; tasks without that object ignore it, so one variation can cover a group of tasks.
+    A name no task has is a typo that would otherwise vary nothing: it is an error naming the tasks' objects."""
+    if not variation:
+        return {}
+    if not isinstance(variation, dict):
+        raise SpecError(f"variation must be a mapping like {{block: {{colors: [red]}}, robot: {{home_noise: 0.1}}}}, "
+                        f"got {variation!r}")
+    out: dict = {}
+    for name, knobs in variation.items():
+        key = f"variation.{name}"
+        allowed = ROBOT_KNOBS if name == "robot" else OBJECT_KNOBS
+        if not isinstance(knobs, dict):
+            raise SpecError(f"{key}: expected a mapping of {', '.join(allowed)}, got {knobs!r}")
+        unknown = sorted(set(knobs) - set(allowed))
+        if unknown:
+            what = "the robot" if name == "robot" else "an object"
+            raise SpecError(f"{key}: unknown knob(s) {unknown}; valid for {what}: {', '.join(allowed)}")
+        if name == "robot":
+            noise = knobs.get("home_noise", 0.0)
+            if isinstance(noise, bool) or not isinstance(noise, (int, float)) or noise < 0:
+                raise SpecError(f"{key}.home_noise: expected radians >= 0, got {noise!r}")
+            out[name] = dict(knobs)
+            continue
+        if not any(name == o.name for s in specs for o in s.objects):
+            if len(specs) == 1:
+                raise SpecError(f"{key}: task {specs[0].name} has no object '{name}'; its objects: "
+                                f"{', '.join(o.name for o in specs[0].objects)} (and robot)")
+            per_task = "; ".join(f"{s.name}: {', '.join(o.name for o in s.objects)}" for s in specs)
+            raise SpecError(f"{key}: none of the tasks has an object '{name}'; their objects (and robot): {per_task}")
+        knobs = dict(knobs)
+        if "colors" in knobs:
+            colors = [knobs["colors"]] if isinstance(knobs["colors"], str) else knobs["colors"]
+            if not isinstance(colors, list) or not colors or any(c not in COLORS for c in colors):
+                raise SpecError(f"{key}.colors: expected a list of colours from {', '.join(COLORS)}, "
+                                f"got {knobs['colors']!r}")
+            knobs["colors"] = list(colors)
+        if "count" in knobs:
+            c = knobs["count"]
+            whole = lambda x: isinstance(x, int) and not isinstance(x, bool)  # noqa: E731
+            pair = (c, c) if whole(c) else c
+            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(map(whole, pair))
+                    and 0 <= pair[0] <= pair[1]):
+                raise SpecError(f"{key}.count: expected a count >= 0 or [low, high] with 0 <= low <= high, got {c!r}")
+        out[name] = knobs
+    return out
+
+
+def variation_for(spec: TaskSpec, variation: dict) -> dict:
+    """The part of a (checked) variation that applies to `spec`: the robot and the objects it has."""
+    names = {o.name for o in spec.objects} | {"robot"}
+    return {k: v for k, v in variation.items() if k in names}
 
 
 @dataclass

@@ -17,6 +17,19 @@ def bbsea_group(description: str) -> str:
     return "drawer" if "drawer" in description.lower() else "table-top"
 
 
+def utf8_name(path: Path) -> str:
+    """The folder's name, which is a task description here. A name that is not valid UTF-8 (a folder copied from
+    a system with another encoding) would fail later, far from its cause, when written to JSON, HDF5 or a
+    terminal; it is a TaskSourceError naming the folder with the bad bytes escaped."""
+    try:
+        path.name.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise TaskSourceError(f"{shown}: folder name is not valid UTF-8; rename it (e.g. convmv -f latin1 -t utf8 "
+                              "--notest)") from None
+    return path.name
+
+
 def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
     """One task per (scene, task-description folder). `root` is the output folder or its `trajectory/`."""
     root = Path(root).expanduser()
@@ -25,8 +38,8 @@ def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
     out = []
     for scene in scenes:
         for task_dir in sorted(p for p in scene.iterdir() if p.is_dir()):
-            desc = task_dir.name
-            out.append(Task(PIPELINE, bbsea_group(desc), f"{scene.name}/{desc}", desc, desc, {"scene": scene.name}))
+            desc, scene_name = utf8_name(task_dir), utf8_name(scene)
+            out.append(Task(PIPELINE, bbsea_group(desc), f"{scene_name}/{desc}", desc, desc, {"scene": scene_name}))
     if not out:
         raise TaskSourceError(f"{root}: no BBSEA tasks found (expected trajectory/<scene>/<task description>/)")
     return out
