@@ -145,7 +145,7 @@ def test_failed_call_releases_its_lease_and_a_stored_reply_ends_it(tmp_path):
     from simeval.httpretry import FatalHTTPError
     import pytest
 
-    tpl = load_template("prompts/scene_alignment_vlm.txt", ROOT / "conf")
+    tpl = load_template("builtin:scene_alignment_vlm")
     items = [JudgeItem("t0", "scene_alignment", tpl, {"description": "d"}, [Image.from_png(_png(0))], (1, 5))]
     cache = JudgeCache(tmp_path / "c.sqlite")
     with LoopbackOpenAI() as srv:
