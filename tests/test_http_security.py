@@ -172,5 +172,8 @@ def test_quality_stops_on_a_key_in_a_config_file(openai_server, tmp_path):
     res = run_quality(tmp_path, "judge=mine", f"judge.provider.base_url={openai_server.base_url}",
                       flags=(f"--config-dir={tmp_path / 'myconf'}",))
     line = _error_line(res)
-    assert "judge.provider.api_key_env holds what looks like the key itself" in line
+    # stopped by the entrypoint's config check, before the provider is even built
+    assert "judge.provider.api_key_env holds what looks like a secret" in line
     assert FAKE_KEY not in res.stderr + res.stdout and openai_server.requests == []
+    saved = list(tmp_path.rglob(".hydra/*.yaml"))
+    assert saved and not any(FAKE_KEY in p.read_text() for p in saved)
