@@ -15,6 +15,10 @@ from simeval.report.text_diversity import (SOURCE_COLUMNS, STATISTICS, TIDY_COLU
 from simeval.results import atomic_write_text, read_results
 
 
+EXTENDED_CI_NOTE = (" 95% CIs over tasks: percentile bootstrap for div and cos_dist; jackknife for Vendi and Self-BLEU,"
+                    " which resampling with replacement biases (a duplicate is not a new item).")
+
+
 def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id: str, rows: list[dict],
                                 columns: list[dict], caption: str = "", statistic: str = "div", digits: int = 2,
                                 metric: str = "text_diversity") -> dict[str, list[Path]]:
@@ -47,7 +51,7 @@ def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id
         _, b, _ = table3(common, rows, columns, stat, digits)
         ext_rows += [[f"{stat} @ N={'/'.join(map(str, sizes))}"] + r for r in b]
     written["extended"] = write_table(out / f"{id}_all_metrics", ["Statistic"] + h, ext_rows,
-                                      caption=caption + " All statistics with bootstrap 95% CIs over tasks.")
+                                      caption=caption + EXTENDED_CI_NOTE)
     h, b = rank_agreement(tidy, rows, columns, statistic)
     written["rank_agreement"] = write_table(out / f"{id}_rank_agreement", h, b,
                                             caption="Agreement of embedding models on the ordering of task groups.")
