@@ -111,12 +111,17 @@ def test_request_carries_images_and_the_rendered_prompt(openai_server, tmp_path)
 def test_429_500_retried_and_unparseable_reply_reasked(openai_server, tmp_path):
     openai_server.faults.extend([{"status": 429, "retry_after": "0.05"}, {"status": 500}, {"reply": "looks fine"},
                                  {"reply": "Score: 9"}, {"reply": "Score: 4"}])
-    recs = run_judge(_items(1), _provider(openai_server), JudgeCache(tmp_path / "c.sqlite"), Ledger(Prices()),
+    ledger = Ledger(Prices())
+    recs = run_judge(_items(1), _provider(openai_server), JudgeCache(tmp_path / "c.sqlite"), ledger,
                      JudgeSettings(repeats=1, max_reasks=3, concurrency=1, progress=False))
     rec = recs[0]
     assert rec.score == 4.0
     assert [a["error"] for a in rec.asks] == ["no 'Score: X' in reply", "score 9 outside [1, 5]", None]
     assert len(openai_server.requests) == 5  # 2 retried HTTP faults + 3 asks
+    # the retries are recorded with the ask they delayed, and counted in the ledger
+    assert [r["status"] for r in rec.asks[0]["retries"]] == [429, 500] and rec.asks[1]["retries"] == []
+    assert rec.asks[0]["retries"][0]["waited_s"] >= 0.05
+    assert ledger.totals()["retries"] == 2
 
 
 def test_reasks_are_bounded_and_invalid_is_recorded_not_a_number(openai_server, tmp_path):

@@ -42,6 +42,7 @@ class Ledger:
     cached_cost_usd: float = 0.0  # what the cached replies cost when they were bought
     invalid_calls: int = 0  # new calls whose reply held no valid score: paid for nothing
     invalid_cost_usd: float = 0.0
+    retries: int = 0  # failed HTTP attempts (429, 5xx, timeouts) retried before a reply arrived
     reserved_usd: float = 0.0
     by_label: dict = field(default_factory=dict)  # "metric/pipeline" -> the same counters, for result.json
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -49,7 +50,8 @@ class Ledger:
     def _bucket(self, label: str | None) -> dict:
         return self.by_label.setdefault(label or "unlabelled", {
             "new_calls": 0, "cached_calls": 0, "prompt_tokens": 0, "completion_tokens": 0, "images": 0,
-            "cost_usd": 0.0, "cached_cost_usd": 0.0, "invalid_calls": 0, "invalid_cost_usd": 0.0})
+            "cost_usd": 0.0, "cached_cost_usd": 0.0, "invalid_calls": 0, "invalid_cost_usd": 0.0,
+            "retries": 0})
 
     def reserve(self, estimate: float) -> None:
         with self._lock:
@@ -60,12 +62,12 @@ class Ledger:
             self.reserved_usd += estimate
 
     def settle(self, estimate: float, prompt_tokens: int, completion_tokens: int, images: int,
-               label: str | None = None) -> float:
+               label: str | None = None, retries: int = 0) -> float:
         cost = self.prices.cost(prompt_tokens, completion_tokens, images)
         with self._lock:
             self.reserved_usd -= estimate
             self._add(label, new_calls=1, prompt_tokens=prompt_tokens, completion_tokens=completion_tokens,
-                      images=images, cost_usd=cost)
+                      images=images, cost_usd=cost, retries=retries)
         return cost
 
     def _add(self, label: str | None, **deltas: float) -> None:
@@ -93,7 +95,7 @@ class Ledger:
                 "completion_tokens": self.completion_tokens, "images": self.images,
                 "cost_usd": round(self.cost_usd, 6), "cached_cost_usd": round(self.cached_cost_usd, 6),
                 "invalid_calls": self.invalid_calls, "invalid_cost_usd": round(self.invalid_cost_usd, 6),
-                "budget_usd": self.budget_usd,
+                "retries": self.retries, "budget_usd": self.budget_usd,
                 "by_metric_pipeline": {k: {**v, "cost_usd": round(v["cost_usd"], 6),
                                            "cached_cost_usd": round(v["cached_cost_usd"], 6),
                                            "invalid_cost_usd": round(v["invalid_cost_usd"], 6)}

@@ -13,7 +13,7 @@ import os
 import threading
 import time
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
@@ -52,6 +52,8 @@ class Reply:
     prompt_tokens: int
     completion_tokens: int
     latency_s: float
+    # the failed attempts before this reply (HTTP status or error, seconds waited): recorded, never hidden
+    retries: list[dict] = field(default_factory=list)
 
 
 class OpenAIChatProvider:
@@ -116,16 +118,17 @@ class OpenAIChatProvider:
 
     def complete(self, system: str, user: str, images: list[Image]) -> Reply:
         t0 = time.perf_counter()
-        body, _ = post_json(self._client, self.url, self.payload(system, user, images), headers=self._headers(),
-                            retry=self.retry, timeout_s=self.timeout_s)
+        body, attempts = post_json(self._client, self.url, self.payload(system, user, images),
+                                   headers=self._headers(), retry=self.retry, timeout_s=self.timeout_s)
         latency = time.perf_counter() - t0
         try:
             text = body["choices"][0]["message"]["content"]
         except (KeyError, IndexError, TypeError):
             text = None  # a reply without text is an invalid reply, re-asked like an unparseable one
         usage = body.get("usage") or {} if isinstance(body, dict) else {}
+        retries = [{"status": a.status, "error": a.error, "waited_s": round(a.waited_s, 3)} for a in attempts[:-1]]
         return Reply(text if isinstance(text, str) else "", int(usage.get("prompt_tokens") or 0),
-                     int(usage.get("completion_tokens") or 0), latency)
+                     int(usage.get("completion_tokens") or 0), latency, retries)
 
     def close(self) -> None:
         self._client.close()

@@ -164,7 +164,7 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
             hit = cache.get(key) if settings.replay else cache.claim(key)
             if hit is not None:
                 ledger.record_cached(hit.cost_usd, item.cost_label)
-                reply, latency, cached = hit.reply, hit.latency_s, True
+                reply, latency, cached, retries = hit.reply, hit.latency_s, True, []
             elif settings.replay:
                 raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
                                  f"repeat {repeat} ask {ask} (model {provider.model}, template "
@@ -183,8 +183,9 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                     ledger.release(estimate)
                     cache.release(key)
                     raise
+                retries = out.retries
                 cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images),
-                                     item.cost_label)
+                                     item.cost_label, retries=len(retries))
                 cache.put(CachedCall(key, out.text, out.prompt_tokens, out.completion_tokens, len(item.images), cost,
                                      out.latency_s, time.time()), provider=provider.name, model=provider.model,
                           item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
@@ -193,7 +194,7 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
             if value is None and not cached:  # a paid reply that gave nothing: the summary counts these
                 ledger.record_invalid(cost, item.cost_label)
             rec.asks.append({"ask": ask, "reply": reply, "valid": value is not None, "error": error,
-                             "latency_s": round(latency, 4), "cached": cached})
+                             "latency_s": round(latency, 4), "cached": cached, "retries": retries})
             if isinstance(value, str):
                 rec.text = value
             elif value is not None:
