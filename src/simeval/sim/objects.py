@@ -8,12 +8,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-COLORS = {
-    "red": (0.85, 0.16, 0.16), "green": (0.18, 0.65, 0.25), "blue": (0.18, 0.38, 0.85),
-    "yellow": (0.95, 0.82, 0.15), "orange": (0.95, 0.5, 0.1), "purple": (0.55, 0.25, 0.7),
-    "pink": (0.95, 0.5, 0.7), "cyan": (0.2, 0.8, 0.85), "brown": (0.55, 0.35, 0.2), "gray": (0.55, 0.55, 0.55),
-    "white": (0.92, 0.92, 0.92), "black": (0.12, 0.12, 0.12),
+# Ravens/CLIPort/GenSim's palette (utils.COLORS: muted Tableau 10 colours, 0-255 below), plus GenSim's white and
+# our black. Black is lifted off pure black so that it stays visible on the dark workspace tile (0.2 grey):
+# zones and lines also get a light outline (see OUTLINE). Every pair of colours is at least 50 apart in 0-255
+# RGB (tests/test_sim_look.py).
+_RAVENS_255 = {
+    "blue": (78, 121, 167), "red": (255, 87, 89), "green": (89, 169, 79), "orange": (242, 142, 43),
+    "yellow": (237, 201, 72), "purple": (176, 122, 161), "pink": (255, 157, 167), "cyan": (118, 183, 178),
+    "brown": (156, 117, 95), "gray": (186, 176, 172), "white": (255, 255, 255), "black": (20, 20, 20),
 }
+COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS_255.items()}
+OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
 FLAT = ("zone", "line")  # drawn on the table, no collision
 
@@ -43,6 +48,12 @@ def _rgba(color: str) -> list[float]:
     return [*COLORS[color], 1.0]
 
 
+def outline_rgba(color: str) -> list[float]:
+    """The border of a zone or line: its colour mixed half-way to white (white stays white), visible on the dark
+    tile whatever the fill colour (a black line included)."""
+    return [0.45 * v + 0.55 for v in COLORS[color]] + [1.0]
+
+
 def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: np.random.Generator,
                 table_z: float) -> SimObject:
     c = client
@@ -67,17 +78,17 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
     elif obj.shape == "bowl":
         obj.body_ids = [_bowl(c, obj, x, y, table_z, rgba)]
     elif obj.shape in FLAT:
-        vis = c.createVisualShape(c.GEOM_BOX, halfExtents=[sx / 2, sy / 2, 5e-4], rgbaColor=rgba)
-        obj.body_ids = [c.createMultiBody(0, -1, vis, [x, y, table_z + 5e-4], orn)]
+        obj.body_ids = [_flat(c, obj, x, y, yaw, table_z)]
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
         r = sx / 2
         col = c.createCollisionShape(c.GEOM_BOX, halfExtents=[0.006] * 3)
         vis = c.createVisualShape(c.GEOM_BOX, halfExtents=[0.006] * 3, rgbaColor=rgba)
         ids = []
-        for _ in range(n):
-            a, d = rng.uniform(0, 2 * np.pi), r * math.sqrt(rng.uniform())
-            ids.append(c.createMultiBody(0.005, col, vis, [x + d * math.cos(a), y + d * math.sin(a), table_z + 0.007]))
+        for _ in range(n):  # spread as Ravens' sweeping piles: uniform over a square, each particle at a random yaw
+            dx, dy = rng.uniform(-sx / 2, sx / 2), rng.uniform(-sy / 2, sy / 2)
+            q = c.getQuaternionFromEuler([0, 0, rng.uniform(0, 2 * np.pi)])
+            ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + 0.007], q))
         obj.body_ids = ids
     else:
         raise ValueError(f"unknown shape '{obj.shape}'; known: {', '.join(SHAPES)}")
@@ -108,3 +119,22 @@ def _bowl(c, obj: SimObject, x: float, y: float, table_z: float, rgba) -> int:
         linkInertialFramePositions=[[0, 0, 0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
         linkParentIndices=[0] * n, linkJointTypes=[c.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n)
     return body
+
+
+def _flat(c, obj: SimObject, x: float, y: float, yaw: float, table_z: float) -> int:
+    """A zone or line drawn on the table (no collision, static): the filled rectangle and a lighter border of
+    width OUTLINE around it, one body whose base pose is the object's pose."""
+    sx, sy = obj.size[0], obj.size[1]
+    fill = c.createVisualShape(c.GEOM_BOX, halfExtents=[sx / 2, sy / 2, 5e-4], rgbaColor=_rgba(obj.color))
+    rgba, w = outline_rgba(obj.color), min(OUTLINE, sx / 4, sy / 4)
+    bars = [([sx / 2 - w / 2, 0, 0], [w / 2, sy / 2, 6e-4]), ([-sx / 2 + w / 2, 0, 0], [w / 2, sy / 2, 6e-4]),
+            ([0, sy / 2 - w / 2, 0], [sx / 2, w / 2, 6e-4]), ([0, -sy / 2 + w / 2, 0], [sx / 2, w / 2, 6e-4])]
+    vis = [c.createVisualShape(c.GEOM_BOX, halfExtents=h, rgbaColor=rgba) for _, h in bars]
+    n = len(bars)
+    return c.createMultiBody(
+        baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=fill, basePosition=[x, y, table_z + 5e-4],
+        baseOrientation=c.getQuaternionFromEuler([0, 0, yaw]), linkMasses=[0] * n,
+        linkCollisionShapeIndices=[-1] * n, linkVisualShapeIndices=vis, linkPositions=[p for p, _ in bars],
+        linkOrientations=[[0, 0, 0, 1]] * n, linkInertialFramePositions=[[0, 0, 0]] * n,
+        linkInertialFrameOrientations=[[0, 0, 0, 1]] * n, linkParentIndices=[0] * n,
+        linkJointTypes=[c.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n)

@@ -6,22 +6,60 @@ rate; each control step calls the world's logger with the joint targets as the l
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from simeval.sim.world import TABLE_Z, World
 
 HOME = (0.0, -0.35, -0.9, 0.0, 1.25, 0.0)  # joints: tool above the workspace, pointing down
+# joints: out of every camera's view of the workspace at the end of an episode (see Arm.park): the base turned
+# half a turn so the arm points away from the workspace (x < 0), folded up behind the base; from the front camera
+# it sits behind its own base, the top camera does not see it at all (tested in tests/test_sim_look.py)
+PARK = (math.pi, -0.35, -0.9, 0.0, 1.25, 0.0)
 TOOL_LENGTH = {"suction": 0.06, "spatula": 0.09}
+ARM_URDF = "xarm/xarm6_robot_white.urdf"
+
+
+def render_urdf(mesh: str = "collision") -> str:
+    """The arm's URDF for loading. `mesh="collision"` writes (once per process, in the temp folder) a copy whose
+    visual geometry points at the collision meshes (convex decompositions, about 100x fewer triangles than the
+    visual STLs): TinyRenderer then draws the arm several times faster and the image barely changes (the
+    collection benchmark measures both). `mesh="visual"` returns pybullet_data's URDF as it is."""
+    import hashlib
+    import os
+    import tempfile
+
+    import pybullet_data
+
+    if mesh == "visual":
+        return ARM_URDF
+    if mesh != "collision":
+        raise ValueError(f"mesh={mesh!r}: expected 'collision' or 'visual'")
+    src = os.path.join(pybullet_data.getDataPath(), ARM_URDF)
+    text = open(src, encoding="utf-8").read()
+    meshes = os.path.join(os.path.dirname(src), "xarm_description") + os.sep
+    # each <visual> mesh <X>.stl -> the link's collision mesh; package:// paths made absolute (the copy lives
+    # outside pybullet_data)
+    text = re.sub(r"package://xarm_description/meshes/xarm6/visual/(\w+)\.stl",
+                  r"package://xarm_description/meshes/xarm6/collision/\1_vhacd.obj", text)
+    text = text.replace("package://xarm_description/", meshes)
+    out = os.path.join(tempfile.gettempdir(), f"simeval-xarm6-render-{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf")
+    if not os.path.exists(out):
+        tmp = f"{out}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, out)  # atomic: parallel workers never read a half-written file
+    return out
 
 
 class Arm:
     def __init__(self, world: World, end_effector: str = "suction", home_noise: float = 0.0,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, render_mesh: str = "collision") -> None:
         if end_effector not in TOOL_LENGTH:
             raise ValueError(f"end_effector={end_effector!r}: expected one of {', '.join(TOOL_LENGTH)}")
         self.w, c = world, world.c
-        self.body = c.loadURDF("xarm/xarm6_robot_white.urdf", [0, 0, TABLE_Z], useFixedBase=True)
+        self.body = c.loadURDF(render_urdf(render_mesh), [0, 0, TABLE_Z], useFixedBase=True)
         self.joints = [j for j in range(c.getNumJoints(self.body)) if c.getJointInfo(self.body, j)[2] == c.JOINT_REVOLUTE]
         self.ee = self.joints[-1]
         self.lower = [c.getJointInfo(self.body, j)[8] for j in self.joints]
@@ -134,3 +172,18 @@ class Arm:
     def hold(self, steps: int) -> None:
         for _ in range(steps):
             self._command(self.target)
+
+    def park(self, steps: int = 45) -> None:
+        """Move out of the cameras' view to PARK, so that the last frames of an episode show the result instead
+        of the arm above the last object. Two joint-space moves, each control step logged like any other: first
+        fold up (every joint but the base to PARK, a third of `steps`), then turn the base half a turn (the rest),
+        so the tool never sweeps low over the objects. Call at the end of an episode, with nothing held."""
+        q = np.array([s[0] for s in self.w.c.getJointStates(self.body, self.joints)])
+        base = PARK[0] if abs(PARK[0] - q[0]) <= abs(-PARK[0] - q[0]) else -PARK[0]  # the shorter way round
+        folded = np.r_[q[0], PARK[1:]]
+        goal = np.r_[base, PARK[1:]]
+        n1 = max(1, steps // 3)
+        for start, end, n in ((q, folded, n1), (folded, goal, max(1, steps - n1))):
+            for k in range(1, n + 1):
+                a = k / n
+                self._command(start + (end - start) * (3 * a * a - 2 * a * a * a))  # smooth start and stop

@@ -93,6 +93,7 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
             hl_steps.append(len(actions))
             hl_actions.append(prim.pose14(world))
             prim.execute(arm, world)
+        arm.park()  # out of the cameras' view: the last frames show the result
         arm.hold(10)
         final, success = task_progress(world, inst)
         final_view = world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
