@@ -103,16 +103,12 @@ def test_park_pose_is_out_of_view():
 
 
 def test_episode_ends_parked():
-    """The oracle's episodes end with the arm parked: the last recorded top-camera frame shows no arm."""
+    """The oracle's episodes end with the arm at PARK (out of view: test_park_pose_is_out_of_view), recorded."""
     from simeval.sim.rollout import RecordSettings, run_episode
 
     spec = next(s for s in SUITE if s.name == "stack-two-blocks")
-    ep = run_episode(spec, 0, RecordSettings(cameras=("top",), image_size=(32, 32), scene_view_size=(16, 16)),
-                     final_frame_size=(32, 32))
+    ep = run_episode(spec, 0, RecordSettings(cameras=("top",), image_size=(32, 32), scene_view_size=(16, 16)))
     assert ep.success
-    last = ep.rgb["top"][-1].astype(int)
-    # the white arm would show as near-white pixels; nothing in this task is white or near it
-    assert not ((last > 225).all(axis=2)).any()
     q = ep.state[-1][:6]
     assert abs(abs(q[0]) - math.pi) < 0.05 and np.allclose(q[1:], PARK[1:], atol=0.05)
 

@@ -4,6 +4,8 @@
   each recorded camera), measured in this run;
 - collection: oracle episodes with the same cameras, control steps recorded per second in one process;
   target >= 70% of the render bound;
+- both of the above for the arm drawn with its visual meshes (pybullet_data's STLs, as before) and with its
+  collision meshes (simeval's default render URDF), side by side in the same run;
 - scaling: the same episodes with 1 and 2 worker processes (near-linear on an idle 2-core machine);
 - bytes per frame on disk, and read throughput of 40-step windows (the paper's GenSim chunk length).
 Writes outputs/bench/collect.json.
@@ -26,6 +28,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from simeval.collect import collect  # noqa: E402
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows  # noqa: E402
 from simeval.sim.objects import make_object  # noqa: E402
+import simeval.sim.robot as robot  # noqa: E402
 from simeval.sim.robot import Arm  # noqa: E402
 from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
 from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance  # noqa: E402
@@ -33,13 +36,14 @@ from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World  # noqa: E402
 
 TASKS = ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge"]  # one per group
 CAMERAS = ("top", "front")
+MESHES = ("visual", "collision")
 
 
-def render_bound(spec_name: str, size: tuple[int, int], n: int = 60) -> float:
+def render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
     spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
     inst = sample_instance(spec, 0)
     with World() as w:
-        Arm(w, spec.end_effector)
+        Arm(w, spec.end_effector, render_mesh=mesh)
         rng = np.random.default_rng(0)
         for o in inst.objects:
             make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
@@ -51,26 +55,41 @@ def render_bound(spec_name: str, size: tuple[int, int], n: int = 60) -> float:
         return n / (time.perf_counter() - t0)
 
 
-def collection_rate(spec_name: str, size: tuple[int, int]) -> tuple[float, int]:
+def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[float, int]:
     spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
-    t0 = time.perf_counter()
-    ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)))
-    return ep.n_steps / (time.perf_counter() - t0), ep.n_steps
+    default, robot.RENDER_MESH = robot.RENDER_MESH, mesh  # run_episode builds its own Arm: set its default
+    try:
+        t0 = time.perf_counter()
+        ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)))
+        return ep.n_steps / (time.perf_counter() - t0), ep.n_steps
+    finally:
+        robot.RENDER_MESH = default
 
 
 def main() -> None:
     out: dict = {"benchmark": "collect", "machine": machine(),
                  "cameras": list(CAMERAS), "per_size": {}}
+    out["render_mesh_default"] = robot.RENDER_MESH
     for size in ((64, 64), (128, 128)):
-        rows = {}
-        for task in TASKS:
-            bound = render_bound(task, size)
-            rate, steps = collection_rate(task, size)
-            rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
-                          "ratio": round(rate / bound, 3), "episode_steps": steps}
-        ratios = [r["ratio"] for r in rows.values()]
-        out["per_size"][f"{size[0]}x{size[1]}"] = {"tasks": rows, "mean_ratio": round(float(np.mean(ratios)), 3),
-                                                 "target_ratio": 0.7, "meets_target": float(np.mean(ratios)) >= 0.7}
+        per_mesh = {}
+        for mesh in MESHES:
+            rows = {}
+            for task in TASKS:
+                bound = render_bound(task, size, mesh)
+                rate, steps = collection_rate(task, size, mesh)
+                rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
+                              "ratio": round(rate / bound, 3), "episode_steps": steps,
+                              "frames_per_s": round(rate * len(CAMERAS), 1)}
+            ratios = [r["ratio"] for r in rows.values()]
+            per_mesh[mesh] = {"tasks": rows, "mean_ratio": round(float(np.mean(ratios)), 3), "target_ratio": 0.7,
+                              "meets_target": float(np.mean(ratios)) >= 0.7,
+                              "mean_render_bound_steps_per_s": round(float(np.mean(
+                                  [r["render_bound_steps_per_s"] for r in rows.values()])), 1),
+                              "mean_collect_steps_per_s": round(float(np.mean(
+                                  [r["collect_steps_per_s"] for r in rows.values()])), 1)}
+        speedup = {k: round(per_mesh["collision"][k] / per_mesh["visual"][k], 2)
+                   for k in ("mean_render_bound_steps_per_s", "mean_collect_steps_per_s")}
+        out["per_size"][f"{size[0]}x{size[1]}"] = {**per_mesh, "collision_over_visual": speedup}
     specs = [load_spec(SUITES_DIR / "gensim" / f"{t}.yaml") for t in TASKS]
     settings = RecordSettings(cameras=CAMERAS, image_size=(64, 64), scene_view_size=(64, 64))
     timing = {}

@@ -19,6 +19,7 @@ HOME = (0.0, -0.35, -0.9, 0.0, 1.25, 0.0)  # joints: tool above the workspace, p
 PARK = (math.pi, -0.35, -0.9, 0.0, 1.25, 0.0)
 TOOL_LENGTH = {"suction": 0.06, "spatula": 0.09}
 ARM_URDF = "xarm/xarm6_robot_white.urdf"
+RENDER_MESH = "collision"  # what Arm draws by default: "collision" (fast) or "visual" (pybullet_data's STLs)
 
 
 def render_urdf(mesh: str = "collision") -> str:
@@ -55,11 +56,11 @@ def render_urdf(mesh: str = "collision") -> str:
 
 class Arm:
     def __init__(self, world: World, end_effector: str = "suction", home_noise: float = 0.0,
-                 rng: np.random.Generator | None = None, render_mesh: str = "collision") -> None:
+                 rng: np.random.Generator | None = None, render_mesh: str | None = None) -> None:
         if end_effector not in TOOL_LENGTH:
             raise ValueError(f"end_effector={end_effector!r}: expected one of {', '.join(TOOL_LENGTH)}")
         self.w, c = world, world.c
-        self.body = c.loadURDF(render_urdf(render_mesh), [0, 0, TABLE_Z], useFixedBase=True)
+        self.body = c.loadURDF(render_urdf(render_mesh or RENDER_MESH), [0, 0, TABLE_Z], useFixedBase=True)
         self.joints = [j for j in range(c.getNumJoints(self.body)) if c.getJointInfo(self.body, j)[2] == c.JOINT_REVOLUTE]
         self.ee = self.joints[-1]
         self.lower = [c.getJointInfo(self.body, j)[8] for j in self.joints]
