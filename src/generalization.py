@@ -1,0 +1,75 @@
+"""Paper Table 5: a Diffusion Policy trained on a task group, rolled out on varied and held-out tasks. See
+conf/generalization.yaml."""
+
+import logging
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
+
+log = logging.getLogger("generalization")
+VERSION = "1.0"
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="generalization")
+@exit_cleanly_on_user_error
+def main(cfg: DictConfig) -> None:
+    from hydra.utils import instantiate
+
+    from simeval.episodes.store import EpisodeStore
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.data import PolicyDataset
+    from simeval.models.policy.experiment import checkpoint_key, episodes_for, run_splits
+    from simeval.results import hydra_run_info, write_result
+    from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+
+    if not cfg.pipeline.get("suite"):
+        raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
+    group = [s.name for s in select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), None, cfg.task_group)]
+    heldout = list(cfg.heldout_tasks or [])
+    if set(heldout) - set(group) or set(heldout) == set(group):
+        raise UserError(f"heldout_tasks={heldout}: must be some but not all of task_group={cfg.task_group} ({group})")
+    trained = [t for t in group if t not in heldout]
+    pcfg = PolicyConfig.from_mapping(OmegaConf.to_container(cfg.policy.model, resolve=True))
+    settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
+    train_eps, val_eps, metas = episodes_for(EpisodeStore(cfg.store), cfg.pipeline.name, trained,
+                                             cfg.episodes_per_task, cfg.val_episodes_per_task, pcfg.cameras)
+    data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    ckpt_dir = f"{cfg.checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), cfg.seed)}"
+    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
+    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
+        policy, summary = train_policy(DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats()), data,
+                                       settings, ckpt_dir, logger.log_metrics, extra={"config": config}, progress=True)
+        values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
+                               "windows": len(data)}}
+        if cfg.eval.sampler_check and val_eps:
+            val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+            values["sampler_check"] = ev.sampler_action_error(policy, val, {
+                "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
+        plan = {"train": trained, "variations": trained if cfg.eval.variation else [], "heldout": heldout}
+        plan = {s: plan[s] for s in cfg.eval.splits if plan.get(s)}
+        seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
+        variation = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
+        rows = run_splits(policy, plan, seeds, variation, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json",
+                          summary["steps"], progress=True)
+        values.update(tasks=rows, splits=ev.summarize(rows))
+        if cfg.eval.videos and rows:
+            values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
+                                                        cfg.eval.video_camera, variation, run["output_dir"])
+        identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "policy": cfg.policy.name,
+                    "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task, "variation": variation,
+                    "eval_seeds": cfg.eval.seeds, "settings": {"model": vars(pcfg), "train": vars(settings)}}
+        write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
+                     choices=run["choices"], config=config, identity=identity)
+        logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
+    for s, v in values["splits"].items():
+        sr = v["success"]
+        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", s, sr["k"], sr["n"], sr["rate"],
+                 *sr["ci"], v["mean_progress"])
+
+
+if __name__ == "__main__":
+    launch(main)

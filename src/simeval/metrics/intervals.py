@@ -1,0 +1,40 @@
+"""Confidence intervals for success rates (pure functions).
+
+    wilson_interval(k, n, level=0.95) -> (low, high): the Wilson score interval for a binomial proportion,
+        p = k/n, z = the normal (1 + level)/2 quantile,
+        centre = (p + z^2/(2n)) / (1 + z^2/n),   half = z / (1 + z^2/n) * sqrt(p(1-p)/n + z^2/(4n^2)),
+        [centre - half, centre + half] clipped to [0, 1]. Unlike the normal (Wald) interval it is never [0, 0]
+        for 0 successes out of n: 0/20 gives [0, 0.161], which is what a table of small success rates needs.
+        n = 0 returns (0.0, 1.0): nothing observed, every rate possible.
+    success_summary(successes) -> {"k", "n", "rate", "ci"} for a list of booleans.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from scipy import stats
+
+from simeval.errors import UserError
+
+
+def wilson_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    if isinstance(k, bool) or isinstance(n, bool) or int(k) != k or int(n) != n or not 0 <= k <= n:
+        raise UserError(f"wilson_interval needs whole numbers 0 <= k <= n, got k={k!r}, n={n!r}")
+    if not 0 < level < 1:
+        raise UserError(f"interval level must be in (0, 1), got {level!r}")
+    if n == 0:
+        return 0.0, 1.0
+    z = float(stats.norm.ppf((1 + level) / 2))
+    p = k / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def success_summary(successes: Iterable[bool], level: float = 0.95) -> dict:
+    s = [bool(x) for x in successes]
+    k, n = sum(s), len(s)
+    return {"k": k, "n": n, "rate": k / n if n else None, "ci": list(wilson_interval(k, n, level))}

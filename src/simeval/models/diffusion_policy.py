@@ -1,0 +1,387 @@
+"""CNN Diffusion Policy (Chi et al., 2023) with image + state observations, as the paper's Table 5 trains it.
+
+    policy = DiffusionPolicy(PolicyConfig(...), state_dim=S, action_dim=A, stats=dataset.stats())
+    loss = policy.compute_loss(batch)                       # epsilon-prediction MSE, DDPM forward process
+    actions = policy.predict_action(obs)                    # obs: {"rgb": {cam: (B, To, H, W, 3) uint8},
+                                                            #       "state": (B, To, S)} -> (B, horizon, A)
+    train_policy(policy, dataset, TrainSettings(...), ckpt_dir)    # AdamW + cosine warm-up + EMA, resumable
+    runner = RecedingHorizonRunner(ema_policy)              # env loop: act(obs) -> one action per call
+
+Training: x0 = the normalised action window (B, Tp, A) in [-1, 1]; t ~ U{0..K-1}; eps ~ N(0, I);
+x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) eps (diffusers' DDPMScheduler.add_noise, squaredcos_cap_v2 betas);
+loss = mean (eps_theta(x_t, t, cond) - eps)^2 with cond = [image features of To frames, normalised To states].
+Sampling: x_K ~ N(0, I) and the scheduler's reverse steps: DDPM (all K steps) or DDIM (few steps, eta = 0).
+EMA: diffusers' EMAModel with the official warm-up decay 1 - (1 + step)^-0.75, capped at 0.9999.
+Receding horizon: predict Tp actions from the last To observations, execute Ta of them (from index To-1), repeat.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+import os
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from einops import rearrange
+from torch import nn
+from torch.nn import functional as F
+
+from simeval.errors import UserError
+from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
+
+log = logging.getLogger(__name__)
+CHECKPOINT_VERSION = 1
+SCHEDULERS = ("ddpm", "ddim")
+
+
+@dataclass
+class PolicyConfig:
+    """The model and its sampler; `policy` config group (conf/policy/*.yaml). Validated on construction."""
+
+    action_space: str = "joint"  # joint (7-d joint targets + suction) | pick_place (14-d poses)
+    cameras: list = field(default_factory=lambda: ["top"])
+    image_size: list = field(default_factory=lambda: [64, 64])
+    crop: int = 56
+    encoder_width: int = 32
+    keypoints: int = 32
+    feature_dim: int = 64
+    stem_pool: bool = True
+    horizon: int = 16
+    n_obs_steps: int = 2
+    n_action_steps: int = 8
+    down_dims: list = field(default_factory=lambda: [64, 128, 256])
+    step_embed_dim: int = 128
+    kernel_size: int = 5
+    n_groups: int = 8
+    num_train_timesteps: int = 100
+    beta_schedule: str = "squaredcos_cap_v2"
+    inference_scheduler: str = "ddim"
+    num_inference_steps: int = 16
+    normalize_quaternions: bool = False
+
+    def __post_init__(self) -> None:
+        self.cameras, self.image_size, self.down_dims = list(self.cameras), list(self.image_size), list(self.down_dims)
+        ints = ("crop", "encoder_width", "keypoints", "feature_dim", "horizon", "n_obs_steps", "n_action_steps",
+                "step_embed_dim", "kernel_size", "n_groups", "num_train_timesteps", "num_inference_steps")
+        for k in ints:
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"policy.{k} must be a whole number >= 1, got {v!r}")
+        if self.action_space not in ("joint", "pick_place"):
+            raise UserError(f"policy.action_space={self.action_space!r}: expected joint or pick_place")
+        if not self.cameras:
+            raise UserError("policy.cameras must name at least one camera (an image policy), got []")
+        if len(self.image_size) != 2 or self.crop > min(self.image_size):
+            raise UserError(f"policy.crop={self.crop} must fit policy.image_size={self.image_size} ([H, W])")
+        if self.n_obs_steps + self.n_action_steps - 1 > self.horizon:
+            raise UserError(f"policy.horizon={self.horizon} must cover n_obs_steps-1+n_action_steps="
+                            f"{self.n_obs_steps - 1 + self.n_action_steps}")
+        halvings = len(self.down_dims) - 1
+        if self.horizon % (2**halvings):
+            raise UserError(f"policy.horizon={self.horizon} must be a multiple of {2**halvings}: the U-Net with "
+                            f"down_dims={self.down_dims} halves the sequence {halvings} time(s)")
+        if self.inference_scheduler not in SCHEDULERS:
+            raise UserError(f"policy.inference_scheduler={self.inference_scheduler!r}: expected ddpm or ddim")
+        if self.num_inference_steps > self.num_train_timesteps:
+            raise UserError(f"policy.num_inference_steps={self.num_inference_steps} exceeds "
+                            f"num_train_timesteps={self.num_train_timesteps}")
+
+    @classmethod
+    def from_mapping(cls, d: Mapping) -> "PolicyConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise UserError(f"policy: unknown key(s) {unknown}; valid: {', '.join(sorted(names))}")
+        return cls(**dict(d))
+
+
+def make_scheduler(kind: str, num_train_timesteps: int, beta_schedule: str):
+    """The official settings: 100 steps, squaredcos_cap_v2, clip to [-1, 1], epsilon prediction."""
+    from diffusers import DDIMScheduler, DDPMScheduler
+
+    common = dict(num_train_timesteps=num_train_timesteps, beta_start=1e-4, beta_end=0.02, beta_schedule=beta_schedule,
+                  clip_sample=True, prediction_type="epsilon")
+    if kind == "ddpm":
+        return DDPMScheduler(variance_type="fixed_small", **common)
+    return DDIMScheduler(set_alpha_to_one=True, steps_offset=0, **common)
+
+
+class RangeNormalizer(nn.Module):
+    """x -> 2 (x - lo) / (hi - lo) - 1 per dimension; a dimension with hi - lo < 1e-4 is only shifted (to 0)."""
+
+    def __init__(self, lo: torch.Tensor, hi: torch.Tensor) -> None:
+        super().__init__()
+        span = hi - lo
+        const = span < 1e-4
+        self.register_buffer("scale", torch.where(const, torch.ones_like(span), 2.0 / span.clamp_min(1e-4)))
+        self.register_buffer("offset", torch.where(const, -lo, -1.0 - 2.0 * lo / span.clamp_min(1e-4)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.scale + self.offset
+
+    def inverse(self, y: torch.Tensor) -> torch.Tensor:
+        return (y - self.offset) / self.scale
+
+
+class DiffusionPolicy(nn.Module):
+    def __init__(self, cfg: PolicyConfig, state_dim: int, action_dim: int,
+                 stats: Mapping[str, tuple[torch.Tensor, torch.Tensor]] | None = None) -> None:
+        super().__init__()
+        self.cfg, self.state_dim, self.action_dim = cfg, int(state_dim), int(action_dim)
+        self.encoders = nn.ModuleDict({c: ImageEncoder(cfg.encoder_width, cfg.keypoints, cfg.feature_dim, cfg.stem_pool)
+                                       for c in cfg.cameras})
+        cond_dim = cfg.n_obs_steps * (len(cfg.cameras) * cfg.feature_dim + state_dim)
+        self.unet = ConditionalUnet1D(action_dim, cond_dim, cfg.down_dims, cfg.step_embed_dim, cfg.kernel_size,
+                                      cfg.n_groups)
+        stats = stats or {"state": (torch.zeros(state_dim), torch.ones(state_dim)),
+                          "action": (torch.zeros(action_dim), torch.ones(action_dim))}
+        self.state_norm = RangeNormalizer(*[torch.as_tensor(v, dtype=torch.float32) for v in stats["state"]])
+        self.action_norm = RangeNormalizer(*[torch.as_tensor(v, dtype=torch.float32) for v in stats["action"]])
+        self.noise_scheduler = make_scheduler("ddpm", cfg.num_train_timesteps, cfg.beta_schedule)
+
+    # --- observation encoding --------------------------------------------------------------------------------
+    def encode_obs(self, obs: Mapping, train: bool, generator: torch.Generator | None = None) -> torch.Tensor:
+        """{"rgb": {cam: (B, To, H, W, 3) uint8}, "state": (B, To, S)} -> global condition (B, To*(F*cams + S))."""
+        feats = []
+        for cam, enc in self.encoders.items():
+            frames = obs["rgb"][cam]
+            b = frames.shape[0]
+            x = rearrange(frames, "b t h w c -> (b t) c h w").float() / 255.0
+            if tuple(x.shape[-2:]) != tuple(self.cfg.image_size):
+                x = F.interpolate(x, size=tuple(self.cfg.image_size), mode="bilinear", antialias=True)
+            x = random_crop(x, self.cfg.crop, generator) if train else center_crop(x, self.cfg.crop)
+            feats.append(rearrange(enc(x), "(b t) f -> b t f", b=b))
+        feats.append(self.state_norm(obs["state"].float()))
+        return rearrange(torch.cat(feats, dim=-1), "b t f -> b (t f)")
+
+    # --- training --------------------------------------------------------------------------------------------
+    def compute_loss(self, batch: Mapping, generator: torch.Generator | None = None) -> torch.Tensor:
+        cond = self.encode_obs(batch, train=True, generator=generator)
+        x0 = self.action_norm(batch["action"].float())
+        noise = torch.randn(x0.shape, generator=generator)
+        t = torch.randint(0, self.noise_scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator)
+        noisy = self.noise_scheduler.add_noise(x0, noise, t)
+        return F.mse_loss(self.unet(noisy, t, cond), noise)
+
+    # --- sampling --------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def sample(self, cond: torch.Tensor, scheduler=None, steps: int | None = None,
+               generator: torch.Generator | None = None) -> torch.Tensor:
+        """Reverse diffusion from N(0, I) to a normalised action window (B, Tp, A)."""
+        cfg = self.cfg
+        scheduler = scheduler or make_scheduler(cfg.inference_scheduler, cfg.num_train_timesteps, cfg.beta_schedule)
+        scheduler.set_timesteps(steps or cfg.num_inference_steps)
+        x = torch.randn((cond.shape[0], cfg.horizon, self.action_dim), generator=generator)
+        for t in scheduler.timesteps:
+            eps = self.unet(x, t, cond)
+            x = scheduler.step(eps, t, x, generator=generator).prev_sample
+        return x
+
+    @torch.no_grad()
+    def predict_action(self, obs: Mapping, scheduler: str | None = None, steps: int | None = None,
+                       generator: torch.Generator | None = None) -> torch.Tensor:
+        """(B, horizon, A) actions in the data's units (quaternions unit-norm if cfg.normalize_quaternions)."""
+        cfg = self.cfg
+        sched = make_scheduler(scheduler or cfg.inference_scheduler, cfg.num_train_timesteps, cfg.beta_schedule)
+        if steps is None:
+            steps = cfg.num_train_timesteps if (scheduler or cfg.inference_scheduler) == "ddpm" else cfg.num_inference_steps
+        cond = self.encode_obs(obs, train=False)
+        actions = self.action_norm.inverse(self.sample(cond, sched, steps, generator))
+        if cfg.normalize_quaternions:
+            actions = normalize_pose14_quaternions(actions)
+        return actions
+
+
+def normalize_pose14_quaternions(a: torch.Tensor) -> torch.Tensor:
+    """[..., 14] pick/place poses with both quaternions (dims 3:7 and 10:14) scaled to unit norm."""
+    a = a.clone()
+    for s in (slice(3, 7), slice(10, 14)):
+        a[..., s] = F.normalize(a[..., s], dim=-1)
+    return a
+
+
+# --- training loop ---------------------------------------------------------------------------------------------
+@dataclass
+class TrainSettings:
+    """Optimiser and budget; the official values are AdamW lr 1e-4, betas (0.95, 0.999), weight decay 1e-6, cosine
+    schedule with 500 warm-up steps, EMA power 0.75 up to 0.9999, batch 64."""
+
+    train_steps: int = 2000
+    batch_size: int = 64
+    lr: float = 1e-4
+    betas: tuple = (0.95, 0.999)
+    weight_decay: float = 1e-6
+    warmup_steps: int = 500
+    lr_schedule: str = "cosine"
+    ema_power: float = 0.75
+    ema_max_decay: float = 0.9999
+    checkpoint_every: int = 500
+    log_every: int = 50
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for k in ("train_steps", "batch_size", "checkpoint_every", "log_every"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"policy.train.{k} must be a whole number >= 1, got {v!r}")
+        if not self.lr > 0:
+            raise UserError(f"policy.train.lr must be > 0, got {self.lr!r}")
+        self.betas = tuple(self.betas)
+
+
+def make_ema(policy: nn.Module, settings: TrainSettings):
+    from diffusers.training_utils import EMAModel
+
+    return EMAModel(policy.parameters(), decay=settings.ema_max_decay, min_decay=0.0, update_after_step=0,
+                    use_ema_warmup=True, inv_gamma=1.0, power=settings.ema_power)
+
+
+def _atomic_torch_save(obj, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except (OSError, RuntimeError, EOFError) as e:
+        raise UserError(f"{path}: not a readable policy checkpoint ({e})") from e
+    if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "policy_config" not in ckpt:
+        raise UserError(f"{path}: not a simeval policy checkpoint of version {CHECKPOINT_VERSION}")
+    return ckpt
+
+
+def policy_from_checkpoint(ckpt: Mapping, ema: bool = True) -> DiffusionPolicy:
+    """The policy a checkpoint describes (its config is inside), with EMA weights unless ema=False."""
+    policy = DiffusionPolicy(PolicyConfig.from_mapping(ckpt["policy_config"]), ckpt["state_dim"], ckpt["action_dim"])
+    policy.load_state_dict(ckpt["ema_model" if ema else "model"])
+    return policy.eval()
+
+
+def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt_dir: str | os.PathLike | None = None,
+                 log_fn: Callable[[dict, int], None] | None = None, extra: Mapping | None = None,
+                 progress: bool = False) -> tuple[DiffusionPolicy, dict]:
+    """Train for settings.train_steps gradient steps; return (EMA policy, summary). With ckpt_dir, `last.ckpt`
+    there (model, EMA, optimiser, LR schedule, sampler RNG, config) is written every checkpoint_every steps and
+    at the end, atomically, and a run finding one resumes from it: a killed run loses at most checkpoint_every
+    steps, and the resumed run draws the same batches as an uninterrupted one would have."""
+    from diffusers.optimization import get_scheduler
+
+    torch.manual_seed(settings.seed)
+    optimizer = torch.optim.AdamW(policy.parameters(), lr=settings.lr, betas=settings.betas,
+                                  weight_decay=settings.weight_decay)
+    lr_sched = get_scheduler(settings.lr_schedule, optimizer, num_warmup_steps=settings.warmup_steps,
+                             num_training_steps=settings.train_steps)
+    ema = make_ema(policy, settings)
+    gen = torch.Generator().manual_seed(settings.seed)
+    step, losses, t_train = 0, [], 0.0
+    ckpt_path = Path(ckpt_dir) / "last.ckpt" if ckpt_dir else None
+    if ckpt_path is not None and ckpt_path.is_file():
+        ckpt = load_checkpoint(ckpt_path)
+        if ckpt["policy_config"] != dataclasses.asdict(policy.cfg) or ckpt["train"] != dataclasses.asdict(settings):
+            raise UserError(f"{ckpt_path} was trained with other settings; delete it or use another checkpoint_dir")
+        policy.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        lr_sched.load_state_dict(ckpt["lr_scheduler"])
+        ema.load_state_dict(ckpt["ema"])
+        gen.set_state(ckpt["generator"])
+        step, losses, t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
+        log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
+
+    def save() -> None:
+        if ckpt_path is None:
+            return
+        ema_model = copy.deepcopy(policy)
+        ema.copy_to(ema_model.parameters())
+        _atomic_torch_save({"version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
+                            "train": dataclasses.asdict(settings), "state_dim": policy.state_dim,
+                            "action_dim": policy.action_dim, "model": policy.state_dict(),
+                            "ema_model": ema_model.state_dict(), "ema": ema.state_dict(),
+                            "optimizer": optimizer.state_dict(), "lr_scheduler": lr_sched.state_dict(),
+                            "generator": gen.get_state(), "step": step, "losses": losses,
+                            "train_seconds": t_train, "extra": dict(extra or {})}, ckpt_path)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=settings.train_steps, initial=step, desc="train policy", unit="step")
+    policy.train()
+    window: list[float] = []
+    while step < settings.train_steps:
+        t0 = time.perf_counter()
+        loss = policy.compute_loss(dataset.sample(settings.batch_size, gen), generator=gen)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        lr_sched.step()
+        ema.step(policy.parameters())
+        t_train += time.perf_counter() - t0
+        step += 1
+        window.append(float(loss))
+        if bar is not None:
+            bar.update(1)
+        if step % settings.log_every == 0 or step == settings.train_steps:
+            mean = float(np.mean(window))
+            losses.append([step, mean])
+            window = []
+            if log_fn is not None:
+                log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
+            if bar is not None:
+                bar.set_postfix(loss=f"{mean:.4f}")
+        if step % settings.checkpoint_every == 0 and step < settings.train_steps:
+            save()
+    if bar is not None:
+        bar.close()
+    save()
+    ema_policy = copy.deepcopy(policy)
+    ema.copy_to(ema_policy.parameters())
+    summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,
+               "train_seconds": t_train, "seconds_per_step": t_train / max(step, 1)}
+    return ema_policy.eval(), summary
+
+
+# --- execution -------------------------------------------------------------------------------------------------
+class RecedingHorizonRunner:
+    """Closed-loop control: keep the last To observations (the first one repeated after a reset), predict a window
+    of Tp actions, execute Ta of them starting at index To-1, then predict again."""
+
+    def __init__(self, policy: DiffusionPolicy, scheduler: str | None = None, steps: int | None = None,
+                 seed: int = 0) -> None:
+        self.policy, self.scheduler, self.steps = policy.eval(), scheduler, steps
+        self.generator = torch.Generator().manual_seed(seed)
+        self.history: deque = deque(maxlen=policy.cfg.n_obs_steps)
+        self.queue: deque = deque()
+        self.chunks = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        self.history.clear()
+        self.queue.clear()
+        if seed is not None:
+            self.generator.manual_seed(seed)
+
+    def act(self, obs: Mapping) -> np.ndarray:
+        """obs {"rgb": {cam: (H, W, 3) uint8}, "state": (S,)} -> one action (A,) float32."""
+        cfg = self.policy.cfg
+        self.history.append(obs)
+        while len(self.history) < cfg.n_obs_steps:
+            self.history.appendleft(obs)
+        if not self.queue:
+            hist = list(self.history)
+            batch = {"rgb": {c: torch.from_numpy(np.stack([o["rgb"][c] for o in hist]))[None] for c in cfg.cameras},
+                     "state": torch.from_numpy(np.stack([np.asarray(o["state"], np.float32) for o in hist]))[None]}
+            actions = self.policy.predict_action(batch, self.scheduler, self.steps, self.generator)[0].numpy()
+            start = cfg.n_obs_steps - 1
+            self.queue.extend(actions[start : start + cfg.n_action_steps])
+            self.chunks += 1
+        return np.asarray(self.queue.popleft(), np.float32)

@@ -1,0 +1,135 @@
+"""Evaluation of a trained Diffusion Policy: closed-loop rollouts per task and split, and the offline comparison of
+samplers on held-out windows.
+
+    rollout_task(policy, task, seeds, ...) -> {"task", "split", "episodes": [{"seed", "success", "progress",
+        "steps"}], "success": {"k", "n", "rate", "ci"}, "mean_progress"} (Wilson 95% interval, see
+        simeval.metrics.intervals); optionally the frames of each episode for a video.
+    summarize(rows) -> per split and per group: pooled successes with a Wilson interval, mean progress.
+    sampler_action_error(policy, dataset, ...) -> {sampler: mean squared error of the executed actions, in the
+        normalised [-1, 1] action units, against the demonstrations}: how close DDIM with k steps comes to DDPM
+        with all steps without rollouts.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simeval.errors import UserError
+from simeval.metrics.intervals import success_summary
+from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
+
+log = logging.getLogger(__name__)
+
+
+def _make_env(task: str, action_space: str, variation, image_size, cameras, max_steps):
+    try:
+        from simeval.sim import make_env
+    except ImportError as e:
+        raise UserError("rollouts need simeval.sim.make_env (the Gymnasium environment), which this checkout "
+                        "lacks; set eval.splits=[] to train and compare samplers offline only") from e
+    kwargs = {"max_steps": max_steps} if max_steps else {}
+    return make_env(task, action_space=action_space, variation=variation, image_size=tuple(image_size),
+                    cameras=tuple(cameras), **kwargs)
+
+
+def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, split: str = "train",
+                 variation: Mapping | None = None, max_steps: int | None = None, keep_frames: bool = False,
+                 video_camera: str | None = None, scheduler: str | None = None, steps: int | None = None) -> dict:
+    cfg = policy.cfg
+    cams = list(dict.fromkeys([*cfg.cameras, *([video_camera] if video_camera else [])]))
+    env = _make_env(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
+    runner = RecedingHorizonRunner(policy, scheduler=scheduler, steps=steps)
+    episodes, videos = [], {}
+    try:
+        for seed in seeds:
+            obs, info = env.reset(seed=int(seed))
+            runner.reset(seed=int(seed))
+            frames = [obs["rgb"][video_camera or cfg.cameras[0]]] if keep_frames else None
+            n, done = 0, False
+            while not done:
+                obs, _, terminated, truncated, info = env.step(runner.act(obs))
+                n += 1
+                done = terminated or truncated
+                if frames is not None:
+                    frames.append(obs["rgb"][video_camera or cfg.cameras[0]])
+            episodes.append({"seed": int(seed), "success": bool(info["success"]),
+                             "progress": float(info["progress"]), "steps": n})
+            if frames is not None:
+                videos[int(seed)] = np.stack(frames)
+    finally:
+        env.close()
+    out = {"task": task, "split": split, "episodes": episodes,
+           "success": success_summary(e["success"] for e in episodes),
+           "mean_progress": float(np.mean([e["progress"] for e in episodes])) if episodes else None}
+    if keep_frames:
+        out["frames"] = videos
+    return out
+
+
+def summarize(rows: Sequence[Mapping]) -> dict:
+    """rows: rollout_task results (without frames). Per split: every episode of the split's tasks pooled."""
+    out = {}
+    for split in dict.fromkeys(r["split"] for r in rows):
+        eps = [e for r in rows if r["split"] == split for e in r["episodes"]]
+        out[split] = {"success": success_summary(e["success"] for e in eps),
+                      "mean_progress": float(np.mean([e["progress"] for e in eps])) if eps else None,
+                      "tasks": len([r for r in rows if r["split"] == split])}
+    return out
+
+
+def write_video(frames: np.ndarray, path: str | os.PathLike, fps: int = 15) -> Path:
+    """(T, H, W, 3) uint8 -> an mp4 (imageio-ffmpeg), written to a temp name and renamed."""
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    with imageio.get_writer(tmp, fps=fps, macro_block_size=1) as w:
+        for f in frames:
+            w.append_data(f)
+    os.replace(tmp, path)
+    return path
+
+
+@torch.no_grad()
+def sampler_action_error(policy: DiffusionPolicy, dataset, samplers: Mapping[str, tuple[str, int]],
+                         max_windows: int = 64, seed: int = 0) -> dict:
+    """samplers: {label: (scheduler, steps)}. Each sampler predicts the same windows from the same observations
+    and the same initial noise; the error is over the executed actions (indices To-1 .. To-1+Ta-1)."""
+    cfg = policy.cfg
+    rows = np.random.default_rng(seed).permutation(len(dataset))[:max_windows]
+    batch = dataset.window(rows)
+    target = policy.action_norm(batch["action"].float())
+    sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
+    out = {}
+    for label, (kind, steps) in samplers.items():
+        gen = torch.Generator().manual_seed(seed)
+        pred = policy.predict_action(batch, kind, steps, gen)
+        err = (policy.action_norm(pred) - target)[:, sl]
+        out[label] = {"scheduler": kind, "steps": int(steps), "mse": float((err**2).mean()), "windows": len(rows)}
+    return out
+
+
+def best_and_worst_videos(policy: DiffusionPolicy, rows: Sequence[Mapping], seed: int, max_steps: int | None,
+                          camera: str, variation: Mapping | None, out_dir: str | os.PathLike) -> dict:
+    """Roll out the best and the worst task (by success rate, then mean progress) of the first split again at
+    `seed` with frames kept, and write `videos/<best|worst>_<split>_<task>.mp4`. Returns {which: path}."""
+    split = rows[0]["split"]
+    ranked = sorted((r for r in rows if r["split"] == split),
+                    key=lambda r: (r["success"]["rate"] or 0.0, r["mean_progress"] or 0.0))
+    out = {}
+    for which, row in (("worst", ranked[0]), ("best", ranked[-1])):
+        if which == "best" and row is ranked[0] and "worst" in out:
+            out["best"] = out["worst"]  # one task only
+            continue
+        var = variation if split == "variations" else None
+        rec = rollout_task(policy, row["task"], [seed], split=split, variation=var, max_steps=max_steps,
+                           keep_frames=True, video_camera=camera)
+        out[which] = str(write_video(rec["frames"][seed], Path(out_dir) / "videos" / f"{which}_{split}_{row['task']}.mp4"))
+    return out

@@ -1,0 +1,77 @@
+"""The generalization experiment (paper Sec. 4.3, Table 5) as library calls, so src/generalization.py stays thin.
+
+    episodes_for(store, pipeline, tasks, k, val_k) -> (train episodes, val episodes): the first k episodes of each
+        task by seed, and the next val_k (for the sampler check; none if the store has no more).
+    checkpoint_key(...) -> a short hash of what determines the trained weights (episode files and their sizes,
+        policy and training settings, seed): the checkpoint folder, so a rerun resumes or reuses the training.
+    run_splits(policy, plan, ...) -> rollout rows per (split, task), cached per row in a JSON file beside the
+        checkpoint (keyed by the policy's training step), so a killed evaluation resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from simeval.episodes.store import EpisodeStore, read_episode
+from simeval.errors import UserError
+from simeval.results import atomic_write_text, dumps_strict
+
+log = logging.getLogger(__name__)
+
+
+def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str]):
+    if k < 1:
+        raise UserError(f"episodes_per_task must be >= 1, got {k}")
+    train, val, metas = [], [], []
+    for task in tasks:
+        paths = store.paths(pipeline, task)
+        if len(paths) < k:
+            raise UserError(f"store {store.root}: task {task} has {len(paths)} episodes, fewer than "
+                            f"episodes_per_task={k}; collect them with src/collect.py pipeline={pipeline} "
+                            f"tasks={task} episodes={k + val_k} store={store.root}")
+        paths = sorted(paths, key=lambda p: int(p.stem.split("_")[-1]))  # by seed
+        train += [read_episode(p, list(cameras)) for p in paths[:k]]
+        val += [read_episode(p, list(cameras)) for p in paths[k : k + val_k]]
+        metas += [(str(p.relative_to(store.root)), p.stat().st_size) for p in paths[:k]]
+    return train, val, metas
+
+
+def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, seed: int) -> str:
+    blob = json.dumps({"episodes": list(metas), "policy": dict(policy_cfg), "train": dict(train_cfg), "seed": seed},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def run_splits(policy, plan: Mapping[str, Sequence[str]], seeds: Sequence[int], variation: Mapping | None,
+               max_steps: int | None, cache_file: str | os.PathLike, policy_step: int,
+               progress: bool = False) -> list[dict]:
+    """plan: {split: [task, ...]}; `variations` rolls out with `variation`, the others without."""
+    from simeval.models.policy.evaluate import rollout_task
+
+    cache_file = Path(cache_file)
+    cache = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
+    rows = []
+    todo = [(s, t) for s, tasks in plan.items() for t in tasks]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc="rollouts", unit="task")
+    for split, task in todo:
+        var = dict(variation or {}) if split == "variations" else {}
+        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps], sort_keys=True)
+        if key not in cache:
+            cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps)
+            atomic_write_text(cache_file, dumps_strict(cache))
+        rows.append(cache[key])
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(task=task, split=split, success=cache[key]["success"]["rate"])
+    if bar is not None:
+        bar.close()
+    return rows
