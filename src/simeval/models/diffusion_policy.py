@@ -328,7 +328,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         ema.step(policy.parameters())
         t_train += time.perf_counter() - t0
         step += 1
-        window.append(float(loss))
+        window.append(loss.item())
         if bar is not None:
             bar.update(1)
         if step % settings.log_every == 0 or step == settings.train_steps:

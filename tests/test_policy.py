@@ -1,0 +1,170 @@
+"""Diffusion Policy: the noise schedule and forward process against closed forms, EMA against a hand computation,
+receding-horizon execution, windows, and that the policy reproduces a demonstrated trajectory."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from simeval.episodes.episode import Episode
+from simeval.errors import UserError
+from simeval.models.diffusion_policy import (DiffusionPolicy, PolicyConfig, RecedingHorizonRunner, TrainSettings,
+                                             make_ema, normalize_pose14_quaternions, train_policy)
+from simeval.models.policy.data import PolicyDataset
+
+TINY = dict(image_size=[32, 32], crop=28, encoder_width=8, keypoints=8, feature_dim=16, stem_pool=False, horizon=8,
+            n_obs_steps=2, n_action_steps=4, down_dims=[16, 32], step_embed_dim=16, kernel_size=3, n_groups=4,
+            num_train_timesteps=20, num_inference_steps=5)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)  # the CI machine's cores are shared; OpenMP spin-waiting makes 2 threads slower
+    yield
+    torch.set_num_threads(old)
+
+
+def moving_square_episode(seed=0, T=24, action_fn=None):
+    """A square moves across the frame; the state is the step's phase; the action a smooth known trajectory."""
+    rgb = np.zeros((T, 32, 32, 3), np.uint8)
+    for t in range(T):
+        x = 2 + t
+        rgb[t, 10:18, x : x + 6] = (255, 200, 50)
+    phase = np.linspace(0, 1, T, dtype=np.float32)
+    state = np.stack([phase, phase**2, np.sin(3 * phase)], 1).astype(np.float32)
+    action = action_fn(phase) if action_fn else np.stack([np.sin(2 * np.pi * phase + k) for k in range(7)], 1)
+    return Episode(pipeline="p", task="t", description="", group="g", seed=seed, rgb={"top": rgb}, state=state,
+                   action=action.astype(np.float32), reward=np.zeros(T, np.float32), is_first=np.arange(T) == 0,
+                   is_terminal=np.arange(T) == T - 1)
+
+
+def test_noise_schedule_is_the_squared_cosine_schedule_and_the_forward_process_is_ddpm():
+    """abar(t) = f(t)/f(0), f(t) = cos^2((t/K + s)/(1 + s) pi/2), s = 0.008, beta capped at 0.999 (Nichol &
+    Dhariwal 2021); the U-Net is fed sqrt(abar_t) x0 + sqrt(1 - abar_t) eps and trained to output eps."""
+    cfg = PolicyConfig(**TINY)
+    policy = DiffusionPolicy(cfg, 3, 7)
+    K, s = cfg.num_train_timesteps, 0.008
+    f = lambda t: math.cos((t / K + s) / (1 + s) * math.pi / 2) ** 2  # noqa: E731
+    betas = [min(1 - f(i + 1) / f(i), 0.999) for i in range(K)]
+    abar = np.cumprod(1 - np.array(betas))
+    np.testing.assert_allclose(policy.noise_scheduler.alphas_cumprod.numpy(), abar, rtol=1e-4)  # float32 cumprod
+
+    seen = {}
+
+    def fake_unet(x, t, cond):
+        seen["x"], seen["t"] = x.detach().clone(), t.clone()
+        return torch.zeros_like(x)
+
+    policy.unet.forward = fake_unet
+    ds = PolicyDataset([moving_square_episode()], "joint", ["top"], [32, 32], cfg.horizon, cfg.n_obs_steps)
+    batch = ds.sample(4, torch.Generator().manual_seed(0))
+    g = torch.Generator().manual_seed(1)
+    loss = policy.compute_loss(batch, generator=g)
+    # replay the same draws: crop offsets (2 x 8 images x 2), then noise, then steps
+    g2 = torch.Generator().manual_seed(1)
+    torch.randint(0, 5, (8,), generator=g2), torch.randint(0, 5, (8,), generator=g2)
+    x0 = policy.action_norm(batch["action"])
+    eps = torch.randn(x0.shape, generator=g2)
+    t = torch.randint(0, K, (4,), generator=g2)
+    assert torch.equal(seen["t"], t)
+    a = torch.as_tensor(abar, dtype=torch.float32)[t][:, None, None]
+    torch.testing.assert_close(seen["x"], a.sqrt() * x0 + (1 - a).sqrt() * eps, rtol=1e-5, atol=1e-5)
+    assert float(loss) == pytest.approx(float((eps**2).mean()), rel=1e-5)  # zero prediction: loss = E[eps^2]
+
+
+def test_ema_follows_the_official_warmup_decay():
+    """EMA decay at update n: d_n = min(1 - (1 + (n - 1))^-0.75, 0.9999) (0 at the first update), and
+    ema <- d ema + (1 - d) param."""
+    p = torch.nn.Parameter(torch.tensor([0.0]))
+    ema = make_ema(torch.nn.Module(), TrainSettings())  # only the settings matter; re-create over our parameter
+    from diffusers.training_utils import EMAModel
+
+    ema = EMAModel([p], decay=0.9999, min_decay=0.0, update_after_step=0, use_ema_warmup=True, inv_gamma=1.0,
+                   power=0.75)
+    values = [1.0, 2.0, -1.0, 4.0, 0.5, 3.0]
+    hand = 0.0
+    for n, v in enumerate(values, start=1):
+        p.data.fill_(v)
+        ema.step([p])
+        step = n - 1
+        d = 0.0 if step <= 0 else min(1 - (1 + step) ** -0.75, 0.9999)
+        hand = d * hand + (1 - d) * v
+        assert float(ema.shadow_params[0]) == pytest.approx(hand, rel=1e-6)
+
+
+def test_windows_pad_at_the_edges_and_every_action_is_executed_first_somewhere():
+    ep = moving_square_episode(T=6, action_fn=lambda ph: np.repeat(np.arange(6, dtype=np.float32)[:, None], 7, 1))
+    ds = PolicyDataset([ep], "joint", ["top"], [32, 32], horizon=4, n_obs_steps=2)
+    assert len(ds) == 6
+    first = ds.window(np.array([0]))
+    assert first["action"][0, :, 0].tolist() == [0, 0, 1, 2]  # start -1: the first step repeats
+    assert torch.equal(first["state"][0, 0], first["state"][0, 1])
+    last = ds.window(np.array([5]))
+    assert last["action"][0, :, 0].tolist() == [4, 5, 5, 5]  # the last action repeats
+    executed = {int(ds.window(np.array([r]))["action"][0, 1, 0]) for r in range(len(ds))}
+    assert executed == set(range(6))
+
+
+def test_receding_horizon_executes_actions_from_index_To_minus_1():
+    cfg = PolicyConfig(**{**TINY, "horizon": 8, "n_obs_steps": 2, "n_action_steps": 3})
+    policy = DiffusionPolicy(cfg, 3, 7)
+    calls = []
+
+    def fake_predict(obs, scheduler=None, steps=None, generator=None):
+        calls.append(obs["state"][0, :, 0].tolist())
+        base = 100 * len(calls)
+        return (base + torch.arange(8.0))[None, :, None].expand(1, 8, 7)
+
+    policy.predict_action = fake_predict
+    runner = RecedingHorizonRunner(policy)
+    obs = lambda i: {"rgb": {"top": np.zeros((32, 32, 3), np.uint8)}, "state": np.full(3, float(i), np.float32)}  # noqa
+    got = [runner.act(obs(i))[0] for i in range(7)]
+    assert got == [101, 102, 103, 201, 202, 203, 301]
+    assert calls == [[0, 0], [2, 3], [5, 6]]  # first call pads with the first observation
+
+
+def test_policy_reproduces_a_demonstrated_trajectory():
+    """Trained on one demonstration (a 2-d circle traced while a square crosses the image), the EMA policy's
+    predicted windows follow it: executed-action error far below that of predicting the mean action, with DDPM
+    and with 5-step DDIM."""
+    ep = moving_square_episode(action_fn=lambda ph: np.stack([np.sin(2 * np.pi * ph), np.cos(2 * np.pi * ph)], 1))
+    cfg = PolicyConfig(**{**TINY, "down_dims": [32, 64], "step_embed_dim": 32})
+    ds = PolicyDataset([ep], "joint", ["top"], [32, 32], cfg.horizon, cfg.n_obs_steps)
+    policy, summary = train_policy(DiffusionPolicy(cfg, ds.state_dim, ds.action_dim, ds.stats()), ds,
+                                   TrainSettings(train_steps=600, batch_size=16, lr=3e-3, warmup_steps=10,
+                                                 checkpoint_every=10_000, log_every=100))
+    assert summary["losses"][-1][1] < 0.2 * summary["losses"][0][1]
+    batch = ds.window(np.arange(len(ds)))
+    truth = policy.action_norm(batch["action"])
+    sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
+    baseline = float(((truth - truth.mean((0, 1)))[:, sl] ** 2).mean())
+    for sampler, steps in (("ddpm", cfg.num_train_timesteps), ("ddim", cfg.num_inference_steps)):
+        pred = policy.predict_action(batch, sampler, steps, torch.Generator().manual_seed(0))
+        err = float(((policy.action_norm(pred) - truth)[:, sl] ** 2).mean())
+        assert err < 0.1 * baseline, sampler
+
+
+def test_pick_place_policy_outputs_unit_quaternions_and_uses_primitive_steps():
+    T = 30
+    ep = moving_square_episode(T=T)
+    q = np.array([0, 0, 0.38268343, 0.92387953], np.float32)
+    ep.high_level_action = np.stack([np.r_[0.5, 0.1 * i, 0.02, q, 0.4, -0.1, 0.05, q] for i in range(3)]).astype(np.float32)
+    ep.high_level_step = np.array([0, 10, 20])
+    ds = PolicyDataset([ep], "pick_place", ["top"], [32, 32], horizon=2, n_obs_steps=1)
+    assert len(ds) == 3 and torch.equal(ds.state, torch.from_numpy(ep.state[[0, 10, 20]]))
+    raw = torch.randn(5, 2, 14)
+    unit = normalize_pose14_quaternions(raw)
+    np.testing.assert_allclose(unit[..., 3:7].norm(dim=-1), 1, rtol=1e-6)
+    np.testing.assert_allclose(unit[..., 10:14].norm(dim=-1), 1, rtol=1e-6)
+    assert torch.equal(unit[..., :3], raw[..., :3])
+
+
+def test_config_mistakes_name_the_key():
+    with pytest.raises(UserError, match="policy.horizon=2 must be a multiple of 4"):
+        PolicyConfig(**{**TINY, "horizon": 2, "n_obs_steps": 1, "n_action_steps": 1, "down_dims": [8, 16, 32]})
+    with pytest.raises(UserError, match="policy.crop=40"):
+        PolicyConfig(**{**TINY, "crop": 40})
+    with pytest.raises(UserError, match="unknown key"):
+        PolicyConfig.from_mapping({**TINY, "hidden": 3})
