@@ -16,6 +16,7 @@ VERSION = "1.0"
 @hydra.main(version_base="1.3", config_path="../conf", config_name="generalization")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
+    import torch
     from hydra.utils import instantiate
 
     from simeval.episodes.store import EpisodeStore
@@ -26,6 +27,8 @@ def main(cfg: DictConfig) -> None:
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
 
+    if cfg.torch_threads:
+        torch.set_num_threads(cfg.torch_threads)
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
     group = [s.name for s in select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), None, cfg.task_group)]
@@ -41,8 +44,9 @@ def main(cfg: DictConfig) -> None:
     ckpt_dir = f"{cfg.checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), cfg.seed)}"
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
-        policy, summary = train_policy(DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats()), data,
-                                       settings, ckpt_dir, logger.log_metrics, extra={"config": config}, progress=True)
+        fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=cfg.seed)
+        policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics, extra={"config": config},
+                                       progress=True)
         values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
                                "windows": len(data)}}
         if cfg.eval.sampler_check and val_eps:

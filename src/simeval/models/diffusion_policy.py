@@ -132,8 +132,15 @@ class RangeNormalizer(nn.Module):
 
 class DiffusionPolicy(nn.Module):
     def __init__(self, cfg: PolicyConfig, state_dim: int, action_dim: int,
-                 stats: Mapping[str, tuple[torch.Tensor, torch.Tensor]] | None = None) -> None:
+                 stats: Mapping[str, tuple[torch.Tensor, torch.Tensor]] | None = None, seed: int | None = None) -> None:
+        """`seed`: initialise the weights from this seed (the global RNG is left as it was) so a run is repeatable."""
         super().__init__()
+        with torch.random.fork_rng(devices=[]):
+            if seed is not None:
+                torch.manual_seed(seed)
+            self._build(cfg, state_dim, action_dim, stats)
+
+    def _build(self, cfg: PolicyConfig, state_dim: int, action_dim: int, stats) -> None:
         self.cfg, self.state_dim, self.action_dim = cfg, int(state_dim), int(action_dim)
         self.encoders = nn.ModuleDict({c: ImageEncoder(cfg.encoder_width, cfg.keypoints, cfg.feature_dim, cfg.stem_pool)
                                        for c in cfg.cameras})

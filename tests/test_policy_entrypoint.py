@@ -1,0 +1,109 @@
+"""src/generalization.py end to end on a small store, its debug overlay, and resuming after kill -9."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from simeval.episodes.episode import Episode
+from simeval.episodes.store import EpisodeStore
+from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+
+ROOT = Path(__file__).resolve().parents[1]
+GROUP = "piles"  # the smallest group of the suite (3 tasks)
+
+
+def synthetic_store(root, per_task=3, T=30):
+    """Episodes of the group's tasks with random frames and smooth actions: enough to train and to check the
+    plumbing (not to learn a task)."""
+    store = EpisodeStore(root)
+    for spec in select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP):
+        for seed in range(per_task):
+            r = np.random.default_rng(seed)
+            store.write(Episode(
+                pipeline="gensim", task=spec.name, description="d", group=spec.group, seed=seed,
+                rgb={"top": r.integers(0, 255, (T, 32, 32, 3), dtype=np.uint8)},
+                state=r.normal(size=(T, 12)).astype(np.float32),
+                action=np.cumsum(r.normal(size=(T, 7)), 0).astype(np.float32), reward=np.zeros(T, np.float32),
+                is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32)))
+    return root
+
+
+def run(*args, **kw):
+    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    return subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=280, **kw)
+
+
+def test_debug_overlay_policy_is_the_tiny_preset():
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        via_debug = compose("generalization", overrides=["debug=tiny"]).policy
+        via_group = compose("generalization", overrides=["policy=tiny"]).policy
+        cpu = compose("generalization").policy
+    assert OmegaConf.to_container(via_debug) == OmegaConf.to_container(via_group)
+    assert cpu.name == "cpu" and cpu.model.num_inference_steps == 16 and list(cpu.model.down_dims) == [64, 128, 256]
+
+
+def test_entrypoint_trains_compares_samplers_and_writes_a_result(tmp_path):
+    store = synthetic_store(tmp_path / "store")
+    out = tmp_path / "run"
+    p = run("debug=tiny", f"store={store}", f"task_group={GROUP}", f"checkpoint_dir={tmp_path / 'ckpt'}",
+            "eval.splits=[]", f"hydra.run.dir={out}")
+    assert p.returncode == 0, p.stderr[-2000:]
+    rec = json.loads((out / "result.json").read_text())
+    assert rec["identity"]["task_group"] == GROUP and rec["identity"]["policy"] == "tiny"
+    tr = rec["values"]["training"]
+    assert tr["steps"] == 20 and len(tr["trained_tasks"]) == 3 and tr["windows"] == 3 * 2 * 30
+    assert set(rec["values"]["sampler_check"]) == {"ddpm", "ddim"}
+    ckpt = torch.load(tr["checkpoint"], weights_only=False)
+    assert ckpt["policy_config"]["horizon"] == 8 and ckpt["step"] == 20  # the checkpoint carries its config
+    logged = (out / "metrics.csv").read_text()
+    assert "train/loss" in logged
+
+
+def test_user_mistakes_are_one_line(tmp_path):
+    store = synthetic_store(tmp_path / "store", per_task=1)
+    p = run("debug=tiny", f"store={store}", f"task_group={GROUP}", "heldout_tasks=[build-bridge]",
+            f"hydra.run.dir={tmp_path / 'a'}")
+    assert p.returncode == 2 and "heldout_tasks" in p.stderr and "Traceback" not in p.stderr
+    p = run("debug=tiny", f"store={store}", f"task_group={GROUP}", f"hydra.run.dir={tmp_path / 'b'}")
+    assert p.returncode == 2 and "fewer than episodes_per_task=2" in p.stderr
+
+
+def test_a_killed_training_resumes_to_the_same_weights(tmp_path):
+    store = synthetic_store(tmp_path / "store")
+    common = ["debug=tiny", f"store={store}", f"task_group={GROUP}", "eval.splits=[]", "eval.sampler_check=false",
+              "policy.train.train_steps=120", "policy.train.checkpoint_every=5"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    killed = subprocess.Popen([sys.executable, str(ROOT / "src" / "generalization.py"), *common,
+                               f"checkpoint_dir={tmp_path / 'k'}", f"hydra.run.dir={tmp_path / 'r1'}"],
+                              cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 200
+    while not list((tmp_path / "k").glob("*/last.ckpt")) and time.time() < deadline and killed.poll() is None:
+        time.sleep(0.05)
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait()
+    (ckpt,) = list((tmp_path / "k").glob("*/last.ckpt"))
+    step_at_kill = torch.load(ckpt, weights_only=False)["step"]
+    assert 0 < step_at_kill < 120
+    resumed = run(*common, f"checkpoint_dir={tmp_path / 'k'}", f"hydra.run.dir={tmp_path / 'r2'}")
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert f"at step {step_at_kill}/120" in (tmp_path / "r2" / "generalization.log").read_text()
+    fresh = run(*common, f"checkpoint_dir={tmp_path / 'f'}", f"hydra.run.dir={tmp_path / 'r3'}")
+    assert fresh.returncode == 0, fresh.stderr[-2000:]
+    a = torch.load(ckpt, weights_only=False)
+    (b_path,) = list((tmp_path / "f").glob("*/last.ckpt"))
+    b = torch.load(b_path, weights_only=False)
+    assert a["step"] == b["step"] == 120
+    for k in b["ema_model"]:
+        torch.testing.assert_close(a["ema_model"][k], b["ema_model"][k], rtol=1e-5, atol=1e-6, msg=k)
