@@ -19,7 +19,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 
 HUMAN_SCORES ?= $(wildcard ../shared/data/human_eval_tables.json)
 
-.PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches
+.PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
@@ -64,6 +64,15 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/text_diversity_bench.py
 	$(PY) experiments/benchmarks/judge_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py
+	$(PY) experiments/benchmarks/policy_bench.py --presets tiny cpu authors_gensim
+
+TABLE5_GROUPS ?= stacking placement piles assembling
+table5: setup ## paper Table 5: Diffusion Policy per GenSim group (cpu preset; needs `make collect` with 42 episodes/task)
+	for g in $(TABLE5_GROUPS); do $(PY) src/generalization.py task_group=$$g || exit 1; done
+	$(MAKE) --no-print-directory report-table5
+
+report-table5: setup ## rebuild Table 5 from the generalization result.json files only: outputs/tables/table5.{md,csv}
+	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.
