@@ -70,7 +70,7 @@ def test_invalid_ground_truth_is_a_per_task_error_and_json_stays_strict(tmp_path
     out = run_quality(tmp_path / "run", bundles_dir=root, judge="oracle")
     rec = strict_json((tmp_path / "run" / "result.json").read_text())  # no bare NaN
     assert rec["status"] == "ok" and out.scored == ["task4"]
-    assert rec["values"]["task_completion"] == {"task4": {"mean": 10.0, "var": 0.0, "n_valid": 1, "n_invalid": 0,
+    assert rec["values"]["task_completion"] == {"task4": {"mean": 10.0, "var": None, "n_valid": 1, "n_invalid": 0,
                                                           "scores": [10.0]}}
     assert rec["errors"]["task0"].endswith("ground_truth.success must be true or false, got 'false' (str)")
     assert rec["errors"]["task1"].endswith("ground_truth.progress must be a number in [0, 1], got nan (float)")
@@ -198,3 +198,38 @@ def test_budget_stop_keeps_what_finished_and_ends_in_one_line(openai_server, tmp
     assert last.startswith("error: budget_usd=0.012 would be exceeded")
     rec = strict_json((tmp_path / "run" / "result.json").read_text())
     assert rec["status"] == "stopped" and 0 < rec["cost"]["new_calls"] < 10
+
+
+@pytest.mark.parametrize("override,named", [
+    ("repeats=0", "repeats must be a whole number >= 1, got 0"),
+    ("repeats=abc", "repeats must be a whole number >= 1, got 'abc'"),
+    ("max_reasks=-1", "max_reasks must be a whole number >= 0"),
+    ("judge.concurrency=0", "judge.concurrency (or captioner.concurrency) must be a whole number >= 1"),
+    ("judge.rate_limit_per_min=0", "judge.rate_limit_per_min (or captioner.rate_limit_per_min) must be a number > 0"),
+    ("budget_usd=abc", "budget_usd must be a number of US dollars >= 0 or null"),
+    ("budget_usd=-1", "budget_usd must be a number of US dollars >= 0 or null"),
+    ("n_frames=0", "n_frames must be a whole number >= 2"),
+])
+def test_bad_quality_settings_are_one_line_before_any_call(openai_server, tmp_path, override, named):
+    root = make_bundles(tmp_path / "b", n=1)
+    res = _quality(f"bundles_dir={root}", f"judge.provider.base_url={openai_server.base_url}", override,
+                   f"cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path / 'run'}")
+    assert res.returncode == 2 and res.stderr.strip() == f"error: {res.stderr.strip()[7:]}"
+    assert named in res.stderr and "Traceback" not in res.stderr and openai_server.requests == []
+
+
+def test_replies_of_another_endpoint_are_never_served_from_the_cache(tmp_path):
+    from simeval.devserver import LoopbackOpenAI
+
+    root = make_bundles(tmp_path / "b", n=1)
+    common = [f"bundles_dir={root}", "repeats=1", "metric=task_completion", f"cache_dir={tmp_path / 'cache'}"]
+    with LoopbackOpenAI() as a, LoopbackOpenAI() as b:  # two servers answering to the same model name
+        a.default_reply, b.default_reply = "Score: 2", "Score: 9"
+        first = _quality(*common, f"judge.provider.base_url={a.base_url}", f"hydra.run.dir={tmp_path / 'r1'}")
+        second = _quality(*common, f"judge.provider.base_url={b.base_url}/", f"hydra.run.dir={tmp_path / 'r2'}")
+        again = _quality(*common, f"judge.provider.base_url={a.base_url}", f"hydra.run.dir={tmp_path / 'r3'}")
+        assert first.returncode == second.returncode == again.returncode == 0, second.stderr[-500:]
+        assert len(a.requests) == 1 and len(b.requests) == 1  # b asked anew; a's re-run came from the cache
+    means = [strict_json((tmp_path / r / "result.json").read_text())["values"]["task_completion"]["task0"]["mean"]
+             for r in ("r1", "r2", "r3")]
+    assert means == [2.0, 9.0, 2.0]

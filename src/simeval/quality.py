@@ -259,7 +259,7 @@ def oracle_completion(bundles: list[TaskBundle]) -> dict[str, dict]:
             score = 10.0 if gt["success"] else 0.0
         else:
             continue
-        out[b.name] = {"mean": score, "var": 0.0, "n_valid": 1, "n_invalid": 0, "scores": [score]}
+        out[b.name] = {"mean": score, "var": None, "n_valid": 1, "n_invalid": 0, "scores": [score]}
     return out
 
 
@@ -278,7 +278,7 @@ def summarize(records: list[ScoreRecord]) -> dict[str, dict[str, dict]]:
             s = np.asarray(entry["scores"], dtype=float)
             entry["n_valid"] = int(len(s))
             entry["mean"] = float(s.mean()) if len(s) else None
-            entry["var"] = float(s.var(ddof=1)) if len(s) >= 2 else (0.0 if len(s) == 1 else None)
+            entry["var"] = float(s.var(ddof=1)) if len(s) >= 2 else None  # ddof=1 is undefined for one score
     return out
 
 
@@ -459,6 +459,8 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
 
     if judge not in ("model", "oracle"):
         raise UserError(f"judge kind {judge!r}: expected model or oracle")
+    if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 2:
+        raise UserError(f"n_frames must be a whole number >= 2 (first and last frame at least), got {n_frames!r}")
     out_dir = Path(out_dir)
     bundles, errors = _tasks_and_errors(judge, bundles_dir, episodes, out_dir)
     names = [b.name for b in bundles] + [k for k in errors if k not in {b.name for b in bundles}]

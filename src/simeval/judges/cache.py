@@ -30,10 +30,13 @@ from simeval.sqlite_files import friendly_errors
 
 
 def request_key(*, provider: str, model: str, template_sha256: str, system: str, user: str,
-                image_sha256: list[str], decoding: dict, repeat: int, ask: int) -> str:
-    blob = json.dumps({"provider": provider, "model": model, "template": template_sha256, "system": system,
-                       "user": user, "images": image_sha256, "decoding": decoding, "repeat": repeat, "ask": ask},
-                      sort_keys=True)
+                image_sha256: list[str], decoding: dict, repeat: int, ask: int, endpoint: str = "") -> str:
+    """The cache key of one request. `endpoint` (the normalised URL, or `local:<model dir>`) keeps replies of
+    different servers apart even when they answer to the same model name (a loopback smoke-test server and
+    api.openai.com both serving "gpt-4o")."""
+    blob = json.dumps({"provider": provider, "endpoint": endpoint, "model": model, "template": template_sha256,
+                       "system": system, "user": user, "images": image_sha256, "decoding": decoding,
+                       "repeat": repeat, "ask": ask}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 

@@ -21,6 +21,12 @@ class Prices:
     per_image: float = 0.0  # for providers that bill images apart from tokens
     image_tokens: int = 765  # for estimates only: tokens one image adds to the prompt (OpenAI, 512x512 tile)
 
+    def __post_init__(self) -> None:
+        for name in ("input_per_1m", "output_per_1m", "per_image", "image_tokens"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+                raise UserError(f"judge.prices.{name} must be a number >= 0, got {value!r}")
+
     def cost(self, prompt_tokens: int, completion_tokens: int, images: int) -> float:
         return (prompt_tokens * self.input_per_1m + completion_tokens * self.output_per_1m) / 1e6 \
             + images * self.per_image
@@ -46,6 +52,11 @@ class Ledger:
     reserved_usd: float = 0.0
     by_label: dict = field(default_factory=dict)  # "metric/pipeline" -> the same counters, for result.json
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def __post_init__(self) -> None:
+        b = self.budget_usd
+        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float)) or not b >= 0):
+            raise UserError(f"budget_usd must be a number of US dollars >= 0 or null (no budget), got {b!r}")
 
     def _bucket(self, label: str | None) -> dict:
         return self.by_label.setdefault(label or "unlabelled", {

@@ -23,6 +23,17 @@ from simeval.errors import UserError
 from simeval.httpretry import RetryPolicy, api_key_from_env, check_key_transport, post_json
 
 
+def endpoint_id(url: str) -> str:
+    """A URL normalised for cache keys: scheme and host lower-cased, default ports and trailing slashes dropped."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    parts = urlsplit(url.strip())
+    host = (parts.hostname or "").lower()
+    default = {"http": 80, "https": 443}.get(parts.scheme.lower())
+    netloc = host if parts.port in (None, default) else f"{host}:{parts.port}"
+    return urlunsplit((parts.scheme.lower(), netloc, parts.path.rstrip("/"), parts.query, ""))
+
+
 @dataclass(frozen=True)
 class Image:
     """A PNG-encoded image and its sha256 (what the cache key uses)."""
@@ -88,6 +99,12 @@ class OpenAIChatProvider:
     @property
     def decoding(self) -> dict:
         return {"temperature": self.temperature, "max_tokens": self.max_tokens, "seed": self.seed}
+
+    @property
+    def endpoint(self) -> str:
+        """Where replies come from, part of every cache key: the same model name on a local test server and on
+        api.openai.com must never share cached replies."""
+        return endpoint_id(self.url)
 
     @property
     def url(self) -> str:
@@ -156,6 +173,7 @@ class HFVisionProvider:
         self.max_new_tokens, self.temperature = max_new_tokens, temperature
         self.batch_size, self.batch_wait_s = batch_size, batch_wait_s
         self.model = model or Path(self.model_path).name
+        self.endpoint = "local:" + str(Path(self.model_path).resolve())
         self._pipe = None
         self._cv = threading.Condition()
         self._pending: list[tuple[list, Future]] = []

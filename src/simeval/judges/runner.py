@@ -49,11 +49,17 @@ class JudgeSettings:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.repeats < 1 or self.max_reasks < 0 or self.concurrency < 1:
-            raise ValueError(f"repeats >= 1, max_reasks >= 0, concurrency >= 1 required; got {self.repeats}, "
-                             f"{self.max_reasks}, {self.concurrency}")
-        if self.rate_limit_per_min is not None and self.rate_limit_per_min <= 0:
-            raise ValueError(f"rate_limit_per_min must be > 0 or null, got {self.rate_limit_per_min}")
+        def whole(name: str, value, low: int, key: str) -> None:
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")
+
+        whole("repeats", self.repeats, 1, "repeats")
+        whole("max_reasks", self.max_reasks, 0, "max_reasks")
+        whole("concurrency", self.concurrency, 1, "judge.concurrency (or captioner.concurrency)")
+        rate = self.rate_limit_per_min
+        if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0):
+            raise UserError(f"judge.rate_limit_per_min (or captioner.rate_limit_per_min) must be a number > 0 or "
+                            f"null (no limit), got {rate!r}")
 
 
 class RateLimiter:
@@ -109,7 +115,8 @@ def _estimate(ledger: Ledger, provider, item: JudgeItem, system: str, user: str)
 
 
 def _identity(provider, item: JudgeItem, system: str, user: str, repeat: int, ask: int) -> str:
-    return request_key(provider=provider.name, model=provider.model, template_sha256=item.template.sha256,
+    return request_key(provider=provider.name, endpoint=getattr(provider, "endpoint", ""), model=provider.model,
+                       template_sha256=item.template.sha256,
                        system=system, user=user, image_sha256=[im.sha256 for im in item.images],
                        decoding=provider.decoding, repeat=repeat, ask=ask)
 
