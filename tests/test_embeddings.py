@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from simeval.embeddings import CachedEmbedder
-from simeval.embeddings.cache import EmbeddingCache
+from simeval.embeddings.cache import EmbeddingCache, embedding_key
 from simeval.embeddings.local import SentenceTransformerBackend, resolve_packaged_model
 from simeval.embeddings.remote import OpenAIEmbeddingBackend
 from simeval.httpretry import FatalHTTPError
@@ -103,3 +103,19 @@ def test_minilm_is_offline_and_real():
     assert v.shape == (3, 384)
     u = v / np.linalg.norm(v, axis=1, keepdims=True)
     assert u[0] @ u[1] > u[0] @ u[2]  # a real model: near-synonyms are closer
+
+
+def test_a_vector_damaged_inside_an_intact_cache_is_recomputed_not_used(tmp_path):
+    import sqlite3
+
+    cache = EmbeddingCache(tmp_path / "e.sqlite")
+    vectors = np.array([[0.6, 0.8], [1.0, 0.0]], dtype=np.float32)
+    cache.put_many("m", ["a", "b"], vectors)
+    db = sqlite3.connect(tmp_path / "e.sqlite")
+    (blob,) = db.execute("SELECT vec FROM embeddings WHERE key=?", (embedding_key("m", "a"),)).fetchone()
+    damaged = bytearray(blob)
+    damaged[0] ^= 0xFF  # a flipped byte of the float payload: still a valid row of the right length
+    with db:
+        db.execute("UPDATE embeddings SET vec=? WHERE key=?", (bytes(damaged), embedding_key("m", "a")))
+    found = cache.get_many("m", ["a", "b"])
+    assert set(found) == {"b"} and np.array_equal(found["b"], vectors[1])

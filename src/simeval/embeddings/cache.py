@@ -1,5 +1,7 @@
 """On-disk embedding cache: SQLite, keyed by sha256(model id, text), so no text is embedded twice by a model.
-A damaged or locked file stops the run with one line naming the file (`simeval.sqlite_files`)."""
+A damaged or locked file stops the run with one line naming the file (`simeval.sqlite_files`). Each stored vector
+carries an 8-byte BLAKE2b digest of its bytes: a row whose bytes were damaged inside an intact SQLite page (which
+SQLite cannot notice) fails the digest and is recomputed, never used."""
 
 from __future__ import annotations
 
@@ -14,6 +16,26 @@ from simeval.sqlite_files import friendly_errors
 
 ADVICE = ("delete it or move it aside (with any {sidecars} beside it), then re-run; it only saves recomputing "
           "embeddings, and the re-run rebuilds it")
+
+
+DIGEST_BYTES = 8
+
+
+def _digest(data: bytes) -> bytes:
+    return hashlib.blake2b(data, digest_size=DIGEST_BYTES).digest()
+
+
+def _pack(vector: np.ndarray) -> bytes:
+    data = np.asarray(vector, dtype=np.float32).tobytes()
+    return data + _digest(data)
+
+
+def _unpack(blob: bytes, dim: int) -> np.ndarray | None:
+    """The vector, or None for a damaged row (wrong length, digest mismatch, or written before digests)."""
+    data, digest = blob[:-DIGEST_BYTES], blob[-DIGEST_BYTES:]
+    if len(blob) != dim * 4 + DIGEST_BYTES or _digest(data) != digest:
+        return None
+    return np.frombuffer(data, dtype=np.float32)
 
 
 def embedding_key(model_id: str, text: str) -> str:
@@ -48,15 +70,14 @@ class EmbeddingCache:
                     f"SELECT key, dim, vec FROM embeddings WHERE key IN ({','.join('?' * len(chunk))})", chunk
                 ).fetchall()
             for key, dim, blob in rows:
-                vec = np.frombuffer(blob, dtype=np.float32)
-                if vec.shape != (dim,):
-                    continue  # a damaged row is treated as a miss and recomputed
-                found[keys[key]] = vec
+                vec = _unpack(bytes(blob), dim)
+                if vec is not None:  # a damaged row is a miss: recomputed and rewritten
+                    found[keys[key]] = vec
         return found
 
     def put_many(self, model_id: str, texts: list[str], vectors: np.ndarray) -> None:
         rows = [
-            (embedding_key(model_id, t), model_id, int(v.shape[0]), np.asarray(v, dtype=np.float32).tobytes())
+            (embedding_key(model_id, t), model_id, int(v.shape[0]), _pack(v))
             for t, v in zip(texts, vectors)
         ]
         with self._errors(), self._db:
