@@ -131,3 +131,15 @@ def test_entrypoint_reports_a_bad_file_in_one_line(tmp_path):
     assert lines == [f"error: {bad}: rows 2 and 3, column 'task': task 'a' of pipeline 'p' appears twice in table "
                      f"'t'; keep one row per task"], res.stderr
     assert "Traceback" not in res.stdout + res.stderr
+
+
+def test_a_judge_blank_for_a_whole_table_gets_no_row_there(tmp_path):
+    from simeval.agreement import agreement_rows, load_score_tables
+
+    path = tmp_path / "two_tables.csv"
+    path.write_text("table,pipeline,task,Human,A,B\n"
+                    "t1,p,a,1,1,\nt1,p,b,2,2,\nt1,p,c,3,3,\n"
+                    "t2,p,a,1,,3\nt2,p,b,2,,1\nt2,p,c,3,,2\n")
+    rows = agreement_rows(load_score_tables(path), n_boot=20)
+    assert sorted((r["table"], r["judge"], r["n"]) for r in rows) == [("t1", "A", 3), ("t2", "B", 3)]
+    assert [r["pearson"] for r in sorted(rows, key=lambda r: r["table"])] == pytest.approx([1.0, -0.5])

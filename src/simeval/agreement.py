@@ -283,7 +283,9 @@ def _number(value, where: str) -> float:
 
 def agreement_rows(tables: dict[str, list[dict]], human: str = "Human", *, n_boot: int = 2000,
                    seed: int = 0) -> list[dict]:
-    """One row per (table, pipeline incl. 'all', judge) with every statistic and its CI."""
+    """One row per (table, pipeline incl. 'all', judge) with every statistic and its CI. A judge with no score at
+    all in a scope (a CSV holding several tables has every table's judge columns, blank where a judge did not
+    score that table) gets no row: "undefined" is kept for statistics that exist but cannot be computed."""
     rows = []
     for table, records in tables.items():
         judges = judge_columns(records, human)
@@ -294,6 +296,8 @@ def agreement_rows(tables: dict[str, list[dict]], human: str = "Human", *, n_boo
         for pipeline, recs in scopes:
             for judge in judges:
                 pairs = [(r[human], r[judge]) for r in recs if r.get(judge) not in (None, "")]
+                if not pairs:
+                    continue
                 h = [_number(a, f"{table}/{pipeline}/{human}") for a, _ in pairs]
                 m = [_number(b, f"{table}/{pipeline}/{judge}") for _, b in pairs]
                 rows.append({"table": table, "pipeline": pipeline, "judge": judge,
@@ -343,13 +347,18 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
                     continue
                 xs.append(x)
                 ys.append(max(0.0, r["r_over_mae"]))
+                if r["r_over_mae"] < 0:  # drawn at 0 as the paper does, but never hidden: its value is written
+                    ax.text(x, 0.02, f"{r['r_over_mae']:.2f}", ha="center", va="bottom", fontsize=7,
+                            rotation=90, color="crimson")
             ax.bar(xs, ys, width=w, label=p)
         ax.set_xticks(range(len(judges)))
         ax.set_xticklabels(judges, rotation=30, ha="right", fontsize=8)
         ax.set_title(table.replace("_", " "))
         ax.set_ylabel("Pearson r / MAE")
         ax.legend(fontsize=8)
-    fig.tight_layout()
+    fig.text(0.01, 0.005, "Negative r/MAE is drawn at 0 and its value written in red; n/a: undefined (a constant "
+             "column).", fontsize=7, ha="left", va="bottom")
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     out = []
     for fmt in formats:
         out.append(save_figure(fig, Path(stem).with_suffix(f".{fmt}"), dpi=150))  # no dates in the file
