@@ -22,6 +22,8 @@ def main(cfg: DictConfig) -> None:
     if spec["metric"] == "quality":
         written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
         print(Path(written["table"][1]).read_text())
+        for kind, paths in written.items():
+            log.info("%s: %s", kind, ", ".join(map(str, paths)))
         return
     if spec["metric"] != "text_diversity":
         raise UserError(f"report.metric={spec['metric']!r}: expected text_diversity or quality")
