@@ -15,14 +15,20 @@
 Knobs a generalization test varies, all per episode seed: colours (one of `colors`, per object name unless
 `color_per_instance`), counts (`count: [lo, hi]`), poses (uniform over `region` or the workspace, random yaw),
 distractors (objects with `distractor: true`), and the robot's start (`home_noise`, radians).
-Goal types: in_zone, in_container (each `what` instance in some `where` instance), stack (`what`: names, each
-on the previous), on_objects (`what` across all `where` instances, e.g. a bridge deck), at_offset (`what` at
-`offset` [dx, dy] from the first `where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction`
-of the pile's particles in the zone).
+Goal types: in_zone, in_container (each `what` instance in some `where` instance; `each: true` asks for a
+one-to-one assignment, "one ball into each zone"), stack (`what`: names, each resting on the previous), on_objects
+(`what` resting on all `where` instances, e.g. a bridge deck), at_offset (`what` at `offset` [dx, dy] from the first
+`where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction` of the pile's particles in the
+zone). `upright: true` on a goal also requires its objects to stand upright (where the text says upright or stand).
+
+Every task draws from its own random stream, seeded by (task name, seed): the same episode seed gives unrelated
+layouts in different tasks. A layout that does not fit is redrawn from the same stream, so every seed is valid.
+Counts in a `variation` must agree with the text and goals (see `valid_counts`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -63,7 +69,9 @@ class GoalSpec:
     what: list[str]
     where: list[str] = field(default_factory=list)
     offset: list[list[float]] = field(default_factory=list)
-    fraction: float = 0.8
+    fraction: float = 0.98  # piles: GenSim/Ravens count a pile done at ~all particles (reward within 0.01 of max)
+    upright: bool = False  # the text says upright / stand: objects must stand on their base
+    each: bool = False  # in_zone/in_container: one `what` per `where` instance ("one ball into each zone")
 
 
 @dataclass
@@ -128,8 +136,11 @@ def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
     for n in what + where:
         if n not in names:
             raise SpecError(f"{w}: names object '{n}', not among {names}")
+    if g.get("each") and g["type"] not in ("in_zone", "in_container"):
+        raise SpecError(f"{w}: `each` applies to in_zone and in_container goals, not {g['type']}")
     return GoalSpec(g["type"], what, where, [list(map(float, o)) for o in g.get("offset", [])],
-                    float(g.get("fraction", 0.8)))
+                    float(g.get("fraction", GoalSpec.fraction)), bool(g.get("upright", False)),
+                    bool(g.get("each", False)))
 
 
 def parse_spec(data: dict, source: str = "") -> TaskSpec:
@@ -264,9 +275,51 @@ class Instance:
         return [o for o in self.objects if o.name == name]
 
 
+def task_seed(task: str, seed: int) -> np.random.SeedSequence:
+    """The random stream of one (task, episode seed): a stable hash of the name (not Python's salted hash()),
+    so two tasks with the same seed draw unrelated instances and every run draws the same ones."""
+    if int(seed) < 0:
+        raise SpecError(f"task {task}: seed must be >= 0, got {seed}")
+    name_key = int.from_bytes(hashlib.sha256(task.encode("utf-8")).digest()[:8], "little")
+    return np.random.SeedSequence([int(seed), name_key])
+
+
+def valid_counts(spec: TaskSpec, name: str) -> tuple[int, int | None]:
+    """The counts of object `name` that its description and goals allow, as (low, high or None = no bound).
+    Distractors (or objects neither goals nor text name) and objects whose spec gives a range ("the red
+    blocks") may take any count (at least the range's low); an object placed
+    at offsets needs one instance per offset; any other fixed count is what the text is written for ("two
+    blocks side by side", "both piles", "the block")."""
+    o = spec.object(name)
+    if "{" + name + ".count}" in spec.description:
+        return (0, None)
+    for g in spec.goals:
+        if g.type == "at_offset" and name in g.what and g.offset:
+            return (len(g.offset), len(g.offset))
+    in_goals = any(name in g.what + g.where for g in spec.goals)
+    if o.distractor or (not in_goals and "{" + name + "." not in spec.description):
+        return (0, None)
+    if o.count[0] == o.count[1]:
+        return o.count
+    return (o.count[0], None)
+
+
+def _check_count(spec: TaskSpec, name: str, lo: int, hi: int) -> None:
+    vlo, vhi = valid_counts(spec, name)
+    if lo < vlo or (vhi is not None and hi > vhi) or lo > hi:
+        valid = f"{vlo}" if vlo == vhi else f"{vlo} or more" if vhi is None else f"{vlo}..{vhi}"
+        asked = f"{lo}" if lo == hi else f"[{lo}, {hi}]"
+        raise SpecError(f"task {spec.name}: variation count {asked} for '{name}' does not match the task's text and "
+                        f"goals; valid counts for '{name}': {valid}")
+
+
+_LAYOUT_ATTEMPTS = 200  # whole-layout redraws before a spec is declared unplaceable
+_TRIES_PER_OBJECT = 100
+
+
 def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) -> Instance:
-    """Colours, counts and poses from the seed. `variation` may override per object: {name: {colors, count}}."""
-    rng = np.random.default_rng(seed)
+    """Colours, counts and poses from (task, seed). `variation` may override per object: {name: {colors, count}}."""
+    rng = np.random.default_rng(task_seed(spec.name, seed))
     variation = variation or {}
     unknown = set(variation) - {o.name for o in spec.objects}
     if unknown:
@@ -278,6 +331,8 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         v = variation.get(o.name, {})
         colors = list(v.get("colors", o.colors))
         lo, hi = v.get("count", o.count) if isinstance(v.get("count", o.count), (list, tuple)) else (v["count"],) * 2
+        if "count" in v:
+            _check_count(spec, o.name, int(lo), int(hi))
         n = int(rng.integers(lo, hi + 1))
         free = [c for c in colors if c not in used_colors] or colors  # distinct colours across names when possible
         if o.color_as:
@@ -289,25 +344,20 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
         used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
         objects += [SimObject(o.name, i, o.shape, chosen[i], o.size) for i in range(n)]
-    poses: dict[str, tuple[np.ndarray, float]] = {}
-    placed: list[tuple[np.ndarray, float]] = []
-    for obj in sorted(objects, key=lambda x: -x.footprint):  # big things first: they are hardest to fit
-        spec_o = spec.object(obj.name)
-        r = obj.footprint
-        if spec_o.region:  # an explicit region bounds the object's centre
-            (x0, x1), (y0, y1) = spec_o.region
-        else:  # the workspace bounds the whole footprint
-            (x0, x1), (y0, y1) = ((a + r, b - r) for a, b in WORKSPACE)
-        for _ in range(500):
-            xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
-            if all(np.linalg.norm(xy - p) > r + q + 0.025 for p, q in placed):
-                break
-        else:
-            raise SpecError(f"task {spec.name} seed {seed}: cannot place {obj.id} without overlap; enlarge the "
-                            "region or reduce counts/sizes")
-        placed.append((xy, r))
-        yaw = float(rng.uniform(*spec_o.yaw)) if obj.shape not in ("sphere", "pile", "bowl") else 0.0
-        poses[obj.id] = (xy, yaw)
+    for g in spec.goals:
+        if g.each:
+            n_what = sum(o.name in g.what for o in objects)
+            n_where = sum(o.name in g.where for o in objects)
+            if n_what != n_where:
+                raise SpecError(f"task {spec.name}: goal '{g.type}' asks for one {'/'.join(g.what)} per "
+                                f"{'/'.join(g.where)}, but the counts are {n_what} and {n_where}; give them equal counts")
+    for _ in range(_LAYOUT_ATTEMPTS):  # a layout that does not fit is redrawn from the same stream
+        poses = _layout(spec, objects, rng)
+        if poses is not None:
+            break
+    else:
+        raise SpecError(f"task {spec.name} seed {seed}: cannot place its {len(objects)} objects without overlap in "
+                        f"{_LAYOUT_ATTEMPTS} layouts; enlarge the regions or reduce counts/sizes")
     objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
     fields = {}
     for o in spec.objects:
@@ -318,3 +368,26 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
     except (KeyError, AttributeError) as e:
         raise SpecError(f"task {spec.name}: description field {e} is not <object>.color or <object>.count") from e
     return Instance(spec, seed, objects, poses, description)
+
+
+def _layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator):
+    """Poses with no two footprints closer than 2.5 cm, or None when one object found no room."""
+    poses: dict[str, tuple[np.ndarray, float]] = {}
+    placed: list[tuple[np.ndarray, float]] = []
+    for obj in sorted(objects, key=lambda x: -x.footprint):  # big things first: they are hardest to fit
+        spec_o = spec.object(obj.name)
+        r = obj.footprint
+        if spec_o.region:  # an explicit region bounds the object's centre
+            (x0, x1), (y0, y1) = spec_o.region
+        else:  # the workspace bounds the whole footprint
+            (x0, x1), (y0, y1) = ((a + r, b - r) for a, b in WORKSPACE)
+        for _ in range(_TRIES_PER_OBJECT):
+            xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
+            if all(np.linalg.norm(xy - p) > r + q + 0.025 for p, q in placed):
+                break
+        else:
+            return None
+        placed.append((xy, r))
+        yaw = float(rng.uniform(*spec_o.yaw)) if obj.shape not in ("sphere", "pile", "bowl") else 0.0
+        poses[obj.id] = (xy, yaw)
+    return poses
