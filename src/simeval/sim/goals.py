@@ -1,5 +1,10 @@
 """Goal checks on the live simulation: each goal gives a progress in [0, 1] (the share of its units done);
-the task's partial reward is the mean over goals and success is every goal done."""
+the task's partial reward is the mean over goals and success is every goal done.
+
+A unit counts as done only as strictly as the task's text reads: an object still on the suction cup, touched by
+the spatula or the arm, or still moving is never placed; "each" goals need a one-to-one assignment; `upright`
+goals need the object standing on its base; stacks need the object resting on (in contact with) the one below;
+a bowl's inside is measured from its real wall."""
 
 from __future__ import annotations
 
@@ -7,11 +12,17 @@ import math
 
 import numpy as np
 
-from simeval.sim.objects import SimObject
+from simeval.sim.objects import BOWL_WALL, SimObject
 from simeval.sim.spec import GoalSpec, Instance
 from simeval.sim.world import TABLE_Z, World, yaw_of
 
 XY_TOL = 0.02  # an object counts at a target when its centre is within this of it (or inside a zone)
+# at rest: no point of the object faster than this (|v| + r |w|, r its half-diagonal). A bounce after a release
+# reaches 0.04 m/s between impacts; the solver's jitter of an object resting in a bowl stays under 0.02 m/s.
+REST_SPEED = 0.025
+CONTACT = 0.002  # m: closer than this two bodies touch (PyBullet's closest-point distance)
+STACK_Z_TOL = 0.006  # m: an object on another sits within this of the height it has when resting on it
+UPRIGHT_COS = math.cos(math.radians(12))  # upright: the object's own z axis within 12 degrees of vertical
 
 
 def pose(world: World, obj: SimObject, k: int = 0) -> tuple[np.ndarray, float]:
@@ -23,11 +34,64 @@ def height(obj: SimObject) -> float:
     return obj.size[0] if obj.shape == "sphere" else obj.size[2]
 
 
+def still(world: World, body: int, radius: float = 0.03) -> bool:
+    lin, ang = world.c.getBaseVelocity(body)
+    return bool(np.linalg.norm(lin) + radius * np.linalg.norm(ang) < REST_SPEED)
+
+
+def _radius(obj: SimObject) -> float:
+    return 0.5 * float(np.linalg.norm(obj.size)) if obj.shape != "pile" else 0.009
+
+
 def resting(world: World, obj: SimObject, floor: float = TABLE_Z, tol: float = 0.015) -> bool:
     """Near the surface below it (not held in the air) and almost still."""
     p, _ = pose(world, obj)
-    v = np.linalg.norm(world.c.getBaseVelocity(obj.body_ids[0])[0])
-    return p[2] - height(obj) / 2 < floor + tol and v < 0.05
+    return p[2] - height(obj) / 2 < floor + tol and still(world, obj.body_ids[0], _radius(obj))
+
+
+def upright(world: World, obj: SimObject) -> bool:
+    """Standing on its base (either end for symmetric shapes): its own z axis near vertical. Spheres always."""
+    if obj.shape == "sphere":
+        return True
+    _, q = world.c.getBasePositionAndOrientation(obj.body_ids[0])
+    z_axis = np.asarray(world.c.getMatrixFromQuaternion(q)).reshape(3, 3)[:, 2]
+    return bool(abs(z_axis[2]) >= UPRIGHT_COS)
+
+
+def held_bodies(world: World, inst: Instance) -> set[int]:
+    """Bodies of the instance attached to or touched by the robot (suction constraint, spatula, arm links):
+    whatever the robot holds or pushes is not placed yet. The robot is every body that is neither the table
+    nor one of the instance's objects, so this needs no handle on the arm."""
+    c = world.c
+    objs = {b for o in inst.objects for b in o.body_ids}
+    robot = {c.getBodyUniqueId(i) for i in range(c.getNumBodies())} - objs - {world.plane}
+    out: set[int] = set()
+    for i in range(c.getNumConstraints()):
+        info = c.getConstraintInfo(c.getConstraintUniqueId(i))
+        parent, child = info[0], info[2]
+        if parent in robot and child in objs:
+            out.add(child)
+        if child in robot and parent in objs:
+            out.add(parent)
+    for r in robot:
+        out.update(cp[2] for cp in c.getContactPoints(bodyA=r) if cp[2] in objs)
+    return out
+
+
+def supported(world: World, body: int) -> bool:
+    """In contact with something (the table, a container, another object): an object let go of is still
+    for an instant before it falls, and must not count in that instant."""
+    return bool(world.c.getContactPoints(bodyA=body))
+
+
+def placed(world: World, obj: SimObject, held: set[int]) -> bool:
+    """Let go of, supported and at rest: the condition for any placement to count."""
+    b = obj.body_ids[0]
+    return b not in held and still(world, b, _radius(obj)) and supported(world, b)
+
+
+def touching(world: World, a: SimObject, b: SimObject) -> bool:
+    return bool(world.c.getClosestPoints(a.body_ids[0], b.body_ids[0], CONTACT))
 
 
 def in_zone(world: World, xy: np.ndarray, zone: SimObject, margin: float = 0.0) -> bool:
@@ -37,32 +101,79 @@ def in_zone(world: World, xy: np.ndarray, zone: SimObject, margin: float = 0.0) 
     return bool(np.all(np.abs(local) <= np.array(zone.size[:2]) / 2 - margin))
 
 
+def in_bowl(world: World, obj: SimObject, bowl: SimObject, tol: float = 0.003) -> bool:
+    """Inside the wall (its centre no farther from the bowl's axis than the inner radius less its own
+    half-width, so an object touching the wall counts) and below the rim's mid-height (not perched on it)."""
+    p, _ = pose(world, obj)
+    bp, _ = pose(world, bowl)
+    inner = bowl.size[0] / 2 - BOWL_WALL
+    half_width = obj.size[0] / 2 if obj.shape in ("sphere", "cylinder") else min(obj.size[:2]) / 2
+    bottom = p[2] - height(obj) / 2
+    return bool(np.linalg.norm(p[:2] - bp[:2]) <= inner - half_width + tol and bottom < bp[2] + bowl.size[2] / 2)
+
+
+def _matching(ok: list[list[bool]]) -> list[int | None]:
+    """Maximum one-to-one assignment of rows (objects) to columns (targets) where ok[i][j]; row -> column."""
+    match_col: dict[int, int] = {}
+
+    def augment(i: int, seen: set[int]) -> bool:
+        for j, good in enumerate(ok[i]):
+            if good and j not in seen:
+                seen.add(j)
+                if j not in match_col or augment(match_col[j], seen):
+                    match_col[j] = i
+                    return True
+        return False
+
+    for i in range(len(ok)):
+        augment(i, set())
+    row = [None] * len(ok)
+    for j, i in match_col.items():
+        row[i] = j
+    return row
+
+
 def stack_chain(inst: Instance, goal: GoalSpec) -> list[SimObject]:
     return [o for name in goal.what for o in inst.by_name(name)]
 
 
+def container_assignment(world: World, inst: Instance, goal: GoalSpec, held: set[int] | None = None):
+    """For in_zone / in_container goals: the movers, the targets, and per mover the target it counts for
+    (None if it counts for none). Without `each` any target will do; with `each` it is a maximum one-to-one
+    assignment, so two balls in one zone fill one zone, not two."""
+    held = held_bodies(world, inst) if held is None else held
+    targets = [o for n in goal.where for o in inst.by_name(n)]
+    movers = [o for n in goal.what for o in inst.by_name(n)]
+    ok = []
+    for obj in movers:
+        good = placed(world, obj, held) and (not goal.upright or upright(world, obj))
+        if goal.type == "in_zone":
+            p, _ = pose(world, obj)
+            good = good and p[2] - height(obj) / 2 < TABLE_Z + 0.015
+            ok.append([good and in_zone(world, p, t) for t in targets])
+        else:
+            ok.append([good and in_bowl(world, obj, t) for t in targets])
+    if goal.each:
+        return movers, targets, _matching(ok)
+    return movers, targets, [next((j for j, g in enumerate(row) if g), None) for row in ok]
+
+
 def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
     """Per unit of the goal: done or not."""
+    held = held_bodies(world, inst)
     if goal.type in ("in_zone", "in_container"):
-        targets = [o for n in goal.where for o in inst.by_name(n)]
-        out = []
-        for obj in (o for n in goal.what for o in inst.by_name(n)):
-            p, _ = pose(world, obj)
-            if goal.type == "in_zone":
-                ok = any(in_zone(world, p, z) for z in targets) and resting(world, obj)
-            else:
-                ok = any(np.linalg.norm(p[:2] - pose(world, t)[0][:2]) < 0.8 * t.size[0] / 2 - 0.01
-                         and p[2] < TABLE_Z + t.size[2] + height(obj) for t in targets)
-            out.append(bool(ok))
-        return out
+        _, _, assigned = container_assignment(world, inst, goal, held)
+        return [a is not None for a in assigned]
     if goal.type == "stack":
         chain = stack_chain(inst, goal)
         out = []
         for below, above in zip(chain, chain[1:]):
             pb, _ = pose(world, below)
             pa, _ = pose(world, above)
-            z_ok = abs(pa[2] - (pb[2] + (height(below) + height(above)) / 2)) < 0.015
-            out.append(bool(np.linalg.norm(pa[:2] - pb[:2]) < min(below.size[:2]) / 2 and z_ok))
+            z_ok = abs(pa[2] - (pb[2] + (height(below) + height(above)) / 2)) < STACK_Z_TOL
+            xy_ok = np.linalg.norm(pa[:2] - pb[:2]) < min(below.size[:2]) / 2
+            ok = z_ok and xy_ok and placed(world, above, held) and touching(world, above, below)
+            out.append(bool(ok and (not goal.upright or upright(world, above))))
         return out
     if goal.type == "on_objects":
         supports = [o for n in goal.where for o in inst.by_name(n)]
@@ -72,7 +183,8 @@ def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
             sp = [pose(world, s)[0] for s in supports]
             top = max(p[2] + height(s) / 2 for p, s in zip(sp, supports))
             centre = np.mean([p[:2] for p in sp], axis=0)
-            on = abs(pd[2] - height(deck) / 2 - top) < 0.015 and np.linalg.norm(pd[:2] - centre) < 0.03
+            on = abs(pd[2] - height(deck) / 2 - top) < STACK_Z_TOL and np.linalg.norm(pd[:2] - centre) < 0.03
+            on = on and placed(world, deck, held) and all(touching(world, deck, s) for s in supports)
             out.append(bool(on))
         return out
     if goal.type == "at_offset":
@@ -82,16 +194,29 @@ def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
         for i, obj in enumerate(o for n in goal.what for o in inst.by_name(n)):
             target = offset_target(ap, ayaw, goal.offset[i % len(goal.offset)])
             p, _ = pose(world, obj)
-            out.append(bool(np.linalg.norm(p[:2] - target) < XY_TOL and resting(world, obj)))
+            ok = np.linalg.norm(p[:2] - target) < XY_TOL and resting(world, obj) and placed(world, obj, held)
+            out.append(bool(ok and (not goal.upright or upright(world, obj))))
         return out
     if goal.type == "pile_in_zone":
-        zones = [o for n in goal.where for o in inst.by_name(n)]
-        out = []
-        for pile in (o for n in goal.what for o in inst.by_name(n)):
-            inside = sum(any(in_zone(world, pose(world, pile, k)[0], z) for z in zones) for k in range(len(pile.body_ids)))
-            out.append(inside / len(pile.body_ids) >= goal.fraction)
-        return out
+        return [f >= goal.fraction - 1e-9 for f in pile_fractions(world, inst, goal, held)]
     raise ValueError(f"unknown goal type {goal.type}")
+
+
+def particle_placed(world: World, pile: SimObject, zones: list[SimObject], held: set[int]) -> list[bool]:
+    """Per particle: inside a zone, not touched by the spatula and at rest."""
+    out = []
+    for k, b in enumerate(pile.body_ids):
+        p, _ = pose(world, pile, k)
+        out.append(b not in held and any(in_zone(world, p, z) for z in zones) and still(world, b, _radius(pile))
+                   and supported(world, b))
+    return out
+
+
+def pile_fractions(world: World, inst: Instance, goal: GoalSpec, held: set[int] | None = None) -> list[float]:
+    held = held_bodies(world, inst) if held is None else held
+    zones = [o for n in goal.where for o in inst.by_name(n)]
+    return [float(np.mean(particle_placed(world, pile, zones, held)))
+            for pile in (o for n in goal.what for o in inst.by_name(n))]
 
 
 def offset_target(anchor_pos: np.ndarray, anchor_yaw: float, offset: list[float]) -> np.ndarray:
@@ -102,11 +227,7 @@ def offset_target(anchor_pos: np.ndarray, anchor_yaw: float, offset: list[float]
 
 def goal_progress(world: World, inst: Instance, goal: GoalSpec) -> float:
     if goal.type == "pile_in_zone":  # partial credit per particle, as GenSim's pile rewards
-        zones = [o for n in goal.where for o in inst.by_name(n)]
-        fracs = []
-        for pile in (o for n in goal.what for o in inst.by_name(n)):
-            inside = sum(any(in_zone(world, pose(world, pile, k)[0], z) for z in zones) for k in range(len(pile.body_ids)))
-            fracs.append(min(1.0, inside / len(pile.body_ids) / goal.fraction))
+        fracs = [min(1.0, f / goal.fraction) for f in pile_fractions(world, inst, goal)]
         return float(np.mean(fracs)) if fracs else 1.0
     units = unit_status(world, inst, goal)
     return float(np.mean(units)) if units else 1.0

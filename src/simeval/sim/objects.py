@@ -21,6 +21,8 @@ COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
 FLAT = ("zone", "line")  # drawn on the table, no collision
+BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
+PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
 
 
 @dataclass
@@ -82,13 +84,13 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
         r = sx / 2
-        col = c.createCollisionShape(c.GEOM_BOX, halfExtents=[0.006] * 3)
-        vis = c.createVisualShape(c.GEOM_BOX, halfExtents=[0.006] * 3, rgbaColor=rgba)
+        col = c.createCollisionShape(c.GEOM_BOX, halfExtents=[PARTICLE / 2] * 3)
+        vis = c.createVisualShape(c.GEOM_BOX, halfExtents=[PARTICLE / 2] * 3, rgbaColor=rgba)
         ids = []
         for _ in range(n):  # spread as Ravens' sweeping piles: uniform over a square, each particle at a random yaw
             dx, dy = rng.uniform(-sx / 2, sx / 2), rng.uniform(-sy / 2, sy / 2)
             q = c.getQuaternionFromEuler([0, 0, rng.uniform(0, 2 * np.pi)])
-            ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + 0.007], q))
+            ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + PARTICLE / 2 + 1e-3], q))
         obj.body_ids = ids
     else:
         raise ValueError(f"unknown shape '{obj.shape}'; known: {', '.join(SHAPES)}")
@@ -101,7 +103,7 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
 def _bowl(c, obj: SimObject, x: float, y: float, table_z: float, rgba) -> int:
     """A container: a thin base disc and a ring of wall segments, as one static-looking but movable body."""
     outer, height = obj.size[0] / 2, obj.size[2]
-    wall, n = 0.006, 12
+    wall, n = BOWL_WALL, 12
     shapes_col, shapes_vis, pos, orns = [], [], [], []
     base_col = c.createCollisionShape(c.GEOM_CYLINDER, radius=outer, height=0.004)
     base_vis = c.createVisualShape(c.GEOM_CYLINDER, radius=outer, length=0.004, rgbaColor=rgba)

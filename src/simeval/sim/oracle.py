@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.sim.goals import height, in_zone, offset_target, pose, stack_chain, unit_status
-from simeval.sim.objects import SimObject
+from simeval.sim.goals import (container_assignment, height, in_bowl, in_zone, offset_target, pose,
+                               stack_chain, still, unit_status)
+from simeval.sim.objects import BOWL_WALL, SimObject
 from simeval.sim.robot import Arm
 from simeval.sim.spec import Instance
 from simeval.sim.world import TABLE_Z, World
@@ -33,6 +34,7 @@ class PickPlace:
     place_xy: np.ndarray
     place_bottom_z: float  # where the object's bottom should end up
     target_yaw: float
+    settle_bodies: tuple[int, ...] = ()  # waited for after the place (default: the object itself)
 
     def pose14(self, world: World) -> np.ndarray:
         p, yaw = pose(world, self.obj)
@@ -61,13 +63,24 @@ class PickPlace:
         arm.suction_off()
         arm.hold(6)
         arm.move(np.r_[self.place_xy, SAFE_Z], place_yaw, speed=0.3)
+        wait_still(arm, world, self.settle_bodies or self.obj.body_ids, max_steps=60)
         return True
+
+
+def wait_still(arm: Arm, world: World, bodies: list[int], max_steps: int = 30) -> None:
+    """Hold until the moved bodies are at rest, so the next plan sees settled objects (a goal counts only
+    objects at rest, and a rolling ball is not to be picked again)."""
+    for _ in range(max_steps):
+        if all(still(world, b) for b in bodies):
+            return
+        arm.hold(1)
 
 
 @dataclass
 class Push:
     start: np.ndarray  # xy
     end: np.ndarray
+    bodies: tuple[int, ...] = ()  # the particles it moves (waited for after the push)
 
     def pose14(self, world: World) -> np.ndarray:
         yaw = self.yaw
@@ -85,6 +98,7 @@ class Push:
         arm.move(np.r_[self.start, z], self.yaw, speed=0.3)
         arm.move(np.r_[self.end, z], self.yaw, speed=0.15)
         arm.move(np.r_[self.end, SAFE_Z], self.yaw, speed=0.4)
+        wait_still(arm, world, self.bodies, max_steps=20)
         return True
 
 
@@ -100,6 +114,36 @@ def _slot(zone_xy: np.ndarray, zone_yaw: float, k: int, obj: SimObject, zone: Si
     return offset_target(np.r_[zone_xy, 0.0], zone_yaw, [dx, dy])
 
 
+def plan_push(zone_xy: np.ndarray, outside: np.ndarray, bodies: tuple[int, ...]) -> Push:
+    """Sweep the lane of particles behind the one farthest from the zone: start just behind it and push
+    through to the zone's centre (the blade is 10 cm wide)."""
+    far = outside[np.argmax(np.linalg.norm(outside - zone_xy, axis=1))]
+    d = zone_xy - far
+    d /= max(np.linalg.norm(d), 1e-6)
+    return Push(far - 0.03 * d, zone_xy - 0.01 * d, bodies)
+
+
+def bowl_spot(world: World, inst: Instance, bowl: SimObject, obj: SimObject) -> np.ndarray:
+    """Where to drop `obj` in the bowl: of 12 spots on a ring inside the wall, the one farthest from what is
+    already in the bowl, so a second object does not land on the first and knock it over."""
+    bp, _ = pose(world, bowl)
+    inner = bowl.size[0] / 2 - BOWL_WALL
+    ring = inner - obj.footprint - 0.004
+    if ring <= 0.005:
+        return bp[:2]
+    spots = [bp[:2] + ring * np.array([math.cos(a), math.sin(a)]) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
+    there = [pose(world, o)[0][:2] for o in inst.objects if o is not obj and o.shape not in ("pile", "bowl", "zone", "line")
+             and np.linalg.norm(pose(world, o)[0][:2] - bp[:2]) < inner]
+    if not there:
+        return spots[0]
+    return max(spots, key=lambda xy: min(np.linalg.norm(xy - t) for t in there))
+
+
+def _inside_any(world: World, obj: SimObject, targets: list[SimObject], kind: str) -> bool:
+    p, _ = pose(world, obj)
+    return any(in_zone(world, p, t) if kind == "in_zone" else in_bowl(world, obj, t) for t in targets)
+
+
 def next_primitive(world: World, inst: Instance, held_out: set | None = None):
     """The first undone unit of the first unfinished goal, as a primitive; None when every goal is done."""
     for goal in inst.spec.goals:
@@ -107,20 +151,18 @@ def next_primitive(world: World, inst: Instance, held_out: set | None = None):
         if all(status):
             continue
         if goal.type in ("in_zone", "in_container"):
-            targets = [o for n in goal.where for o in inst.by_name(n)]
-            movers = [o for n in goal.what for o in inst.by_name(n)]
-            done = [o for o, ok in zip(movers, status) if ok]
-            obj = next(o for o, ok in zip(movers, status) if not ok)
-            load = {t.id: sum(in_zone(world, pose(world, d)[0], t) if goal.type == "in_zone" else
-                              np.linalg.norm(pose(world, d)[0][:2] - pose(world, t)[0][:2]) < t.size[0] / 2
-                              for d in done) for t in targets}
-            target = min(targets, key=lambda t: load[t.id])
+            movers, targets, assigned = container_assignment(world, inst, goal)
+            # an undone object already inside a target (e.g. one of two balls in one zone) moves last
+            undone = [o for o, a in zip(movers, assigned) if a is None]
+            obj = min(undone, key=lambda o: _inside_any(world, o, targets, goal.type))
+            others = tuple(b for o in inst.objects if o.shape != "pile" for b in o.body_ids)
+            load = {t.id: sum(a == j for a in assigned) for j, t in enumerate(targets)}
+            target = min(targets, key=lambda t: load[t.id])  # with `each`: a target nothing counts for yet
             tp, tyaw = pose(world, target)
             if goal.type == "in_zone":
                 xy = _slot(tp[:2], tyaw, load[target.id], obj, target)
                 return PickPlace(obj, xy, TABLE_Z, tyaw)
-            jitter = 0.02 * load[target.id] * np.array([math.cos(2.1 * load[target.id]), math.sin(2.1 * load[target.id])])
-            return PickPlace(obj, tp[:2] + jitter, TABLE_Z + 0.02, 0.0)
+            return PickPlace(obj, bowl_spot(world, inst, target, obj), TABLE_Z + 0.008, 0.0, others)
         if goal.type == "stack":
             chain = stack_chain(inst, goal)
             k = status.index(False)
@@ -150,9 +192,5 @@ def next_primitive(world: World, inst: Instance, held_out: set | None = None):
                                 if not in_zone(world, pose(world, pile, k)[0], zone, margin=0.01)])
             if len(outside) == 0:
                 continue
-            far = outside[np.argmax(np.linalg.norm(outside - zp[:2], axis=1))]
-            cluster = outside[np.linalg.norm(outside - far, axis=1) < 0.07].mean(axis=0)
-            d = zp[:2] - cluster
-            d /= max(np.linalg.norm(d), 1e-6)
-            return Push(cluster - 0.05 * d, zp[:2] - 0.01 * d)
+            return plan_push(zp[:2], outside, tuple(pile.body_ids))
     return None

@@ -69,7 +69,7 @@ class GoalSpec:
     what: list[str]
     where: list[str] = field(default_factory=list)
     offset: list[list[float]] = field(default_factory=list)
-    fraction: float = 0.98  # piles: GenSim/Ravens count a pile done at ~all particles (reward within 0.01 of max)
+    fraction: float = 0.95  # piles: GenSim/Ravens count a pile done at about all particles (reward within 0.01 of max)
     upright: bool = False  # the text says upright / stand: objects must stand on their base
     each: bool = False  # in_zone/in_container: one `what` per `where` instance ("one ball into each zone")
 
