@@ -54,8 +54,8 @@ figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tab
 contact-sheet: setup ## one image per suite task (initial scene + final state): outputs/figures/contact_sheet_gensim.png
 	$(PY) experiments/contact_sheet.py --suite gensim
 
-oracle-table: setup ## oracle success of every suite task over 20 seeds: outputs/tables/oracle_success_gensim.md
-	$(PY) experiments/oracle_success.py --suite gensim --seeds 20
+oracle-table: setup ## oracle success of every suite task over 100 seeds: outputs/tables/oracle_success_gensim.md (resumable)
+	$(PY) experiments/oracle_success.py --suite gensim --seeds 100
 
 collect: setup ## collect 40 oracle episodes per GenSim-style task into outputs/episodes (resumable)
 	$(PY) src/collect.py pipeline=gensim episodes=40
