@@ -6,7 +6,7 @@ Every finished episode is appended to outputs/tables/oracle_success_<suite>_epis
 different --tasks add up. Delete the file (or pass --fresh) after changing the suite, goals or oracle.
 
     python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b]
-                                         [--budget-s SECONDS] [--fresh]
+                                         [--budget-s SECONDS] [--fresh] [--table-only]
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ def main() -> None:
     ap.add_argument("--tasks", default="")
     ap.add_argument("--budget-s", type=float, default=0.0, help="stop starting episodes after this many seconds")
     ap.add_argument("--fresh", action="store_true", help="forget the episodes of earlier runs")
+    ap.add_argument("--table-only", action="store_true", help="rebuild the table from the episodes file, run nothing")
     args = ap.parse_args()
     paths = sorted((SUITES_DIR / args.suite).glob("*.yaml"))
     if args.tasks:
@@ -82,7 +83,7 @@ def main() -> None:
         ep_path.unlink()
     done = read_episodes(ep_path)
     # seed-major order: a run cut short by --budget-s covers every task about equally
-    jobs = [(str(p), s) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
+    jobs = [] if args.table_only else [(str(p), s) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
     t0 = time.monotonic()
     new = ep_path.exists()
     with ep_path.open("a", newline="", encoding="utf-8") as f, ProcessPoolExecutor(args.workers) as pool:

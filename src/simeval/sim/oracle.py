@@ -13,7 +13,7 @@ from simeval.sim.goals import (container_assignment, height, in_bowl, in_zone, o
 from simeval.sim.objects import BOWL_WALL, SimObject
 from simeval.sim.robot import Arm
 from simeval.sim.spec import Instance
-from simeval.sim.world import TABLE_Z, World
+from simeval.sim.world import TABLE_Z, WORKSPACE, World
 
 SAFE_Z = 0.16
 
@@ -115,33 +115,19 @@ def _slot(zone_xy: np.ndarray, zone_yaw: float, k: int, obj: SimObject, zone: Si
 
 
 def plan_push(zone_xy: np.ndarray, outside: np.ndarray, bodies: tuple[int, ...]) -> Push:
-    """Sweep the lane of particles behind the one farthest from the zone: start just behind it and push
-    through to the zone's centre (the blade is 10 cm wide)."""
+    """Sweep the lane of particles behind the one farthest from the zone: start just behind it (pulled into
+    the reachable workspace, where the blade still reaches the table) and stop 2.5 cm short of the zone's
+    centre, so the particles the 10 cm blade drives ahead of it end inside the zone, not past it."""
     far = outside[np.argmax(np.linalg.norm(outside - zone_xy, axis=1))]
     d = zone_xy - far
     d /= max(np.linalg.norm(d), 1e-6)
-    return Push(far - 0.03 * d, zone_xy - 0.01 * d, bodies)
-
-
-def bowl_spot(world: World, inst: Instance, bowl: SimObject, obj: SimObject) -> np.ndarray:
-    """Where to drop `obj` in the bowl: of 12 spots on a ring inside the wall, the one farthest from what is
-    already in the bowl, so a second object does not land on the first and knock it over."""
-    bp, _ = pose(world, bowl)
-    inner = bowl.size[0] / 2 - BOWL_WALL
-    ring = inner - obj.footprint - 0.004
-    if ring <= 0.005:
-        return bp[:2]
-    spots = [bp[:2] + ring * np.array([math.cos(a), math.sin(a)]) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
-    there = [pose(world, o)[0][:2] for o in inst.objects if o is not obj and o.shape not in ("pile", "bowl", "zone", "line")
-             and np.linalg.norm(pose(world, o)[0][:2] - bp[:2]) < inner]
-    if not there:
-        return spots[0]
-    return max(spots, key=lambda xy: min(np.linalg.norm(xy - t) for t in there))
-
-
-def _inside_any(world: World, obj: SimObject, targets: list[SimObject], kind: str) -> bool:
-    p, _ = pose(world, obj)
-    return any(in_zone(world, p, t) if kind == "in_zone" else in_bowl(world, obj, t) for t in targets)
+    start = far - 0.025 * d
+    (x0, x1), (y0, y1) = WORKSPACE
+    for _ in range(20):  # step along the push until the start is reachable
+        if x0 - 0.01 <= start[0] <= x1 + 0.01 and y0 - 0.01 <= start[1] <= y1 + 0.01:
+            break
+        start = start + 0.01 * d
+    return Push(start, zone_xy - 0.025 * d, bodies)
 
 
 def next_primitive(world: World, inst: Instance, held_out: set | None = None):
@@ -186,11 +172,11 @@ def next_primitive(world: World, inst: Instance, held_out: set | None = None):
         if goal.type == "pile_in_zone":
             zone = inst.by_name(goal.where[0])[0]
             zp, _ = pose(world, zone)
-            piles = [o for n in goal.what for o in inst.by_name(n)]
-            pile = piles[status.index(False)]
-            outside = np.array([pose(world, pile, k)[0][:2] for k in range(len(pile.body_ids))
+            piles = [o for o, ok in zip((o for n in goal.what for o in inst.by_name(n)), status) if not ok]
+            # the farthest stray particle of any unfinished pile: one stuck pile does not hold up the others
+            outside = np.array([pose(world, pile, k)[0][:2] for pile in piles for k in range(len(pile.body_ids))
                                 if not in_zone(world, pose(world, pile, k)[0], zone, margin=0.01)])
             if len(outside) == 0:
                 continue
-            return plan_push(zp[:2], outside, tuple(pile.body_ids))
+            return plan_push(zp[:2], outside, tuple(b for pile in piles for b in pile.body_ids))
     return None
