@@ -184,7 +184,7 @@ def test_upright_cylinders_touching_the_bowl_wall_are_in_the_bowl(scene):
     for k, o in enumerate(cyl):  # touching the wall: centre at inner - r = 0.0515 m from the axis
         a = math.pi * k
         s.put(o.id, [bp[0] + (inner - r) * math.cos(a), bp[1] + (inner - r) * math.sin(a), 0.005 + 0.025 + 0.001])
-    assert s.verdict() == (1.0, True)  # was 0.5: the test used 0.050 m from the centre
+    assert s.verdict() == (1.0, True)  # was 0 (0.5 with one nearer the axis): the test used 0.050 m from the centre
 
 
 def test_nothing_counts_while_on_the_suction_cup_and_no_flicker_across_release(scene):
