@@ -130,6 +130,27 @@ def plan_push(zone_xy: np.ndarray, outside: np.ndarray, bodies: tuple[int, ...])
     return Push(start, zone_xy - 0.025 * d, bodies)
 
 
+def bowl_spot(world: World, inst: Instance, bowl: SimObject, obj: SimObject) -> np.ndarray:
+    """Where to drop `obj` in the bowl: of 12 spots on a ring inside the wall, the one farthest from what is
+    already in the bowl, so a second object does not land on the first and knock it over."""
+    bp, _ = pose(world, bowl)
+    inner = bowl.size[0] / 2 - BOWL_WALL
+    ring = inner - obj.footprint - 0.004
+    if ring <= 0.005:
+        return bp[:2]
+    spots = [bp[:2] + ring * np.array([math.cos(a), math.sin(a)]) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
+    there = [pose(world, o)[0][:2] for o in inst.objects if o is not obj and o.shape not in ("pile", "bowl", "zone", "line")
+             and np.linalg.norm(pose(world, o)[0][:2] - bp[:2]) < inner]
+    if not there:
+        return spots[0]
+    return max(spots, key=lambda xy: min(np.linalg.norm(xy - t) for t in there))
+
+
+def _inside_any(world: World, obj: SimObject, targets: list[SimObject], kind: str) -> bool:
+    p, _ = pose(world, obj)
+    return any(in_zone(world, p, t) if kind == "in_zone" else in_bowl(world, obj, t) for t in targets)
+
+
 def next_primitive(world: World, inst: Instance, held_out: set | None = None):
     """The first undone unit of the first unfinished goal, as a primitive; None when every goal is done."""
     for goal in inst.spec.goals:
