@@ -108,8 +108,11 @@ def main() -> None:
     counts = sorted({int(r[2].split("/")[1]) for r in rows})
     over = f"{counts[0]} seeds" if len(counts) == 1 else f"seeds 0..n-1 (n per task in the Success column)"
     header = ["Group", "Task", "Success", "Rate", "Mean progress", "Mean steps", "s/episode", "Failed seeds"]
-    write_table(out / f"oracle_success_{args.suite}", header, rows,
-                caption=f"Oracle success over {over} per task ({args.suite} suite).")
+    notes = [f"Oracle success over {over} per task ({args.suite} suite); per-episode results in {ep_path.name}."]
+    if len(counts) > 1 or (counts and counts[0] < args.seeds):
+        notes.append(f"Fewer than {args.seeds} seeds for some tasks: the run was cut by its time budget; run the "
+                     "same command again to resume.")
+    write_table(out / f"oracle_success_{args.suite}", header, rows, caption=notes[0], notes=notes)
     print(f"| {' | '.join(header)} |")
     for r in rows:
         print(f"| {' | '.join(r)} |")
