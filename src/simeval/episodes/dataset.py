@@ -246,7 +246,7 @@ def store_paths_for(store_root: str | os.PathLike, pipeline: str, group: str, va
     metas = [m for m in store.index(pipeline, group) if m.get("variation_id", "") == variation_id]
     if not metas:
         groups = sorted({m["group"] for m in store.index(pipeline)}) if store.root.is_dir() else []
-        hint = f"groups there: {groups}" if groups else f"collect them: src/collect.py pipeline={pipeline}"
+        hint = f"its groups there: {groups}" if groups else "none of this pipeline there"
         raise UserError(f"no episodes of pipeline '{pipeline}' group '{group}' in store {store.root} ({hint})")
     return [Path(m["path"]) for m in metas]
 

@@ -35,10 +35,12 @@ def data_fingerprint(infos) -> str:
 def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
                      window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
                      heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
-                     eval_context: int | None = None, eval_batch_size: int = 16, checkpoint: str | Path | None = None,
+                     eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
-    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model}."""
+    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model}. With `checkpoint_dir`,
+    the model is checkpointed there under a name keyed by its config and training data, so the same command run
+    again resumes a killed run (or, when it finished, only evaluates)."""
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
     ranks = episode_ranks(tasks, seeds)
@@ -58,6 +60,10 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
             "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
             "action_space": train_ds.action_space}
+    checkpoint = None
+    if checkpoint_dir is not None:
+        key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+        checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
     summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
                     progress=progress)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
@@ -84,7 +90,22 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
                        "action_space": train_ds.action_space.get("kind")}
     values["tasks"] = sorted(counts)
+    values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
     return values
+
+
+def store_source(store: str | Path, pipeline: str, group: str, camera: str, has_suite: bool):
+    """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it."""
+    from simeval.episodes.dataset import StoreSource, store_paths_for
+
+    try:
+        paths = store_paths_for(store, pipeline, group)
+    except UserError as e:
+        how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40"
+               if has_suite else f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its "
+                                 f"episodes into the store with src/import_data.py")
+        raise UserError(f"{e}; {how}") from None
+    return StoreSource(paths, camera)
 
 
 def load_model(checkpoint: str | Path) -> tuple[WorldModel, dict]:

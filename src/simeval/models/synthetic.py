@@ -64,7 +64,7 @@ def _step(dyn: str, s: np.ndarray, a: np.ndarray) -> np.ndarray:
         x, y = x - 0.12 * a[0], y + 0.12 * a[1] + 0.02
     else:
         raise ValueError(f"unknown dynamics {dyn!r}; known: {DYNAMICS}")
-    return np.array([np.clip(x, 0.1, 0.9), np.clip(y, 0.1, 0.9), np.clip(side, 0.12, 0.6), np.clip(bright, 0.3, 1.4)],
+    return np.array([np.clip(x, 0.15, 0.85), np.clip(y, 0.15, 0.85), np.clip(side, 0.25, 0.7), np.clip(bright, 0.3, 1.4)],
                     np.float32)
 
 
@@ -72,7 +72,7 @@ def episode(dyn: str, color: np.ndarray, seed: int, n_actions: int, size: int) -
     """One episode in the store's convention: n_actions + 1 rows, row t's action produced row t + 1; the last
     row's action is padding (a copy of the one before)."""
     rng = np.random.default_rng(seed)
-    s = np.array([*rng.uniform(0.2, 0.8, 2), 0.3, 1.0], np.float32)
+    s = np.array([*rng.uniform(0.25, 0.75, 2), 0.45, 1.0], np.float32)
     a = rng.uniform(-1, 1, 2)
     states, actions = [s], []
     for _ in range(n_actions):

@@ -125,6 +125,33 @@ def categorical_kl(logp: torch.Tensor, logq: torch.Tensor) -> torch.Tensor:
     return (logp.exp() * (logp - logq)).sum((-2, -1))
 
 
+def _fans(w: torch.Tensor) -> tuple[int, int]:
+    space = int(w[0, 0].numel()) if w.dim() > 2 else 1
+    return w.shape[1] * space, w.shape[0] * space  # (fan_in, fan_out); ConvTranspose2d's are swapped, as in the reference
+
+
+def dreamer_init(module: nn.Module) -> None:
+    """DreamerV3's initialiser: weights ~ truncated normal (2 std) with variance 1 / mean(fan_in, fan_out) (std
+    divided by 0.8796, the truncation's shrinkage), biases 0. PyTorch's default gives ~3x smaller logits at the
+    start, whose near-uniform categorical samples the decoder cannot use for hundreds of steps."""
+    for m in module.modules():
+        if isinstance(m, (nn.Linear, nn.Conv2d, nn.ConvTranspose2d)):
+            fan_in, fan_out = _fans(m.weight)
+            std = math.sqrt(2.0 / (fan_in + fan_out)) / 0.87962566103423978
+            nn.init.trunc_normal_(m.weight, 0.0, std, -2.0 * std, 2.0 * std)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+
+def uniform_init(layer: nn.Module, scale: float = 1.0) -> None:
+    """DreamerV3's output layers: uniform with variance scale / mean(fan_in, fan_out), bias 0."""
+    fan_in, fan_out = _fans(layer.weight)
+    limit = math.sqrt(3.0 * scale * 2.0 / (fan_in + fan_out))
+    nn.init.uniform_(layer.weight, -limit, limit)
+    if layer.bias is not None:
+        nn.init.zeros_(layer.bias)
+
+
 def mlp(inp: int, units: int, layers: int, out: int | None = None) -> nn.Sequential:
     mods: list[nn.Module] = []
     for _ in range(layers):
@@ -291,6 +318,11 @@ class WorldModel(nn.Module):
         feat = cfg.stoch * cfg.classes + cfg.deter
         self.image_decoder = ConvDecoder(cfg, feat)
         self.state_decoder = mlp(feat, cfg.mlp_units, cfg.mlp_layers, out=state_dim) if state_dim else None
+        dreamer_init(self)
+        for out in (self.rssm.prior_head, self.rssm.post_head, self.image_decoder.layers[-1]):
+            uniform_init(out)
+        if self.state_decoder is not None:
+            uniform_init(self.state_decoder[-1])
 
     def n_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
