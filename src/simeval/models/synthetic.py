@@ -102,3 +102,21 @@ def make_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int
             infos.append(EpisodeInfo(task=f"{kind}-{t}-{dyn}", seed=e, group=kind, n_rows=n_actions + 1,
                                      action_space=ACTION_SPACE))
     return ArraySource(infos, arrays)
+
+
+def write_group(store_root, kind: str, n_tasks: int, episodes: int, n_actions: int, size: int, seed: int = 0,
+                pipeline: str = "synthetic") -> list:
+    """Write a group (make_group) into an episode store as `<pipeline>/<task>` episodes of group `kind`, camera
+    "front"; returns the paths. For end-to-end runs of src/diversity.py without the simulator."""
+    from simeval.episodes.store import Episode, EpisodeStore
+
+    src = make_group(kind, n_tasks, episodes, n_actions, size, seed)
+    store, paths = EpisodeStore(store_root), []
+    for info, a in zip(src.infos, src.arrays):
+        n = info.n_rows
+        ep = Episode(pipeline=pipeline, task=info.task, description=f"synthetic {info.task}", group=kind,
+                     seed=info.seed, rgb={"front": a["image"]}, state=a["state"], action=a["action"],
+                     reward=np.zeros(n, np.float32), is_first=np.arange(n) == 0, is_terminal=np.arange(n) == n - 1,
+                     action_space=dict(ACTION_SPACE), state_names=["x", "y", "side", "brightness"], source="synthetic")
+        paths.append(store.write(ep))
+    return paths

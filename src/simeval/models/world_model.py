@@ -114,7 +114,7 @@ def straight_through_sample(logp: torch.Tensor, generator: torch.Generator | Non
     """A one-hot sample of Cat(exp(logp)) (Gumbel-max, so a seeded generator reproduces it) whose gradient is that
     of the probabilities."""
     u = torch.rand(logp.shape, generator=generator, device=logp.device, dtype=logp.dtype)
-    gumbel = -torch.log(-torch.log(u.clamp_min(1e-20)).clamp_min(1e-20))
+    gumbel = -torch.log((-torch.log(u.clamp_min(1e-20))).clamp_min(1e-20))
     one_hot = F.one_hot(torch.argmax(logp + gumbel, -1), logp.shape[-1]).to(logp.dtype)
     probs = logp.exp()
     return one_hot + probs - probs.detach()
