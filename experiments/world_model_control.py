@@ -3,7 +3,7 @@ against a group of k distinct dynamics, each trained on the first 10/20/40 episo
 The metric passes when the diverse group has the higher error at 10 episodes and the larger 10 -> 40 drop.
 
     python experiments/world_model_control.py --preset tiny --epochs 5 --seeds 0 1
-Writes outputs/control/world_model_control.json and outputs/figures/world_model_control.png.
+Writes outputs/tables/world_model_control.json and outputs/figures/world_model_control.png.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def main() -> None:
     ap.add_argument("--tasks", type=int, default=4)
     ap.add_argument("--steps", type=int, default=16, help="actions per episode")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--out", default=str(ROOT / "outputs" / "control" / "world_model_control.json"))
+    ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "world_model_control.json"))
     ap.add_argument("--figure", default=str(ROOT / "outputs" / "figures" / "world_model_control.png"))
     a = ap.parse_args()
     result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
