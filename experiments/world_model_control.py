@@ -46,10 +46,11 @@ def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_acti
                                      train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}),
                                      window=WindowSpec(**wm["window"]), heldout_episodes=None, eval_seed=seed,
                                      progress=False)
-                row = {"seed": seed, "group": kind, "episodes": k, "seconds": time.perf_counter() - t0,
-                       "steps": v["train"]["steps"], **{m: v["eval"][m] for m in METRICS}}
+                # rounded, no timings: the committed JSON is the same bytes on a re-run (seeded training)
+                row = {"seed": seed, "group": kind, "episodes": k, "steps": v["train"]["steps"],
+                       **{m: round(v["eval"][m], 6) for m in METRICS}}
                 rows.append(row)
-                print(json.dumps(row), flush=True)
+                print(json.dumps(row), f"({time.perf_counter() - t0:.0f} s)", flush=True)
     verdict = {}
     for m in METRICS:
         per_seed = []
@@ -86,8 +87,9 @@ def plot(result: dict, path: Path) -> None:
     fig.suptitle(f"Synthetic control ({result['n_tasks']} tasks, world_model={result['preset']}, "
                  f"{result['epochs']} epochs; thin lines: seeds)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    from simeval.report.figures import save_figure
+
+    save_figure(fig, path, dpi=120)  # no dates or tool versions inside: committed figures are byte-reproducible
 
 
 def main() -> None:

@@ -113,8 +113,9 @@ def plot(rows: list[dict], path: Path) -> None:
             ax.legend(fontsize=7)
     fig.suptitle("Table 4: world-model evaluation error vs training episodes")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    from simeval.report.figures import save_figure
+
+    save_figure(fig, path, dpi=120)  # no dates or tool versions inside: committed figures are byte-reproducible
 
 
 if __name__ == "__main__":
