@@ -27,7 +27,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate, store_source
+    from simeval.models.dynamics_diversity import data_fingerprint, fit_and_evaluate, store_source
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
@@ -40,8 +40,8 @@ def main(cfg: DictConfig) -> None:
     source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, bool(cfg.pipeline.get("suite")))
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
-                    preset=wm["name"], camera=cfg.camera, settings={"world_model": wm, "eval": config["eval"],
-                                                                    "eval_episodes": config["eval_episodes"]})
+                    preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),
+                    settings={"world_model": wm, "eval": config["eval"], "eval_episodes": config["eval_episodes"]})
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         values = fit_and_evaluate(
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
