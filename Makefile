@@ -65,6 +65,7 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/judge_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py
 	$(PY) experiments/benchmarks/policy_bench.py --presets tiny cpu authors_gensim
+	$(PY) experiments/benchmarks/world_model_bench.py
 
 TABLE5_GROUPS ?= stacking placement piles assembling
 table5: setup ## paper Table 5: Diffusion Policy per GenSim group (cpu preset; needs `make collect` with 42 episodes/task)
@@ -73,6 +74,21 @@ table5: setup ## paper Table 5: Diffusion Policy per GenSim group (cpu preset; n
 
 report-table5: setup ## rebuild Table 5 from the generalization result.json files only: outputs/tables/table5.{md,csv}
 	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5
+
+# Table 4 (dynamics diversity): one world model per (GenSim group, 10/20/40 episodes) on the episodes `make collect`
+# stored; WM_PRESET=paper for the authors' sizes (a GPU job). BBSEA/RoboGen need imported episodes (src/import_data.py).
+WM_PRESET ?= cpu
+TABLE4_GROUPS ?= stacking placement piles assembling
+.PHONY: table4 report-table4 world-model-control
+table4: setup ## paper Table 4: world-model eval error at 10/20/40 episodes per GenSim group, table + plot
+	for g in $(TABLE4_GROUPS); do $(PY) src/diversity.py pipeline=gensim task_group=$$g world_model=$(WM_PRESET) -m episodes=10,20,40 || exit 1; done
+	$(MAKE) --no-print-directory report-table4
+
+report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md}, outputs/figures/table4.png) from result.json files only
+	$(PY) experiments/world_model_table4.py
+
+world-model-control: setup ## synthetic control for dynamics diversity: outputs/figures/world_model_control.png
+	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.

@@ -22,6 +22,14 @@ SHRINKS = {
                 "record.scene_view_size": ([128, 128], [64, 64])},
     "import_data": {"image_size": (None, [32, 32])},
     "report": {},  # reads result.json files only: nothing to shrink, but debug=tiny is accepted
+    # diversity: the tiny world model (conf/world_model/tiny.yaml) over the default cpu preset
+    "diversity": {"world_model.name": ("cpu", "tiny"), "world_model.model.image_size": (64, 16),
+                  "world_model.model.deter": (256, 32), "world_model.model.hidden": (256, 32),
+                  "world_model.model.stoch": (16, 4), "world_model.model.classes": (16, 4),
+                  "world_model.model.cnn_depth": (16, 8), "world_model.model.mlp_layers": (2, 1),
+                  "world_model.model.mlp_units": (128, 32), "world_model.train.epochs": (10, 2),
+                  "world_model.train.lr": (1e-4, 1e-3), "world_model.train.checkpoint_every": (200, 5),
+                  "world_model.window.length": (20, 8), "world_model.window.stride": (10, 4)},
 }
 
 

@@ -1,0 +1,125 @@
+"""World-model training throughput per preset (step time, frames/s) and window reading (samples/s).
+
+    python experiments/benchmarks/world_model_bench.py [--presets tiny cpu paper] [--threads 2]
+Writes outputs/bench/world_model.json. Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s
+per training step at 128x128 (the `paper` settings) and 0.24 s at the `cpu` settings (numbers given in issue 10;
+not re-measured here). The machine's load average is recorded: on a shared machine, steps slow down with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import ROOT, machine, save  # noqa: E402
+
+REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
+STEPS = {"tiny": 20, "cpu": 6, "paper": 2}
+
+
+def bench_preset(name: str, steps: int) -> dict:
+    import torch
+    import yaml
+
+    from simeval.models.world_model import WorldModel, WorldModelConfig
+
+    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{name}.yaml").read_text())
+    cfg = WorldModelConfig.from_dict(wm["model"])
+    b, t = wm["train"]["batch_size"], wm["window"]["length"]
+    torch.manual_seed(0)
+    model = WorldModel(cfg, state_dim=7, action_dim=7)  # joint_pos+suction: 6 joints + suction, in and out
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    g = torch.Generator().manual_seed(0)
+    is_first = torch.zeros(b, t, dtype=torch.bool)
+    is_first[:, 0] = True
+    batch = {"image": torch.randint(0, 256, (b, t, cfg.image_size, cfg.image_size, 3), generator=g, dtype=torch.uint8),
+             "state": torch.randn(b, t, 7, generator=g), "prev_action": torch.randn(b, t, 7, generator=g),
+             "is_first": is_first, "mask": torch.ones(b, t, dtype=torch.bool)}
+
+    def step():
+        loss, _ = model.loss(batch, generator=g)
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1000.0)
+        opt.step()
+
+    step()  # warm-up
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - t0)
+    step_s = sorted(times)[len(times) // 2]
+    out = {"parameters": model.n_parameters(), "image_size": cfg.image_size, "batch": b, "window": t,
+           "steps_timed": steps, "step_s_median": round(step_s, 4), "step_s_min": round(min(times), 4),
+           "frames_per_s": round(b * t / step_s, 1)}
+    if name in REFERENCE_STEP_S:
+        out["reference_step_s"] = REFERENCE_STEP_S[name]
+        out["speedup_vs_reference"] = round(REFERENCE_STEP_S[name] / step_s, 2)
+    return out
+
+
+def bench_reading(seconds: float = 8.0) -> dict:
+    """Windows per second read from an HDF5 store of synthetic 64x64 episodes (the cpu preset's window), in the
+    training thread and through a DataLoader with one worker."""
+    import numpy as np
+
+    from simeval.episodes.dataset import StoreSource, WindowDataset, WindowSpec
+    from simeval.models.synthetic import write_group
+    from simeval.models.training import _loader, epoch_batches
+
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = write_group(tmp, "diverse", n_tasks=4, episodes=6, n_actions=120, size=64)
+        spec = WindowSpec(length=20, stride=10, random_offset=True)
+        ds = WindowDataset(StoreSource(paths, "front"), spec)
+        ds.stats = ds.fit_stats()
+        out = {}
+        for workers in (0, 1):
+            n, t0 = 0, time.perf_counter()
+            epoch = 0
+            while time.perf_counter() - t0 < seconds:
+                for batch in _loader(ds, epoch_batches(ds.windows(epoch), 8, 0, epoch), workers):
+                    n += len(batch["mask"])
+                    if time.perf_counter() - t0 >= seconds:
+                        break
+                epoch += 1
+            out[f"workers_{workers}"] = {"windows_per_s": round(n / (time.perf_counter() - t0), 1),
+                                         "frames_per_s": round(20 * n / (time.perf_counter() - t0), 1)}
+        out["window"] = {"length": 20, "image": "64x64x3 uint8, gzip per frame"}
+        out["n_episodes"] = len(paths)
+        del np
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", nargs="+", default=["tiny", "cpu", "paper"])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--no-reading", action="store_true")
+    a = ap.parse_args()
+    import torch
+
+    torch.set_num_threads(a.threads)
+    result = {"benchmark": "world_model", "machine": machine(), "threads": a.threads,
+              "load_average_before": os.getloadavg(), "presets": {}}
+    for name in a.presets:
+        result["presets"][name] = bench_preset(name, STEPS.get(name, 5))
+        print(name, result["presets"][name], flush=True)
+    if not a.no_reading:
+        try:
+            result["reading"] = bench_reading()
+        except Exception as e:  # noqa: BLE001 - the store format may not support it yet; say so in the result
+            result["reading"] = {"error": f"{type(e).__name__}: {e}"}
+    result["load_average_after"] = os.getloadavg()
+    save("world_model", result)
+
+
+if __name__ == "__main__":
+    main()

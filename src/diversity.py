@@ -1,0 +1,64 @@
+"""Dynamics-based trajectory diversity: a world model per (group, episodes) (paper Table 4). See conf/diversity.yaml."""
+
+import logging
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
+
+log = logging.getLogger("diversity")
+
+
+def _ranks(value, key: str) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    lo, hi = list(value)
+    if not 1 <= lo <= hi:
+        raise UserError(f"{key}={list(value)}: expected [first, last] episode numbers, 1 <= first <= last")
+    return lo - 1, hi
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="diversity")
+@exit_cleanly_on_user_error
+def main(cfg: DictConfig) -> None:
+    import torch
+    from hydra.utils import instantiate
+
+    from simeval.episodes.dataset import WindowSpec
+    from simeval.models.dynamics_diversity import data_fingerprint, fit_and_evaluate, store_source
+    from simeval.models.training import TrainConfig
+    from simeval.models.world_model import VERSION, WorldModelConfig
+    from simeval.results import hydra_run_info, write_result
+
+    torch.set_num_threads(int(cfg.threads))
+    wm = OmegaConf.to_container(cfg.world_model, resolve=True)
+    model_cfg = WorldModelConfig.from_dict(wm["model"])
+    train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
+    window = WindowSpec(**wm["window"])
+    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, bool(cfg.pipeline.get("suite")))
+    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
+    identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
+                    preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),
+                    settings={"world_model": wm, "eval": config["eval"], "eval_episodes": config["eval_episodes"]})
+    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
+        values = fit_and_evaluate(
+            source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
+            eval_episodes=_ranks(cfg.eval_episodes, "eval_episodes"),
+            heldout_episodes=_ranks(cfg.heldout_episodes, "heldout_episodes"), eval_seed=int(cfg.eval.seed),
+            eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
+            checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress))
+        path = write_result(run["output_dir"], metric="dynamics_diversity", version=VERSION, values=values,
+                            config=config, choices=run["choices"], seed=int(cfg.seed), identity=identity,
+                            overrides=run["overrides"])
+        logger.log_metrics({"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}})
+    e = values["eval"]
+    log.info("%s/%s episodes=%d [%s]: eval error %.2f (%.5f per pixel), state %.3f, KL %.2f, open-loop %.2f",
+             cfg.pipeline.name, cfg.task_group, cfg.episodes, wm["name"], e["image_error"],
+             e["image_error_per_pixel"], e["state_error"], e["kl_dyn"], e["open_loop_image_error"])
+    log.info("wrote %s", path)
+
+
+if __name__ == "__main__":
+    launch(main)

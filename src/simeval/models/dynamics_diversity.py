@@ -1,0 +1,117 @@
+"""Dynamics-based trajectory diversity (paper Sec. 3.4, Table 4): train a world model on the first k episodes of
+each task of a group and evaluate it on the first 40 (and, when they exist, on held-out episodes 41-50).
+
+`fit_and_evaluate` takes a source of episodes (simeval.episodes.dataset.StoreSource or ArraySource) and plain
+configs, and returns the numbers result.json records; src/diversity.py is its command line. A falling error from
+k = 10 to 40 says the group's dynamics need more data to learn, i.e. are diverse (the paper's reading).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks
+from simeval.errors import UserError
+from simeval.models.training import TrainConfig, evaluate, load_checkpoint, train
+from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig
+
+log = logging.getLogger(__name__)
+
+
+def data_fingerprint(infos) -> str:
+    """sha1 of the (task, seed, rows) list: what a checkpoint was trained on."""
+    text = json.dumps(sorted((i.task, int(i.seed), int(i.n_rows)) for i in infos))
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
+                     window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
+                     heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
+                     eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
+                     log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True) -> dict:
+    """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
+    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model}. With `checkpoint_dir`,
+    the model is checkpointed there under a name keyed by its config and training data, so the same command run
+    again resumes a killed run (or, when it finished, only evaluates)."""
+    infos = source.infos
+    tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
+    ranks = episode_ranks(tasks, seeds)
+    k = int(episodes_per_task)
+    if k < 1:
+        raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
+    require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
+                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}")
+    train_mask = rank_mask(ranks, 0, k)
+    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
+    stats = train_ds.fit_stats()
+    train_ds.stats = stats
+    state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
+    torch.manual_seed(train_cfg.seed)
+    model = WorldModel(model_cfg, state_dim, action_dim)
+    meta = {"version": VERSION, "model": model_cfg.to_dict(), "train": asdict(train_cfg), "window": asdict(window),
+            "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
+            "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
+            "action_space": train_ds.action_space}
+    checkpoint = None
+    if checkpoint_dir is not None:
+        key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+        checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
+    summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
+                    progress=progress)
+    eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
+
+    def run_eval(lo: int, hi: int) -> dict:
+        ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
+        if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
+            raise UserError("evaluation episodes have another action space than the training ones")
+        out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
+        out["episodes"] = [lo + 1, hi]
+        return out
+
+    values = {"eval": run_eval(*eval_episodes), "heldout": None}
+    counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
+    if heldout_episodes is not None:
+        if min(counts.values()) >= heldout_episodes[1]:
+            values["heldout"] = run_eval(*heldout_episodes)
+        else:
+            log.info("no held-out evaluation: needs %d episodes per task, the fewest is %d", heldout_episodes[1],
+                     min(counts.values()))
+    values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
+                       "frames": summary["frames"], "episodes": int(train_mask.sum()),
+                       "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"]}
+    values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
+                       "action_space": train_ds.action_space.get("kind")}
+    values["tasks"] = sorted(counts)
+    values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
+    return values
+
+
+def store_source(store: str | Path, pipeline: str, group: str, camera: str, has_suite: bool):
+    """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it."""
+    from simeval.episodes.dataset import StoreSource, store_paths_for
+
+    try:
+        paths = store_paths_for(store, pipeline, group)
+    except UserError as e:
+        how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40"
+               if has_suite else f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its "
+                                 f"episodes into the store with src/import_data.py")
+        raise UserError(f"{e}; {how}") from None
+    return StoreSource(paths, camera)
+
+
+def load_model(checkpoint: str | Path) -> tuple[WorldModel, dict]:
+    """A trained model and the meta (config, stats, data fingerprint) its checkpoint carries."""
+    ck = load_checkpoint(checkpoint)
+    meta = ck["meta"]
+    model = WorldModel(WorldModelConfig.from_dict(meta["model"]), meta["state_dim"], meta["action_dim"])
+    model.load_state_dict(ck["model"])
+    return model, meta

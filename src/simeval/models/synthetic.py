@@ -1,0 +1,122 @@
+"""A validity control for dynamics diversity, where the answer is known: groups of synthetic tasks that share one
+dynamics against groups whose tasks each have their own.
+
+Every task renders one coloured square on a grey background (a distinct colour per task, in both kinds of group,
+so the groups look alike at reset) and starts from the same distribution: a uniform position in [0.2, 0.8]^2, side
+0.3, brightness 1. State (4,): x, y, side, brightness. Action (2,): a smooth random walk in [-1, 1]^2. What the
+action does is the task's dynamics:
+    move      position += 0.12 a                       (the only dynamics of a "shared" group)
+    turn      position += 0.12 R(90 deg) a             (the action rotated)
+    scale     side += 0.06 a_0, position += 0.04 a_1   (the square grows and shrinks)
+    fade      brightness += 0.15 a_0, position += 0.04 a_1
+    orbit     position rotates about the centre by 0.25 a_0 radians, radius += 0.03 a_1
+    drift     position += 0.12 a mirrored in x, then a constant pull of 0.02 downwards
+A "diverse" group of k tasks takes the first k dynamics in DYNAMICS order, a "shared" group k times `move`. A
+dynamics-diversity metric must give the diverse group the larger error at few episodes and the larger drop as
+episodes grow (experiments/world_model_control.py; tests/test_world_model_control.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simeval.episodes.dataset import ArraySource, EpisodeInfo
+
+DYNAMICS = ("move", "turn", "scale", "fade", "orbit", "drift")
+COLORS = np.array([[230, 60, 60], [60, 200, 80], [70, 110, 240], [240, 200, 50], [200, 80, 220], [60, 210, 220]],
+                  np.float32)
+ACTION_SPACE = {"kind": "synthetic_2d", "dims": ["a0", "a1"], "units": ["1", "1"]}
+
+
+def _render(state: np.ndarray, color: np.ndarray, size: int) -> np.ndarray:
+    """(n, 4) states -> (n, size, size, 3) uint8, the square antialiased by pixel coverage."""
+    n = len(state)
+    grid = (np.arange(size, dtype=np.float32) + 0.5) / size
+    x, y, side, bright = (state[:, i][:, None] for i in range(4))
+    half = side / 2
+    cover_x = np.clip(np.minimum(grid[None] + 0.5 / size, x + half) - np.maximum(grid[None] - 0.5 / size, x - half),
+                      0, 1 / size) * size
+    cover_y = np.clip(np.minimum(grid[None] + 0.5 / size, y + half) - np.maximum(grid[None] - 0.5 / size, y - half),
+                      0, 1 / size) * size
+    alpha = cover_y[:, :, None] * cover_x[:, None, :]  # (n, H, W)
+    bg = np.full(3, 90.0, np.float32)
+    fg = np.clip(color[None] * bright, 0, 255)  # (n, 3)
+    img = bg[None, None, None] * (1 - alpha[..., None]) + fg[:, None, None, :] * alpha[..., None]
+    return np.clip(np.round(img), 0, 255).astype(np.uint8).reshape(n, size, size, 3)
+
+
+def _step(dyn: str, s: np.ndarray, a: np.ndarray) -> np.ndarray:
+    x, y, side, bright = s
+    if dyn == "move":
+        x, y = x + 0.12 * a[0], y + 0.12 * a[1]
+    elif dyn == "turn":
+        x, y = x - 0.12 * a[1], y + 0.12 * a[0]
+    elif dyn == "scale":
+        side, y = side + 0.06 * a[0], y + 0.04 * a[1]
+    elif dyn == "fade":
+        bright, x = bright + 0.15 * a[0], x + 0.04 * a[1]
+    elif dyn == "orbit":
+        dx, dy = x - 0.5, y - 0.5
+        r = np.hypot(dx, dy) + 0.03 * a[1]
+        th = np.arctan2(dy, dx) + 0.25 * a[0]
+        x, y = 0.5 + r * np.cos(th), 0.5 + r * np.sin(th)
+    elif dyn == "drift":
+        x, y = x - 0.12 * a[0], y + 0.12 * a[1] + 0.02
+    else:
+        raise ValueError(f"unknown dynamics {dyn!r}; known: {DYNAMICS}")
+    return np.array([np.clip(x, 0.15, 0.85), np.clip(y, 0.15, 0.85), np.clip(side, 0.25, 0.7), np.clip(bright, 0.3, 1.4)],
+                    np.float32)
+
+
+def episode(dyn: str, color: np.ndarray, seed: int, n_actions: int, size: int) -> dict[str, np.ndarray]:
+    """One episode in the store's convention: n_actions + 1 rows, row t's action produced row t + 1; the last
+    row's action is padding (a copy of the one before)."""
+    rng = np.random.default_rng(seed)
+    s = np.array([*rng.uniform(0.25, 0.75, 2), 0.45, 1.0], np.float32)
+    a = rng.uniform(-1, 1, 2)
+    states, actions = [s], []
+    for _ in range(n_actions):
+        a = np.clip(0.7 * a + 0.5 * rng.normal(size=2), -1, 1)
+        actions.append(a.astype(np.float32))
+        s = _step(dyn, s, a)
+        states.append(s)
+    actions.append(actions[-1])
+    st = np.stack(states)
+    return {"image": _render(st, color, size), "state": st, "action": np.stack(actions)}
+
+
+def make_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int, seed: int = 0) -> ArraySource:
+    """A group of n_tasks tasks x episodes episodes: kind "shared" (every task `move`) or "diverse" (the first
+    n_tasks DYNAMICS). Task i has colour i and the same episode seeds in both kinds, so task 0 (`move` in both) is
+    the same data in both groups and only the dynamics of the other tasks differ."""
+    if kind not in ("shared", "diverse"):
+        raise ValueError(f"kind={kind!r}: expected shared or diverse")
+    if not 1 <= n_tasks <= len(DYNAMICS):
+        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(DYNAMICS)}")
+    infos, arrays = [], []
+    for t in range(n_tasks):
+        dyn = "move" if kind == "shared" else DYNAMICS[t]
+        for e in range(episodes):
+            ep_seed = int(np.random.default_rng([seed, t, e]).integers(2**31))
+            arrays.append(episode(dyn, COLORS[t], ep_seed, n_actions, size))
+            infos.append(EpisodeInfo(task=f"{kind}-{t}-{dyn}", seed=e, group=kind, n_rows=n_actions + 1,
+                                     action_space=ACTION_SPACE))
+    return ArraySource(infos, arrays)
+
+
+def write_group(store_root, kind: str, n_tasks: int, episodes: int, n_actions: int, size: int, seed: int = 0,
+                pipeline: str = "synthetic") -> list:
+    """Write a group (make_group) into an episode store as `<pipeline>/<task>` episodes of group `kind`, camera
+    "front"; returns the paths. For end-to-end runs of src/diversity.py without the simulator."""
+    from simeval.episodes.store import Episode, EpisodeStore
+
+    src = make_group(kind, n_tasks, episodes, n_actions, size, seed)
+    store, paths = EpisodeStore(store_root), []
+    for info, a in zip(src.infos, src.arrays):
+        n = info.n_rows
+        ep = Episode(pipeline=pipeline, task=info.task, description=f"synthetic {info.task}", group=kind,
+                     seed=info.seed, rgb={"front": a["image"]}, state=a["state"], action=a["action"],
+                     reward=np.zeros(n, np.float32), is_first=np.arange(n) == 0, is_terminal=np.arange(n) == n - 1,
+                     action_space=dict(ACTION_SPACE), state_names=["x", "y", "side", "brightness"], source="synthetic")
+        paths.append(store.write(ep))
+    return paths

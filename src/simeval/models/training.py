@@ -1,0 +1,256 @@
+"""Training and evaluation of the world model on window datasets (simeval.episodes.dataset), with checkpoints
+that carry their config and resume exactly.
+
+Budget: the paper's, a fixed number of epochs over the training windows (`epochs`); `max_steps` caps the gradient
+steps instead (or as well). A step is one Adam update on `batch_size` windows, gradients clipped to `clip` (global
+norm). Everything random is seeded from `seed`: the window order of epoch e, the per-epoch window offset (in the
+dataset), and the latent samples of step i (a generator seeded with (seed, i)). So a run killed and resumed from
+its last checkpoint takes the same steps as one never interrupted (on the same machine and thread count).
+
+Evaluation (`evaluate`): the model observes each evaluation window with posterior samples from a generator seeded
+with `seed` and reports, averaged over all valid evaluation frames:
+  image_error            squared error summed over the H x W x 3 pixels in [0, 1] of the posterior reconstruction
+                         (the paper's "eval error", Table 4; it scales with the resolution)
+  image_error_per_pixel  image_error / (H * W * 3)
+  state_error            squared error summed over the state dimensions, in symlog space of the standardised state
+  kl_dyn, kl_rep         KL[sg(q) || p] and KL[q || sg(p)] (equal in value; unclipped)
+  open_loop_*            the same errors of frames imagined from actions alone after `context` observed frames
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simeval.errors import UserError
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass
+class TrainConfig:
+    batch_size: int = 8  # paper: 8
+    epochs: int = 10  # paper: 10
+    max_steps: int | None = None  # optional cap on gradient steps
+    lr: float = 1e-4
+    eps: float = 1e-8
+    clip: float = 1000.0
+    seed: int = 0
+    checkpoint_every: int = 200  # steps; also at every epoch end
+    num_workers: int = 0  # DataLoader workers reading windows
+
+    def __post_init__(self) -> None:
+        for name in ("batch_size", "epochs", "checkpoint_every"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"train.{name}={v!r}: expected a whole number >= 1")
+        if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
+            raise UserError(f"train.max_steps={self.max_steps!r}: expected null or a whole number >= 1")
+        if self.lr <= 0 or self.clip <= 0:
+            raise UserError(f"train.lr={self.lr}, train.clip={self.clip}: both must be > 0")
+        if self.num_workers < 0:
+            raise UserError(f"train.num_workers={self.num_workers}: expected >= 0")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        known = {f.name for f in fields(cls)}
+        if set(d) - known:
+            raise UserError(f"train: unknown key(s) {sorted(set(d) - known)}; valid: {sorted(known)}")
+        return cls(**d)
+
+
+def to_torch(batch: dict) -> dict[str, torch.Tensor]:
+    return {k: (v if isinstance(v, torch.Tensor) else torch.as_tensor(v)) for k, v in batch.items()}
+
+
+def collate(items: list[dict]) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
+
+
+def _loader(dataset, batches: list[list[tuple[int, int]]], num_workers: int):
+    from torch.utils.data import DataLoader
+
+    if num_workers == 0:  # no worker processes: read in the training thread
+        return (collate([dataset[i] for i in b]) for b in batches)
+    return DataLoader(dataset, batch_sampler=batches, num_workers=num_workers, collate_fn=collate,
+                      persistent_workers=False, prefetch_factor=4)
+
+
+def epoch_batches(windows: np.ndarray, batch_size: int, seed: int, epoch: int) -> list[list[tuple[int, int]]]:
+    order = np.random.default_rng([seed, epoch, 11]).permutation(len(windows))
+    w = windows[order]
+    return [[(int(e), int(s)) for e, s in w[i : i + batch_size]] for i in range(0, len(w), batch_size)]
+
+
+def step_generator(seed: int, step: int) -> torch.Generator:
+    return torch.Generator().manual_seed(int(np.random.default_rng([seed, step, 13]).integers(2**62)))
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict) -> Path:
+    """torch.save to a temp file in the same folder, then rename: a kill never leaves half a checkpoint."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # noqa: BLE001 - any unreadable file is the same user-facing problem
+        raise UserError(f"{path}: not a readable world-model checkpoint ({type(e).__name__}: {e}); delete it to "
+                        f"start over") from e
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise UserError(f"{path}: checkpoint format {ck.get('format')!r}, this version reads {CHECKPOINT_FORMAT}")
+    return ck
+
+
+def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None = None, meta: dict | None = None,
+          log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True) -> dict:
+    """Train in place; return {steps, epochs, seconds, frames, last: metrics}. With `checkpoint`, resume from it
+    when it exists and its `meta` (config, data identity) matches, and save to it every `checkpoint_every` steps
+    and at each epoch end. `meta` is stored in the checkpoint (the config that made it)."""
+    from tqdm.auto import tqdm
+
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
+    epoch, done_in_epoch, step = 0, 0, 0
+    meta = dict(meta or {})
+    if checkpoint is not None and Path(checkpoint).is_file():
+        ck = load_checkpoint(checkpoint)
+        if ck["meta"] != meta:
+            diff = sorted(k for k in set(ck["meta"]) | set(meta) if ck["meta"].get(k) != meta.get(k))
+            raise UserError(f"{checkpoint}: made with a different config or data ({', '.join(diff)}); delete it or "
+                            f"use another run folder")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
+        log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
+
+    def save(e: int, b: int, finished: bool = False) -> None:
+        if checkpoint is not None:
+            save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": model.state_dict(),
+                                         "optimizer": opt.state_dict(), "epoch": e, "batches_done": b, "step": step,
+                                         "meta": meta, "finished": finished})
+
+    model.train()
+    t0, frames, last = time.perf_counter(), 0, {}
+    cap = cfg.max_steps
+    while epoch < cfg.epochs and (cap is None or step < cap):
+        batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
+        if not batches:
+            raise UserError("no training windows: every training episode is shorter than the window length "
+                            f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
+        todo = batches[done_in_epoch:]
+        if cap is not None:
+            todo = todo[: cap - step]
+        bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
+                   disable=not progress, leave=False)
+        for batch in _loader(dataset, todo, cfg.num_workers):
+            loss, last = model.loss(to_torch(batch), generator=step_generator(cfg.seed, step))
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
+            opt.step()
+            step += 1
+            done_in_epoch += 1
+            frames += int(batch["mask"].sum())
+            bar.update(1)
+            bar.set_postfix(loss=f"{last['loss']:.1f}")
+            if log_metrics is not None:
+                log_metrics({"train": last, "epoch": epoch}, step)
+            if step % cfg.checkpoint_every == 0:
+                save(epoch, done_in_epoch)
+        bar.close()
+        if done_in_epoch >= len(batches):
+            epoch, done_in_epoch = epoch + 1, 0
+        save(epoch, done_in_epoch)
+    save(epoch, done_in_epoch, finished=True)
+    return {"steps": step, "epochs": epoch, "seconds": time.perf_counter() - t0, "frames": frames, "last": last}
+
+
+@torch.no_grad()
+def evaluate(model, dataset, seed: int = 0, batch_size: int = 16, context: int | None = None,
+             per_task: bool = True, progress: bool = False) -> dict:
+    """Errors over every evaluation window of `dataset` (its `windows(0)`), see the module docstring. `context`:
+    observed frames before open-loop imagination (None: half the window)."""
+    from tqdm.auto import tqdm
+
+    model.eval()
+    windows = dataset.windows(0)
+    if len(windows) == 0:
+        raise UserError("no evaluation windows (episodes shorter than the window and no pad_end)")
+    L = dataset.spec.length
+    context = max(1, L // 2) if context is None else int(context)
+    if not 1 <= context < L:
+        raise UserError(f"eval.context={context}: expected 1 <= context < window length ({L})")
+    gen = torch.Generator().manual_seed(int(seed))
+    keys = ("image_se", "state_se", "kl_dyn", "kl_rep")
+    tasks = [i.task for i in dataset.source.infos]
+    sums: dict[str, dict[str, float]] = {}
+
+    def add(task: str, key: str, v: float) -> None:
+        sums.setdefault(task, {}).setdefault(key, 0.0)
+        sums[task][key] += v
+
+    batches = [[(int(e), int(s)) for e, s in windows[i : i + batch_size]] for i in range(0, len(windows), batch_size)]
+    for batch in tqdm(_loader(dataset, batches, 0), total=len(batches), desc="eval", disable=not progress,
+                      leave=False):
+        b = to_torch(batch)
+        e = model.step_errors(b, generator=gen)
+        ol = model.open_loop_errors(b, context, generator=gen)
+        mask = b["mask"].float()
+        olmask = mask[:, context:]
+        for j in range(mask.shape[0]):
+            task = tasks[int(b["episode"][j, 0])]
+            for name in ([task, "*"] if per_task else ["*"]):
+                add(name, "frames", float(mask[j].sum()))
+                add(name, "ol_frames", float(olmask[j].sum()))
+                for k in keys:
+                    add(name, k, float((e[k][j] * mask[j]).sum()))
+                for k, v in ol.items():
+                    add(name, "ol_" + k, float((v[j] * olmask[j]).sum()))
+    pixels = model.cfg.image_size**2 * 3
+
+    def summarise(s: dict) -> dict:
+        n, m = max(s["frames"], 1.0), max(s["ol_frames"], 1.0)
+        out = {"image_error": s["image_se"] / n, "image_error_per_pixel": s["image_se"] / n / pixels,
+               "state_error": s["state_se"] / n, "kl_dyn": s["kl_dyn"] / n, "kl_rep": s["kl_rep"] / n,
+               "open_loop_image_error": s["ol_image_se"] / m if s["ol_frames"] else None,
+               "open_loop_image_error_per_pixel": s["ol_image_se"] / m / pixels if s["ol_frames"] else None,
+               "frames": int(s["frames"]), "open_loop_frames": int(s["ol_frames"])}
+        if "ol_state_se" in s:
+            out["open_loop_state_error"] = s["ol_state_se"] / m if s["ol_frames"] else None
+        return out
+
+    result = summarise(sums.pop("*"))
+    result.update(windows=int(len(windows)), context=context, horizon=L - context, seed=int(seed))
+    if per_task:
+        result["per_task"] = {t: summarise(s) for t, s in sorted(sums.items())}
+    model.train()
+    return result
+
+
+def throughput_note(summary: dict) -> dict:
+    s = max(summary["seconds"], 1e-9)
+    return {"step_s": s / max(summary["steps"], 1), "frames_per_s": summary["frames"] / s}
+
+
+def config_dict(obj) -> dict:
+    return asdict(obj)

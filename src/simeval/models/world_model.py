@@ -1,0 +1,392 @@
+"""A DreamerV3-style latent world model (RSSM) with decoder heads only, for dynamics-based trajectory diversity
+(paper Sec. 3.4 and 4.2, Table 4; Hafner et al. 2023).
+
+The model, per step t of a window (B batch, T steps):
+    h_t = GRU(h_{t-1}, MLP([z_{t-1}, a_{t-1}]))                 deterministic state (`deter`)
+    prior      p(z_t | h_t)          = Cat(unimix(softmax(MLP(h_t))))
+    posterior  q(z_t | h_t, e_t)     = Cat(unimix(softmax(MLP([h_t, e_t]))))   e_t = [CNN(image_t), MLP(symlog(state_t))]
+    z_t: `stoch` categoricals of `classes` classes, a straight-through one-hot sample (forward: the one-hot; gradient:
+         that of the probabilities); unimix(p) = (1 - u) p + u / classes with u = 0.01
+    decoders from [z_t, h_t]: image mean (MSE, summed over pixels) and symlog(state) (MSE, summed over dimensions)
+Where `is_first` is set, (h, z) are reset to the learned initial state and a_{t-1} to zero before the step.
+Actions enter as a / max(|a|, 1) (DreamerV3's bound), after the dataset has standardised them.
+
+Loss per step (then averaged over the valid steps of the batch):
+    image_se + state_se + 0.5 * max(1, KL[sg(q) || p]) + 0.1 * max(1, KL[q || sg(p)])
+the KL terms summed over the `stoch` categoricals (dyn 0.5, rep 0.1, free nats 1.0). No reward or continuation
+heads: the paper's authors removed them (their DreamerV3 fork is trained on trajectories without rewards).
+These formulas were checked against NM512/dreamerv3-torch (networks.RSSM.kl_loss, tools.OneHotDist); the
+architecture follows it with SiLU + LayerNorm everywhere, a layer-normed GRU with update bias -1, "same"-padded
+stride-2 convolutions whose channels double per stage down to `minres`, and a learned initial state.
+
+Input layout: a batch is a dict of tensors (B, T, ...): image uint8 (B, T, H, W, 3), state float (B, T, D),
+prev_action float (B, T, A) (the action taken *before* observation t, i.e. the one that produced it; zero at an
+episode's first row), is_first bool (B, T), mask bool (B, T) (False on padding). `simeval.episodes.dataset`
+produces it from the store, whose row t holds o_t and the action a_t taken after it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+import torch
+import torch.nn.functional as F
+from einops import rearrange
+from torch import nn
+
+from simeval.errors import UserError
+
+VERSION = "1.0"
+
+
+@dataclass
+class WorldModelConfig:
+    image_size: int = 64  # square RGB frames, H = W; a power-of-two multiple of minres
+    deter: int = 256  # GRU state size
+    hidden: int = 256  # width of the RSSM's input/output layers
+    stoch: int = 16  # number of categorical latents
+    classes: int = 16  # classes per categorical
+    cnn_depth: int = 16  # channels of the first conv stage; doubled per stage
+    kernel: int = 4
+    minres: int = 4  # the encoder stops (and the decoder starts) at minres x minres
+    mlp_layers: int = 2  # state encoder / decoder
+    mlp_units: int = 128
+    unimix: float = 0.01
+    free_nats: float = 1.0
+    dyn_scale: float = 0.5
+    rep_scale: float = 0.1
+    image_scale: float = 1.0
+    state_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        positive = ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth", "minres", "mlp_layers",
+                    "mlp_units")
+        for name in positive:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"world_model.{name}={v!r}: expected a whole number >= 1")
+        if self.kernel < 2:
+            raise UserError(f"world_model.kernel={self.kernel}: expected >= 2 (stride-2 convolutions)")
+        ratio = self.image_size / self.minres
+        if ratio < 2 or ratio != int(ratio) or int(ratio) & (int(ratio) - 1):
+            raise UserError(f"world_model.image_size={self.image_size} with minres={self.minres}: image_size must "
+                            f"be minres times a power of two >= 2 (e.g. 64 with minres 4)")
+        if not 0.0 <= self.unimix < 1.0:
+            raise UserError(f"world_model.unimix={self.unimix}: expected a fraction in [0, 1)")
+        for name in ("free_nats", "dyn_scale", "rep_scale", "image_scale", "state_scale"):
+            if getattr(self, name) < 0:
+                raise UserError(f"world_model.{name}={getattr(self, name)}: expected >= 0")
+
+    @property
+    def stages(self) -> int:
+        return int(round(math.log2(self.image_size // self.minres)))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> WorldModelConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise UserError(f"world_model: unknown key(s) {unknown}; valid: {sorted(known)}")
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def symlog(x: torch.Tensor) -> torch.Tensor:
+    return torch.sign(x) * torch.log1p(x.abs())
+
+
+def symexp(x: torch.Tensor) -> torch.Tensor:
+    return torch.sign(x) * torch.expm1(x.abs())
+
+
+def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
+    """log((1 - u) softmax(logits) + u / K): normalised log-probabilities with every class at least u / K."""
+    probs = F.softmax(logits, -1)
+    if unimix > 0:
+        probs = (1.0 - unimix) * probs + unimix / logits.shape[-1]
+    return torch.log(probs)
+
+
+def straight_through_sample(logp: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """A one-hot sample of Cat(exp(logp)) (Gumbel-max, so a seeded generator reproduces it) whose gradient is that
+    of the probabilities."""
+    u = torch.rand(logp.shape, generator=generator, device=logp.device, dtype=logp.dtype)
+    gumbel = -torch.log((-torch.log(u.clamp_min(1e-20))).clamp_min(1e-20))
+    one_hot = F.one_hot(torch.argmax(logp + gumbel, -1), logp.shape[-1]).to(logp.dtype)
+    probs = logp.exp()
+    return one_hot + probs - probs.detach()
+
+
+def categorical_kl(logp: torch.Tensor, logq: torch.Tensor) -> torch.Tensor:
+    """KL[p || q] of (..., S, K) log-probabilities, summed over the S categoricals -> (...)."""
+    return (logp.exp() * (logp - logq)).sum((-2, -1))
+
+
+def _fans(w: torch.Tensor) -> tuple[int, int]:
+    space = int(w[0, 0].numel()) if w.dim() > 2 else 1
+    return w.shape[1] * space, w.shape[0] * space  # (fan_in, fan_out); ConvTranspose2d's are swapped, as in the reference
+
+
+def dreamer_init(module: nn.Module) -> None:
+    """DreamerV3's initialiser: weights ~ truncated normal (2 std) with variance 1 / mean(fan_in, fan_out) (std
+    divided by 0.8796, the truncation's shrinkage), biases 0. PyTorch's default gives ~3x smaller logits at the
+    start, whose near-uniform categorical samples the decoder cannot use for hundreds of steps."""
+    for m in module.modules():
+        if isinstance(m, (nn.Linear, nn.Conv2d, nn.ConvTranspose2d)):
+            fan_in, fan_out = _fans(m.weight)
+            std = math.sqrt(2.0 / (fan_in + fan_out)) / 0.87962566103423978
+            nn.init.trunc_normal_(m.weight, 0.0, std, -2.0 * std, 2.0 * std)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+
+def uniform_init(layer: nn.Module, scale: float = 1.0) -> None:
+    """DreamerV3's output layers: uniform with variance scale / mean(fan_in, fan_out), bias 0."""
+    fan_in, fan_out = _fans(layer.weight)
+    limit = math.sqrt(3.0 * scale * 2.0 / (fan_in + fan_out))
+    nn.init.uniform_(layer.weight, -limit, limit)
+    if layer.bias is not None:
+        nn.init.zeros_(layer.bias)
+
+
+def mlp(inp: int, units: int, layers: int, out: int | None = None) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    for _ in range(layers):
+        mods += [nn.Linear(inp, units, bias=False), nn.LayerNorm(units, eps=1e-3), nn.SiLU()]
+        inp = units
+    if out is not None:
+        mods.append(nn.Linear(inp, out))
+    return nn.Sequential(*mods)
+
+
+class ChannelLayerNorm(nn.Module):
+    """LayerNorm over the channels of (N, C, H, W) feature maps."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.norm = nn.LayerNorm(channels, eps=1e-3)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return rearrange(self.norm(rearrange(x, "n c h w -> n h w c")), "n h w c -> n c h w")
+
+
+class ConvEncoder(nn.Module):
+    def __init__(self, cfg: WorldModelConfig) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        cin, cout = 3, cfg.cnn_depth
+        pad = cfg.kernel - 2  # "same" padding of a stride-2 conv on an even size: total k - s
+        for _ in range(cfg.stages):
+            layers += [nn.ZeroPad2d((pad // 2, pad - pad // 2, pad // 2, pad - pad // 2)),
+                       nn.Conv2d(cin, cout, cfg.kernel, stride=2, bias=False), ChannelLayerNorm(cout), nn.SiLU()]
+            cin, cout = cout, cout * 2
+        self.layers = nn.Sequential(*layers)
+        self.out_dim = cin * cfg.minres**2
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:  # (B, T, H, W, 3) in [0, 1] -> (B, T, E)
+        b = image.shape[0]
+        x = self.layers(rearrange(image - 0.5, "b t h w c -> (b t) c h w"))
+        return rearrange(x, "(b t) c h w -> b t (c h w)", b=b)
+
+
+class ConvDecoder(nn.Module):
+    def __init__(self, cfg: WorldModelConfig, feat_dim: int) -> None:
+        super().__init__()
+        self.minres = cfg.minres
+        top = cfg.cnn_depth * 2 ** (cfg.stages - 1)
+        self.linear = nn.Linear(feat_dim, top * cfg.minres**2)
+        val = cfg.kernel - 2  # ConvTranspose2d doubling the size: padding ceil(val/2), output_padding 2*pad - val
+        pad = (val + 1) // 2
+        layers: list[nn.Module] = []
+        cin = top
+        for i in range(cfg.stages):
+            last = i == cfg.stages - 1
+            cout = 3 if last else cin // 2
+            layers.append(nn.ConvTranspose2d(cin, cout, cfg.kernel, stride=2, padding=pad, output_padding=2 * pad - val,
+                                             bias=last))
+            if not last:
+                layers += [ChannelLayerNorm(cout), nn.SiLU()]
+            cin = cout
+        self.layers = nn.Sequential(*layers)
+
+    def forward(self, feat: torch.Tensor) -> torch.Tensor:  # (B, T, F) -> (B, T, H, W, 3), mean image
+        b = feat.shape[0]
+        x = rearrange(self.linear(feat), "b t (c h w) -> (b t) c h w", h=self.minres, w=self.minres)
+        return rearrange(self.layers(x), "(b t) c h w -> b t h w c", b=b) + 0.5
+
+
+class GRUCell(nn.Module):
+    """DreamerV3's layer-normed GRU: update gate biased towards keeping the state (sigmoid(u - 1))."""
+
+    def __init__(self, inp: int, size: int) -> None:
+        super().__init__()
+        self.layer = nn.Linear(inp + size, 3 * size, bias=False)
+        self.norm = nn.LayerNorm(3 * size, eps=1e-3)
+
+    def forward(self, x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        reset, cand, update = self.norm(self.layer(torch.cat([x, h], -1))).chunk(3, -1)
+        reset = torch.sigmoid(reset)
+        cand = torch.tanh(reset * cand)
+        update = torch.sigmoid(update - 1.0)
+        return update * cand + (1.0 - update) * h
+
+
+class RSSM(nn.Module):
+    """States are dicts: deter (B, deter), stoch (B, S, K) one-hot (straight-through), logp (B, S, K)."""
+
+    def __init__(self, cfg: WorldModelConfig, action_dim: int, embed_dim: int) -> None:
+        super().__init__()
+        self.cfg = cfg
+        s, k = cfg.stoch, cfg.classes
+        self.img_in = mlp(s * k + action_dim, cfg.hidden, 1)
+        self.cell = GRUCell(cfg.hidden, cfg.deter)
+        self.img_out = mlp(cfg.deter, cfg.hidden, 1)
+        self.prior_head = nn.Linear(cfg.hidden, s * k)
+        self.obs_out = mlp(cfg.deter + embed_dim, cfg.hidden, 1)
+        self.post_head = nn.Linear(cfg.hidden, s * k)
+        self.init_deter = nn.Parameter(torch.zeros(cfg.deter))
+
+    def _logp(self, head: nn.Module, x: torch.Tensor) -> torch.Tensor:
+        return unimix_logits(rearrange(head(x), "... (s k) -> ... s k", s=self.cfg.stoch), self.cfg.unimix)
+
+    def initial(self, batch: int) -> dict[str, torch.Tensor]:
+        deter = torch.tanh(self.init_deter).expand(batch, -1)
+        logp = self._logp(self.prior_head, self.img_out(deter))
+        mode = F.one_hot(logp.argmax(-1), self.cfg.classes).to(logp.dtype)
+        return {"deter": deter, "stoch": mode + logp.exp() - logp.exp().detach(), "logp": logp}
+
+    def img_step(self, prev: dict, prev_action: torch.Tensor, generator=None) -> dict[str, torch.Tensor]:
+        prev_action = prev_action / prev_action.abs().clamp_min(1.0).detach()
+        x = self.img_in(torch.cat([rearrange(prev["stoch"], "b s k -> b (s k)"), prev_action], -1))
+        deter = self.cell(x, prev["deter"])
+        logp = self._logp(self.prior_head, self.img_out(deter))
+        return {"deter": deter, "stoch": straight_through_sample(logp, generator), "logp": logp}
+
+    def obs_step(self, prev: dict, prev_action: torch.Tensor, embed: torch.Tensor, is_first: torch.Tensor,
+                 generator=None) -> tuple[dict, dict]:
+        first = is_first.to(embed.dtype)[:, None]
+        if bool(is_first.any()):
+            init = self.initial(len(first))
+            prev = {"deter": prev["deter"] * (1 - first) + init["deter"] * first,
+                    "stoch": prev["stoch"] * (1 - first[..., None]) + init["stoch"] * first[..., None]}
+            prev_action = prev_action * (1 - first)
+        prior = self.img_step(prev, prev_action, generator)
+        logp = self._logp(self.post_head, self.obs_out(torch.cat([prior["deter"], embed], -1)))
+        post = {"deter": prior["deter"], "stoch": straight_through_sample(logp, generator), "logp": logp}
+        return post, prior
+
+    def observe(self, embed: torch.Tensor, prev_action: torch.Tensor, is_first: torch.Tensor, state=None,
+                generator=None) -> tuple[dict, dict]:
+        """Posterior and prior states over a window: each a dict of (B, T, ...)."""
+        b, t = embed.shape[:2]
+        if state is None:
+            state = self.initial(b)
+        posts, priors = [], []
+        for i in range(t):
+            state, prior = self.obs_step(state, prev_action[:, i], embed[:, i], is_first[:, i], generator)
+            posts.append(state)
+            priors.append(prior)
+        stack = lambda seq: {k: torch.stack([s[k] for s in seq], 1) for k in seq[0]}  # noqa: E731
+        return stack(posts), stack(priors)
+
+    def imagine(self, prev_action: torch.Tensor, state: dict, generator=None) -> dict:
+        """Prior states for (B, K, A) actions from a (B, ...) state, no observations."""
+        out = []
+        for i in range(prev_action.shape[1]):
+            state = self.img_step(state, prev_action[:, i], generator)
+            out.append(state)
+        return {k: torch.stack([s[k] for s in out], 1) for k in out[0]}
+
+    @staticmethod
+    def features(state: dict) -> torch.Tensor:
+        return torch.cat([rearrange(state["stoch"], "... s k -> ... (s k)"), state["deter"]], -1)
+
+
+class WorldModel(nn.Module):
+    def __init__(self, cfg: WorldModelConfig, state_dim: int, action_dim: int) -> None:
+        super().__init__()
+        if state_dim < 0 or action_dim < 1:
+            raise UserError(f"world model needs action_dim >= 1 and state_dim >= 0, got {action_dim}, {state_dim}")
+        self.cfg, self.state_dim, self.action_dim = cfg, state_dim, action_dim
+        self.encoder = ConvEncoder(cfg)
+        self.state_encoder = mlp(state_dim, cfg.mlp_units, cfg.mlp_layers) if state_dim else None
+        embed_dim = self.encoder.out_dim + (cfg.mlp_units if state_dim else 0)
+        self.rssm = RSSM(cfg, action_dim, embed_dim)
+        feat = cfg.stoch * cfg.classes + cfg.deter
+        self.image_decoder = ConvDecoder(cfg, feat)
+        self.state_decoder = mlp(feat, cfg.mlp_units, cfg.mlp_layers, out=state_dim) if state_dim else None
+        dreamer_init(self)
+        for out in (self.rssm.prior_head, self.rssm.post_head, self.image_decoder.layers[-1]):
+            uniform_init(out)
+        if self.state_decoder is not None:
+            uniform_init(self.state_decoder[-1])
+
+    def n_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def embed(self, image: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        e = self.encoder(image)
+        if self.state_encoder is not None:
+            e = torch.cat([e, self.state_encoder(symlog(state))], -1)
+        return e
+
+    @staticmethod
+    def _images(batch: dict) -> torch.Tensor:
+        image = batch["image"]
+        return image.float() / 255.0 if image.dtype == torch.uint8 else image
+
+    def step_errors(self, batch: dict, generator=None) -> dict[str, torch.Tensor]:
+        """Per-step (B, T) terms of the loss: image_se (squared error summed over pixels and channels, images in
+        [0, 1]), state_se (summed over dimensions, symlog space), kl_dyn = KL[sg(q) || p], kl_rep = KL[q || sg(p)]
+        (their values are equal; the two differ only in where gradients flow)."""
+        image = self._images(batch)
+        post, prior = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
+                                        generator=generator)
+        feat = self.rssm.features(post)
+        out = {"image_se": (self.image_decoder(feat) - image).pow(2).sum((-3, -2, -1))}
+        if self.state_decoder is not None:
+            out["state_se"] = (self.state_decoder(feat) - symlog(batch["state"])).pow(2).sum(-1)
+        else:
+            out["state_se"] = torch.zeros_like(out["image_se"])
+        out["kl_dyn"] = categorical_kl(post["logp"].detach(), prior["logp"])
+        out["kl_rep"] = categorical_kl(post["logp"], prior["logp"].detach())
+        return out
+
+    def loss(self, batch: dict, generator=None) -> tuple[torch.Tensor, dict[str, float]]:
+        c = self.cfg
+        e = self.step_errors(batch, generator)
+        mask = batch["mask"].to(e["image_se"].dtype)
+        n = mask.sum().clamp_min(1.0)
+        per_step = (c.image_scale * e["image_se"] + c.state_scale * e["state_se"]
+                    + c.dyn_scale * e["kl_dyn"].clamp_min(c.free_nats) + c.rep_scale * e["kl_rep"].clamp_min(c.free_nats))
+        loss = (per_step * mask).sum() / n
+        metrics = {k: float((v.detach() * mask).sum() / n) for k, v in e.items()}
+        metrics["loss"] = float(loss.detach())
+        return loss, metrics
+
+    @torch.no_grad()
+    def open_loop_errors(self, batch: dict, context: int, generator=None) -> dict[str, torch.Tensor]:
+        """Observe the first `context` steps, then imagine the rest from the actions alone and decode the prior:
+        per-step (B, T - context) image_se and state_se of the imagined frames."""
+        image = self._images(batch)
+        sl = slice(0, context)
+        post, _ = self.rssm.observe(self.embed(image[:, sl], batch["state"][:, sl]), batch["prev_action"][:, sl],
+                                    batch["is_first"][:, sl], generator=generator)
+        last = {k: v[:, -1] for k, v in post.items()}
+        prior = self.rssm.imagine(batch["prev_action"][:, context:], last, generator)
+        feat = self.rssm.features(prior)
+        out = {"image_se": (self.image_decoder(feat) - image[:, context:]).pow(2).sum((-3, -2, -1))}
+        if self.state_decoder is not None:
+            out["state_se"] = (self.state_decoder(feat) - symlog(batch["state"][:, context:])).pow(2).sum(-1)
+        return out
+
+    @torch.no_grad()
+    def reconstruct(self, batch: dict, generator=None) -> torch.Tensor:
+        """Posterior reconstructions (B, T, H, W, 3) in [0, 1] (for figures)."""
+        image = self._images(batch)
+        post, _ = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
+                                    generator=generator)
+        return self.image_decoder(self.rssm.features(post)).clamp(0, 1)

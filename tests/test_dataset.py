@@ -1,0 +1,135 @@
+"""Windows over episodes (simeval.episodes.dataset): the o_t, a_t, o_{t+1} alignment, padding, the first-k protocol,
+normalisation and the refusal to mix action spaces, checked against episodes whose dynamics are known by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simeval.episodes.dataset import (ArraySource, EpisodeInfo, NormStats, WindowDataset, WindowSpec, build_index,
+                                      episode_ranks, rank_mask, window_starts)
+from simeval.errors import UserError
+
+SPACE = {"kind": "test_2d", "dims": ["a", "b"]}
+
+
+def integrator_episode(n_actions: int, seed: int) -> dict:
+    """o_{t+1} = o_t + a_t (state and a 1-pixel image whose red channel is the step index): the store's convention,
+    n_actions + 1 rows, the last row's action a copy of the one before (padding)."""
+    rng = np.random.default_rng(seed)
+    a = rng.integers(-3, 4, size=(n_actions, 2)).astype(np.float32)
+    s = np.concatenate([rng.integers(0, 5, size=(1, 2)), np.zeros((n_actions, 2))]).astype(np.float32)
+    for t in range(n_actions):
+        s[t + 1] = s[t] + a[t]
+    image = np.zeros((n_actions + 1, 4, 4, 3), np.uint8)
+    image[:, :, :, 0] = np.arange(n_actions + 1)[:, None, None]
+    return {"image": image, "state": s, "action": np.concatenate([a, a[-1:]])}
+
+
+def source(lengths=(12, 7, 20), tasks=("a", "a", "b"), space=SPACE) -> ArraySource:
+    arrays = [integrator_episode(n, i) for i, n in enumerate(lengths)]
+    infos = [EpisodeInfo(task=t, seed=i, group="g", n_rows=n + 1, action_space=space)
+             for i, (t, n) in enumerate(zip(tasks, lengths))]
+    return ArraySource(infos, arrays)
+
+
+def test_window_starts_by_hand():
+    assert window_starts(10, WindowSpec(length=4)).tolist() == [0, 1, 2, 3, 4, 5, 6]
+    assert window_starts(10, WindowSpec(length=4, stride=3, offset=1)).tolist() == [1, 4]
+    assert window_starts(10, WindowSpec(length=4, stride=4, pad_end=True)).tolist() == [0, 4, 8]
+    assert window_starts(10, WindowSpec(length=4, stride=2, pad_start=2)).tolist() == [-2, 0, 2, 4, 6]
+    assert window_starts(3, WindowSpec(length=4)).tolist() == []  # too short, no padding: no window
+    assert build_index([10, 3], WindowSpec(length=4, stride=4, pad_end=True)).tolist() == [[0, 0], [0, 4], [0, 8],
+                                                                                          [1, 0]]
+
+
+def test_windows_align_observation_action_and_next_observation_as_stored():
+    src = source()
+    ds = WindowDataset(src, WindowSpec(length=5, stride=2, pad_start=2, pad_end=True))
+    seen = 0
+    for e, s in ds.windows(0):
+        w = ds[(e, s)]
+        ep = src.arrays[e]
+        for i in range(5):
+            r = s + i
+            if not w["mask"][i]:
+                assert r < 0 or r >= src.infos[e].n_rows
+                assert not w["is_first"][i] and not w["image"][i].any()
+                continue
+            assert w["image"][i, 0, 0, 0] == r  # the frame of row r
+            np.testing.assert_array_equal(w["state"][i], ep["state"][r])
+            np.testing.assert_array_equal(w["action"][i], ep["action"][r])  # a_r follows o_r
+            assert w["is_first"][i] == (r == 0)
+            if r == 0:
+                assert not w["prev_action"][i].any()  # nothing led to the reset observation
+            else:  # the action that produced o_r: o_r = o_{r-1} + a_{r-1}
+                np.testing.assert_array_equal(w["state"][i], ep["state"][r - 1] + w["prev_action"][i])
+            if i + 1 < 5 and w["mask"][i + 1]:  # o_{r+1} = o_r + a_r within the window
+                np.testing.assert_array_equal(w["state"][i + 1], w["state"][i] + w["action"][i])
+            seen += 1
+    assert seen > 40
+
+
+def test_eval_windows_cover_every_row_once():
+    src = source()
+    ds = WindowDataset(src, WindowSpec(length=6, stride=6, pad_end=True))
+    rows = [(int(w["episode"][i]), int(w["row"][i])) for e, s in ds.windows(0) for w in [ds[(e, s)]]
+            for i in range(6) if w["mask"][i]]
+    assert sorted(rows) == [(e, r) for e, n in enumerate([13, 8, 21]) for r in range(n)]
+
+
+def test_first_k_per_task_by_seed_and_ranges():
+    tasks = ["a", "b", "a", "a", "b"]
+    seeds = [7, 3, 2, 9, 1]
+    ranks = episode_ranks(tasks, seeds)
+    assert ranks.tolist() == [1, 1, 0, 2, 0]
+    assert rank_mask(ranks, 0, 2).tolist() == [True, True, True, False, True]
+    assert rank_mask(ranks, 2, 3).tolist() == [False, False, False, True, False]
+
+
+def test_random_offset_changes_per_epoch_and_is_seeded():
+    src = source(lengths=(40,), tasks=("a",))
+    spec = WindowSpec(length=5, stride=10, random_offset=True)
+    a, b = WindowDataset(src, spec, seed=3), WindowDataset(src, spec, seed=3)
+    offsets = {int(a.windows(e)[0, 1]) for e in range(20)}
+    assert len(offsets) > 3 and offsets <= set(range(10))
+    assert all((a.windows(e) == b.windows(e)).all() for e in range(5))
+
+
+def test_normalisation_statistics_use_real_actions_only_and_are_applied():
+    src = source(lengths=(3,), tasks=("a",))
+    ep = src.arrays[0]
+    ds = WindowDataset(src, WindowSpec(length=4))
+    st = ds.fit_stats()
+    np.testing.assert_allclose(st.action_mean, ep["action"][:3].mean(0), rtol=1e-6)  # row 3's padding left out
+    np.testing.assert_allclose(st.state_std, np.where(ep["state"].std(0) < 1e-6, 1, ep["state"].std(0)), rtol=1e-6)
+    ds.stats = st
+    w = ds[(0, 0)]
+    np.testing.assert_allclose(w["state"], (ep["state"] - st.state_mean) / st.state_std, rtol=1e-5)
+    assert NormStats.from_dict(st.to_dict()).to_dict() == st.to_dict()
+
+
+def test_mixed_action_spaces_are_refused_naming_both():
+    src = source()
+    src.infos[2].action_space = {"kind": "pick_place_14d", "dims": list("abcdefghijklmn")}
+    with pytest.raises(UserError, match="test_2d.*pick_place_14d"):
+        WindowDataset(src, WindowSpec(length=4))
+    WindowDataset(src, WindowSpec(length=4), episodes=np.array([True, True, False]))  # one kind selected: fine
+
+
+def test_store_windows_match_the_stored_rows(tmp_path):
+    """The HDF5 reader returns what the store holds (same alignment as the in-memory source)."""
+    from simeval.episodes import store as store_mod
+
+    if getattr(store_mod, "SCHEMA", 1) < 2:
+        pytest.skip("episode store format 1 (T+1 observations arrive with the core store change)")
+    from simeval.episodes.dataset import StoreSource
+    from simeval.models.synthetic import write_group
+
+    paths = write_group(tmp_path, "diverse", n_tasks=2, episodes=2, n_actions=9, size=16)
+    ds = WindowDataset(StoreSource(paths, "front"), WindowSpec(length=4, stride=3, pad_end=True))
+    mem = ds.source.preload()
+    for e, s in ds.windows(0):
+        a, b = ds[(e, s)], WindowDataset(mem, ds.spec)[(e, s)]
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k])
