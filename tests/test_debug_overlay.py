@@ -30,6 +30,19 @@ SHRINKS = {
                   "world_model.model.mlp_units": (128, 32), "world_model.train.epochs": (10, 2),
                   "world_model.train.lr": (1e-4, 1e-3), "world_model.train.checkpoint_every": (200, 5),
                   "world_model.window.length": (20, 8), "world_model.window.stride": (10, 4)},
+    # generalization: the tiny policy (conf/policy/tiny.yaml), 2 episodes per task, 1 rollout of 40 steps
+    "generalization": {"episodes_per_task": (40, 2), "val_episodes_per_task": (2, 1), "torch_threads": (None, 1),
+                       "eval.seeds": (10, 1), "eval.max_steps": (None, 40), "policy.name": ("cpu", "tiny"),
+                       "policy.model.image_size": ([64, 64], [32, 32]), "policy.model.crop": (56, 28),
+                       "policy.model.encoder_width": (32, 8), "policy.model.keypoints": (32, 8),
+                       "policy.model.feature_dim": (64, 16), "policy.model.stem_pool": (True, False),
+                       "policy.model.horizon": (16, 8), "policy.model.n_action_steps": (8, 4),
+                       "policy.model.down_dims": ([64, 128, 256], [16, 32]), "policy.model.step_embed_dim": (128, 16),
+                       "policy.model.kernel_size": (5, 3), "policy.model.n_groups": (8, 4),
+                       "policy.model.num_train_timesteps": (100, 20), "policy.model.num_inference_steps": (16, 5),
+                       "policy.train.train_steps": (1000, 20), "policy.train.batch_size": (64, 8),
+                       "policy.train.lr": (3e-4, 1e-3), "policy.train.warmup_steps": (50, 2),
+                       "policy.train.checkpoint_every": (100, 10), "policy.train.log_every": (20, 5)},
 }
 
 
