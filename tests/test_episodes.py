@@ -30,7 +30,7 @@ def episode(task="stack-blocks", seed=0, t=10, group="stacking", success=True) -
         reward=np.r_[np.zeros(t - 1), 1.0], progress=np.linspace(0, 1, t), is_first=np.arange(t) == 0,
         is_terminal=np.arange(t) == t - 1, success=success, high_level_action=rng.normal(size=(2, 14)),
         high_level_step=np.array([0, t // 2]), scene_views=rng.integers(0, 255, (4, 8, 8, 3), dtype=np.uint8),
-        control_hz=30.0)
+        control_hz=30.0, action_space={"kind": "test_6d", "dims": [f"a{i}" for i in range(6)]})
 
 
 def test_the_simulator_builds_episodes_without_the_storage_layer():
@@ -57,7 +57,7 @@ def test_round_trip(tmp_path):
 def test_inconsistent_episode_is_rejected(tmp_path):
     ep = episode()
     ep.reward = ep.reward[:-1]
-    with pytest.raises(EpisodeFormatError, match="10 actions but lengths"):
+    with pytest.raises(EpisodeFormatError, match="10 rows of actions but lengths"):
         write_episode(tmp_path / "e.h5", ep)
     assert list(tmp_path.iterdir()) == []  # nothing half-written
 
@@ -74,7 +74,7 @@ def test_truncated_and_foreign_files_are_clear_errors(tmp_path):
     import h5py
 
     with h5py.File(tmp_path / "incomplete.h5", "w") as f:  # what a writer killed before marking complete leaves
-        f.attrs["schema"] = 1
+        f.attrs["schema"] = 2
     with pytest.raises(EpisodeFormatError, match="incomplete episode"):
         read_meta(tmp_path / "incomplete.h5")
     with pytest.raises(EpisodeFormatError, match="not found"):
@@ -147,9 +147,13 @@ def test_import_ravens(tmp_path):
     ep = eps[0]
     assert ep.task == "stack-block-pyramid" and ep.group == "stacking" and ep.seed == 100
     assert ep.description == "stack the blocks into a pyramid" and ep.success
-    assert ep.n_steps == 3 and ep.rgb["color_0"].shape == (3, 12, 16, 3) and set(ep.rgb) == {"color_0", "color_1", "color_2"}
+    # 3 actions, 4 rows: the final (solved) observation is kept and the last action is padding
+    assert ep.n_steps == 4 and ep.rgb["color_0"].shape == (4, 12, 16, 3) and set(ep.rgb) == {"color_0", "color_1", "color_2"}
+    assert ep.depth["color_1"].shape == (4, 12, 16) and ep.depth["color_1"].dtype == np.float32
     assert ep.high_level_action.shape == (3, 14) and ep.high_level_action[0, 7:10].tolist() == pytest.approx([0.3, 0.4, 0.05])
-    assert ep.reward.tolist() == pytest.approx([1 / 3] * 3)
+    assert ep.action_space["kind"] == "pick_place_14d" and ep.action.shape == (4, 14)
+    assert ep.reward.tolist() == pytest.approx([1 / 3] * 3 + [0]) and ep.progress.tolist() == pytest.approx([0, 1 / 3, 2 / 3, 1])
+    assert ep.language == ["stack the blocks into a pyramid"] * 4
     (tmp_path / "data" / "stack-block-pyramid-train" / "color" / "000001-101.pkl").write_bytes(b"garbage")
     with pytest.raises(EpisodeFormatError, match="000001-101.pkl: unreadable pickle"):
         list(import_ravens(tmp_path / "data"))

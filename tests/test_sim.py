@@ -65,10 +65,11 @@ def test_sampling_is_seeded_matched_and_non_overlapping():
 def test_an_episode_records_what_the_authors_logged():
     ep = run_episode(SUITE["stack-two-blocks"], 0, RecordSettings(cameras=("top", "front"), image_size=(32, 40),
                                                                   scene_view_size=(48, 48)))
-    t = ep.n_steps
+    t = ep.n_steps  # rows: the reset observation + one per action (simeval.episodes.store's convention)
     assert ep.success and t > 30
     assert ep.rgb["top"].shape == (t, 32, 40, 3) and ep.rgb["front"].dtype == np.uint8
-    assert ep.state.shape == (t, 12) and ep.action.shape == (t, 6)  # 6 joint pos + 6 vel; joint targets
+    # 6 joint pos + 6 vel (the authors' 12) + suction command + holding; 6 joint targets + suction command
+    assert ep.state.shape == (t, 14) and ep.action.shape == (t, 7)
     assert ep.high_level_action.shape[1] == 14 and np.all(np.diff(ep.high_level_step) > 0)
     assert ep.scene_views.shape == (4, 48, 48, 3) and ep.scene_views.std() > 5  # 4 views with something in them
     assert ep.progress[0] == 0.0 and ep.progress[-1] == 1.0  # not solved at the start, solved at the end

@@ -1,6 +1,9 @@
 """Collect oracle episodes of suite tasks into the episode store: parallel worker processes (each with its own
 PyBullet client), a progress bar, resumable (episodes already in the store are skipped), deterministic per seed.
-Failed oracle episodes are kept and flagged, as the authors' world-model data kept them.
+Each episode is the oracle run as a policy through the environment (simeval.sim.rollout.run_episode), stored as
+the environment returned it. Failed oracle episodes are kept and flagged, as the authors' world-model data kept
+them. A variation is part of an episode's identity: varied episodes are stored beside the plain ones, never over
+them (simeval.episodes.store).
 
 Workers never outlive the collector: each asks the kernel to kill it when its parent dies (Linux
 PR_SET_PDEATHSIG) and also watches its parent's pid (other systems, and the moment between fork and prctl);
@@ -106,7 +109,8 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     variation = check_variation(list(specs), variation)
     workers = workers or os.cpu_count() or 1
     store.remove_stale_temp_files()
-    todo = [(s, seed) for s in specs for seed in seeds if not store.exists_intact(pipeline, s.name, seed)]
+    todo = [(s, seed) for s in specs for seed in seeds
+            if not store.exists_intact(pipeline, s.name, seed, variation_for(s, variation))]
     skipped = len(specs) * len(seeds) - len(todo)
     new: list[dict] = []
     args = (str(store.root), asdict(settings), pipeline, variation)
@@ -126,7 +130,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
         bar.close()
     tasks = {}
     for s in specs:  # the summary covers the whole store for these seeds, earlier runs included
-        metas = [read_meta(store.path_for(pipeline, s.name, seed)) for seed in seeds]
+        metas = [read_meta(store.path_for(pipeline, s.name, seed, variation_for(s, variation))) for seed in seeds]
         ok = sum(m["success"] for m in metas)
         tasks[s.name] = {"group": s.group, "episodes": len(metas), "success": ok, "rate": ok / len(metas)}
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped, "tasks": tasks}

@@ -22,13 +22,15 @@ class Episode:
     description: str
     group: str
     seed: int
-    rgb: dict[str, np.ndarray]  # camera -> (T, H, W, 3) uint8
-    state: np.ndarray  # (T, D)
-    action: np.ndarray  # (T, A)
-    reward: np.ndarray  # (T,)
-    is_first: np.ndarray  # (T,)
-    is_terminal: np.ndarray  # (T,)
-    progress: np.ndarray | None = None  # (T,); None when the source does not record it
+    # per-step arrays have T + 1 rows for T actions (the convention in store.py: row 0 is the reset observation,
+    # action t produced row t + 1, the last row's action is padding)
+    rgb: dict[str, np.ndarray]  # camera -> (T+1, H, W, 3) uint8
+    state: np.ndarray  # (T+1, D)
+    action: np.ndarray  # (T+1, A)
+    reward: np.ndarray  # (T+1,)
+    is_first: np.ndarray  # (T+1,)
+    is_terminal: np.ndarray  # (T+1,)
+    progress: np.ndarray | None = None  # (T+1,); None when the source does not record it
     success: bool = False
     success_known: bool = True  # False for sources that do not record success (the authors' GenSim/RoboGen files)
     high_level_action: np.ndarray | None = None  # (H, K)
@@ -38,10 +40,22 @@ class Episode:
     control_hz: float | None = None
     source: str = "simeval"
     extra: dict = field(default_factory=dict)
+    action_space: dict | None = None  # {kind, dims, units, control_hz, ...}; see simeval.sim.env
+    high_level_space: dict | None = None  # the space of high_level_action (pick_place_14d)
+    state_names: list[str] | None = None  # (D,) names of the state dimensions
+    variation: dict | None = None  # the knobs this episode's instance was varied with ({} or None: none)
+    depth: dict[str, np.ndarray] | None = None  # camera -> (T+1, H, W) float32 metres (optional)
+    object_poses: np.ndarray | None = None  # (T+1, N, 7) (optional)
+    language: list[str] | None = None  # (T+1,) per-step language goals (optional)
 
     @property
     def n_steps(self) -> int:
+        """Rows: T + 1 observations (the last row's action is padding)."""
         return int(len(self.action))
+
+    @property
+    def n_actions(self) -> int:
+        return max(0, self.n_steps - 1)
 
     def validate(self) -> None:
         t = self.n_steps
@@ -49,9 +63,19 @@ class Episode:
                   "is_terminal": self.is_terminal, **{f"rgb/{k}": v for k, v in self.rgb.items()}}
         if self.progress is not None:
             arrays["progress"] = self.progress
+        arrays.update({f"depth/{k}": v for k, v in (self.depth or {}).items()})
+        if self.object_poses is not None:
+            arrays["object_poses"] = self.object_poses
+        if self.language is not None:
+            arrays["language"] = self.language
         bad = {k: len(v) for k, v in arrays.items() if len(v) != t}
         if bad:
-            raise EpisodeFormatError(f"{self.task} seed {self.seed}: {t} actions but lengths {bad}")
+            raise EpisodeFormatError(f"{self.task} seed {self.seed}: {t} rows of actions but lengths {bad}")
+        if t < 2:
+            raise EpisodeFormatError(f"{self.task} seed {self.seed}: an episode has at least 2 rows (the reset "
+                                     f"observation and one after an action), got {t}")
+        if self.action_space is None or not self.action_space.get("kind"):
+            raise EpisodeFormatError(f"{self.task} seed {self.seed}: action_space (with a kind) is required")
         for cam, frames in self.rgb.items():
             if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
                 raise EpisodeFormatError(f"camera {cam}: expected uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}")

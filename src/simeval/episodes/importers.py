@@ -1,9 +1,14 @@
 """Importers of other pipelines' demonstrations into the episode store.
 
 Formats (each file is a pickle: only import files you trust, as with any pickle):
-  ravens     GenSim/CLIPort `cliport/demos.py`: <data>/<task>-<mode>/{color,action,reward,info}/<ep:06d>-<seed>.pkl
-             color uint8 (T+1, 3, H, W, 3); action list of {pose0, pose1} (position, xyzw quaternion) ending in
-             None; reward list (reward[t+1] follows action t); info list with `lang_goal`. High-level only: T steps.
+  ravens     GenSim/CLIPort `cliport/demos.py`: <data>/<task>-<mode>/{color,depth,action,reward,info}/<ep:06d>-<seed>.pkl
+             color uint8 (T+1, cams, H, W, 3); depth float32 (T+1, cams, H, W) (optional); action list of
+             {pose0, pose1} (position, xyzw quaternion) ending in None; reward list (reward[t+1] follows action
+             t); info list of {object id: (position, quaternion, dimensions), "lang_goal": str}. Stored in the
+             store's convention with T + 1 rows (the final, solved observation kept; the last action padded),
+             action space `pick_place_14d` (Ravens' convention is the one simeval.sim.env uses), per-step language
+             goals, object poses and depth; the description is the task-level one (`descriptions`, else the one
+             goal when every step has the same, else the task name in words), never a sub-goal.
   gensim_pt  the paper authors' GenSim files <task>/episode_<i:03>_<len_high>_<len_low>.pt (torch.save'd dict)
   bbsea_pt   the authors' BBSEA files <scene>/<task description>/<episode_id>_<True|False>.pt
   robogen_pt the authors' RoboGen files <task>/episode_<i>_<len>.pt
@@ -129,6 +134,35 @@ def _group(groups: dict | None, task: str, default: str) -> str:
     return (groups or {}).get(task, default)
 
 
+def _source_action_space(fmt: str, dim: int) -> dict:
+    """The action space of the authors' files: their own convention, stored as they are (not re-aligned to the
+    store's row convention, which these files do not document)."""
+    return {"kind": f"{fmt}_action", "dims": [f"a{i}" for i in range(dim)], "units": None, "control_hz": None,
+            "alignment": "as in the source files"}
+
+
+def _resize_depth(depth: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    if size is None or tuple(depth.shape[1:3]) == tuple(size):
+        return np.ascontiguousarray(depth, dtype=np.float32)
+    from PIL import Image
+
+    h, w = size
+    return np.stack([np.asarray(Image.fromarray(f.astype(np.float32), mode="F").resize((w, h), Image.NEAREST))
+                     for f in depth]).astype(np.float32)
+
+
+def _ravens_object_poses(info: list) -> np.ndarray | None:
+    """(T+1, N, 7) poses of the objects Ravens lists in every step's info (integer keys), or None."""
+    ids = sorted(k for k in (info[0] or {}) if isinstance(k, (int, np.integer)))
+    if not ids or any(not isinstance(i, dict) or any(k not in i for k in ids) for i in info):
+        return None
+    try:
+        return np.asarray([[np.r_[np.asarray(i[k][0], float), np.asarray(i[k][1], float)] for k in ids]
+                           for i in info], np.float32)
+    except (TypeError, ValueError, IndexError):
+        return None
+
+
 def _pose14(pose0, pose1) -> np.ndarray:
     (p0, q0), (p1, q1) = pose0, pose1
     return np.concatenate([np.asarray(p0), np.asarray(q0), np.asarray(p1), np.asarray(q1)]).astype(np.float32)
@@ -148,7 +182,10 @@ def _ravens_pose14(action, path: Path, index: int) -> np.ndarray:
 
 
 def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
-                  groups: dict | None = None, stored: IsStored = _never) -> Iterator[Episode | Stored]:
+                  groups: dict | None = None, descriptions: dict | None = None,
+                  stored: IsStored = _never) -> Iterator[Episode | Stored]:
+    from simeval.sim.action_spaces import pick_place_action_space
+
     root = Path(root).expanduser()
     dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
     if not dirs:
@@ -170,27 +207,47 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
                                          f"{type(parts['action']).__name__}")
             actions = [a for a in parts["action"] if a is not None]
             t = len(actions)
-            if color.ndim != 5 or len(color) < t or t == 0:
-                raise EpisodeFormatError(f"{d / 'color' / action_file.name}: expected (T+1, cams, H, W, 3) for {t} actions,"
-                                         f" got {color.shape}")
-            reward = np.asarray(parts["reward"], dtype=np.float32)[1 : t + 1]
-            info = parts["info"][0] if parts["info"] else {}
-            description = (info or {}).get("lang_goal") or task
+            if color.ndim != 5 or len(color) < t + 1 or t == 0:
+                raise EpisodeFormatError(f"{d / 'color' / action_file.name}: expected (T+1, cams, H, W, 3) for {t} "
+                                         f"actions (the final observation included), got {color.shape}")
+            color = color[: t + 1]
+            reward = np.asarray(parts["reward"], dtype=np.float32)[1 : t + 1]  # reward[t+1] follows action t
+            info = list(parts["info"] or [])[: t + 1]
+            goals = [(i or {}).get("lang_goal") if isinstance(i, dict) else None for i in info]
+            language = [g or "" for g in goals] if len(goals) == t + 1 and any(goals) else None
+            distinct = list(dict.fromkeys(g for g in goals if g))
+            description = ((descriptions or {}).get(task) or (distinct[0] if len(distinct) == 1 else None)
+                           or task.replace("-", " "))
+            depth_file = d / "depth" / action_file.name
+            depth = np.asarray(_load_pickle(depth_file), np.float32)[: t + 1] if depth_file.is_file() else None
+            if depth is not None and (depth.ndim != 4 or depth.shape[:2] != color.shape[:2]):
+                raise EpisodeFormatError(f"{depth_file}: expected (T+1, cams, H, W) depth matching color "
+                                         f"{color.shape[:2]}, got {depth.shape}")
             hl = np.stack([_ravens_pose14(a, d / "action" / action_file.name, i) for i, a in enumerate(actions)])
+            progress = np.r_[0.0, np.cumsum(reward)].clip(0, 1).astype(np.float32)
+            poses = _ravens_object_poses(info) if len(info) == t + 1 else None
             yield Episode(
                 pipeline="gensim", task=task, description=description,
                 group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=seed,
-                rgb={f"color_{c}": _resize(color[:t, c], image_size) for c in range(color.shape[1])},
-                state=np.zeros((t, 0), np.float32), action=hl, reward=reward, progress=np.cumsum(reward).clip(0, 1),
-                is_first=np.arange(t) == 0, is_terminal=np.arange(t) == t - 1, success=bool(reward.sum() > 0.99),
-                high_level_action=hl, high_level_step=np.arange(t),
-                scene_views=_resize(color[0], image_size), source=f"ravens:{d}",
-                extra={"mode": d.name[len(task) + 1 :] or None, "episode": int(m.group(1))})
+                rgb={f"color_{c}": _resize(color[:, c], image_size) for c in range(color.shape[1])},
+                depth={f"color_{c}": _resize_depth(depth[:, c], image_size) for c in range(depth.shape[1])}
+                if depth is not None else None,
+                state=np.zeros((t + 1, 0), np.float32), action=np.concatenate([hl, hl[-1:]]),  # last row: padding
+                reward=np.r_[reward, 0.0].astype(np.float32), progress=progress,
+                is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(reward.sum() > 0.99),
+                high_level_action=hl, high_level_step=np.arange(t), scene_views=_resize(color[0], image_size),
+                source=f"ravens:{d}", action_space=pick_place_action_space(), high_level_space=pick_place_action_space(),
+                state_names=[], language=language, object_poses=poses,
+                extra={"mode": d.name[len(task) + 1 :] or None, "episode": int(m.group(1)),
+                       "object_ids": sorted(k for k in (info[0] or {}) if isinstance(k, (int, np.integer)))
+                       if poses is not None else None})
 
 
 def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                      groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
     """(The seed is stored inside these files, so each is loaded even on a resumed import.)"""
+    from simeval.sim.action_spaces import pick_place_action_space
+
     root = Path(root).expanduser()
     for path, _ in _episode_files(root, "*/episode_*.pt", r"episode_\d+_\d+_\d+\.pt",
                                   "GenSim: <task>/episode_<i>_<H>_<L>.pt"):
@@ -212,14 +269,20 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
             is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
             high_level_action=hl, high_level_step=np.asarray(d.get("high_step"), np.int64),
             scene_views=np.stack(views) if views and same_shape else None,
-            source=f"gensim_pt:{path}", success_known=False)
+            source=f"gensim_pt:{path}", success_known=False,
+            action_space=_source_action_space("gensim_pt", _arr(d, "action_low", path).reshape(n, -1).shape[1]),
+            high_level_space=pick_place_action_space())
 
 
 def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
     """The BBSEA and RoboGen files share one layout: image, state, action, is_first, is_terminal."""
     image = _uint8_images(_arr(d, "image", path), path, "image")
-    return Episode(rgb={"image": _resize(image, image_size)}, state=_arr(d, "state", path, np.float32),
-                   action=_arr(d, "action", path, np.float32), reward=np.zeros(len(image), np.float32),
+    state = _arr(d, "state", path, np.float32)
+    action = _arr(d, "action", path, np.float32)
+    fields.setdefault("action_space",
+                      _source_action_space(fields["pipeline"] + "_pt", action.reshape(len(action), -1).shape[1]))
+    return Episode(rgb={"image": _resize(image, image_size)}, state=state,
+                   action=action, reward=np.zeros(len(image), np.float32),
                    is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
                    scene_views=_resize(image[:1], image_size), **fields)
 

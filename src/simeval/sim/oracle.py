@@ -11,11 +11,9 @@ import numpy as np
 from simeval.sim.goals import (container_assignment, height, in_bowl, in_zone, offset_target, pose,
                                stack_chain, still, unit_status)
 from simeval.sim.objects import BOWL_WALL, SimObject
-from simeval.sim.robot import Arm
+from simeval.sim.robot import SAFE_Z, Arm  # noqa: F401 (SAFE_Z: re-exported)
 from simeval.sim.spec import Instance
 from simeval.sim.world import TABLE_Z, WORKSPACE, World
-
-SAFE_Z = 0.16
 
 
 def _wrap(yaw: float, period: float) -> float:
@@ -37,34 +35,26 @@ class PickPlace:
     settle_bodies: tuple[int, ...] = ()  # waited for after the place (default: the object itself)
 
     def pose14(self, world: World) -> np.ndarray:
-        p, yaw = pose(world, self.obj)
-        q0 = world.c.getQuaternionFromEuler([0, 0, yaw])
-        q1 = world.c.getQuaternionFromEuler([0, 0, self.target_yaw])
-        return np.r_[p, q0, self.place_xy, self.place_bottom_z, q1].astype(np.float32)
-
-    def execute(self, arm: Arm, world: World) -> bool:
+        """The 14-d action (Ravens' convention, simeval.sim.env): the tool at the pick point (the top centre of
+        the object, tool yaw aligned with it) and at the place point (where that point lands when the object is
+        at its target pose: the target centre plus half the object's height; tool yaw that turns it to the
+        target yaw)."""
         p, yaw = pose(world, self.obj)
         sym = symmetry(self.obj)
         pick_yaw = 0.0 if sym > math.pi else _wrap(yaw, sym)
-        top = p[2] + height(self.obj) / 2
-        arm.move(np.r_[p[:2], SAFE_Z], pick_yaw, speed=0.6)
-        arm.move(np.r_[p[:2], top + 0.03], pick_yaw, speed=0.3)
-        arm.move(np.r_[p[:2], top - 0.02], pick_yaw, speed=0.08, stop_on_contact=True)
-        if not arm.suction_on():
-            arm.move(np.r_[p[:2], SAFE_Z], pick_yaw)
-            return False
-        arm.move(np.r_[p[:2], SAFE_Z], pick_yaw, speed=0.3)
         # the held object turns with the tool: choose the place yaw that lands it at the target yaw
         place_yaw = pick_yaw if sym > math.pi else pick_yaw + _wrap(self.target_yaw - yaw, sym)
-        tip_z = self.place_bottom_z + height(self.obj) + 0.006
-        arm.move(np.r_[self.place_xy, SAFE_Z], place_yaw, speed=0.6)
-        arm.move(np.r_[self.place_xy, tip_z + 0.03], place_yaw, speed=0.3)
-        arm.move(np.r_[self.place_xy, tip_z], place_yaw, speed=0.08)
-        arm.suction_off()
-        arm.hold(6)
-        arm.move(np.r_[self.place_xy, SAFE_Z], place_yaw, speed=0.3)
+        q0 = world.c.getQuaternionFromEuler([0, 0, pick_yaw])
+        q1 = world.c.getQuaternionFromEuler([0, 0, place_yaw])
+        top = p[2] + height(self.obj) / 2
+        return np.r_[p[:2], top, q0, self.place_xy, self.place_bottom_z + height(self.obj), q1].astype(np.float32)
+
+    def execute(self, arm: Arm, world: World) -> bool:
+        """The primitive as the environment runs it (Arm.pick_place of the 14-d pose), then a wait until the
+        moved bodies rest (make_env waits for every object instead)."""
+        picked = arm.pick_place(self.pose14(world))
         wait_still(arm, world, self.settle_bodies or self.obj.body_ids, max_steps=60)
-        return True
+        return picked
 
 
 def wait_still(arm: Arm, world: World, bodies: list[int], max_steps: int = 30) -> None:
@@ -93,11 +83,7 @@ class Push:
         return _wrap(math.atan2(d[1], d[0]), math.pi)  # the blade is symmetric: push with either face
 
     def execute(self, arm: Arm, world: World) -> bool:
-        z = TABLE_Z + 0.004
-        arm.move(np.r_[self.start, SAFE_Z], self.yaw, speed=0.6)
-        arm.move(np.r_[self.start, z], self.yaw, speed=0.3)
-        arm.move(np.r_[self.end, z], self.yaw, speed=0.15)
-        arm.move(np.r_[self.end, SAFE_Z], self.yaw, speed=0.4)
+        arm.push(self.pose14(world))
         wait_still(arm, world, self.bodies, max_steps=20)
         return True
 

@@ -1,7 +1,15 @@
 """The arm: an xArm6 from pybullet_data (6 joint positions + 6 velocities = the 12-d state the paper's authors
 logged for the UR5), driven top-down by inverse kinematics, with a suction cup (a fixed constraint on contact,
 as Ravens/GenSim) or a spatula for pushing piles. Motions are Cartesian straight lines executed at the control
-rate; each control step calls the world's logger with the joint targets as the low-level action."""
+rate.
+
+The low-level action (kind `joint_pos+suction`, 7-d): the 6 joint position targets (rad) and the suction command
+(1 = on, 0 = off). `Arm.apply` is the one low-level step every path goes through (a learned policy through the
+environment, the oracle's primitives, a replay): it applies the suction command to the current state (on and
+nothing held: attach what the cup touches, if anything; off: release), sends the joint targets, and runs physics
+for one control period. The spatula has no actuation: its tasks use the same 7-d action with the suction channel
+always 0 (a 1 is ignored). The state (14-d): 6 joint positions, 6 joint velocities (the 12-d state the authors
+logged), the suction command in force (0/1) and whether an object is held (0/1)."""
 
 from __future__ import annotations
 
@@ -20,6 +28,12 @@ PARK = (math.pi, -0.35, -0.9, 0.0, 1.25, 0.0)
 TOOL_LENGTH = {"suction": 0.06, "spatula": 0.09}
 ARM_URDF = "xarm/xarm6_robot_white.urdf"
 RENDER_MESH = "collision"  # what Arm draws by default: "collision" (fast) or "visual" (pybullet_data's STLs)
+SAFE_Z = 0.16  # tool-tip height for moves across the workspace
+# joint limits of pybullet_data's xarm6_robot_white.urdf (rad), the bounds of the joint action space
+JOINT_LOWER = (-6.28318530718, -2.059, -3.927, -6.28318530718, -1.69297, -6.28318530718)
+JOINT_UPPER = (6.28318530718, 2.0944, 0.19198, 6.28318530718, 3.14159265359, 6.28318530718)
+JOINT_ACTION_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "suction")
+STATE_NAMES = (*(f"q{i}" for i in range(1, 7)), *(f"dq{i}" for i in range(1, 7)), "suction", "holding")
 
 
 def render_urdf(mesh: str = "collision") -> str:
@@ -74,7 +88,8 @@ class Arm:
         self.target = np.array(home, dtype=float)
         self.grasp = None  # constraint id while something is held
         self.held: int | None = None
-        self.logger = None  # callable(action (6,)) set by the episode runner
+        self.suction_cmd = False  # the suction command in force (applied by the next low-level step)
+        self.on_step = None  # callable(action (7,) float32) after every low-level step (set by the environment)
 
     def _make_tool(self) -> int:
         c = self.w.c
@@ -98,7 +113,8 @@ class Arm:
     # --- state -----------------------------------------------------------------------------------------------
     def state(self) -> np.ndarray:
         s = self.w.c.getJointStates(self.body, self.joints)
-        return np.array([x[0] for x in s] + [x[1] for x in s], dtype=np.float32)
+        ee = [float(self.suction_cmd), float(self.held is not None)]
+        return np.array([x[0] for x in s] + [x[1] for x in s] + ee, dtype=np.float32)
 
     def tip(self) -> np.ndarray:
         c = self.w.c
@@ -116,14 +132,33 @@ class Arm:
                                          restPoses=list(self.home), maxNumIterations=100, residualThreshold=1e-5)
         return np.asarray(q[: len(self.joints)])
 
-    def _command(self, q: np.ndarray) -> None:
+    def apply(self, action: np.ndarray) -> np.ndarray:
+        """One low-level step: the suction command, the joint targets, one control period of physics. The action
+        is clipped to the joint limits and cast to float32 first, so that a stored action replays bit for bit.
+        Returns the action as applied."""
         c = self.w.c
+        a = np.asarray(action, np.float32).reshape(-1)
+        if a.shape != (7,):
+            raise ValueError(f"a joint action has 7 values (6 joint targets, suction), got shape {a.shape}")
+        a = np.r_[np.clip(a[:6], JOINT_LOWER, JOINT_UPPER), np.float32(a[6] >= 0.5)].astype(np.float32)
+        self.suction_cmd = bool(a[6]) and self.kind == "suction"
+        if not self.suction_cmd:
+            a[6] = 0.0
+            if self.grasp is not None:
+                self._release()
+        elif self.grasp is None:
+            self._attach()
+        q = a[:6].astype(np.float64)
         self.target = q
         c.setJointMotorControlArray(self.body, self.joints, c.POSITION_CONTROL, targetPositions=q.tolist(),
                                     forces=[300.0] * len(self.joints), positionGains=[0.3] * len(self.joints))
         self.w.step()
-        if self.logger is not None:
-            self.logger(q.astype(np.float32))
+        if self.on_step is not None:
+            self.on_step(a)
+        return a
+
+    def _command(self, q: np.ndarray) -> None:
+        self.apply(np.r_[q, float(self.suction_cmd)])
 
     def move(self, tip: np.ndarray, yaw: float, speed: float = 0.4, settle_tol: float = 0.004,
              stop_on_contact: bool = False) -> bool:
@@ -151,10 +186,22 @@ class Arm:
         return None
 
     def suction_on(self) -> bool:
+        """Turn the suction on if the cup touches something (it attaches at the next low-level step, on the
+        same state); otherwise leave it off. Returns whether it will hold."""
+        if self.kind != "suction" or self.touching() is None:
+            return False
+        self.suction_cmd = True
+        return True
+
+    def suction_off(self) -> None:
+        """Turn the suction off: the next low-level step releases what is held."""
+        self.suction_cmd = False
+
+    def _attach(self) -> None:
         c = self.w.c
         other = self.touching()
-        if other is None or self.kind != "suction":
-            return False
+        if other is None:
+            return
         tp, to = c.getBasePositionAndOrientation(self.tool)
         op, oo = c.getBasePositionAndOrientation(other)
         inv_p, inv_o = c.invertTransform(tp, to)
@@ -163,11 +210,9 @@ class Arm:
                                         rel_o, [0, 0, 0, 1])
         c.changeConstraint(self.grasp, maxForce=200)
         self.held = other
-        return True
 
-    def suction_off(self) -> None:
-        if self.grasp is not None:
-            self.w.c.removeConstraint(self.grasp)
+    def _release(self) -> None:
+        self.w.c.removeConstraint(self.grasp)
         self.grasp, self.held = None, None
 
     def hold(self, steps: int) -> None:
@@ -188,3 +233,42 @@ class Arm:
             for k in range(1, n + 1):
                 a = k / n
                 self._command(start + (end - start) * (3 * a * a - 2 * a * a * a))  # smooth start and stop
+
+    # --- primitives of the 14-d action (see simeval.sim.env for the convention) -----------------------------
+    def pick_place(self, pose14: np.ndarray) -> bool:
+        """Ravens' pick-and-place: above the pick point, down until the cup touches, suction on, up, over the
+        place point at its yaw, down until the pick point is at the place position, suction off, up. Returns
+        whether something was picked."""
+        from simeval.sim.world import yaw_of
+
+        a = np.asarray(pose14, np.float64)
+        p0, yaw0, p1, yaw1 = a[0:3], yaw_of(a[3:7]), a[7:10], yaw_of(a[10:14])
+        self.move(np.r_[p0[:2], SAFE_Z], yaw0, speed=0.6)
+        self.move(np.r_[p0[:2], p0[2] + 0.03], yaw0, speed=0.3)
+        self.move(np.r_[p0[:2], p0[2] - 0.02], yaw0, speed=0.08, stop_on_contact=True)
+        if not self.suction_on():
+            self.move(np.r_[p0[:2], SAFE_Z], yaw0)
+            return False
+        self.move(np.r_[p0[:2], SAFE_Z], yaw0, speed=0.3)
+        tip_z = p1[2] + 0.006  # a few mm above the target: the object settles the rest of the way
+        self.move(np.r_[p1[:2], SAFE_Z], yaw1, speed=0.6)
+        self.move(np.r_[p1[:2], tip_z + 0.03], yaw1, speed=0.3)
+        self.move(np.r_[p1[:2], tip_z], yaw1, speed=0.08)
+        self.suction_off()
+        self.hold(6)
+        self.move(np.r_[p1[:2], SAFE_Z], yaw1, speed=0.3)
+        return True
+
+    def push(self, pose14: np.ndarray) -> bool:
+        """A spatula push from pose0's xy to pose1's xy (z ignored: the blade runs along the table), the blade
+        across the direction of the push."""
+        a = np.asarray(pose14, np.float64)
+        start, end = a[0:2], a[7:9]
+        d = end - start
+        yaw = (math.atan2(d[1], d[0]) + math.pi / 2) % math.pi - math.pi / 2  # the blade is symmetric
+        z = TABLE_Z + 0.004
+        self.move(np.r_[start, SAFE_Z], yaw, speed=0.6)
+        self.move(np.r_[start, z], yaw, speed=0.3)
+        self.move(np.r_[end, z], yaw, speed=0.15)
+        self.move(np.r_[end, SAFE_Z], yaw, speed=0.4)
+        return True

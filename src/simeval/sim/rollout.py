@@ -1,22 +1,27 @@
-"""Run one episode of a task spec with the oracle and log it as the authors did: low-level frames, 12-d state
-and joint-target actions at the control rate, and the 14-d high-level pick/place poses with the low-level step
-where each starts."""
+"""Policies through the environment (simeval.sim.env): the oracle as a policy, the recording of an oracle episode
+for the store, and rollouts of any policy over seeds for closed-loop evaluation. Collection and evaluation share
+this one code path: `env.reset` / `env.step`.
+
+A policy is a callable `policy(obs) -> action` (None: it gives up, the episode ends), optionally with
+`policy.reset(env)`, called after every `env.reset` (the oracle reads the simulator there; a learned policy clears
+its observation history)."""
 
 from __future__ import annotations
 
 import numbers
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
-from simeval.sim.goals import task_progress
-from simeval.sim.objects import make_object
+from simeval.sim.action_spaces import joint_action_space, pick_place_action_space
+from simeval.sim.env import SimEnv
 from simeval.sim.oracle import next_primitive
-from simeval.sim.robot import Arm
-from simeval.sim.spec import TaskSpec, check_variation, sample_instance
-from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, World
+from simeval.sim.robot import STATE_NAMES
+from simeval.sim.spec import TaskSpec, check_variation
+from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS
 
 
 @dataclass
@@ -24,8 +29,7 @@ class RecordSettings:
     cameras: tuple[str, ...] = ("top", "front")
     image_size: tuple[int, int] = (64, 64)
     scene_view_size: tuple[int, int] = (128, 128)
-    control_hz: float = 30.0
-    record_every: int = 1  # log every k-th control step (1 = the full control rate)
+    control_hz: float = 30.0  # every control step is one stored transition; for a coarser rate lower this
 
     def __post_init__(self) -> None:
         # configs give lists; the settings travel to worker processes and into keys, so keep them immutable.
@@ -36,9 +40,6 @@ class RecordSettings:
         unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
         if unknown:
             raise UserError(f"record.cameras: unknown camera(s) {unknown}; known: {', '.join(OBS_CAMERAS)}")
-        every = self.record_every
-        if isinstance(every, bool) or not isinstance(every, numbers.Integral) or every < 1:
-            raise UserError(f"record.record_every must be an integer >= 1, got {self.record_every!r}")
         hz = self.control_hz
         if isinstance(hz, bool) or not isinstance(hz, numbers.Real) or not hz > 0:
             raise UserError(f"record.control_hz must be a number > 0, got {self.control_hz!r}")
@@ -53,61 +54,132 @@ def image_size_pair(value, key: str) -> tuple[int, int]:
     return int(value[0]), int(value[1])
 
 
+class OraclePolicy:
+    """The replanning oracle (simeval.sim.oracle) as a policy for action_space="pick_place": each call plans the
+    next primitive from the simulator's state and returns its 14-d pose; None when every goal is done."""
+
+    def reset(self, env: SimEnv) -> None:
+        if env.mode != "pick_place":
+            raise UserError(f"the oracle acts through action_space='pick_place', not {env.mode!r}; its control "
+                            "steps are what make_env(..., record_low_level=True) returns")
+        self.env = env
+
+    def __call__(self, obs) -> np.ndarray | None:
+        prim = next_primitive(self.env.world, self.env.inst)
+        return None if prim is None else prim.pose14(self.env.world)
+
+
 def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = None, pipeline: str = "gensim",
                 variation: dict | None = None, final_frame_size: tuple[int, int] | None = None) -> Episode:
-    """`variation` overrides the spec's knobs for this episode: {object name: {colors, count}} and
-    {"robot": {"home_noise": radians}} for the robot's start (what a generalization test varies)."""
+    """The oracle through make_env(action_space="pick_place", record_low_level=True), stored as the low-level
+    episode the environment returned: the reset observation, then for each control step its 7-d action and the
+    observation it produced (the convention of simeval.episodes.store), plus the 14-d primitive actions with the
+    row where each starts. `variation` overrides the spec's knobs: {object name: {colors, count}} and
+    {"robot": {"home_noise": radians}} (what a generalization test varies)."""
     settings = settings or RecordSettings()
     variation = check_variation([spec], variation)
-    home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
-    inst = sample_instance(spec, seed, variation)
-    rng = np.random.default_rng(seed + 7919)
-    with World(settings.control_hz) as world:
-        arm = Arm(world, spec.end_effector, home_noise, rng)
-        for obj in inst.objects:
-            xy, yaw = inst.poses[obj.id]
-            make_object(world.c, obj, xy, yaw, rng, TABLE_Z)
-        world.settle(60)
-        views = np.stack([world.render(v, settings.scene_view_size) for v in SCENE_VIEWS])
-        frames = {c: [] for c in settings.cameras}
-        states, actions, progress = [], [], []
-        control_steps = 0
-
-        def log(action: np.ndarray) -> None:
-            nonlocal control_steps
-            control_steps += 1
-            if (control_steps - 1) % settings.record_every:
-                return
-            for cam in settings.cameras:
-                frames[cam].append(world.render(OBS_CAMERAS[cam], settings.image_size))
-            states.append(arm.state())
-            actions.append(action)
-            progress.append(task_progress(world, inst)[0])
-
-        arm.logger = log
+    env = SimEnv(spec, "pick_place", variation, settings.image_size, settings.cameras,
+                 control_hz=settings.control_hz, record_low_level=True, scene_view_size=settings.scene_view_size)
+    try:
+        obs, info = env.reset(seed=seed)
+        views = info.pop("scene_views")
+        rows, progress, poses = [obs], [info["progress"]], [env.object_poses()]
+        actions: list[np.ndarray] = []
         hl_actions, hl_steps = [], []
-        for _ in range(spec.max_primitives):
-            prim = next_primitive(world, inst)
-            if prim is None:
+        policy = OraclePolicy()
+        policy.reset(env)
+        while True:
+            action = policy(obs)
+            if action is None:
                 break
             hl_steps.append(len(actions))
-            hl_actions.append(prim.pose14(world))
-            prim.execute(arm, world)
-        arm.park()  # out of the cameras' view: the last frames show the result
-        arm.hold(10)
-        final, success = task_progress(world, inst)
-        final_view = world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
+            hl_actions.append(action)
+            obs, _, terminated, truncated, info = env.step(action)
+            low = info["low_level"]
+            actions += low["action"]
+            rows += low["obs"]
+            progress += low["progress"]
+            poses += low["object_poses"]
+            if terminated or truncated:
+                break
+        success = info["success"]
+        final_view = env.world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
+        inst = env.inst
+    finally:
+        env.close()
     t = len(actions)
     if t == 0:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
         raise RuntimeError(f"{spec.name} seed {seed}: the oracle made no move; is the task solved at start?")
     prog = np.asarray(progress, np.float32)
-    prog[-1] = final
-    reward = np.diff(np.r_[0.0, prog]).astype(np.float32)  # rewards sum to the final partial progress
     return Episode(
         pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
-        rgb={c: np.stack(f) for c, f in frames.items()}, state=np.stack(states), action=np.stack(actions),
-        reward=reward, progress=prog, is_first=np.arange(t) == 0, is_terminal=np.arange(t) == t - 1,
-        success=bool(success), high_level_action=np.stack(hl_actions) if hl_actions else np.zeros((0, 14), np.float32),
-        high_level_step=np.asarray(hl_steps, np.int64), scene_views=views, control_hz=settings.control_hz,
-        source="simeval-suite", final_view=final_view,
-        extra={"objects": {o.id: {"shape": o.shape, "color": o.color} for o in inst.objects}})
+        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
+        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
+        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
+        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
+        high_level_action=np.stack(hl_actions), high_level_step=np.asarray(hl_steps, np.int64), scene_views=views,
+        control_hz=settings.control_hz, source="simeval-suite", final_view=final_view,
+        action_space=joint_action_space(settings.control_hz),
+        high_level_space=pick_place_action_space(settings.control_hz), state_names=list(STATE_NAMES),
+        variation=variation, object_poses=np.stack(poses).astype(np.float32),
+        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
+                           for o in inst.objects}})
+
+
+# --- closed-loop evaluation ----------------------------------------------------------------------------------
+def _one_rollout(policy, task, seed: int, env_kwargs: dict, video_camera: str | None) -> dict:
+    video_low = video_camera is not None and env_kwargs.get("action_space") == "pick_place"
+    env = SimEnv(task, **env_kwargs, record_low_level=video_low)
+    frames = []
+    try:
+        obs, info = env.reset(seed=seed)
+        if hasattr(policy, "reset"):
+            policy.reset(env)
+        if video_camera is not None:
+            frames.append(obs["rgb"][video_camera])
+        steps, gave_up = 0, False
+        while True:
+            action = policy(obs)
+            if action is None:
+                gave_up = True
+                break
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            if video_camera is not None:
+                frames += [o["rgb"][video_camera] for o in info["low_level"]["obs"]] if video_low else \
+                    [obs["rgb"][video_camera]]
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return {"seed": int(seed), "success": bool(info["success"]), "progress": float(info["progress"]),
+            "steps": steps, "gave_up": gave_up, "video": np.stack(frames) if frames else None}
+
+
+def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str = "joint",
+                   variation: dict | None = None, image_size: Sequence[int] = (64, 64),
+                   cameras: Sequence[str] = ("top", "front"), max_steps: int | None = None, control_hz: float = 30.0,
+                   video_camera: str | None = None, workers: int = 1) -> dict:
+    """Roll `policy` out once per seed through make_env(task, action_space, ...). Returns {"success": rate,
+    "progress": mean final progress, "episodes": [{seed, success, progress, steps, gave_up, video}]}; `video` is
+    (N, H, W, 3) uint8 frames of `video_camera` (every control step, also for pick_place) or None.
+    workers > 1 runs seeds in separate processes (spawned: the policy must pickle; each process has its own
+    PyBullet client and its own copy of the policy)."""
+    cameras = tuple(cameras)
+    if video_camera is not None and video_camera not in cameras:
+        raise UserError(f"video_camera={video_camera!r} is not among cameras {list(cameras)}")
+    if not len(seeds):
+        raise UserError("rollout_policy: no seeds given")
+    env_kwargs = {"action_space": action_space, "variation": variation, "image_size": tuple(image_size),
+                  "cameras": cameras, "max_steps": max_steps, "control_hz": control_hz}
+    if workers <= 1:
+        episodes = [_one_rollout(policy, task, s, env_kwargs, video_camera) for s in seeds]
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            episodes = list(pool.map(_one_rollout, [policy] * len(seeds), [task] * len(seeds), seeds,
+                                     [env_kwargs] * len(seeds), [video_camera] * len(seeds)))
+    return {"success": float(np.mean([e["success"] for e in episodes])),
+            "progress": float(np.mean([e["progress"] for e in episodes])), "episodes": episodes}

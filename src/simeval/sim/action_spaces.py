@@ -1,0 +1,31 @@
+"""The action spaces an episode can be recorded in, as the descriptions stored with it (attrs action_space):
+kind, dimension names, units, control rate. The conventions are documented in simeval.sim.env. A reader never mixes
+two kinds in one training set (simeval.episodes.store.iter_windows). No gymnasium or PyBullet needed here."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simeval.sim.robot import JOINT_ACTION_NAMES, JOINT_LOWER, JOINT_UPPER
+
+JOINT_KIND, PICK_PLACE_KIND = "joint_pos+suction", "pick_place_14d"
+POSE14_NAMES = ("pose0_x", "pose0_y", "pose0_z", "pose0_qx", "pose0_qy", "pose0_qz", "pose0_qw",
+                "pose1_x", "pose1_y", "pose1_z", "pose1_qx", "pose1_qy", "pose1_qz", "pose1_qw")
+# bounds of the pick_place action: positions inside a box around the workspace, quaternion components in [-1, 1]
+POSE_LOW = np.array([0.1, -0.5, -0.05, -1, -1, -1, -1] * 2, np.float32)
+POSE_HIGH = np.array([0.9, 0.5, 0.4, 1, 1, 1, 1] * 2, np.float32)
+
+
+def joint_action_space(control_hz: float) -> dict:
+    """The description stored with every low-level episode (and what a reader compares before mixing)."""
+    return {"kind": JOINT_KIND, "dims": list(JOINT_ACTION_NAMES), "units": ["rad"] * 6 + ["on=1/off=0"],
+            "control_hz": float(control_hz), "low": [*JOINT_LOWER, 0.0], "high": [*JOINT_UPPER, 1.0]}
+
+
+def pick_place_action_space(control_hz: float | None = None) -> dict:
+    """One pick-and-place (or push) per step; `control_hz` is the low-level rate the primitive ran at, if any."""
+    return {"kind": PICK_PLACE_KIND, "dims": list(POSE14_NAMES), "units": (["m"] * 3 + ["quat_xyzw"] * 4) * 2,
+            "control_hz": None if control_hz is None else float(control_hz),
+            "convention": "Ravens: pose0 = pick point (push start), pose1 = place point of the grasp (push end)"}
+
+

@@ -1,0 +1,239 @@
+"""A Gymnasium environment over a suite task: the one code path for learned policies, the oracle and collection.
+
+    from simeval.sim import make_env
+    env = make_env("stack-two-blocks", action_space="joint", image_size=(64, 64), cameras=("top",))
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(action)
+
+Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": (14,) float32} -- the state is 6 joint positions (rad),
+6 joint velocities (rad/s), the suction command in force (0/1) and whether an object is held (0/1) (`STATE_NAMES`).
+`info` carries `progress` (partial progress in [0, 1], the mean over the task's goals) and `success` (every goal
+done); the reward is the change in progress; `terminated` is success; `truncated` is the step limit.
+
+Action spaces (`ACTION_SPACES`; each stored episode records the one it was recorded in):
+  joint           kind `joint_pos+suction`, 7-d at the control rate (30 Hz by default): the 6 joint position
+                  targets (rad, clipped to the joint limits) and the suction command (>= 0.5: on). Suction on with
+                  nothing held attaches whatever the cup touches; off releases. The spatula has no actuation: its
+                  tasks take the same 7-d action and ignore the last channel (recorded as 0).
+  pick_place      kind `pick_place_14d`, one primitive per step, Ravens' convention:
+                  [pose0 xyz (m), pose0 quaternion xyzw, pose1 xyz (m), pose1 quaternion xyzw], world frame.
+                  Suction tasks: pose0 is the pick point (the top centre of the object to pick) with the tool yaw
+                  there; pose1 is the place point: where the pick point should end up, i.e. the object's target
+                  pose applied to the grasp (for a top-centre grasp: the target centre raised by half the object's
+                  height), with the tool yaw there; the object turns by yaw(pose1) - yaw(pose0) (Ravens' oracle
+                  uses an identity pick rotation, a special case). The tool goes down at pose0 until the cup
+                  touches, lifts, goes over pose1 and down until the pick point is at pose1, and releases.
+                  Spatula tasks: pose0 and pose1 are the push's start and end on the table (z and rotations
+                  ignored; the blade is across the push). The step returns when the primitive finishes and
+                  every object rests (holding still for at most 60 control steps, 20 after a push); a
+                  step that ends the episode (success, or the step limit) then parks the arm out of the
+                  cameras' view and holds still for 10 control steps (`park_at_end`, on by default), so the
+                  final observation shows the result (those control steps are part of the step).
+With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
+{"action": [(7,)], "obs": [...], "progress": [...], "success": [...], "object_poses": [(N, 7)]} -- each entry exactly what a joint step with
+that action would have returned. Collection records that (simeval.sim.rollout), so stored low-level episodes
+replay bit for bit through action_space="joint" (PyBullet DIRECT is deterministic).
+
+Every reset builds a fresh PyBullet world (the same seed gives the same scene, bit for bit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from simeval.errors import UserError
+from simeval.sim.goals import still, task_progress
+from simeval.sim.objects import make_object
+from simeval.sim.action_spaces import (JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,  # noqa: F401 (re-exported)
+                                       joint_action_space, pick_place_action_space)
+from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
+from simeval.sim.spec import SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance
+from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, World
+
+# state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
+STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
+STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
+ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND}
+
+
+def find_task(task: str | TaskSpec) -> TaskSpec:
+    """A TaskSpec as is, or a suite task by name (every suite under simeval/sim/suites)."""
+    if isinstance(task, TaskSpec):
+        return task
+    specs = {s.name: s for d in sorted(SUITES_DIR.iterdir()) if d.is_dir() for s in load_suite(d)}
+    if task not in specs:
+        raise UserError(f"task={task!r} is not a suite task; available: {', '.join(sorted(specs))}")
+    return specs[task]
+
+
+def _gym():
+    try:
+        import gymnasium
+    except ImportError as e:  # pragma: no cover - gymnasium is in requirements.txt
+        raise UserError("make_env needs gymnasium: pip install -r requirements.txt") from e
+    return gymnasium
+
+
+class SimEnv(_gym().Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, task: str | TaskSpec, action_space: str = "joint", variation: dict | None = None,
+                 image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"),
+                 control_hz: float = 30.0, max_steps: int | None = None, record_low_level: bool = False,
+                 scene_view_size: Sequence[int] | None = None, render_mode: str | None = None,
+                 park_at_end: bool = True) -> None:
+        from gymnasium import spaces
+
+        self.spec_task = find_task(task)
+        if action_space not in ACTION_SPACES:
+            raise UserError(f"action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
+        self.cameras = tuple(cameras)
+        unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
+        if unknown:
+            raise UserError(f"cameras: unknown camera(s) {unknown}; known: {', '.join(OBS_CAMERAS)}")
+        self.image_size = tuple(int(x) for x in image_size)
+        if len(self.image_size) != 2 or min(self.image_size) < 1:
+            raise UserError(f"image_size={list(image_size)}: expected [H, W] with H, W >= 1")
+        if render_mode not in (None, "rgb_array"):
+            raise UserError(f"render_mode={render_mode!r}: expected None or 'rgb_array'")
+        self.mode, self.variation = action_space, check_variation([self.spec_task], variation)
+        self.control_hz, self.record_low_level = float(control_hz), bool(record_low_level)
+        self.scene_view_size = tuple(scene_view_size) if scene_view_size else None
+        self.render_mode = render_mode
+        self.park_at_end = bool(park_at_end)
+        # joint: a generous bound on an oracle episode (~150-300 control steps per primitive)
+        self.max_steps = int(max_steps or (self.spec_task.max_primitives * (400 if action_space == "joint" else 1)))
+        h, w = self.image_size
+        self.observation_space = spaces.Dict({
+            "rgb": spaces.Dict({c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}),
+            "state": spaces.Box(STATE_LOW, STATE_HIGH, dtype=np.float32)})
+        if action_space == "joint":
+            self.action_space = spaces.Box(np.array([*JOINT_LOWER, 0.0], np.float32),
+                                           np.array([*JOINT_UPPER, 1.0], np.float32), dtype=np.float32)
+            self.action_info = joint_action_space(self.control_hz)
+        else:
+            self.action_space = spaces.Box(POSE_LOW, POSE_HIGH, dtype=np.float32)
+            self.action_info = pick_place_action_space(self.control_hz)
+        self.world: World | None = None
+        self.arm: Arm | None = None
+        self.inst = None
+        self.episode_seed: int | None = None
+        self._low: dict | None = None
+        self._steps, self._progress = 0, 0.0
+
+    # --- gymnasium API ---------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
+        self._build(self.episode_seed)
+        self._steps = 0
+        obs = self.observe()
+        info = self._info()
+        self._progress = info["progress"]
+        if self.scene_view_size:
+            info["scene_views"] = np.stack([self.world.render(v, self.scene_view_size) for v in SCENE_VIEWS])
+        return obs, info
+
+    def step(self, action):
+        if self.world is None:
+            raise UserError("call env.reset() before env.step()")
+        action = np.asarray(action, np.float32).reshape(-1)
+        if action.shape != self.action_space.shape:
+            raise UserError(f"action_space={self.mode!r} takes {self.action_space.shape[0]} values per action, "
+                            f"got shape {action.shape}")
+        low = None
+        self._steps += 1
+        if self.mode == "joint":
+            self.arm.apply(action)
+        else:
+            self._low = low = ({"action": [], "obs": [], "progress": [], "success": [], "object_poses": []}
+                               if self.record_low_level else None)
+            try:
+                if self.spec_task.end_effector == "spatula":
+                    self.arm.push(action)
+                    self._settle(20)
+                else:
+                    self.arm.pick_place(action)
+                    self._settle(60)
+                if self.park_at_end and (self._info()["success"] or self._steps >= self.max_steps):
+                    self.arm.park()  # out of the cameras' view: the last observation shows the result
+                    self.arm.hold(10)
+            finally:
+                self._low = None
+        obs = low["obs"][-1] if low and low["obs"] else self.observe()
+        info = self._info() if not low or not low["obs"] else {"progress": low["progress"][-1],
+                                                                 "success": low["success"][-1]}
+        if low is not None:
+            info["low_level"] = low
+        reward = float(info["progress"] - self._progress)
+        self._progress = info["progress"]
+        return obs, reward, bool(info["success"]), self._steps >= self.max_steps and not info["success"], info
+
+    def render(self):
+        cam = OBS_CAMERAS[self.cameras[0] if self.cameras else "front"]
+        return self.world.render(cam, self.image_size) if self.world is not None else None
+
+    def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
+        self.world = self.arm = None
+
+    # --- helpers ---------------------------------------------------------------------------------------------
+    def observe(self) -> dict:
+        """The observation of the current state (what reset and step return)."""
+        return {"rgb": {c: self.world.render(OBS_CAMERAS[c], self.image_size) for c in self.cameras},
+                "state": self.arm.state()}
+
+    def _info(self) -> dict:
+        progress, success = task_progress(self.world, self.inst)
+        return {"progress": float(progress), "success": bool(success)}
+
+    def _build(self, seed: int) -> None:
+        self.close()
+        spec, variation = self.spec_task, dict(self.variation)
+        home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
+        self.inst = sample_instance(spec, seed, variation)
+        rng = np.random.default_rng(seed + 7919)
+        self.world = World(self.control_hz)
+        self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
+        for obj in self.inst.objects:
+            xy, yaw = self.inst.poses[obj.id]
+            make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
+        self.world.settle(60)
+        self.arm.on_step = self._on_low_level_step
+
+    def _on_low_level_step(self, action: np.ndarray) -> None:
+        if self._low is None:
+            return
+        info = self._info()
+        self._low["action"].append(action.copy())
+        self._low["obs"].append(self.observe())
+        self._low["progress"].append(info["progress"])
+        self._low["success"].append(info["success"])
+        self._low["object_poses"].append(self.object_poses())
+
+    def _settle(self, max_steps: int) -> None:
+        """Hold still until every object rests (at most `max_steps` control steps), so the step returns a
+        settled scene (goals count only objects at rest) and the next primitive is planned on it."""
+        bodies = [b for o in self.inst.objects for b in o.body_ids]
+        for _ in range(max_steps):
+            if all(still(self.world, b) for b in bodies):
+                return
+            self.arm.hold(1)
+
+    def object_poses(self) -> np.ndarray:
+        """(N, 7) position and xyzw quaternion of every object body, in the order of the instance's objects
+        (a pile contributes one row per particle). Privileged: not part of the observation."""
+        c = self.world.c
+        rows = [np.r_[c.getBasePositionAndOrientation(b)[0], c.getBasePositionAndOrientation(b)[1]]
+                for o in self.inst.objects for b in o.body_ids]
+        return np.asarray(rows, np.float32).reshape(-1, 7)
+
+
+def make_env(task: str | TaskSpec, action_space: str = "joint", variation: dict | None = None,
+             image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"), **kwargs) -> SimEnv:
+    """A Gymnasium environment of a suite task (name or TaskSpec); see the module docstring. kwargs: control_hz,
+    max_steps, record_low_level, scene_view_size, render_mode, park_at_end."""
+    return SimEnv(task, action_space, variation, image_size, cameras, **kwargs)
