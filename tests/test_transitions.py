@@ -113,3 +113,47 @@ def test_a_training_set_never_mixes_action_spaces(stored, tmp_path):
     with pytest.raises(UserError, match="mixes action spaces 'joint_pos[+]suction' .* and 'pick_place_14d'"):
         list(iter_windows(paths, WindowSpec(length=2)))
     assert len(list(iter_windows(paths[:1], WindowSpec(length=2)))) == low.n_steps // 2
+
+
+def test_varied_episodes_are_stored_beside_the_plain_ones_never_over_them(tmp_path):
+    from simeval.collect import collect
+
+    store = EpisodeStore(tmp_path)
+    spec = SUITE["stack-two-blocks"]
+    settings = RecordSettings(cameras=(), scene_view_size=(8, 8))
+    plain = collect([spec], [0], store, settings, workers=1, progress=False)
+    varied = collect([spec], [0], store, settings, workers=1, progress=False,
+                     variation={"top": {"colors": ["white"]}, "pillar": {"colors": ["red"]}})  # pillar: not this task's
+    assert len(plain["new"]) == 1 and len(varied["new"]) == 1 and varied["skipped"] == 0
+    metas = sorted(store.index(), key=lambda m: m["variation_id"])
+    assert [m["variation"] for m in metas] == [{}, {"top": {"colors": ["white"]}}]  # the knobs the task took
+    assert "white" in metas[1]["description"] and "white" not in metas[0]["description"]
+    assert metas[1]["path"].endswith(f"episode_000000.v{metas[1]['variation_id']}.h5")
+    assert [m["variation_id"] for m in store.first_k_per_task(1, variation_id="")] == [""]
+    again = collect([spec], [0], store, settings, workers=1, progress=False, variation={"top": {"colors": ["white"]}})
+    assert again["skipped"] == 1 and again["tasks"]["stack-two-blocks"]["success"] == 1
+
+
+def test_ravens_import_keeps_the_solved_scene_sub_goals_poses_and_the_task_description(tmp_path):
+    import pickle
+
+    from simeval.episodes.importers import import_ravens
+
+    d, t = tmp_path / "build-car-train", 2
+    goals = ["put the red block on the base", "put the blue block on top", "done"]
+    poses = [{5: ((0.4, 0.1 * i, 0.02), (0, 0, 0, 1), (0.04, 0.04, 0.04)), 6: ((0.5, 0.0, 0.02), (0, 0, 0, 1), (1, 1, 1)),
+              "lang_goal": g} for i, g in enumerate(goals)]
+    parts = {"color": np.arange(t + 1, dtype=np.uint8)[:, None, None, None, None] * np.ones((1, 1, 4, 4, 3), np.uint8),
+             "action": [{"pose0": ((0.4, 0, 0.04), (0, 0, 0, 1)), "pose1": ((0.5, 0, 0.08), (0, 0, 0, 1))}] * t + [None],
+             "reward": [0.0, 0.5, 0.5], "info": poses}
+    for key, value in parts.items():
+        (d / key).mkdir(parents=True)
+        (d / key / "000000-7.pkl").write_bytes(pickle.dumps(value))
+    ep = next(import_ravens(tmp_path, descriptions={"build-car": "Build a car from blocks."}))
+    assert ep.n_steps == t + 1 and ep.rgb["color_0"][-1].max() == t  # the final, solved observation is there
+    assert ep.success and ep.progress[-1] == 1.0 and ep.description == "Build a car from blocks."
+    assert ep.language == goals and ep.object_poses.shape == (t + 1, 2, 7) and ep.object_poses[2, 0, 1] == pytest.approx(0.2)
+    assert ep.depth is None and ep.extra["object_ids"] == [5, 6]
+    assert next(import_ravens(tmp_path)).description == "build car"  # sub-goals differ: never one of them
+    back = read_episode(write_episode(tmp_path / "e.h5", ep))
+    assert back.language == goals and back.action_space["kind"] == "pick_place_14d"
