@@ -87,7 +87,8 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         cam = camera or next(iter(ep.rgb))
         if cam not in ep.rgb:
             raise UserError(f"{meta['path']}: no camera '{cam}' (has {sorted(ep.rgb)}); set episodes.camera")
-        d = out / f"{ep.task.replace('/', '_')}__seed{ep.seed}"
+        vid = f".v{meta['variation_id']}" if meta.get("variation_id") else ""  # a varied episode beside the plain one
+        d = out / f"{ep.task.replace('/', '_')}__seed{ep.seed}{vid}"
         (d / "scene").mkdir(parents=True, exist_ok=True)
         (d / "frames").mkdir(exist_ok=True)
         views = ep.scene_views if ep.scene_views is not None else ep.rgb[cam][:1]
@@ -102,7 +103,7 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         if ep.progress is not None:
             truth["progress"] = float(ep.progress[-1])
         atomic_write_text(d / "task.yaml", yaml.safe_dump({
-            "name": task_identity(ep.task, ep.seed), "description": ep.description, "pipeline": ep.pipeline,
+            "name": task_identity(ep.task, ep.seed) + vid, "description": ep.description, "pipeline": ep.pipeline,
             "group": ep.group, "ground_truth": truth, "episode": str(meta["path"])}, sort_keys=False))
         written.append(d)
     return written
