@@ -49,7 +49,10 @@ def test_the_readme_variation_command_works_with_a_single_task_name(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     summary = json.loads((tmp_path / "run" / "result.json").read_text())["values"]
     assert list(summary["tasks"]) == ["build-bridge"]  # one task, not one per letter of its name
-    meta = read_meta(EpisodeStore(tmp_path / "store").path_for("gensim", "build-bridge", 0))
+    # a varied episode is stored beside the plain one of its seed (episode_000000.v<hash>.h5), never over it
+    meta = read_meta(EpisodeStore(tmp_path / "store").path_for("gensim", "build-bridge", 0,
+                                                                 {"pillar": {"colors": ["white"]}}))
+    assert meta["variation"] == {"pillar": {"colors": ["white"]}}
     objects = meta["extra"]["objects"]
     assert [o["color"] for k, o in objects.items() if k.startswith("pillar")] == ["white", "white"]
     assert "white blocks" in meta["description"]

@@ -23,8 +23,9 @@ from simeval.errors import UserError
 from simeval.results import atomic_write_text
 
 
-def task_identity(task: str, seed: int) -> str:
-    return f"{task}#{seed}"
+def task_identity(task: str, seed: int, variation_id: str = "") -> str:
+    """`task#seed`, plus `.v<id>` for a varied episode (stored beside the plain one of the same seed)."""
+    return f"{task}#{seed}" + (f".v{variation_id}" if variation_id else "")
 
 
 def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
@@ -40,7 +41,7 @@ def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
         raise UserError(f"no episodes in {store_root} (pipeline={pipeline}, group={group})")
     seen: dict[str, str] = {}
     for m in metas:
-        ident = task_identity(m["task"], m["seed"])
+        ident = task_identity(m["task"], m["seed"], m.get("variation_id", ""))
         if ident in seen:
             raise UserError(f"{store_root}: task {ident!r} is in two episodes: {seen[ident]} and {m['path']}; "
                             f"choose one pipeline (episodes.pipeline=...)")
@@ -66,7 +67,7 @@ def store_tasks(store_root: str | os.PathLike, *, pipeline: str | None = None, g
             with h5py.File(m["path"], "r") as f:
                 if len(f["progress"]):
                     truth["progress"] = float(f["progress"][-1])
-        ident = task_identity(m["task"], m["seed"])
+        ident = task_identity(m["task"], m["seed"], m.get("variation_id", ""))
         try:
             truth = validate_ground_truth(truth, m["path"])
         except BundleError as e:
@@ -103,7 +104,8 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         if ep.progress is not None:
             truth["progress"] = float(ep.progress[-1])
         atomic_write_text(d / "task.yaml", yaml.safe_dump({
-            "name": task_identity(ep.task, ep.seed) + vid, "description": ep.description, "pipeline": ep.pipeline,
+            "name": task_identity(ep.task, ep.seed, meta.get("variation_id", "")), "description": ep.description,
+            "pipeline": ep.pipeline,
             "group": ep.group, "ground_truth": truth, "episode": str(meta["path"])}, sort_keys=False))
         written.append(d)
     return written

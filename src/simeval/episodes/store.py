@@ -292,7 +292,8 @@ def iter_windows(paths: list[str | os.PathLike], spec: WindowSpec, camera: str |
     convention: within a window, row i's action produced row i + 1's observation, except at a row with
     `is_terminal`, whose action is padding). Every episode must have the same action-space kind (a UserError
     names the two kinds otherwise). Without cross_episodes a window never spans two episodes (an episode
-    shorter than L yields nothing); with it, episodes are read as one stream in order, as the DreamerV3 loaders of the paper's authors do, and `is_first` marks the seams."""
+    shorter than L yields nothing); with it, episodes are read as one stream in order, as the DreamerV3 loaders
+    of the paper's authors do, and `is_first` marks the seams."""
 
     stride = spec.stride or spec.length
     if spec.length < 1 or stride < 1:

@@ -30,9 +30,9 @@ Action spaces (`ACTION_SPACES`; each stored episode records the one it was recor
                   cameras' view and holds still for 10 control steps (`park_at_end`, on by default), so the
                   final observation shows the result (those control steps are part of the step).
 With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
-{"action": [(7,)], "obs": [...], "progress": [...], "success": [...], "object_poses": [(N, 7)]} -- each entry exactly what a joint step with
-that action would have returned. Collection records that (simeval.sim.rollout), so stored low-level episodes
-replay bit for bit through action_space="joint" (PyBullet DIRECT is deterministic).
+{"action": [(7,)], "obs": [...], "progress": [...], "success": [...], "object_poses": [(N, 7)]} -- each entry
+exactly what a joint step with that action would have returned. Collection records that (simeval.sim.rollout),
+so stored low-level episodes replay bit for bit through action_space="joint" (PyBullet DIRECT is deterministic).
 
 Every reset builds a fresh PyBullet world (the same seed gives the same scene, bit for bit).
 """
