@@ -17,6 +17,7 @@ from omegaconf import OmegaConf
 
 from simeval.episodes.episode import Episode
 from simeval.episodes.store import EpisodeStore
+from simeval.sim.action_spaces import joint_action_space
 from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +36,8 @@ def synthetic_store(root, per_task=3, T=30):
                 rgb={"top": r.integers(0, 255, (T, 32, 32, 3), dtype=np.uint8)},
                 state=r.normal(size=(T, 12)).astype(np.float32),
                 action=np.cumsum(r.normal(size=(T, 7)), 0).astype(np.float32), reward=np.zeros(T, np.float32),
-                is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32)))
+                is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32),
+                action_space=joint_action_space(30.0)))  # every stored episode declares its action space
     return root
 
 

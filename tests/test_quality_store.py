@@ -25,7 +25,8 @@ def _episode(task, seed, *, success, progress, success_known=True, pipeline="gen
                    is_first=np.arange(steps) == 0, is_terminal=np.arange(steps) == steps - 1,
                    progress=None if progress is None else np.linspace(0, progress, steps).astype(np.float32),
                    success=success, success_known=success_known,
-                   scene_views=rng.integers(0, 255, (4, 16, 16, 3), dtype=np.uint8))
+                   scene_views=rng.integers(0, 255, (4, 16, 16, 3), dtype=np.uint8),
+                   action_space={"kind": "test_6d"})  # every stored episode declares its action space
 
 
 @pytest.fixture

@@ -89,13 +89,15 @@ def test_reward_comes_when_and_where_a_goal_is_met():
     for goal, (level, zone) in enumerate(((0.5, "zone_a0"), (1.0, "zone_b0"))):
         first = int(np.argmax(ep.progress >= level))  # the step where the goal first counts as met
         assert ep.progress[first] >= level and ep.progress[:first].max(initial=0) < level
-        prim = int(np.searchsorted(starts, first, side="right")) - 1
-        assert prim == goal and ep.reward[first] > 0  # met during its own primitive, rewarded at that step
+        # row `first` is what action first - 1 produced (simeval.episodes.store's convention): that action's
+        # primitive met the goal and that action earned the reward
+        prim = int(np.searchsorted(starts, first - 1, side="right")) - 1
+        assert prim == goal and ep.reward[first - 1] > 0
         zone_xy, _ = inst.poses[zone]
         place_xy = ep.high_level_action[prim, 7:9]
         assert np.linalg.norm(place_xy - zone_xy) < 0.05  # the 0.10 m zone's half-width: placed inside it
     assert ep.progress[: starts[1]].max() == 0.5 and ep.progress[-1] == 1.0 and ep.success
-    assert ep.reward[: int(np.argmax(ep.progress > 0))].sum() == 0  # nothing before the first block lands
+    assert ep.reward[: int(np.argmax(ep.progress > 0)) - 1].sum() == 0  # nothing before the first block lands
 
 
 @pytest.mark.parametrize("task", ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge"])

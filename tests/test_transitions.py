@@ -123,10 +123,10 @@ def test_varied_episodes_are_stored_beside_the_plain_ones_never_over_them(tmp_pa
     settings = RecordSettings(cameras=(), scene_view_size=(8, 8))
     plain = collect([spec], [0], store, settings, workers=1, progress=False)
     varied = collect([spec], [0], store, settings, workers=1, progress=False,
-                     variation={"top": {"colors": ["white"]}, "pillar": {"colors": ["red"]}})  # pillar: not this task's
+                     variation={"top": {"colors": ["white"]}})
     assert len(plain["new"]) == 1 and len(varied["new"]) == 1 and varied["skipped"] == 0
     metas = sorted(store.index(), key=lambda m: m["variation_id"])
-    assert [m["variation"] for m in metas] == [{}, {"top": {"colors": ["white"]}}]  # the knobs the task took
+    assert [m["variation"] for m in metas] == [{}, {"top": {"colors": ["white"]}}]
     assert "white" in metas[1]["description"] and "white" not in metas[0]["description"]
     assert metas[1]["path"].endswith(f"episode_000000.v{metas[1]['variation_id']}.h5")
     assert [m["variation_id"] for m in store.first_k_per_task(1, variation_id="")] == [""]
