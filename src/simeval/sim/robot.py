@@ -52,7 +52,8 @@ def render_urdf(mesh: str = "collision") -> str:
     if mesh != "collision":
         raise ValueError(f"mesh={mesh!r}: expected 'collision' or 'visual'")
     src = os.path.join(pybullet_data.getDataPath(), ARM_URDF)
-    text = open(src, encoding="utf-8").read()
+    with open(src, encoding="utf-8") as f:  # closed here: an unclosed file warns at exit (a "Traceback" in logs)
+        text = f.read()
     meshes = os.path.join(os.path.dirname(src), "xarm_description") + os.sep
     # each <visual> mesh <X>.stl -> the link's collision mesh; package:// paths made absolute (the copy lives
     # outside pybullet_data)
@@ -186,16 +187,21 @@ class Arm:
         return None
 
     def suction_on(self) -> bool:
-        """Turn the suction on if the cup touches something (it attaches at the next low-level step, on the
-        same state); otherwise leave it off. Returns whether it will hold."""
+        """Turn the suction on if the cup touches something and attach it now; otherwise leave it off. Returns
+        whether it holds. The command stays on for the next low-level steps, whose `apply` finds it met (the same
+        attach `apply` would make on this state: a replay of the recorded actions attaches at the same step)."""
         if self.kind != "suction" or self.touching() is None:
             return False
         self.suction_cmd = True
+        if self.grasp is None:
+            self._attach()
         return True
 
     def suction_off(self) -> None:
-        """Turn the suction off: the next low-level step releases what is held."""
+        """Turn the suction off and release what is held, now (as `apply` with the command off would)."""
         self.suction_cmd = False
+        if self.grasp is not None:
+            self._release()
 
     def _attach(self) -> None:
         c = self.w.c
