@@ -1,6 +1,11 @@
-"""Collect oracle episodes of a simeval suite into the episode store. See conf/collect.yaml."""
+"""Collect oracle episodes of a simeval suite into the episode store. See conf/collect.yaml.
+
+Exit status: 0 done; 2 a mistake in the command or config (one line on stderr, nothing collected); 1 a worker
+process died (e.g. the out-of-memory killer): one line naming its episode, the finished episodes are kept and
+the same command resumes; 130 / 143 stopped by Ctrl-C / SIGTERM (finished episodes kept)."""
 
 import logging
+import sys
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -16,7 +21,7 @@ log = logging.getLogger("collect")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.collect import collect
+    from simeval.collect import WorkerDied, collect
     from simeval.episodes.store import EpisodeStore
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.rollout import RecordSettings
@@ -28,6 +33,9 @@ def main(cfg: DictConfig) -> None:
     specs = select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), tasks, cfg.task_group)
     if isinstance(cfg.episodes, bool) or not isinstance(cfg.episodes, int) or cfg.episodes < 1:
         raise UserError(f"episodes must be a whole number >= 1, got {cfg.episodes!r}")
+    offset = cfg.seed_offset
+    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+        raise UserError(f"seed_offset must be a whole number >= 0, got {offset!r}")
     settings = RecordSettings(**OmegaConf.to_container(cfg.record, resolve=True))
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
     variation = cfg.variation
@@ -38,6 +46,9 @@ def main(cfg: DictConfig) -> None:
                           workers=cfg.workers, variation=variation)
     except KeyboardInterrupt:  # the library has logged what was kept; no traceback for a Ctrl-C
         raise SystemExit(130) from None
+    except WorkerDied as e:  # not the user's mistake (exit 2): a resumable failure of the machine
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(1) from None
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],

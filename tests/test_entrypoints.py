@@ -176,7 +176,7 @@ def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     ("agreement.py", ["seed=1", "-m", "n_boot=10"], "scores_path is not set"),
     ("report.py", ["report.digits=3", "-m", "report.runs_dir=/nonexistent/runs"], "no text_diversity result.json"),
     ("collect.py", ["episodes=1", "-m", "task_group=nope"], "unknown task_group 'nope'"),
-    ("import_data.py", ["format=ravens", "-m", "src=/nonexistent/demos"], "no Ravens demo folders"),
+    ("import_data.py", ["format=ravens", "-m", "src=/nonexistent/demos"], "src=/nonexistent/demos does not exist"),
 ])
 def test_every_entrypoint_accepts_multirun_flag_after_an_override(script, args, job_error, tmp_path):
     res = run(script, *args, f"hydra.sweep.dir={tmp_path}")

@@ -8,7 +8,13 @@ them (simeval.episodes.store).
 Workers never outlive the collector: each asks the kernel to kill it when its parent dies (Linux
 PR_SET_PDEATHSIG) and also watches its parent's pid (other systems, and the moment between fork and prctl);
 SIGTERM or Ctrl-C in the collector terminates the workers before it exits. A killed worker leaves at most a
-temp file, which no reader takes for an episode and a later run removes."""
+temp file, which no reader takes for an episode and a later run removes. A worker killed alone (e.g. by the
+out-of-memory killer) stops the run with WorkerDied, naming the episode it was recording; the finished
+episodes are kept and the same command resumes.
+
+Resuming checks how the stored episodes were recorded (cameras, image and scene-view sizes, control rate,
+action space, read from each file): an episode made with other `settings` is never kept as if it matched, nor
+silently overwritten; the run stops with a UserError naming the file, the stored value and the requested one."""
 
 from __future__ import annotations
 
@@ -20,20 +26,31 @@ import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict
+from pathlib import Path
 
-from simeval.episodes.store import EpisodeStore, read_meta
+from simeval.episodes.store import EpisodeStore, read_meta, read_recording
 from simeval.errors import UserError
+from simeval.sim.action_spaces import JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
 
 log = logging.getLogger(__name__)
 PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
 PARENT_POLL_S = 0.5
+_started = None  # in a worker: the queue on which it announces (pid, task, seed) before each episode
 
 
-def _die_with_parent(parent: int) -> None:
+class WorkerDied(RuntimeError):
+    """A worker process died without finishing its episode (killed by a signal, e.g. the out-of-memory killer).
+    Not a UserError: nothing on the command line was wrong; src/collect.py exits 1 with this one line."""
+
+
+def _die_with_parent(parent: int, started=None) -> None:
     """Worker initializer: stop when the collector dies, however it dies (kill -9 included)."""
+    global _started
+    _started = started
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the collector decides
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the collector's handler, inherited through fork
     if sys.platform.startswith("linux"):
@@ -57,6 +74,8 @@ def _die_with_parent(parent: int) -> None:
 def _collect_one(spec_path: str, seed: int, store_root: str, settings: dict, pipeline: str,
                  variation: dict | None = None) -> dict:
     spec = load_spec(spec_path)
+    if _started is not None:
+        _started.put((os.getpid(), spec.name, seed))
     t0 = time.perf_counter()
     ep = run_episode(spec, seed, RecordSettings(**settings), pipeline=pipeline,
                      variation=variation_for(spec, variation or {}))
@@ -73,14 +92,53 @@ def _raise_stopped(signum: int, frame) -> None:
     raise _Stopped(128 + signum)
 
 
+def _dead_worker_message(procs: dict, started, new: list, store_root: str) -> str:
+    """Which episode the dead worker was recording: the last one it announced on `started`."""
+    by_pid: dict[int, tuple[str, int]] = {}
+    while not started.empty():
+        pid, task, seed = started.get()
+        by_pid[pid] = (task, seed)
+    deadline = time.monotonic() + 2.0  # the pool sees a dead worker's pipes close a moment before it can be reaped
+    for p in procs.values():
+        p.join(max(0.0, deadline - time.monotonic()))
+    dead = [(p.pid, p.exitcode) for p in procs.values() if p.exitcode not in (None, 0)]
+    # once the pool is broken it terminates the other workers (SIGTERM): the one that died first is another
+    dead.sort(key=lambda d: d[1] == -signal.SIGTERM)
+    how, episode = "", None
+    if dead:
+        pid, code = dead[0]
+        how = f" (pid {pid}, killed by signal {-code}; the out-of-memory killer?)" if code < 0 else \
+            f" (pid {pid}, exit status {code})"
+        episode = by_pid.get(pid)
+    finished = {(r["task"], r["seed"]) for r in new}
+    if episode is None:
+        which = "while recording an episode"
+    elif episode in finished:
+        which = f"between episodes (after {episode[0]} seed {episode[1]})"
+    else:
+        which = f"while recording {episode[0]} seed {episode[1]}"
+    return (f"a collection worker died {which}{how}; the {len(new)} episodes finished in this run are kept in "
+            f"{store_root}: run the same command again to resume")
+
+
 def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
+    import multiprocessing as mp
+
     on_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_stopped) if on_main_thread else None
-    pool = ProcessPoolExecutor(workers, initializer=_die_with_parent, initargs=(os.getpid(),))
+    ctx = mp.get_context()
+    started = ctx.SimpleQueue()
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_die_with_parent,
+                               initargs=(os.getpid(), started))
     try:
         futures = [pool.submit(_collect_one, s.source, seed, *args) for s, seed in todo]
+        procs = dict(getattr(pool, "_processes", None) or {})  # a broken pool forgets its processes: keep them
         for f in as_completed(futures):
-            new.append(f.result())  # a crashed episode stops the run with its error; finished ones are kept
+            try:
+                new.append(f.result())  # a crashed episode stops the run with its error; finished ones are kept
+            except BrokenProcessPool as e:  # a worker was killed (kill -9, the OOM killer): say which, no traceback
+                procs.update(getattr(pool, "_processes", None) or {})
+                raise WorkerDied(_dead_worker_message(procs, started, new, args[0])) from e
             bar.update(1)
     except BaseException:
         for p in list((getattr(pool, "_processes", None) or {}).values()):  # no public way to stop running work
@@ -92,6 +150,35 @@ def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
     finally:
         if on_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _prepare_store(root: Path) -> None:
+    """Make the store's folder, or stop with one line naming `store` (a file, a place that cannot hold one)."""
+    if root.exists() and not root.is_dir():
+        raise UserError(f"store={root} is a file, not a folder; give a folder for the episode store")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"store={root}: cannot create the episode store there ({e.strerror or e})") from None
+    if not os.access(root, os.W_OK | os.X_OK):
+        raise UserError(f"store={root}: no permission to write episodes there")
+
+
+def _check_recorded_like(path: Path, settings: RecordSettings) -> None:
+    """An episode already stored counts as done only if it was recorded as `settings` asks."""
+    stored = read_recording(path)
+    wanted = {"record.cameras": sorted(settings.cameras), "record.image_size": list(settings.image_size),
+              "record.scene_view_size": list(settings.scene_view_size),
+              "record.control_hz": float(settings.control_hz), "action_space": JOINT_KIND}
+    for key, want in wanted.items():
+        have = stored[key]
+        if key == "record.scene_view_size" and have is None:
+            continue  # episodes stored without scene views (not made by this collector) are not judged by them
+        if have != want:
+            show = (lambda v: f"{v:g}") if key == "record.control_hz" and have is not None else repr
+            raise UserError(f"{path} was recorded with {key}={show(have)}, this run asks for {show(want)}; stored "
+                            f"episodes are kept, not overwritten: give another store= for these settings (or "
+                            f"collect with the stored ones)")
 
 
 def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore, settings: RecordSettings,
@@ -107,10 +194,19 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
     variation = check_variation(list(specs), variation)
+    bad_seed = next((s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0), None)
+    if bad_seed is not None:
+        raise UserError(f"seeds must be whole numbers >= 0 (seed_offset >= 0), got seed {bad_seed!r}")
     workers = workers or os.cpu_count() or 1
+    _prepare_store(store.root)
     store.remove_stale_temp_files()
-    todo = [(s, seed) for s in specs for seed in seeds
-            if not store.exists_intact(pipeline, s.name, seed, variation_for(s, variation))]
+    todo = []
+    for s in specs:
+        for seed in seeds:
+            if store.exists_intact(pipeline, s.name, seed, variation_for(s, variation)):
+                _check_recorded_like(store.path_for(pipeline, s.name, seed, variation_for(s, variation)), settings)
+            else:
+                todo.append((s, seed))
     skipped = len(specs) * len(seeds) - len(todo)
     new: list[dict] = []
     args = (str(store.root), asdict(settings), pipeline, variation)

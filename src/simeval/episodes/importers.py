@@ -325,11 +325,14 @@ IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt":
 def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike, store, *, overwrite: bool = False,
                       progress: bool = True, **options) -> dict:
     """Run `importer(src, **options)` and write each episode unless the store holds it already, so an
-    interrupted import resumes; importers that can tell from a file's path skip loading it altogether."""
+    interrupted import resumes; importers that can tell from a file's path skip loading it altogether. A `src`
+that does not exist is a UserError before any progress output."""
     import inspect
 
     from tqdm import tqdm
 
+    if not Path(src).expanduser().exists():  # before any progress output: a typo is not "no demos found"
+        raise UserError(f"src={src} does not exist")
     if "stored" in inspect.signature(importer).parameters:
         options["stored"] = _never if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0

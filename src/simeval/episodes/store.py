@@ -159,6 +159,21 @@ def read_meta(path: str | os.PathLike) -> dict:
     return meta
 
 
+def read_recording(path: str | os.PathLike) -> dict:
+    """How an episode was recorded, read from the file itself (so episodes of any version answer): record.cameras
+    (sorted), record.image_size [H, W] of the per-step frames, record.scene_view_size [h, w] of the scene views
+    (None without them), record.control_hz (None if unknown) and the action-space kind."""
+    path = Path(path)
+    with _open(path) as f, _damage_names(path):
+        cams = json.loads(f.attrs["cameras"])
+        size = list(f[f"obs/rgb/{cams[0]}"].shape[1:3]) if cams else None
+        views = list(f["scene_views"].shape[1:3]) if "scene_views" in f else None
+        hz = float(f.attrs["control_hz"]) or None
+        kind = json.loads(f.attrs["action_space"]).get("kind")
+    return {"record.cameras": sorted(cams), "record.image_size": size, "record.scene_view_size": views,
+            "record.control_hz": hz, "action_space": kind}
+
+
 def read_episode(path: str | os.PathLike, cameras: list[str] | None = None) -> Episode:
     path = Path(path)
     try:

@@ -184,10 +184,14 @@ SUITES_DIR = Path(__file__).resolve().parent / "suites"
 
 
 def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:
-    """Named tasks, or one group's tasks, or all; unknown names list what exists. A single name may be given as
+    """Named tasks, or one group's tasks, or all; unknown names list what exists. Names together with a group
+    other than "all" are an error (neither takes precedence). A single name may be given as
     a string (`tasks=stack-two-blocks` on the command line), not only as a one-element list."""
     if isinstance(tasks, str):  # a string is one name, not a sequence of one-letter names
         tasks = [tasks]
+    if tasks and group != "all":  # two selections that could disagree: refuse rather than pick one silently
+        raise SpecError(f"tasks={list(tasks)} and task_group={group} were both given; tasks= selects by name and "
+                        f"task_group= by group: give only one (task_group=all, the default, with tasks=)")
     if tasks:
         unknown = set(tasks) - {s.name for s in specs}
         if unknown:
