@@ -117,8 +117,8 @@ def _dead_worker_message(procs: dict, started, new: list, store_root: str) -> st
         which = f"between episodes (after {episode[0]} seed {episode[1]})"
     else:
         which = f"while recording {episode[0]} seed {episode[1]}"
-    return (f"a collection worker died {which}{how}; the {len(new)} episodes finished in this run are kept in "
-            f"{store_root}: run the same command again to resume")
+    kept = f"the {len(new)} episode{'' if len(new) == 1 else 's'} finished in this run are kept"
+    return f"a collection worker died {which}{how}; {kept} in {store_root}: run the same command again to resume"
 
 
 def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
