@@ -119,10 +119,6 @@ def test_mixed_action_spaces_are_refused_naming_both():
 
 def test_store_windows_match_the_stored_rows(tmp_path):
     """The HDF5 reader returns what the store holds (same alignment as the in-memory source)."""
-    from simeval.episodes import store as store_mod
-
-    if getattr(store_mod, "SCHEMA", 1) < 2:
-        pytest.skip("episode store format 1 (T+1 observations arrive with the core store change)")
     from simeval.episodes.dataset import StoreSource
     from simeval.models.synthetic import write_group
 

@@ -35,10 +35,6 @@ def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(t
 
 
 def test_sweep_end_to_end_writes_results_and_table(tmp_path):
-    from simeval.episodes import store as store_mod
-
-    if getattr(store_mod, "SCHEMA", 1) < 2:
-        pytest.skip("episode store format 1 (T+1 observations arrive with the core store change)")
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=41, n_actions=10, size=16, pipeline="gensim")
