@@ -159,3 +159,17 @@ def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_s
     first = frames[0].astype(float)
     assert first.shape == (32, 32, 3) and np.abs(first - obs["rgb"]["front"]).mean() < 8  # mp4 is lossy
     assert np.abs(frames[-1].astype(float) - first).max() > 30  # the arm moved
+
+
+def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside_them(tmp_path):
+    import shutil
+
+    from simeval.models.policy.experiment import episodes_for
+
+    store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=3, T=8))
+    task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
+    plain = store.path_for("gensim", task, 0)
+    shutil.copy(plain, plain.with_name("episode_000000.v0123456789.h5"))  # a varied episode's name, stored beside
+    train, val, metas = episodes_for(store, "gensim", [task], 2, 1, ["top"])
+    assert [e.seed for e in train] == [0, 1] and [e.seed for e in val] == [2]
+    assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 1)]
