@@ -32,6 +32,12 @@ def main(cfg: DictConfig) -> None:
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
     group = [s.name for s in select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), None, cfg.task_group)]
+    if cfg.tasks:
+        names = [cfg.tasks] if isinstance(cfg.tasks, str) else list(cfg.tasks)
+        if set(names) - set(group):
+            raise UserError(f"tasks={names}: {sorted(set(names) - set(group))} not in task_group={cfg.task_group} "
+                            f"({group})")
+        group = [t for t in group if t in names]
     heldout = list(cfg.heldout_tasks or [])
     if set(heldout) - set(group) or set(heldout) == set(group):
         raise UserError(f"heldout_tasks={heldout}: must be some but not all of task_group={cfg.task_group} ({group})")
@@ -63,7 +69,7 @@ def main(cfg: DictConfig) -> None:
         if cfg.eval.videos and rows:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
                                                         cfg.eval.video_camera, variation, run["output_dir"])
-        identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "policy": cfg.policy.name,
+        identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "tasks": group, "policy": cfg.policy.name,
                     "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task, "variation": variation,
                     "eval_seeds": cfg.eval.seeds, "settings": {"model": vars(pcfg), "train": vars(settings)}}
         write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,

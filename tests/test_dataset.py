@@ -119,10 +119,6 @@ def test_mixed_action_spaces_are_refused_naming_both():
 
 def test_store_windows_match_the_stored_rows(tmp_path):
     """The HDF5 reader returns what the store holds (same alignment as the in-memory source)."""
-    from simeval.episodes import store as store_mod
-
-    if getattr(store_mod, "SCHEMA", 1) < 2:
-        pytest.skip("episode store format 1 (T+1 observations arrive with the core store change)")
     from simeval.episodes.dataset import StoreSource
     from simeval.models.synthetic import write_group
 
@@ -133,3 +129,34 @@ def test_store_windows_match_the_stored_rows(tmp_path):
         a, b = ds[(e, s)], WindowDataset(mem, ds.spec)[(e, s)]
         for k in a:
             np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_windows_of_collected_episodes_pair_row_t_action_t_and_row_t1_as_the_simulator_does(tiny_sim_store):
+    """On real episodes (src/collect.py, format 2): every window of two rows is (o_t, a_t, o_{t+1}), and feeding the
+    stored a_t to make_env(..., action_space="joint") from reset reproduces the o_{t+1} the dataset returns, state
+    and frame, bit for bit; the final row's padding action never starts a transition."""
+    from simeval.episodes.dataset import StoreSource, store_paths_for
+    from simeval.sim.env import make_env
+
+    paths = store_paths_for(tiny_sim_store, "gensim", "stacking")
+    src = StoreSource(paths[:1], "front")
+    info = src.infos[0]
+    assert info.action_space["kind"] == "joint_pos+suction" and info.n_rows > 50
+    ds = WindowDataset(src, WindowSpec(length=2))  # no padding: windows (row t, row t + 1) for t < T
+    idx = ds.windows(0)
+    assert idx[:, 1].tolist() == list(range(info.n_rows - 1))  # T windows, one per action
+    env = make_env(info.task, action_space="joint", image_size=(32, 32), cameras=("front",))
+    obs, _ = env.reset(seed=info.seed)
+    try:
+        for e, t in idx:
+            w = ds[(e, t)]
+            assert w["mask"].all() and w["is_first"].tolist() == [t == 0, False]
+            np.testing.assert_array_equal(obs["state"], w["state"][0], err_msg=f"o_{t}")
+            np.testing.assert_array_equal(obs["rgb"]["front"], w["image"][0], err_msg=f"frame {t}")
+            np.testing.assert_array_equal(w["prev_action"][1], w["action"][0])  # a_t is what led to o_{t+1}
+            obs, *_ = env.step(w["action"][0])
+            np.testing.assert_array_equal(obs["state"], w["state"][1], err_msg=f"o_{t + 1} = step(o_{t}, a_{t})")
+            np.testing.assert_array_equal(obs["rgb"]["front"], w["image"][1], err_msg=f"frame {t + 1}")
+    finally:
+        env.close()
+        src.close()

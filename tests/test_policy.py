@@ -95,9 +95,11 @@ def test_ema_follows_the_official_warmup_decay():
 
 
 def test_windows_pad_at_the_edges_and_every_action_is_executed_first_somewhere():
-    ep = moving_square_episode(T=6, action_fn=lambda ph: np.repeat(np.arange(6, dtype=np.float32)[:, None], 7, 1))
+    # format 2: 6 actions 0..5, 7 rows; row 6 (the final observation) carries a padding copy of action 5
+    acts = np.r_[np.arange(6), 5].astype(np.float32)
+    ep = moving_square_episode(T=7, action_fn=lambda ph: np.repeat(acts[:, None], 7, 1))
     ds = PolicyDataset([ep], "joint", ["top"], [32, 32], horizon=4, n_obs_steps=2)
-    assert len(ds) == 6
+    assert len(ds) == 6 and len(ds.state) == 6  # (row t, action t) for t < 6: the final row pairs with nothing
     first = ds.window(np.array([0]))
     assert first["action"][0, :, 0].tolist() == [0, 0, 1, 2]  # start -1: the first step repeats
     assert torch.equal(first["state"][0, 0], first["state"][0, 1])

@@ -41,6 +41,13 @@ def synthetic_store(root, per_task=3, T=30):
     return root
 
 
+def h5py_attr(path, key):
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return f.attrs[key]
+
+
 def run(*args, **kw):
     env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     return subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), *args], cwd=ROOT, env=env,
@@ -65,7 +72,7 @@ def test_entrypoint_trains_compares_samplers_and_writes_a_result(tmp_path):
     rec = json.loads((out / "result.json").read_text())
     assert rec["identity"]["task_group"] == GROUP and rec["identity"]["policy"] == "tiny"
     tr = rec["values"]["training"]
-    assert tr["steps"] == 20 and len(tr["trained_tasks"]) == 3 and tr["windows"] == 3 * 2 * 30
+    assert tr["steps"] == 20 and len(tr["trained_tasks"]) == 3 and tr["windows"] == 3 * 2 * 29  # 30 rows: 29 actions (row 29's is padding)
     assert set(rec["values"]["sampler_check"]) == {"ddpm", "ddim"}
     ckpt = torch.load(tr["checkpoint"], weights_only=False)
     assert ckpt["policy_config"]["horizon"] == 8 and ckpt["step"] == 20  # the checkpoint carries its config
@@ -109,3 +116,60 @@ def test_a_killed_training_resumes_to_the_same_weights(tmp_path):
     assert a["step"] == b["step"] == 120
     for k in b["ema_model"]:
         torch.testing.assert_close(a["ema_model"][k], b["ema_model"][k], rtol=1e-5, atol=1e-6, msg=k)
+
+
+def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_store, tmp_path):
+    """On real simulator episodes (src/collect.py debug=tiny, format 2): train a few steps, then roll out through
+    make_env on the training split and on a variation, 1 rollout of at most 40 control steps each; success with a
+    Wilson interval, progress in range, and a video whose first frame is the environment's reset observation."""
+    import imageio.v2 as imageio
+
+    from simeval.sim.env import make_env
+
+    out = tmp_path / "run"
+    p = run("debug=tiny", f"store={tiny_sim_store}", "task_group=stacking", "tasks=[stack-two-blocks]",
+            f"checkpoint_dir={tmp_path / 'ckpt'}", "eval.splits=[train,variations]",
+            "eval.variation={robot: {home_noise: 0.1}}", f"hydra.run.dir={out}")
+    assert p.returncode == 0, p.stderr[-2000:]
+    rec = json.loads((out / "result.json").read_text())
+    ident, v = rec["identity"], rec["values"]
+    assert ident["tasks"] == ["stack-two-blocks"] and ident["variation"] == {"robot": {"home_noise": 0.1}}
+    assert v["training"]["steps"] == 20 and v["training"]["trained_tasks"] == ["stack-two-blocks"]
+    assert v["training"]["windows"] == sum(
+        int(h5py_attr(pth, "n_actions")) for pth in sorted((tiny_sim_store / "gensim" / "stack-two-blocks").glob(
+            "episode_*.h5"))[:2])  # (row t, action t) pairs of the 2 training episodes, no padding row
+    assert [(r["split"], r["task"]) for r in v["tasks"]] == [("train", "stack-two-blocks"),
+                                                             ("variations", "stack-two-blocks")]
+    for row in v["tasks"]:
+        (ep,) = row["episodes"]
+        assert ep["seed"] == 100000 and 0 < ep["steps"] <= 40  # the rollout really stepped the environment
+        assert 0.0 <= ep["progress"] <= 1.0 and isinstance(ep["success"], bool)
+        s = row["success"]
+        assert s["n"] == 1 and s["k"] == int(ep["success"]) and 0 <= s["ci"][0] <= s["rate"] <= s["ci"][1] <= 1
+    for split in ("train", "variations"):
+        s = v["splits"][split]["success"]
+        assert s["n"] == 1 and 0 <= s["ci"][0] < s["ci"][1] <= 1 and 0 <= v["splits"][split]["mean_progress"] <= 1
+    video = Path(v["videos"]["worst"])
+    assert video.parent == out / "videos" and video.stat().st_size > 0
+    frames = [f for f in imageio.get_reader(video)]  # list() asks the ffmpeg reader its length: inf
+    assert len(frames) == v["tasks"][0]["episodes"][0]["steps"] + 1  # the reset frame, then one per step
+    env = make_env("stack-two-blocks", action_space="joint", image_size=(32, 32), cameras=("top", "front"))
+    obs, _ = env.reset(seed=100000)
+    env.close()
+    first = frames[0].astype(float)
+    assert first.shape == (32, 32, 3) and np.abs(first - obs["rgb"]["front"]).mean() < 8  # mp4 is lossy
+    assert np.abs(frames[-1].astype(float) - first).max() > 30  # the arm moved
+
+
+def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside_them(tmp_path):
+    import shutil
+
+    from simeval.models.policy.experiment import episodes_for
+
+    store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=3, T=8))
+    task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
+    plain = store.path_for("gensim", task, 0)
+    shutil.copy(plain, plain.with_name("episode_000000.v0123456789.h5"))  # a varied episode's name, stored beside
+    train, val, metas = episodes_for(store, "gensim", [task], 2, 1, ["top"])
+    assert [e.seed for e in train] == [0, 1] and [e.seed for e in val] == [2]
+    assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 1)]

@@ -35,10 +35,6 @@ def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(t
 
 
 def test_sweep_end_to_end_writes_results_and_table(tmp_path):
-    from simeval.episodes import store as store_mod
-
-    if getattr(store_mod, "SCHEMA", 1) < 2:
-        pytest.skip("episode store format 1 (T+1 observations arrive with the core store change)")
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=41, n_actions=10, size=16, pipeline="gensim")
@@ -68,3 +64,33 @@ def test_sweep_end_to_end_writes_results_and_table(tmp_path):
                            env=ENV, capture_output=True, text=True, check=True)
     assert "| gensim | diverse | tiny |" in table.stdout and "115.0 / —" in table.stdout  # paper row, not run
     assert (tmp_path / "t4.png").stat().st_size > 0
+
+
+def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
+    """src/diversity.py on real episodes of simeval's simulator (3 of stack-two-blocks, src/collect.py debug=tiny):
+    training on the first 2 and 3, evaluating on all 3, finite numbers under the right identity."""
+    import math
+
+    from simeval.episodes.store import read_meta
+
+    rows = sum(read_meta(p)["n_steps"] for p in (tiny_sim_store / "gensim" / "stack-two-blocks").glob("episode_*.h5"))
+    r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}",
+            f"checkpoint_dir={tmp_path}/ck", "progress=false", "eval_episodes=[1,3]", "heldout_episodes=null",
+            "hydra.sweep.dir=" + str(tmp_path / "sweep"), "-m", "episodes=2,3", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
+    assert [rec["identity"]["episodes"] for rec in recs] == [2, 3]
+    for rec in recs:
+        ident, v = rec["identity"], rec["values"]
+        assert (ident["metric"], ident["pipeline"], ident["task_group"], ident["preset"], ident["camera"],
+                ident["seed"]) == ("dynamics_diversity", "gensim", "stacking", "tiny", "front", 0)
+        assert v["tasks"] == ["stack-two-blocks"] and v["heldout"] is None
+        assert v["model"]["action_space"] == "joint_pos+suction" and v["model"]["action_dim"] == 7
+        assert v["model"]["state_dim"] == 14
+        ev = v["eval"]
+        assert ev["frames"] == rows and ev["episodes"] == [1, 3]  # every row of the 3 episodes
+        assert v["train"]["episodes"] == ident["episodes"] and v["train"]["steps"] > 0
+        for k in ("image_error", "image_error_per_pixel", "state_error", "kl_dyn", "kl_rep", "open_loop_image_error",
+                  "open_loop_state_error"):
+            assert math.isfinite(ev[k]) and ev[k] >= 0, k
+        assert ev["image_error_per_pixel"] == pytest.approx(ev["image_error"] / (16 * 16 * 3))

@@ -10,8 +10,11 @@ episode (so the first observation and the last action repeat at the edges). Star
 every action of an episode is the first executed action of some window; the official sampler stops Ta-1 steps
 earlier, which for a horizon-2 pick/place policy would never train the last primitive as the executed one.
 
-This is a minimal window reader of this module's own: simeval.episodes.dataset (the world model's window dataset)
-had not landed when it was written.
+Episodes are in the store's format 2 (simeval.episodes.store): T actions, T + 1 observation rows; the pairs are
+(row t, action t) for t < T (row T, the final observation, has padding for an action and is left out), and a
+pick/place step pairs the observation at the row where the primitive was chosen with its 14-d pose. This is a small
+in-memory reader of its own rather than simeval.episodes.dataset (the world model's lazy window dataset): the
+official Diffusion Policy sampler clips windows to the episode instead of padding and masking them.
 """
 
 from __future__ import annotations
@@ -44,10 +47,9 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
     if missing:
         raise UserError(f"{ep.task} seed {ep.seed}: no camera {missing} in the stored episode (has {sorted(ep.rgb)});"
                         f" set policy.cameras to stored ones or collect with record.cameras including them")
-    t = ep.n_steps  # stored observations are T (older files) or T+1 (the observation after the last action too)
-    if action_space == "joint":
-        idx = np.arange(t)
-        action = np.asarray(ep.action, np.float32)
+    if action_space == "joint":  # the store's rows 0..T-1 with the action taken after each; row T (the final
+        idx = np.arange(ep.n_actions)  # observation) has only padding for an action, which no policy should learn
+        action = np.asarray(ep.action, np.float32)[: ep.n_actions]
     else:
         if ep.high_level_action is None or len(ep.high_level_action) == 0:
             raise UserError(f"{ep.task} seed {ep.seed}: no high-level (pick/place) actions stored; "

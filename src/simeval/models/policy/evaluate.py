@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.errors import UserError
 from simeval.metrics.intervals import success_summary
 from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
 
@@ -28,11 +27,8 @@ log = logging.getLogger(__name__)
 
 
 def _make_env(task: str, action_space: str, variation, image_size, cameras, max_steps):
-    try:
-        from simeval.sim import make_env
-    except ImportError as e:
-        raise UserError("rollouts need simeval.sim.make_env (the Gymnasium environment), which this checkout "
-                        "lacks; set eval.splits=[] to train and compare samplers offline only") from e
+    from simeval.sim import make_env
+
     kwargs = {"max_steps": max_steps} if max_steps else {}
     return make_env(task, action_space=action_space, variation=variation, image_size=tuple(image_size),
                     cameras=tuple(cameras), **kwargs)

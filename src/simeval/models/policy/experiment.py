@@ -14,6 +14,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from simeval.errors import UserError
 from simeval.results import atomic_write_text, dumps_strict
 
 log = logging.getLogger(__name__)
+PLAIN = re.compile(r"episode_(\d+)\.h5")
 
 
 def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str]):
@@ -29,12 +31,13 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
         raise UserError(f"episodes_per_task must be >= 1, got {k}")
     train, val, metas = [], [], []
     for task in tasks:
-        paths = store.paths(pipeline, task)
+        # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
+        paths = [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)]
         if len(paths) < k:
             raise UserError(f"store {store.root}: task {task} has {len(paths)} episodes, fewer than "
                             f"episodes_per_task={k}; collect them with src/collect.py pipeline={pipeline} "
                             f"tasks={task} episodes={k + val_k} store={store.root}")
-        paths = sorted(paths, key=lambda p: int(p.stem.split("_")[-1]))  # by seed
+        paths = sorted(paths, key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))  # by seed
         train += [read_episode(p, list(cameras)) for p in paths[:k]]
         val += [read_episode(p, list(cameras)) for p in paths[k : k + val_k]]
         metas += [(str(p.relative_to(store.root)), p.stat().st_size) for p in paths[:k]]
