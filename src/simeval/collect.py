@@ -174,6 +174,8 @@ def _check_recorded_like(path: Path, settings: RecordSettings) -> None:
         have = stored[key]
         if key == "record.scene_view_size" and have is None:
             continue  # episodes stored without scene views (not made by this collector) are not judged by them
+        if key == "record.image_size" and have is None and not stored["record.cameras"]:
+            continue  # no camera recorded, so no frame size to compare (the camera lists are compared above)
         if have != want:
             show = (lambda v: f"{v:g}") if key == "record.control_hz" and have is not None else repr
             raise UserError(f"{path} was recorded with {key}={show(have)}, this run asks for {show(want)}; stored "
