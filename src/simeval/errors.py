@@ -12,3 +12,10 @@ from __future__ import annotations
 
 class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
+
+
+def require_whole(key: str, value: object, low: int = 1) -> None:
+    """Raise a UserError naming `key` unless value is an int (not a bool) >= low: configs give strings and floats
+    as readily as ints, and a comparison with them fails far from the key that caused it."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 
 @dataclass
@@ -51,9 +51,7 @@ class WindowSpec:
 
     def __post_init__(self) -> None:
         for name in ("length", "stride"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"window.{name}={v!r}: expected a whole number >= 1")
+            require_whole(f"world_model.window.{name}", getattr(self, name))
         if not 0 <= self.offset < self.stride:
             raise UserError(f"window.offset={self.offset}: expected 0 <= offset < stride ({self.stride})")
         if not 0 <= self.pad_start < self.length:

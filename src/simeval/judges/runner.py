@@ -14,7 +14,7 @@ from simeval.judges.ledger import BudgetExceeded, Ledger
 from simeval.judges.parse import parse_score
 from simeval.judges.prompts import PromptTemplate
 from simeval.judges.providers import Image
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 
 class ReplayMiss(UserError, RuntimeError):
@@ -49,13 +49,9 @@ class JudgeSettings:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        def whole(name: str, value, low: int, key: str) -> None:
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")
-
-        whole("repeats", self.repeats, 1, "repeats")
-        whole("max_reasks", self.max_reasks, 0, "max_reasks")
-        whole("concurrency", self.concurrency, 1, "judge.concurrency (or captioner.concurrency)")
+        require_whole("repeats", self.repeats)
+        require_whole("max_reasks", self.max_reasks, 0)
+        require_whole("judge.concurrency (or captioner.concurrency)", self.concurrency)
         rate = self.rate_limit_per_min
         if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0):
             raise UserError(f"judge.rate_limit_per_min (or captioner.rate_limit_per_min) must be a number > 0 or "

@@ -33,7 +33,7 @@ from einops import rearrange
 from torch import nn
 from torch.nn import functional as F
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
 
 log = logging.getLogger(__name__)
@@ -71,9 +71,7 @@ class PolicyConfig:
         ints = ("crop", "encoder_width", "keypoints", "feature_dim", "horizon", "n_obs_steps", "n_action_steps",
                 "step_embed_dim", "kernel_size", "n_groups", "num_train_timesteps", "num_inference_steps")
         for k in ints:
-            v = getattr(self, k)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"policy.{k} must be a whole number >= 1, got {v!r}")
+            require_whole(f"policy.model.{k}", getattr(self, k))
         if self.action_space not in ("joint", "pick_place"):
             raise UserError(f"policy.action_space={self.action_space!r}: expected joint or pick_place")
         if not self.cameras:
@@ -235,9 +233,7 @@ class TrainSettings:
 
     def __post_init__(self) -> None:
         for k in ("train_steps", "batch_size", "checkpoint_every", "log_every"):
-            v = getattr(self, k)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"policy.train.{k} must be a whole number >= 1, got {v!r}")
+            require_whole(f"policy.train.{k}", getattr(self, k))
         if not self.lr > 0:
             raise UserError(f"policy.train.lr must be > 0, got {self.lr!r}")
         self.betas = tuple(self.betas)

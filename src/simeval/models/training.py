@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 log = logging.getLogger(__name__)
 
@@ -51,13 +51,11 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "epochs", "checkpoint_every"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"train.{name}={v!r}: expected a whole number >= 1")
+            require_whole(f"world_model.train.{name}", getattr(self, name))
         if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
-            raise UserError(f"train.max_steps={self.max_steps!r}: expected null or a whole number >= 1")
+            raise UserError(f"world_model.train.max_steps={self.max_steps!r}: expected null or a whole number >= 1")
         if self.lr <= 0 or self.clip <= 0:
-            raise UserError(f"train.lr={self.lr}, train.clip={self.clip}: both must be > 0")
+            raise UserError(f"world_model.train.lr={self.lr}, world_model.train.clip={self.clip}: both must be > 0")
         if self.num_workers < 0:
             raise UserError(f"train.num_workers={self.num_workers}: expected >= 0")
 

@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import nn
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 VERSION = "1.0"
 
@@ -63,9 +63,7 @@ class WorldModelConfig:
         positive = ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth", "minres", "mlp_layers",
                     "mlp_units")
         for name in positive:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"world_model.{name}={v!r}: expected a whole number >= 1")
+            require_whole(f"world_model.model.{name}", getattr(self, name))
         if self.kernel < 2:
             raise UserError(f"world_model.kernel={self.kernel}: expected >= 2 (stride-2 convolutions)")
         ratio = self.image_size / self.minres
