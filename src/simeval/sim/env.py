@@ -231,8 +231,8 @@ class SimEnv(_gym().Env):
         """(N, 7) position and xyzw quaternion of every object body, in the order of the instance's objects
         (a pile contributes one row per particle). Privileged: not part of the observation."""
         c = self.world.c
-        rows = [np.r_[c.getBasePositionAndOrientation(b)[0], c.getBasePositionAndOrientation(b)[1]]
-                for o in self.inst.objects for b in o.body_ids]
+        rows = [np.r_[pos, orn] for o in self.inst.objects for b in o.body_ids
+                for pos, orn in (c.getBasePositionAndOrientation(b),)]
         return np.asarray(rows, np.float32).reshape(-1, 7)
 
 
