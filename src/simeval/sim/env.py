@@ -49,8 +49,9 @@ from simeval.sim.objects import make_object
 from simeval.sim.action_spaces import (JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,  # noqa: F401 (re-exported)
                                        joint_action_space, pick_place_action_space)
 from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
-from simeval.sim.spec import SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance
-from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, World
+from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
+                             task_seed)
+from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
 
 # state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
 STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
@@ -195,8 +196,11 @@ class SimEnv(_gym().Env):
         spec, variation = self.spec_task, dict(self.variation)
         home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
         self.inst = sample_instance(spec, seed, variation)
-        rng = np.random.default_rng(seed + 7919)
-        self.world = World(self.control_hz)
+        # the physical randomness (pile spreads, the arm's home noise): a child of the task's own stream, so two
+        # tasks with the same seed differ here too, and it stays unrelated to the draws of sample_instance
+        rng = np.random.default_rng(task_seed(spec.name, seed).spawn(1)[0])
+        piles = any(o.shape == "pile" for o in self.inst.objects)
+        self.world = World(self.control_hz, solver_residual=PILE_SOLVER_RESIDUAL if piles else None)
         self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
@@ -227,8 +231,8 @@ class SimEnv(_gym().Env):
         """(N, 7) position and xyzw quaternion of every object body, in the order of the instance's objects
         (a pile contributes one row per particle). Privileged: not part of the observation."""
         c = self.world.c
-        rows = [np.r_[c.getBasePositionAndOrientation(b)[0], c.getBasePositionAndOrientation(b)[1]]
-                for o in self.inst.objects for b in o.body_ids]
+        rows = [np.r_[pos, orn] for o in self.inst.objects for b in o.body_ids
+                for pos, orn in (c.getBasePositionAndOrientation(b),)]
         return np.asarray(rows, np.float32).reshape(-1, 7)
 
 

@@ -23,6 +23,9 @@ SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
 PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
+# particles as plain rigid bodies (maximal coordinates), which Bullet steps more cheaply than one-link multibodies
+# (experiments/benchmarks/pile_bench.py measures it)
+PARTICLE_MAXIMAL = True
 
 
 @dataclass
@@ -90,7 +93,8 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
         for _ in range(n):  # spread as Ravens' sweeping piles: uniform over a square, each particle at a random yaw
             dx, dy = rng.uniform(-sx / 2, sx / 2), rng.uniform(-sy / 2, sy / 2)
             q = c.getQuaternionFromEuler([0, 0, rng.uniform(0, 2 * np.pi)])
-            ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + PARTICLE / 2 + 1e-3], q))
+            ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + PARTICLE / 2 + 1e-3], q,
+                                         useMaximalCoordinates=PARTICLE_MAXIMAL))
         obj.body_ids = ids
     else:
         raise ValueError(f"unknown shape '{obj.shape}'; known: {', '.join(SHAPES)}")

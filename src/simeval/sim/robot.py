@@ -26,6 +26,11 @@ HOME = (0.0, -0.35, -0.9, 0.0, 1.25, 0.0)  # joints: tool above the workspace, p
 # it sits behind its own base, the top camera does not see it at all (tested in tests/test_sim_look.py)
 PARK = (math.pi, -0.35, -0.9, 0.0, 1.25, 0.0)
 TOOL_LENGTH = {"suction": 0.06, "spatula": 0.09}
+# The blade's commanded height above the table during a push. The arm tracks about 3 mm above its target here, so
+# 4 mm (as before) ran the blade at 7-8 mm, above the middle of the 1 cm particles: it tipped them over instead of
+# sliding them, passed over them, and the oracle repeated the same push (sweep-pile-* failed 1-4 of 7 seeds).
+# 1 mm runs it at about 4 mm, below their middle.
+BLADE_Z = 0.001
 ARM_URDF = "xarm/xarm6_robot_white.urdf"
 RENDER_MESH = "collision"  # what Arm draws by default: "collision" (fast) or "visual" (pybullet_data's STLs)
 SAFE_Z = 0.16  # tool-tip height for moves across the workspace
@@ -272,7 +277,7 @@ class Arm:
         start, end = a[0:2], a[7:9]
         d = end - start
         yaw = (math.atan2(d[1], d[0]) + math.pi / 2) % math.pi - math.pi / 2  # the blade is symmetric
-        z = TABLE_Z + 0.004
+        z = TABLE_Z + BLADE_Z
         self.move(np.r_[start, SAFE_Z], yaw, speed=0.6)
         self.move(np.r_[start, z], yaw, speed=0.3)
         self.move(np.r_[end, z], yaw, speed=0.15)
