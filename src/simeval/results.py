@@ -76,9 +76,22 @@ def identity_difference(a: Mapping, b: Mapping) -> str:
 def umask_file_mode() -> int:
     """The mode a plainly created file gets (0o666 less the umask). mkstemp makes 0o600 files; a shared store or
     outputs folder needs the mode other writers' files have."""
+    return 0o666 & ~_process_umask()
+
+
+def _process_umask() -> int:
+    """The umask, read without changing it where Linux reports it: setting it to read it back (the only portable
+    way) briefly gives any file another thread creates meanwhile the wrong mode."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass  # not Linux: fall back to set-and-restore
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:

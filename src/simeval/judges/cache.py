@@ -180,7 +180,8 @@ class JudgeCache:
                     self._db.execute("UPDATE leases SET expires = ? WHERE owner = ?",
                                      (time.time() + self.lease_s, self.owner))
                 except sqlite3.Error:
-                    pass  # a busy file: the next beat tries again; the lease is good for lease_s
+                    continue  # any sqlite error, not only "busy": a dead heartbeat would let the lease lapse and
+                    # another run pay for this request; the next beat retries and the lease is good for lease_s
 
     def put(self, call: CachedCall, *, provider: str, model: str, item: str, metric: str, repeat: int,
             ask: int) -> None:
