@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import sqlite3
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -35,3 +36,22 @@ def friendly_errors(path: Path, *, what: str, advice: str, timeout_s: float) -> 
         yield
     except sqlite3.Error as e:
         raise sqlite_user_error(path, e, what=what, advice=advice, timeout_s=timeout_s) from e
+
+
+def use_wal(db: sqlite3.Connection, *, timeout_s: float) -> None:
+    """Put `db` in WAL mode (readers never block the writer of a parallel job), retrying for up to `timeout_s`.
+
+    Why a loop: switching the journal mode needs an exclusive lock, and SQLite answers "database is locked" at once,
+    without calling the busy handler, when another process is creating or switching the same new file. Two runs
+    started together on a fresh cache hit this about one time in three; the mode is stored in the file, so once
+    one of them has switched it the other's pragma is a no-op."""
+    deadline, pause = time.monotonic() + timeout_s, 0.01
+    while True:
+        try:
+            db.execute("PRAGMA journal_mode=WAL").fetchone()  # on a filesystem without shared memory it
+            return  # stays in its old mode: still correct, only slower
+        except sqlite3.OperationalError as e:
+            if "locked" not in str(e) and "busy" not in str(e) or time.monotonic() > deadline:
+                raise
+        time.sleep(pause)
+        pause = min(pause * 2, 0.5)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simeval.sqlite_files import friendly_errors
+from simeval.sqlite_files import friendly_errors, use_wal
 
 ADVICE = ("delete it or move it aside (with any {sidecars} beside it), then re-run; it only saves recomputing "
           "embeddings, and the re-run rebuilds it")
@@ -49,7 +49,7 @@ class EmbeddingCache:
         with self._errors():
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(self.path, timeout=timeout_s)
-            self._db.execute("PRAGMA journal_mode=WAL")  # readers never block the writer of a parallel sweep job
+            use_wal(self._db, timeout_s=timeout_s)
             self._db.execute(
                 "CREATE TABLE IF NOT EXISTS embeddings (key TEXT PRIMARY KEY, model_id TEXT, dim INTEGER, vec BLOB)"
             )

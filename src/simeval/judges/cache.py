@@ -26,7 +26,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from simeval.sqlite_files import friendly_errors
+from simeval.sqlite_files import friendly_errors, use_wal
 
 
 def request_key(*, provider: str, model: str, template_sha256: str, system: str, user: str,
@@ -92,7 +92,7 @@ class JudgeCache:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             # isolation_level=None: transactions are explicit (BEGIN IMMEDIATE where a read decides a write)
             self._db = sqlite3.connect(self.path, timeout=timeout_s, check_same_thread=False, isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
+            use_wal(self._db, timeout_s=timeout_s)
             self._db.execute(
                 "CREATE TABLE IF NOT EXISTS calls (key TEXT PRIMARY KEY, provider TEXT, model TEXT, item TEXT, "
                 "metric TEXT, repeat INTEGER, ask INTEGER, reply TEXT, prompt_tokens INTEGER, "
