@@ -20,6 +20,9 @@ _RAVENS_255 = {
 COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS_255.items()}
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
+from simeval.sim.articulated import ARTICULATED  # noqa: E402 (articulated objects: simeval.sim.articulated)
+
+SHAPES = SHAPES + ARTICULATED
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
 PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
@@ -36,6 +39,7 @@ class SimObject:
     color: str
     size: tuple[float, float, float]  # full extents x, y, z (bowl: outer diameter, diameter, height)
     body_ids: list[int] = field(default_factory=list)  # one body, or many for a pile
+    on_table: bool = False  # articulated objects: stands on a wooden table board (simeval.sim.articulated)
 
     @property
     def id(self) -> str:
@@ -84,6 +88,10 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
         obj.body_ids = [_bowl(c, obj, x, y, table_z, rgba)]
     elif obj.shape in FLAT:
         obj.body_ids = [_flat(c, obj, x, y, yaw, table_z)]
+    elif obj.shape in ARTICULATED:
+        from simeval.sim.articulated import make_articulated
+
+        obj.body_ids = [make_articulated(c, obj, x, y, yaw, table_z)]
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
         r = sx / 2
