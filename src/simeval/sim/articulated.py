@@ -97,7 +97,7 @@ def design(kind: str, size, rgba) -> Design:
                                    [((-arm, 0, 0.015), (0, 0, 1))], 0.15)])
     if kind == "display":  # foot, post, screen that slides up the post
         sh, st = 0.55 * H, 0.025
-        base = [_box((0.2 * D, 0, 0.01), (0.6 * D, 0.5 * W, 0.02), DARK), _box((0.3 * D, 0, 0.5 * H), (0.02, 0.06, H), STEEL)]
+        base = [_box((0.2 * D, 0, 0.01), (0.6 * D, 0.5 * W, 0.02), DARK), _box((0.3 * D, 0, (0.06 + sh / 2) / 2), (0.02, 0.06, 0.06 + sh / 2), STEEL)]  # hidden behind the screen
         screen = [_box((0, 0, sh / 2), (st, W, sh), rgba), _box((-st / 2 - 0.0006, 0, sh / 2), (0.001, 0.92 * W, 0.88 * sh), DARK, False)]
         return Design(base, [Joint("prismatic", (0.3 * D - 0.01 - st / 2, 0, 0.06), (0, 0, 1), (0.0, 0.4 * H), screen,
                                    [((0, 0, sh), (0, 0, 1))], 0.2)])
@@ -140,7 +140,7 @@ def design(kind: str, size, rgba) -> Design:
         return Design(base, [
             Joint("revolute", (-D / 2, 0, 0.01), (0, -1, 0), (0.0, math.pi / 2), door,
                   [((-t - 0.03, 0, dh - 0.022), (0, 0, 1)), ((0, 0, dh - 0.03), (1, 0, 0))], 0.3),
-            Joint("revolute", (-D / 2 + 0.05, 0.25 * W, body_h + panel / 2), (-1, 0, 0), (0.0, math.pi), knob,
+            Joint("revolute", (-D / 2 + 0.1, 0.25 * W, body_h + panel / 2), (-1, 0, 0), (0.0, math.pi), knob,
                   [((-0.02, 0, kr + 0.004), (0, 0, 1))], 0.05)])
     if kind == "window":  # a frame standing on the floor; the upper pane is fixed, the lower sash slides up
         t, fd = 0.025, D
@@ -152,10 +152,11 @@ def design(kind: str, size, rgba) -> Design:
         sash = [_box((0, 0, 0.012), (0.02, sw, 0.024), rgba), _box((0, 0, sh - 0.012), (0.02, sw, 0.024), rgba),
                 _box((0, sw / 2 - 0.012, sh / 2), (0.02, 0.024, sh), rgba), _box((0, -sw / 2 + 0.012, sh / 2), (0.02, 0.024, sh), rgba),
                 _box((0, 0, sh / 2), (0.006, sw - 0.048, sh - 0.048), GLASS),
-                _box((-0.038, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),
-                _box((-0.022, 0.12 * sw, 0.05), (0.03, 0.012, 0.012), STEEL), _box((-0.022, -0.12 * sw, 0.05), (0.03, 0.012, 0.012), STEEL)]
+                _box((-0.07, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),  # a handle standing well off the sash:
+                _box((-0.04, 0.12 * sw, 0.05), (0.06, 0.012, 0.012), STEEL),  # the wrist clears the frame above
+                _box((-0.04, -0.12 * sw, 0.05), (0.06, 0.012, 0.012), STEEL)]
         return Design(base, [Joint("prismatic", (-fd / 4, 0, t), (0, 0, 1), (0.0, 0.38 * H), sash,
-                                   [((-0.038, 0, 0.058), (0, 0, 1))], 0.25)])
+                                   [((-0.07, 0, 0.058), (0, 0, 1))], 0.25)])
     if kind == "toilet":  # bowl with a seat, tank at the back, flush lever on the tank's front that turns down
         tank_d, bowl_h = 0.3 * D, 0.45 * H
         base = [_cyl((-0.1 * D, 0, bowl_h / 2), 0.33 * min(D, W), bowl_h, WHITE),

@@ -8,7 +8,8 @@ point whose normal points most upwards, simeval.sim.articulated.grip_points), de
 the cup seizes the link, then drags the seized point along the joint's arc (revolute) or axis (prismatic) a little
 per step towards the middle of the goal range; holding the wrong thing, or a finished link while another goal
 remains, it releases and lifts. Actions are 7-d ee_delta (simeval.sim.env): the translation is the next waypoint
-minus the environment's commanded tip (`env.ee_target`), plus noise N(0, noise_std^2) per axis (m), then clipped
+minus the environment's commanded tip (`env.ee_target`; while dragging: minus the seized point, so the command
+moves by the step the link should make), plus noise N(0, noise_std^2) per axis (m), then clipped
 to the action bounds; the rotation channels stay 0 (the tool keeps pointing down: the point grip lets the link
 turn under it). The noise is drawn from the episode seed, so under RoboGen's fixed initial state the episodes of
 a task differ by it alone."""
@@ -63,8 +64,10 @@ class ArticulationController:
                 return goal, inst.by_name(goal.what[0])[status.index(False)]
         return None
 
-    def plan(self) -> tuple[np.ndarray, float] | None:
-        """The next waypoint of the tool tip and the suction command, or None when done."""
+    def plan(self) -> tuple[np.ndarray, float, np.ndarray | None] | None:
+        """The next waypoint of the tool tip, the suction command and, while dragging, the seized point now (the
+        step is then the waypoint minus that point: a loaded arm lags its command, and the drag must not shrink
+        by the lag); None when done."""
         env, c = self.env, self.env.world.c
         target = self._target()
         if target is None:
@@ -74,7 +77,7 @@ class ArticulationController:
         arm, tip = env.arm, env.arm.tip()
         if arm.held is not None and (arm.held, arm.held_link) != (body, link):
             self._seized = None
-            return tip + np.array([0.0, 0.0, EE_MAX_TRANSLATION]), 0.0  # the wrong thing: let go and lift
+            return tip + np.array([0.0, 0.0, EE_MAX_TRANSLATION]), 0.0, None  # the wrong thing: let go and lift
         if arm.held is not None:
             pos, rot = link_frame(c, body, link)
             if self._seized is None or self._seized[:2] != (body, link):
@@ -87,26 +90,28 @@ class ArticulationController:
             if kind == "revolute":
                 radius = max(np.linalg.norm(np.cross(axis, point - pivot)), 1e-3)
                 step = float(np.clip(dq, -DRAG_STEP / radius, DRAG_STEP / radius))
-                return _rotate(point, pivot, axis, step), 1.0
-            return point + axis * float(np.clip(dq, -DRAG_STEP, DRAG_STEP)), 1.0
+                return _rotate(point, pivot, axis, step), 1.0, point
+            return point + axis * float(np.clip(dq, -DRAG_STEP, DRAG_STEP)), 1.0, point
         self._seized = None
         grip, normal = max(grip_points(c, obj, link), key=lambda g: g[1][2])
         above = grip + np.array([0.0, 0.0, APPROACH_HEIGHT])
         horizontal = np.linalg.norm(tip[:2] - grip[:2])
         if horizontal > ALIGN_TOL:
             if tip[2] < above[2] - 0.01 and horizontal > 0.05:
-                return np.r_[tip[:2], above[2]], 0.0  # rise first: never sweep low across the object
-            return above, 0.0
-        # above the grip point: descend with the suction on; it seizes the link at contact (Arm.apply)
+                return np.r_[tip[:2], above[2]], 0.0, None  # rise first: never sweep low across the object
+            return above, 0.0, None
+        # above the grip point: descend; the suction goes on only in the last 2 cm (so a cup blocked higher up
+        # by another part seizes nothing) and seizes the link at contact (Arm.apply)
         down = grip - np.array([0.0, 0.0, 0.01])
-        step = min(DESCENT_STEP if tip[2] - grip[2] < 0.02 else EE_MAX_TRANSLATION, max(tip[2] - down[2], 0.0))
-        return np.r_[grip[:2], tip[2] - step], 1.0
+        near = tip[2] - grip[2] < 0.02
+        step = min(DESCENT_STEP if near else EE_MAX_TRANSLATION, max(tip[2] - down[2], 0.0))
+        return np.r_[grip[:2], tip[2] - step], float(near), None
 
     def __call__(self, obs) -> np.ndarray | None:
         planned = self.plan()
         if planned is None:
             return None
-        waypoint, suction = planned
-        delta = waypoint - self.env.ee_target + self.rng.normal(0.0, self.noise_std, 3)
+        waypoint, suction, seized = planned
+        delta = waypoint - (self.env.ee_target if seized is None else seized) + self.rng.normal(0.0, self.noise_std, 3)
         action = np.r_[delta, 0.0, 0.0, 0.0, suction].astype(np.float32)
         return np.clip(action, EE_LOW, EE_HIGH)

@@ -235,13 +235,14 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
 
 def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     folder = Path(folder)
-    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml"))]
+    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml")) if p.name != SPLITS_FILE]
     if not specs:
         raise SpecError(f"{folder}: no task specs (*.yaml)")
     return specs
 
 
 SUITES_DIR = Path(__file__).resolve().parent / "suites"
+SPLITS_FILE = "splits.yaml"  # a suite's held-out tasks per group (not a task spec)
 
 
 def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:
