@@ -164,10 +164,12 @@ def design(kind: str, size, rgba) -> Design:
                 _cyl((-0.1 * D, 0, bowl_h + 0.0165), 0.22 * min(D, W), 0.001, DARK, collide=False),
                 _box((D / 2 - tank_d / 2, 0, H / 2), (tank_d, 0.8 * W, H), WHITE),
                 _box((D / 2 - tank_d / 2, 0, H + 0.008), (tank_d + 0.01, 0.82 * W, 0.016), rgba)]
-        lever = 0.22 * W
-        handle = [_cyl((0, 0, 0), 0.012, 0.02, STEEL, rpy=(0, math.pi / 2, 0)), _box((-0.012, -lever / 2, 0), (0.016, lever, 0.016), STEEL)]
-        return Design(base, [Joint("revolute", (D / 2 - tank_d - 0.012, 0.32 * W, 0.85 * H), (1, 0, 0), (0.0, 0.7), handle,
-                                   [((-0.012, -lever + 0.01, 0.008), (0, 0, 1))], 0.05)])
+        # the lever stands 7 cm off the tank on a shaft, so the arm's wrist above the cup clears the tank's lid
+        lever, off = 0.22 * W, 0.07
+        handle = [_cyl((-off / 2, 0, 0), 0.01, off, STEEL, rpy=(0, math.pi / 2, 0)),
+                  _box((-off, -lever / 2, 0), (0.016, lever, 0.016), STEEL)]
+        return Design(base, [Joint("revolute", (D / 2 - tank_d, 0.32 * W, 0.85 * H), (1, 0, 0), (0.0, 0.7), handle,
+                                   [((-off, -lever + 0.01, 0.008), (0, 0, 1))], 0.05)])
     if kind == "dishwasher":  # a box with a front door outline and a control strip; start button pressed down
         base = [_box((0, 0, H / 2), (D, W, H), rgba), _box((-D / 2 - 0.0006, 0, 0.42 * H), (0.001, 0.92 * W, 0.8 * H), STEEL, False),
                 _box((-D / 2 + 0.04, 0, H + 0.004), (0.08, 0.9 * W, 0.008), DARK),
@@ -181,14 +183,14 @@ def design(kind: str, size, rgba) -> Design:
                 _box((0, -W / 2 + t / 2, (H - t) / 2), (D, t, H - t), rgba), _box((D / 2 - t / 2, 0, (H - t) / 2), (t, W, H - t), rgba),
                 _box((0, 0, 0.02), (D, W, 0.04), rgba)]
         dh = H - t - 0.05
-        grip = (-0.035, None, 0.75 * dh + 0.008)
+        off = 0.07  # handles stand well off the doors: the arm's wrist above the cup clears the table top
 
         def door(sign: float) -> list[Part]:  # sign +1: hinge on the +y side, the door spans towards -y
             return [_box((-t / 2, -sign * dw / 2, dh / 2), (t, dw - 0.004, dh), rgba),
-                    _box((-0.035, -sign * (dw - 0.03), 0.75 * dh), (0.016, 0.016, 0.14 * dh), STEEL),
-                    _box((-0.022, -sign * (dw - 0.03), 0.75 * dh + 0.05 * dh), (0.03, 0.012, 0.012), STEEL),
-                    _box((-0.022, -sign * (dw - 0.03), 0.75 * dh - 0.05 * dh), (0.03, 0.012, 0.012), STEEL)]
-        grips = [[((grip[0], -s * (dw - 0.03), 0.75 * dh + 0.07 * dh), (0, 0, 1))] for s in (1, -1)]
+                    _box((-off, -sign * (dw - 0.03), 0.75 * dh), (0.016, 0.016, 0.14 * dh), STEEL),
+                    _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh + 0.05 * dh), (off, 0.012, 0.012), STEEL),
+                    _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh - 0.05 * dh), (off, 0.012, 0.012), STEEL)]
+        grips = [[((-off, -s * (dw - 0.03), 0.75 * dh + 0.07 * dh), (0, 0, 1))] for s in (1, -1)]
         return Design(base, [Joint("revolute", (-D / 2, W / 2 - 0.004, 0.045), (0, 0, -1), (0.0, 1.6), door(1), grips[0], 0.3),
                              Joint("revolute", (-D / 2, -W / 2 + 0.004, 0.045), (0, 0, 1), (0.0, 1.6), door(-1), grips[1], 0.3)])
     raise ValueError(f"unknown articulated kind '{kind}'; known: {', '.join(ARTICULATED)}")
