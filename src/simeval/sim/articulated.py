@@ -115,13 +115,14 @@ def design(kind: str, size, rgba) -> Design:
                 _box((0, W / 2 - t / 2, H / 2), (D, t, H), rgba), _box((0, -W / 2 + t / 2, H / 2), (D, t, H), rgba),
                 _box((D / 2 - t / 2, 0, H / 2), (t, W, H), rgba)]
         dh, dw, dd = H - 2 * t - 0.01, W - 2 * t - 0.008, D - t - 0.01
+        off = 0.06  # the handle stands well off the drawer: the arm's wrist above the cup clears the cabinet top
         drawer = [_box((0, 0, 0), (t, dw + 0.006, dh + 0.004), WOOD), _box((dd / 2, 0, -dh / 2 + t / 2), (dd, dw, t), WOOD),
                   _box((dd / 2, dw / 2 - t / 2, 0), (dd, t, dh), WOOD), _box((dd / 2, -dw / 2 + t / 2, 0), (dd, t, dh), WOOD),
-                  _box((dd, 0, 0), (t, dw, dh), WOOD), _box((-0.03, 0, 0.15 * dh), (0.016, 0.45 * dw, 0.016), STEEL),
-                  _box((-0.018, 0.2 * dw, 0.15 * dh), (0.03, 0.012, 0.012), STEEL),
-                  _box((-0.018, -0.2 * dw, 0.15 * dh), (0.03, 0.012, 0.012), STEEL)]
+                  _box((dd, 0, 0), (t, dw, dh), WOOD), _box((-off, 0, 0.15 * dh), (0.016, 0.45 * dw, 0.016), STEEL),
+                  _box((-off / 2 - 0.004, 0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL),
+                  _box((-off / 2 - 0.004, -0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL)]
         return Design(base, [Joint("prismatic", (-D / 2 + t / 2, 0, H / 2), (-1, 0, 0), (0.0, 0.65 * D), drawer,
-                                   [((-0.03, 0, 0.15 * dh + 0.008), (0, 0, 1))], 0.3)])
+                                   [((-off, 0, 0.15 * dh + 0.008), (0, 0, 1))], 0.3)])
     if kind == "oven":  # a box open at the front, a door hinged at its bottom edge, a control panel with a timer knob
         t, panel = 0.015, 0.22 * H
         body_h = H - panel
