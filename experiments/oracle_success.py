@@ -6,7 +6,10 @@ Every finished episode is appended to outputs/tables/oracle_success_<suite>_epis
 different --tasks add up. Delete the file (or pass --fresh) after changing the suite, goals or oracle.
 
     python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b]
-                                         [--budget-s SECONDS] [--fresh] [--table-only]
+                                         [--budget-s SECONDS] [--fresh] [--table-only] [--variation eval]
+
+--variation SPLIT runs each task under its spec's `variations: {SPLIT: ...}` (read from the task's YAML; tasks
+without one run as they are) and writes oracle_success_<suite>_<SPLIT>.* instead.
 """
 
 from __future__ import annotations
@@ -28,15 +31,25 @@ def one(args):
     from simeval.sim.rollout import RecordSettings, run_episode
     from simeval.sim.spec import load_spec
 
-    path, seed = args
+    path, seed, split = args
     spec = load_spec(path)
     t0 = time.perf_counter()
     try:
-        ep = run_episode(spec, seed, RecordSettings(cameras=()))
+        ep = run_episode(spec, seed, RecordSettings(cameras=()), variation=split_variation(path, split))
         return [spec.name, spec.group, seed, int(ep.success), round(float(ep.progress[-1]), 4), ep.n_steps,
                 round(time.perf_counter() - t0, 2), ""]
     except Exception as e:  # a crash is a failure of that seed, reported with its message
         return [spec.name, spec.group, seed, 0, 0.0, 0, round(time.perf_counter() - t0, 2), f"{type(e).__name__}: {e}"]
+
+
+def split_variation(path: str, split: str | None) -> dict | None:
+    """The task's `variations: {split: ...}` as its YAML gives it (None without a split or without one)."""
+    import yaml
+
+    if not split:
+        return None
+    with open(path, encoding="utf-8") as f:
+        return (yaml.safe_load(f).get("variations") or {}).get(split)
 
 
 def read_episodes(path: Path) -> dict[tuple[str, int], dict]:
@@ -72,18 +85,21 @@ def main() -> None:
     ap.add_argument("--budget-s", type=float, default=0.0, help="stop starting episodes after this many seconds")
     ap.add_argument("--fresh", action="store_true", help="forget the episodes of earlier runs")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from the episodes file, run nothing")
+    ap.add_argument("--variation", default="", help="run under each task's `variations: {NAME: ...}` (e.g. eval)")
     args = ap.parse_args()
     paths = sorted(p for p in (SUITES_DIR / args.suite).glob("*.yaml") if p.name != SPLITS_FILE)  # task specs only
     if args.tasks:
         paths = [p for p in paths if p.stem in args.tasks.split(",")]
     out = ROOT / "outputs" / "tables"
     out.mkdir(parents=True, exist_ok=True)
-    ep_path = out / f"oracle_success_{args.suite}_episodes.csv"
+    stem = f"oracle_success_{args.suite}" + (f"_{args.variation}" if args.variation else "")
+    ep_path = out / f"{stem}_episodes.csv"
     if args.fresh and ep_path.exists():
         ep_path.unlink()
     done = read_episodes(ep_path)
     # seed-major order: a run cut short by --budget-s covers every task about equally
-    jobs = [] if args.table_only else [(str(p), s) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
+    jobs = [] if args.table_only else [(str(p), s, args.variation) for s in range(args.seeds) for p in paths
+                                       if (p.stem, s) not in done]
     t0 = time.monotonic()
     new = ep_path.exists()
     with ep_path.open("a", newline="", encoding="utf-8") as f, ProcessPoolExecutor(args.workers) as pool:
@@ -108,11 +124,12 @@ def main() -> None:
     counts = sorted({int(r[2].split("/")[1]) for r in rows})
     over = f"{counts[0]} seeds" if len(counts) == 1 else f"seeds 0..n-1 (n per task in the Success column)"
     header = ["Group", "Task", "Success", "Rate", "Mean progress", "Mean steps", "s/episode", "Failed seeds"]
-    notes = [f"Oracle success over {over} per task ({args.suite} suite); per-episode results in {ep_path.name}."]
+    under = f", under each task's `{args.variation}` variation" if args.variation else ""
+    notes = [f"Oracle success over {over} per task ({args.suite} suite{under}); per-episode results in {ep_path.name}."]
     if len(counts) > 1 or (counts and counts[0] < args.seeds):
         notes.append(f"Fewer than {args.seeds} seeds for some tasks: the run was cut by its time budget; run the "
                      "same command again to resume.")
-    write_table(out / f"oracle_success_{args.suite}", header, rows, caption=notes[0], notes=notes)
+    write_table(out / stem, header, rows, caption=notes[0], notes=notes)
     print(f"| {' | '.join(header)} |")
     for r in rows:
         print(f"| {' | '.join(r)} |")
