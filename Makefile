@@ -104,3 +104,10 @@ clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite 
 	  find $(CACHE_DIR) -type f -exec ls -lh {} + | awk '{print "  " $$5 "  " $$NF}'; \
 	  rm -rf $(CACHE_DIR); \
 	else echo "no $(CACHE_DIR)/: nothing to delete"; fi
+
+# The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
+# outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.
+RUNS ?= outputs/runs
+.PHONY: report-html
+report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) of RUNS=folder: RUNS/report/index.html
+	$(PY) src/report.py report=html report.runs_dir=$(RUNS)
