@@ -11,9 +11,9 @@ the folder can be zipped and opened on another machine. Sections:
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
   views and the trajectory frames sampled as quality.py samples them, and the video when there is one) and every
-  judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found from the record's
-  `config.bundles_dir` (absolute, or relative to the working directory) or, for episode-store runs, the
-  `<run>/bundles` export; a task whose files are gone is shown with its scores and a note saying so.
+  judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
+  simeval.report.quality_tasks finds them; a run whose bundles are gone is shown with its scores, replies and a
+  note saying so.
 
 Records under `out_dir` are ignored, so a report written inside `runs_dir` does not report on itself.
 """
@@ -27,11 +27,11 @@ import shutil
 from pathlib import Path
 
 from simeval.errors import UserError
+from simeval.report.quality_tasks import SCALES, find_bundles, judged_media, normalized, ordered_tasks
 from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
-SCALES = {"scene_alignment": (1.0, 5.0), "task_completion": (0.0, 10.0)}
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:0 auto;max-width:1200px;padding:1rem 1.5rem;
@@ -247,76 +247,33 @@ def read_scores(path: Path) -> dict[tuple[str, str], list[dict]]:
     return out
 
 
-def _bundle_roots(rec: dict) -> list[Path]:
-    cfg = rec.get("config") or {}
-    run_dir = Path(rec["path"]).parent
-    roots = []
-    if cfg.get("bundles_dir"):
-        p = Path(str(cfg["bundles_dir"])).expanduser()
-        roots.append(p)
-    roots.append(run_dir / "bundles")  # episode-store runs with a model judge export the bundles here
-    return [r for r in roots if r.is_dir()]
-
-
-def _find_bundles(rec: dict) -> tuple[dict[str, object], str | None]:
-    """{task name: TaskBundle} for a quality record, and a note when its bundles cannot be found."""
-    from simeval.quality import load_bundles
-
-    roots = _bundle_roots(rec)
-    if not roots:
-        where = (rec.get("config") or {}).get("bundles_dir")
-        return {}, (f"bundles_dir {where!r} is not there any more: scores and replies only" if where else
-                    "no task bundles (ground truth read from an episode store): scores only")
-    try:
-        bundles, _ = load_bundles(roots[0])
-    except UserError as e:
-        return {}, f"bundles at {roots[0]} unreadable: {e}"
-    return {b.name: b for b in bundles}, None
-
-
-def _normalized(metric: str, mean):
-    lo, hi = SCALES[metric]
-    return None if mean is None else (mean - lo) / (hi - lo)
-
-
-def _task_order_key(task: str, values: dict) -> tuple:
-    scores = [_normalized(m, (values.get(m) or {}).get(task, {}).get("mean")) for m in SCALES]
-    known = [s for s in scores if s is not None]
-    return (0 if not known else 1, min(known) if known else 0.0, task)
-
-
 def _media_strip(bundle, n_frames: int, assets: _Assets, group: str) -> str:
     """What the judge saw: the scene views, the sampled trajectory frames (and the video when there is one)."""
-    from simeval.quality import BundleError, read_video_frames, sample_frame_indices
-
+    media = judged_media(bundle, n_frames)
     parts = []
-    views = sorted((bundle.path / "scene").glob("*.png"))
-    if views:
-        srcs = [assets.copy(v, f"{group}/scene") for v in views]
+    if media.scene:
+        srcs = [assets.copy(v, f"{group}/scene") for v in media.scene]
         imgs = "".join(f"<a href='{_e(s)}'><img src='{_e(s)}' alt='scene view {v.stem}' title='{_e(v.name)}'></a>"
-                       for v, s in zip(views, srcs))
-        parts.append(f"<div class='label'>Scene views ({len(views)})</div><div class='strip'>{imgs}</div>")
-    frames_dir, video = bundle.path / "frames", bundle.path / "trajectory.mp4"
-    frame_files = sorted(frames_dir.glob("*.png")) if frames_dir.is_dir() else []
-    try:
-        if frame_files:
-            picked = [frame_files[i] for i in sample_frame_indices(len(frame_files), n_frames)]
-            srcs = [assets.copy(f, f"{group}/frames") for f in picked]
-            titles = [f.name for f in picked]
-            note = f"Trajectory: the {len(picked)} of {len(frame_files)} frames the judge saw"
-            vid = ""
-        elif video.is_file():
-            arrays = read_video_frames(video, n_frames)
-            srcs = [assets.write_png(a, f"{group}/frames", f"frame{i:02d}.png") for i, a in enumerate(arrays)]
-            titles = [f"sampled frame {i}" for i in range(len(arrays))]
-            note = f"Trajectory: the {len(arrays)} sampled frames the judge saw, and the video"
-            vsrc = assets.copy(video, f"{group}/video")
-            vid = (f"<video controls muted preload='metadata' src='{_e(vsrc)}'></video>"
-                   f"<a href='{_e(vsrc)}'>trajectory.mp4</a>")
+                       for v, s in zip(media.scene, srcs))
+        parts.append(f"<div class='label'>Scene views ({len(media.scene)})</div><div class='strip'>{imgs}</div>")
+    if media.error:
+        return "".join(parts) + f"<p class='error'>{_e(media.error)}</p>"
+    srcs, titles = [], []
+    for i, (path, array) in enumerate(media.frames):
+        if path is not None:
+            srcs.append(assets.copy(path, f"{group}/frames"))
+            titles.append(path.name)
         else:
-            srcs, titles, note, vid = [], [], "", ""
-    except BundleError as e:
-        return "".join(parts) + f"<p class='error'>{_e(e)}</p>"
+            srcs.append(assets.write_png(array, f"{group}/frames", f"frame{i:02d}.png"))
+            titles.append(f"sampled frame {i}")
+    vid = ""
+    if media.video is not None:
+        vsrc = assets.copy(media.video, f"{group}/video")
+        vid = (f"<video controls muted preload='metadata' src='{_e(vsrc)}'></video>"
+               f"<a href='{_e(vsrc)}'>{_e(media.video.name)}</a>")
+        note = f"Trajectory: the {len(srcs)} sampled frames the judge saw, and the video"
+    else:
+        note = f"Trajectory: the {len(srcs)} of {media.n_total_frames} frames the judge saw"
     if srcs:
         imgs = "".join(f"<a href='{_e(s)}'><img src='{_e(s)}' alt='{_e(t)}' title='{_e(t)}'></a>"
                        for s, t in zip(srcs, titles))
@@ -337,10 +294,9 @@ def _replies_html(score_recs: list[dict]) -> str:
 def _quality_gallery(rec: dict, name: str, assets: _Assets) -> str:
     values = rec.get("values") or {}
     errors = rec.get("errors") or {}
-    tasks = sorted(set(rec.get("tasks") or {}) | set(errors) | {t for v in values.values() for t in v},
-                   key=lambda t: _task_order_key(t, values))
+    tasks = ordered_tasks(rec)
     scores = read_scores(Path(rec["path"]).parent / "scores.jsonl")
-    bundles, note = _find_bundles(rec)
+    bundles, note = find_bundles(rec)
     n_frames = int((rec.get("config") or {}).get("n_frames") or 8)
     judge = rec.get("judge")
     model = ((rec.get("config") or {}).get("judge") or {}).get("provider", {}) or {}
@@ -353,7 +309,7 @@ def _quality_gallery(rec: dict, name: str, assets: _Assets) -> str:
     cards = []
     for task in tasks:
         per_metric = {m: (values.get(m) or {}).get(task) for m in SCALES}
-        known = [_normalized(m, v.get("mean")) for m, v in per_metric.items() if v and v.get("mean") is not None]
+        known = [normalized(m, v.get("mean")) for m, v in per_metric.items() if v and v.get("mean") is not None]
         cls = "failed" if not known else ("low" if min(known) < 0.4 else "mid" if min(known) < 0.7 else "high")
         bundle = bundles.get(task)
         desc = bundle.description if bundle is not None else ""
