@@ -34,6 +34,7 @@ def _flatten(d: Mapping, prefix: str = "") -> dict[str, Any]:
 
 
 WANDB_TAG_MAX = 64  # W&B refuses longer tags
+UNTAGGED_GROUPS = ("hydra", "logger")  # the same in every W&B run: a tag that groups nothing
 
 
 @dataclass(frozen=True)
@@ -154,8 +155,9 @@ def run_pipeline(run_config: Mapping, choices: Mapping) -> str:
 
 
 def run_tags(choices: Mapping, sha: str | None) -> list[str]:
-    """`group=choice` for each config choice (sorted) and `git=<12 hex>[-dirty]`, each cut to W&B's tag limit."""
-    tags = [f"{k}={v}" for k, v in sorted(choices.items())]
+    """`group=choice` for each config choice (sorted; not hydra or logger) and `git=<12 hex>[-dirty]`, each cut to
+    W&B's tag limit. A choice is what was picked in the group: `debug=tiny` may still shrink that node's values."""
+    tags = [f"{k}={v}" for k, v in sorted(choices.items()) if k not in UNTAGGED_GROUPS]
     if sha:
         tags.append(f"git={sha[:12]}" + ("-dirty" if sha.endswith("-dirty") else ""))
     return [t[:WANDB_TAG_MAX] for t in tags]
