@@ -47,11 +47,6 @@ def main(cfg: DictConfig) -> None:
                           judge="oracle" if cfg.judge.kind == "oracle" else "model", metric=cfg.metric,
                           mode=cfg.scene_alignment_mode, n_frames=cfg.n_frames, dry_run=cfg.dry_run, logger=logger,
                           meta=meta, **judge)
-        if out.result_path is not None and logger.wants_tables:  # per-task scores with what the judge saw
-            from simeval.report.quality_tasks import quality_task_table
-
-            logger.log_table("quality/tasks", *quality_task_table({**json.loads(out.result_path.read_text()),
-                                                                    "path": str(out.result_path)}))
     if out.plan is not None:  # a dry run: stdout is the plan, as JSON, and nothing else
         print(json.dumps(out.plan, indent=2))
         return

@@ -2,8 +2,10 @@
 `finish()` runs even when the run fails.
 
 Every logger has `log_metrics(mapping, step)` (nested mappings are flattened to `a/b/c` keys) and
-`log_table(name, columns, rows)`, where a cell may be a `LogImage` (a PNG path with a caption): W&B gets a
-`wandb.Table` with images, the CSV logger a `<name>.csv` holding the image paths, the null logger nothing.
+`log_table(name, columns, rows)`, where a cell may be a `LogImage` (a PNG path or an array, with a caption): W&B
+gets a `wandb.Table` with images, the CSV logger a `<name>.csv` holding the image paths, the null logger nothing.
+On a clean exit from the `with` block, the csv and wandb loggers mirror the tables of the run's result.json
+(`mirror_result`: a quality run's per-task scores with its images).
 
 W&B runs are grouped and tagged so a dashboard is built by grouping: group `<metric>/<pipeline>` (the Hydra job
 name, e.g. `quality/gensim`), tags `<config group>=<choice>` for every config choice plus `git=<sha>`, unless
@@ -50,7 +52,7 @@ class LogImage:
 
 
 class NullLogger:
-    wants_tables = False  # callers skip building tables (reading images) for a logger that drops them
+    wants_tables = False  # mirror_result (which reads images) is skipped for a logger that drops tables
 
     def __init__(self, **_: Any) -> None:
         pass
@@ -68,7 +70,27 @@ class NullLogger:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self.finish(exit_code=0 if exc_type is None else 1)
+        try:
+            if exc_type is None and self.wants_tables:
+                self.mirror_result()
+        finally:
+            self.finish(exit_code=0 if exc_type is None else 1)
+
+    def mirror_result(self) -> None:
+        """Log the tables derived from the run's result.json, if the entrypoint wrote one inside the `with` block:
+        for a quality run, `quality/tasks` (per-task scores with the scene views and judged frames, lowest first).
+        Done here so that entrypoints stay thin and every table is rebuilt from result.json, as reports are."""
+        run_dir = getattr(self, "run_dir", None)
+        path = Path(run_dir) / "result.json" if run_dir else None
+        if path is None or not path.is_file():
+            return
+        import json
+
+        rec = {**json.loads(path.read_text()), "path": str(path)}
+        if rec.get("metric") == "quality" and rec.get("values"):
+            from simeval.report.quality_tasks import quality_task_table
+
+            self.log_table("quality/tasks", *quality_task_table(rec))
 
 
 class CsvLogger(NullLogger):
@@ -76,6 +98,7 @@ class CsvLogger(NullLogger):
     wants_tables = True
 
     def __init__(self, run_dir: str, filename: str = "metrics.csv", **_: Any) -> None:
+        self.run_dir = run_dir
         self.path = Path(run_dir) / filename
         self.path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -184,6 +207,8 @@ class WandbLogger(NullLogger):
         import wandb  # lazy: importing wandb costs ~1 s
 
         from simeval.results import git_sha
+
+        self.run_dir = run_dir
 
         os.environ.setdefault("WANDB_SILENT", "true")
         # W&B stages the files of logged tables and images under $WANDB_DATA_DIR (default ~/.local/share/wandb)
