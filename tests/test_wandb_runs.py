@@ -182,3 +182,23 @@ def test_agreement_logs_r_over_mae(wandb_env, tmp_path):
     logged = {k: v for k, v in run["summary"].items() if k.endswith("/r_over_mae")}
     assert len(logged) >= 10
     _no_secret_anywhere(tmp_path)
+
+
+def test_csv_logger_writes_the_quality_task_table_with_image_paths(tmp_path):
+    import csv
+
+    bundles = make_bundles(tmp_path / "bundles", n=3)
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "quality.py"), f"bundles_dir={bundles}", "judge=oracle",
+                          "logger=csv", f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    rows = list(csv.DictReader((tmp_path / "run" / "quality_tasks.csv").open()))
+    # oracle completion = 10 x progress (make_bundles: progress 0, 0.5, 1): lowest first
+    assert [(r["task"], float(r["task_completion"])) for r in rows] == [("task0", 0.0), ("task1", 5.0),
+                                                                        ("task2", 10.0)]
+    assert rows[0]["description"] == "stack block 0 on the pallet" and rows[0]["scene_alignment"] == ""
+    scene = rows[0]["scene"].split(";")
+    assert [Path(p).name for p in scene] == ["view0.png", "view1.png", "view2.png", "view3.png"]
+    assert all(Path(p).is_file() for p in scene + rows[0]["frames"].split(";"))
+    assert len(rows[0]["frames"].split(";")) == 8  # quality.yaml n_frames: the 8 of 12 frames a model judge sees
