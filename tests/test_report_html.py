@@ -107,6 +107,8 @@ def test_html_report_links_resolve_and_gallery_shows_replies(report_inputs, tmp_
     # the judge's unparseable replies are on the page with the parse error, for the low-scoring task
     assert "The stack is not there at all." in text and "no 'Score: X' in reply" in text
     assert "stack block 1 on the pallet" in text
+    # the simulator's verdict beside the judge's (make_bundles: task1 progress 0.5)
+    assert "progress: 0.50 (oracle completion 5.0 / 10)" in text
     # what the judge saw: 4 scene views and (debug=tiny: n_frames=2) 2 frames per task, per judged run
     imgs = [v for t, _, v in refs if t == "img"]
     per_run = [v for v in imgs if "/quality/0/" in v]

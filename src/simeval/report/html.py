@@ -31,6 +31,7 @@ from simeval.report.quality_tasks import SCALES, find_bundles, judged_media, nor
 from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
+LONG_TABLE_ROWS = 30
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 CSS = """
@@ -149,7 +150,12 @@ def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
         parts.append(f"<h3 id='table-{_e(_slug(str(rel)))}'>{_e(rel.with_suffix(''))}</h3>"
                      f"<p class='muted'>{' · '.join(links)}</p>")
         for kind, body in markdown_blocks(md.read_text(encoding="utf-8")):
-            parts.append(_html_table(*body) if kind == "table" else f"<p class='muted'>{_e(body)}</p>")
+            if kind != "table":
+                parts.append(f"<p class='muted'>{_e(body)}</p>")
+            elif len(body[1]) > LONG_TABLE_ROWS:  # folded, so a long table does not bury the gallery below it
+                parts.append(f"<details><summary>{len(body[1])} rows (show)</summary>{_html_table(*body)}</details>")
+            else:
+                parts.append(_html_table(*body))
     return "\n".join(parts)
 
 
@@ -281,6 +287,19 @@ def _media_strip(bundle, n_frames: int, assets: _Assets, group: str) -> str:
     return "".join(parts)
 
 
+def ground_truth_line(truth: dict) -> str:
+    """`success: yes, progress: 1.00 (oracle completion 10.0 / 10)`: the simulator's verdict beside the judge's,
+    the oracle completion computed as simeval.quality.oracle_completion does."""
+    parts = []
+    if "success" in truth:
+        parts.append(f"success: {'yes' if truth['success'] else 'no'}")
+    if "progress" in truth:
+        parts.append(f"progress: {truth['progress']:.2f}")
+    oracle = 10.0 * truth["progress"] if "progress" in truth else (10.0 * truth["success"] if "success" in truth
+                                                                    else None)
+    return ", ".join(parts) + (f" (oracle completion {oracle:.1f} / 10)" if oracle is not None else "")
+
+
 def _replies_html(score_recs: list[dict]) -> str:
     lines = []
     for r in sorted(score_recs, key=lambda r: r.get("repeat", 0)):
@@ -325,8 +344,7 @@ def _quality_gallery(rec: dict, name: str, assets: _Assets) -> str:
                        "</tr></thead><tbody>" + "".join(cells) + "</tbody></table>") if cells else ""
         truth = ""
         if bundle is not None and bundle.ground_truth:
-            truth = "<p class='muted'>Ground truth: " + ", ".join(
-                f"{_e(k)} = {_e(_fmt(v))}" for k, v in bundle.ground_truth.items()) + "</p>"
+            truth = "<p class='muted'>Ground truth: " + _e(ground_truth_line(bundle.ground_truth)) + "</p>"
         media = _media_strip(bundle, n_frames, assets, f"quality/{_slug(name)}/{_slug(task)}") if bundle else ""
         replies = "".join(
             f"<details{' open' if cls in ('low', 'failed') else ''}><summary>Judge replies: "
