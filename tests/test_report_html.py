@@ -144,3 +144,30 @@ def test_missing_runs_dir_is_one_line(tmp_path):
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.strip() == (f"error: report.runs_dir={str(tmp_path / 'nope')!r} is not a folder: give a run or "
                                   "sweep folder (e.g. outputs/runs or outputs/multiruns/quality/<time>)")
+
+
+def test_an_assets_folder_that_is_not_a_reports_is_never_deleted(tmp_path):
+    runs, out = tmp_path / "runs", tmp_path / "site"
+    runs.mkdir()
+    (out / "assets").mkdir(parents=True)
+    (out / "assets" / "logo.png").write_bytes(b"mine")
+    res = _run("report.py", "report=html", f"report.runs_dir={runs}", f"report.out_dir={out}", cwd=tmp_path)
+    assert res.returncode == 2 and "already holds an assets/ folder that no simeval report wrote" in res.stderr
+    assert (out / "assets" / "logo.png").read_bytes() == b"mine"
+    # a report's own folder is rebuilt in place, a figure gone since the last build no longer linked
+    from PIL import Image
+
+    (out / "assets" / "logo.png").unlink()
+    (out / "assets").rmdir()
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    for name in ("a.png", "b.png"):
+        Image.new("RGB", (8, 8)).save(figs / name)
+    for gone in (None, "b.png"):
+        if gone:
+            (figs / gone).unlink()
+        res = _run("report.py", "report=html", f"report.runs_dir={runs}", f"report.out_dir={out}",
+                   f"report.figures_dir={figs}", cwd=tmp_path)
+        assert res.returncode == 0, res.stderr[-2000:]
+    assert sorted(p.name for p in (out / "assets").rglob("*.png")) == ["a.png"]
+    assert "No result.json here." in (out / "index.html").read_text()

@@ -32,6 +32,7 @@ from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
 LONG_TABLE_ROWS = 30
+GENERATOR_TAG = '<meta name="generator" content="simeval.report.html">'  # marks a folder this module may rewrite
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 CSS = """
@@ -362,7 +363,8 @@ def _quality_gallery(rec: dict, name: str, assets: _Assets) -> str:
 def build_html_report(runs_dir: str | Path, out_dir: str | Path | None = None, *, tables_dir: str | Path | None = None,
                       figures_dir: str | Path | None = None, title: str = "simeval report") -> Path:
     """Write `<out_dir>/index.html` (default out_dir: `<runs_dir>/report`) and its assets; returns the page's path.
-    `out_dir` is emptied of a previous report's assets first, so nothing stale is left linked."""
+    A previous report's assets/ in out_dir are deleted first, so nothing stale is left linked; an assets/ folder
+    that is not a report's (no index.html with GENERATOR_TAG beside it) is a UserError, never deleted."""
     runs_dir = Path(runs_dir)
     if not runs_dir.is_dir():
         raise UserError(f"report.runs_dir={str(runs_dir)!r} is not a folder: give a run or sweep folder "
@@ -373,7 +375,11 @@ def build_html_report(runs_dir: str | Path, out_dir: str | Path | None = None, *
                if out_resolved not in Path(r["path"]).resolve().parents]
     records.sort(key=lambda r: (r.get("metric") or "", r.get("created") or "", r["path"]))
     if (out_dir / ASSETS).is_dir():
-        shutil.rmtree(out_dir / ASSETS)
+        page = out_dir / "index.html"
+        if not (page.is_file() and GENERATOR_TAG in page.read_text(encoding="utf-8", errors="replace")):
+            raise UserError(f"report.out_dir={str(out_dir)!r} already holds an assets/ folder that no simeval report "
+                            "wrote (no index.html of ours beside it): choose an empty or new report.out_dir")
+        shutil.rmtree(out_dir / ASSETS)  # a previous report's: nothing stale stays linked
     assets = _Assets(out_dir)
     names = [_run_name(r, runs_dir) for r in records]
     quality = [(r, n) for r, n in zip(records, names) if r.get("metric") == "quality"]
@@ -385,6 +391,7 @@ def build_html_report(runs_dir: str | Path, out_dir: str | Path | None = None, *
     summary = ", ".join(f"{n} {m}" for m, n in sorted(counts.items(), key=lambda kv: str(kv[0]))) or "none"
     body = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
+{GENERATOR_TAG}
 <title>{_e(title)}</title><style>{CSS}</style></head><body>
 <h1>{_e(title)}</h1>
 <p class="muted">Built from the {RESULT_FILE} files under <code>{_e(runs_dir)}</code> ({_e(summary)}), the tables
