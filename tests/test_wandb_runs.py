@@ -130,7 +130,8 @@ def test_text_diversity_logs_config_metrics_group_and_tags(openai_server, wandb_
 
 
 def test_quality_logs_a_per_task_table_with_scene_and_frame_images(openai_server, wandb_env, tmp_path):
-    bundles = make_bundles(tmp_path / "bundles", n=3, video="task2")
+    # task0 has an unreadable scene view: no alignment score, its other views still shown; task2 is a video
+    bundles = make_bundles(tmp_path / "bundles", n=3, video="task2", corrupt="task0")
     openai_server.default_reply = lambda payload: "Score: 1" if "block 1 " in json.dumps(payload) else "Score: 4"
     res = _run("quality.py", f"bundles_dir={bundles}", f"judge.provider.base_url={openai_server.base_url}",
                "debug=tiny", "label=GenSim-P", f"cache_dir={tmp_path / 'c'}", f"hydra.run.dir={tmp_path / 'run'}",
@@ -150,7 +151,7 @@ def test_quality_logs_a_per_task_table_with_scene_and_frame_images(openai_server
     assert [r[col["task"]] for r in t["data"]][0] == "task1"  # lowest score first
     for row in t["data"]:
         task = row[col["task"]]
-        assert row[col["scene_alignment"]] == rec["values"]["scene_alignment"][task]["mean"]
+        assert row[col["scene_alignment"]] == rec["values"]["scene_alignment"].get(task, {}).get("mean")
         assert row[col["task_completion"]] == rec["values"]["task_completion"][task]["mean"]
         for cell in (row[col["scene"]], row[col["frames"]]):  # one image strip per cell, stored with the run
             assert cell["_type"] == "image-file" and cell["path"] in images
@@ -159,8 +160,10 @@ def test_quality_logs_a_per_task_table_with_scene_and_frame_images(openai_server
 
     strips = {row[col["task"]]: [Image.open(images[row[col[c]]["path"]]).size for c in ("scene", "frames")]
               for row in t["data"]}
-    assert strips["task0"] == [(4 * 128 + 3 * 4, 128), (2 * 128 + 4, 128)]
+    assert strips["task1"] == [(4 * 128 + 3 * 4, 128), (2 * 128 + 4, 128)]
+    assert strips["task0"][0] == (3 * 128 + 2 * 4, 128)  # the unreadable view left out
     assert strips["task2"][1] == (2 * 128 + 4, 128)
+    assert [r[col["scene_alignment"]] for r in t["data"] if r[col["task"]] == "task0"] == [None]
     _no_secret_anywhere(tmp_path)
 
 

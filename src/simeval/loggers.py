@@ -15,6 +15,7 @@ name, e.g. `quality/gensim`), tags `<config group>=<choice>` for every config ch
 from __future__ import annotations
 
 import csv
+import logging
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -90,7 +91,10 @@ class NullLogger:
         if rec.get("metric") == "quality" and rec.get("values"):
             from simeval.report.quality_tasks import quality_task_table
 
-            self.log_table("quality/tasks", *quality_task_table(rec))
+            try:
+                self.log_table("quality/tasks", *quality_task_table(rec))
+            except Exception as e:  # result.json is written: a table that cannot be drawn must not fail the run
+                logging.getLogger(__name__).warning("quality/tasks table not logged: %s: %s", type(e).__name__, e)
 
 
 class CsvLogger(NullLogger):
@@ -129,16 +133,22 @@ class CsvLogger(NullLogger):
 
 
 def image_strip(images: Sequence[LogImage], height: int = 128, gap: int = 4):
-    """The images side by side at a common height (aspect kept), on white, as an HxWx3 uint8 array."""
+    """The readable images side by side at a common height (aspect kept), on white, as an HxWx3 uint8 array; None
+    when none is readable."""
     import numpy as np
     from PIL import Image as PILImage
 
     tiles = []
     for im in images:
-        pil = PILImage.open(im.path).convert("RGB") if im.path is not None else PILImage.fromarray(
-            np.asarray(im.array, dtype=np.uint8)).convert("RGB")
+        try:
+            pil = PILImage.open(im.path).convert("RGB") if im.path is not None else PILImage.fromarray(
+                np.asarray(im.array, dtype=np.uint8)).convert("RGB")
+        except (OSError, ValueError, TypeError):  # an unreadable view (the judge skipped it too) is left out
+            continue
         w = max(1, round(pil.width * height / pil.height))
         tiles.append(np.asarray(pil.resize((w, height), PILImage.NEAREST)))
+    if not tiles:
+        return None
     width = sum(t.shape[1] for t in tiles) + gap * (len(tiles) - 1)
     strip = np.full((height, width, 3), 255, dtype=np.uint8)
     x = 0
@@ -241,7 +251,9 @@ class WandbLogger(NullLogger):
                 return wandb.Image(v.source(), caption=v.caption or None)
             if isinstance(v, (list, tuple)) and v and all(isinstance(x, LogImage) for x in v):
                 # a W&B table cell holds one image: several are shown side by side as one strip
-                return wandb.Image(image_strip(v), caption=f"{len(v)} images: {v[0].caption} ... {v[-1].caption}")
+                strip = image_strip(v)
+                return None if strip is None else wandb.Image(
+                    strip, caption=f"{len(v)} images: {v[0].caption} ... {v[-1].caption}")
             return v
 
         self.run.log({name: wandb.Table(columns=list(columns), data=[[cell(v) for v in r] for r in rows])})
