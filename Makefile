@@ -104,3 +104,15 @@ clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite 
 	  find $(CACHE_DIR) -type f -exec ls -lh {} + | awk '{print "  " $$5 "  " $$NF}'; \
 	  rm -rf $(CACHE_DIR); \
 	else echo "no $(CACHE_DIR)/: nothing to delete"; fi
+
+# The whole chain at a profile's cost (experiments/profiles/<PROFILE>.yaml): quick = minutes, tiny models (a first
+# look and the CI smoke test); cpu = the default presets (hours); paper = the authors' sizes (GPU jobs).
+PROFILE ?= quick
+PIPELINE ?= gensim
+.PHONY: paper evaluate
+paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures under outputs/paper/$(PROFILE)/ (resumable)
+	$(MAKE) --no-print-directory table3
+	$(PY) experiments/paper.py --profile $(PROFILE)
+
+evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea
+	$(PY) experiments/paper.py --profile $(PROFILE) --pipelines $(PIPELINE)
