@@ -131,6 +131,9 @@ def main(argv: list[str] | None = None) -> None:
              f"--out={tables / 'table5'}"], logs / "report_table5.log")
         run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}", f"report.out_dir={figures}"],
             logs / "report_figure4.log")
+        run([*entry("report"), "report=html", f"report.runs_dir={out}", f"report.tables_dir={tables}",
+             f"report.figures_dir={figures}"], logs / "report_html.log")
+        print(f"HTML report: {out / 'report' / 'index.html'}")
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     for sub in ("tables", "figures"):
         for p in sorted((out / sub).glob("*")) if (out / sub).is_dir() else []:
