@@ -33,7 +33,8 @@ def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
 def main() -> None:
     from PIL import Image, ImageDraw
 
-    from simeval.sim.spec import SPLITS_FILE, SUITES_DIR
+    from simeval.sim.spec import SUITES_DIR
+    from simeval.sim.splits import SPLITS_FILE
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", default="gensim")

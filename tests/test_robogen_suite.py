@@ -6,8 +6,6 @@ import warnings
 
 import numpy as np
 import pytest
-import yaml
-
 from simeval.errors import UserError
 from simeval.sim import make_env
 from simeval.sim.action_spaces import EE_DELTA_KIND, EE_MAX_TRANSLATION
@@ -16,6 +14,7 @@ from simeval.sim.controllers import ArticulationController
 from simeval.sim.goals import task_progress
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec
+from simeval.sim.splits import load_heldout
 
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "robogen")}
 HUMAN_STUDY = ["open-laptop", "change-lamp-direction", "flush-the-toilet", "extend-display-screen",
@@ -24,8 +23,7 @@ HUMAN_STUDY = ["open-laptop", "change-lamp-direction", "flush-the-toilet", "exte
 
 
 def _eval_variation(name: str) -> dict:
-    with open(SUITE[name].source, encoding="utf-8") as f:
-        return yaml.safe_load(f)["variations"]["eval"]
+    return SUITE[name].variations["eval"]
 
 
 def _solve(task: str, seed: int, variation=None, noise_std=0.002) -> dict:
@@ -56,11 +54,8 @@ def test_the_suite_has_both_groups_the_human_study_tasks_and_every_articulated_k
     assert set(groups) == {"table_top", "ground"} and all(len(v) >= 6 for v in groups.values())
     assert set(HUMAN_STUDY) <= set(SUITE)
     assert {o.shape for s in SUITE.values() for o in s.objects} >= set(ARTICULATED)
-    with open(SUITES_DIR / "robogen" / "splits.yaml", encoding="utf-8") as f:
-        splits = yaml.safe_load(f)
-    for group, split in splits.items():
-        assert split["heldout"] and all(SUITE[t].group == group for t in split["heldout"])
-        assert len(split["heldout"]) < len(groups[group])  # something is left to train on
+    heldout = load_heldout(SUITES_DIR / "robogen", list(SUITE.values()))  # checked against the suite there
+    assert set(heldout) == {"table_top", "ground"} and all(heldout.values())
 
 
 def test_robogen_initial_states_are_identical_across_seeds_and_gensims_are_not():

@@ -111,6 +111,8 @@ class TaskSpec:
     source: str = ""
     action_space: str = "joint"  # native action space of make_env
     initial_state: str = "random"  # random | fixed (RoboGen: every episode from the scene of seed 0)
+    # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.splits)
+    variations: dict[str, dict] = field(default_factory=dict)
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -218,10 +220,38 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     initial_state = data.get("initial_state", "random")
     if initial_state not in INITIAL_STATES:
         raise SpecError(f"{where}: initial_state {initial_state!r} is not one of {', '.join(INITIAL_STATES)}")
-    return TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
+    spec = TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
                     objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
                     max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
                     source=source, action_space=action_space, initial_state=initial_state)
+    spec.variations = _parse_variations(data.get("variations"), spec, where)
+    return spec
+
+
+VARIATION_SPLITS = ("eval",)  # the splits a task spec may vary; `train` is the spec itself, `heldout` whole tasks
+
+
+def _parse_variations(raw, spec: TaskSpec, where: str) -> dict[str, dict]:
+    """`variations: {eval: {<object>: {colors, count}, robot: {home_noise}}}`, each checked against the task."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict) or set(raw) - set(VARIATION_SPLITS):
+        raise SpecError(f"{where}: `variations` is a mapping with the key(s) {', '.join(VARIATION_SPLITS)}, got "
+                        f"{raw!r}")
+    out = {}
+    for split, knobs in raw.items():
+        try:
+            out[split] = check_variation([spec], knobs)
+        except SpecError as e:
+            raise SpecError(f"{where}: variations.{split}: {e}") from None
+        for name, v in out[split].items():  # counts must fit the text and goals, as for a variation given to collect
+            if name != "robot" and "count" in v:
+                lo, hi = (v["count"], v["count"]) if isinstance(v["count"], int) else v["count"]
+                try:
+                    _check_count(spec, name, int(lo), int(hi))
+                except SpecError as e:
+                    raise SpecError(f"{where}: variations.{split}: {e}") from None
+    return out
 
 
 def load_spec(path: str | os.PathLike) -> TaskSpec:
@@ -235,14 +265,14 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
 
 def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     folder = Path(folder)
-    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml")) if p.name != SPLITS_FILE]
+    # splits.yaml names the groups' held-out tasks (simeval.sim.splits); every other YAML file is a task
+    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml")) if p.name != "splits.yaml"]
     if not specs:
         raise SpecError(f"{folder}: no task specs (*.yaml)")
     return specs
 
 
 SUITES_DIR = Path(__file__).resolve().parent / "suites"
-SPLITS_FILE = "splits.yaml"  # a suite's held-out tasks per group (not a task spec)
 
 
 def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:
