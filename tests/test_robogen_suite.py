@@ -171,3 +171,19 @@ def test_spec_and_variation_errors_name_the_problem():
         check_variation([spec], {"distractor": {"scale": 1.1}})
     with pytest.raises(UserError, match="ee_delta"):
         ArticulationController().reset(make_env("open-laptop", "joint", cameras=()))
+
+
+def test_collect_stores_ee_delta_episodes_in_parallel_and_resumes(tmp_path):
+    from simeval.collect import collect
+    from simeval.episodes.store import EpisodeStore, read_recording
+
+    store = EpisodeStore(tmp_path)
+    specs = [SUITE["flush-the-toilet"], SUITE["pull-drawer-out"]]
+    settings = RecordSettings(cameras=("front",), image_size=(16, 16), scene_view_size=(16, 16))
+    first = collect(specs, [0, 1], store, settings, pipeline="robogen", workers=2, progress=False)
+    assert len(first["new"]) == 4 and all(t["rate"] == 1.0 for t in first["tasks"].values())
+    for path in store.paths():
+        assert read_recording(path)["action_space"] == EE_DELTA_KIND
+    again = collect(specs, [0, 1, 2], store, settings, pipeline="robogen", workers=2, progress=False)
+    assert again["skipped"] == 4 and [(r["task"], r["seed"]) for r in again["new"]] == [
+        ("flush-the-toilet", 2), ("pull-drawer-out", 2)]
