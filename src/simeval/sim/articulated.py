@@ -153,11 +153,11 @@ def design(kind: str, size, rgba) -> Design:
         sash = [_box((0, 0, 0.012), (0.02, sw, 0.024), rgba), _box((0, 0, sh - 0.012), (0.02, sw, 0.024), rgba),
                 _box((0, sw / 2 - 0.012, sh / 2), (0.02, 0.024, sh), rgba), _box((0, -sw / 2 + 0.012, sh / 2), (0.02, 0.024, sh), rgba),
                 _box((0, 0, sh / 2), (0.006, sw - 0.048, sh - 0.048), GLASS),
-                _box((-0.07, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),  # a handle standing well off the sash:
-                _box((-0.04, 0.12 * sw, 0.05), (0.06, 0.012, 0.012), STEEL),  # the wrist clears the frame above
-                _box((-0.04, -0.12 * sw, 0.05), (0.06, 0.012, 0.012), STEEL)]
+                _box((-0.085, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),  # a handle standing well off the sash:
+                _box((-0.047, 0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL),  # the wrist clears the frame above
+                _box((-0.047, -0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL)]
         return Design(base, [Joint("prismatic", (-fd / 4, 0, t), (0, 0, 1), (0.0, 0.38 * H), sash,
-                                   [((-0.07, 0, 0.058), (0, 0, 1))], 0.25)])
+                                   [((-0.085, 0, 0.058), (0, 0, 1))], 0.25)])
     if kind == "toilet":  # bowl with a seat, tank at the back, flush lever on the tank's front that turns down
         tank_d, bowl_h = 0.3 * D, 0.45 * H
         base = [_cyl((-0.1 * D, 0, bowl_h / 2), 0.33 * min(D, W), bowl_h, WHITE),
