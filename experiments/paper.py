@@ -126,7 +126,8 @@ def main(argv: list[str] | None = None) -> None:
     if "report" in stages:
         tables, figures = out / "tables", out / "figures"
         run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), f"--root={out / 'table4'}",
-             f"--out={tables / 'table4'}", f"--figure={figures / 'table4.png'}"], logs / "report_table4.log")
+             f"--out={tables / 'table4'}", f"--figure={figures / 'table4.png'}",
+             f"--episodes={','.join(map(str, prof['world_model_episodes']))}"], logs / "report_table4.log")
         run([sys.executable, "-m", "simeval.models.policy.table5", f"--runs={out / 'table5'}",
              f"--out={tables / 'table5'}"], logs / "report_table5.log")
         run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}", f"report.out_dir={figures}"],

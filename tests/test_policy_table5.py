@@ -25,3 +25,17 @@ def test_seeds_pool_and_the_table_shows_paper_and_interval(tmp_path):
 def test_runs_with_other_settings_are_refused():
     with pytest.raises(UserError, match="policy"):
         build([rec("a", 1, 10), rec("b", 1, 10, policy="tiny")])
+
+
+def test_a_group_named_as_in_the_paper_lands_in_the_suite_row():
+    # imported BBSEA episodes carry the paper's "table-top"; the suite's group is `table`: one row, the paper's 0.0
+    r = rec("a", 3, 10)
+    r["identity"].update(pipeline="bbsea", task_group="table-top")
+    bbsea = [x for x in build([r]) if x["pipeline"] == "bbsea"]
+    assert [x["group"] for x in bbsea] == ["table", "drawer"]
+    assert bbsea[0]["paper"] == 0.0 and (bbsea[0]["eval"]["k"], bbsea[0]["eval"]["n"]) == (3, 10)
+    # a suite run and an imported run are different data: one cell refuses to pool them
+    s = rec("b", 1, 10)
+    s["identity"].update(pipeline="bbsea", task_group="table")
+    with pytest.raises(UserError, match="task_group"):
+        build([r, s])

@@ -14,12 +14,14 @@ from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.metrics.intervals import wilson_interval
+from simeval.report.paper_groups import suite_group
 from simeval.results import atomic_write_text, identity_difference, read_results
 
 # paper Table 5: GenSim reports step-wise reward (1.0 = success), RoboGen/BBSEA success rate
+# keyed by our suites' group names (simeval.report.paper_groups: the paper's "Table-Top" is table_top / table)
 PAPER = {("gensim", "stacking"): 0.15, ("gensim", "placement"): 0.32, ("gensim", "piles"): 0.2,
-         ("gensim", "assembling"): 0.08, ("robogen", "table-top"): 0.0, ("robogen", "ground"): 0.0,
-         ("bbsea", "table-top"): 0.0, ("bbsea", "drawer"): 0.0}
+         ("gensim", "assembling"): 0.08, ("robogen", "table_top"): 0.0, ("robogen", "ground"): 0.0,
+         ("bbsea", "table"): 0.0, ("bbsea", "drawer"): 0.0}
 SPLITS = ("eval", "train", "heldout")
 
 
@@ -27,7 +29,7 @@ def build(records: list[dict]) -> list[dict]:
     cells: dict = {}
     for rec in records:
         ident = rec["identity"]
-        key = (ident["pipeline"], ident["task_group"])
+        key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]))
         base = {k: v for k, v in ident.items() if k != "seed"}
         if key in cells and cells[key]["identity"] != base:
             raise UserError(f"{rec['path']}: runs of {key} differ in {identity_difference(cells[key]['identity'], base)}")
