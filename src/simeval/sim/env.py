@@ -5,8 +5,10 @@
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(action)
 
-Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": (14,) float32} -- the state is 6 joint positions (rad),
-6 joint velocities (rad/s), the suction command in force (0/1) and whether an object is held (0/1) (`STATE_NAMES`).
+Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": float32} -- the state follows the task's robot (spec
+field `robot`; names in `state_names(robot)`): xarm6 (14): 6 joint positions (rad), 6 joint velocities (rad/s), the
+suction command in force (0/1) and whether an object is held (0/1) (simeval.sim.robot.STATE_NAMES); panda (16):
+7 joint positions, 7 velocities, the gripper opening (m) and the gripper command (simeval.sim.panda.STATE_NAMES).
 `info` carries `progress` (partial progress in [0, 1], the mean over the task's goals) and `success` (every goal
 done); the reward is the change in progress; `terminated` is success; `truncated` is the step limit.
 
@@ -29,6 +31,10 @@ Action spaces (`ACTION_SPACES`; each stored episode records the one it was recor
                   step that ends the episode (success, or the step limit) then parks the arm out of the
                   cameras' view and holds still for 10 control steps (`park_at_end`, on by default), so the
                   final observation shows the result (those control steps are part of the step).
+  ee_pose         kind `ee_pose+gripper` (Panda tasks), 8-d at the control rate (4 Hz by default, BBSEA's): the
+                  absolute grasp-point target [x, y, z (m), qx, qy, qz, qw, gripper (>= 0.5 closed)], reached
+                  within the step (simeval.sim.panda). A step that ends the episode parks the arm as above.
+The default action space of make_env is the task's own (spec field `action_space`, default joint).
 With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
 {"action": [(7,)], "obs": [...], "progress": [...], "success": [...], "object_poses": [(N, 7)]} -- each entry
 exactly what a joint step with that action would have returned. Collection records that (simeval.sim.rollout),
@@ -46,8 +52,9 @@ import numpy as np
 from simeval.errors import UserError
 from simeval.sim.goals import still, task_progress
 from simeval.sim.objects import make_object
-from simeval.sim.action_spaces import (JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,  # noqa: F401 (re-exported)
-                                       joint_action_space, pick_place_action_space)
+from simeval.sim.action_spaces import (EE_POSE_HIGH, EE_POSE_HZ, EE_POSE_KIND, EE_POSE_LOW,  # noqa: F401
+                                       JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,
+                                       ee_pose_action_space, joint_action_space, pick_place_action_space)
 from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
 from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
                              task_seed)
@@ -56,7 +63,17 @@ from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TA
 # state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
 STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
 STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
-ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND}
+ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_pose": EE_POSE_KIND}
+ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place"), "panda": ("ee_pose",)}
+
+
+def state_names(robot: str = "xarm6") -> tuple[str, ...]:
+    """The names of the state dimensions of `robot` (a spec's `robot` field)."""
+    if robot == "panda":
+        from simeval.sim.panda import STATE_NAMES as PANDA_STATE_NAMES
+
+        return PANDA_STATE_NAMES
+    return STATE_NAMES
 
 
 def find_task(task: str | TaskSpec) -> TaskSpec:
@@ -80,16 +97,23 @@ def _gym():
 class SimEnv(_gym().Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, task: str | TaskSpec, action_space: str = "joint", variation: dict | None = None,
+    def __init__(self, task: str | TaskSpec, action_space: str | None = None, variation: dict | None = None,
                  image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"),
-                 control_hz: float = 30.0, max_steps: int | None = None, record_low_level: bool = False,
+                 control_hz: float | None = None, max_steps: int | None = None, record_low_level: bool = False,
                  scene_view_size: Sequence[int] | None = None, render_mode: str | None = None,
                  park_at_end: bool = True) -> None:
         from gymnasium import spaces
 
         self.spec_task = find_task(task)
+        action_space = action_space or self.spec_task.action_space
         if action_space not in ACTION_SPACES:
             raise UserError(f"action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
+        robot = self.spec_task.robot
+        if action_space not in ROBOT_ACTION_SPACES[robot]:
+            raise UserError(f"action_space={action_space!r}: task {self.spec_task.name} (robot {robot}) takes "
+                            f"{', '.join(ROBOT_ACTION_SPACES[robot])}")
+        if control_hz is None:
+            control_hz = EE_POSE_HZ if action_space == "ee_pose" else 30.0
         self.cameras = tuple(cameras)
         unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
         if unknown:
@@ -105,12 +129,21 @@ class SimEnv(_gym().Env):
         self.render_mode = render_mode
         self.park_at_end = bool(park_at_end)
         # joint: a generous bound on an oracle episode (~150-300 control steps per primitive)
-        self.max_steps = int(max_steps or (self.spec_task.max_primitives * (400 if action_space == "joint" else 1)))
+        # ee_pose: a primitive takes 20-40 control steps at 4 Hz
+        per_primitive = {"joint": 400, "pick_place": 1, "ee_pose": 60}[action_space]
+        self.max_steps = int(max_steps or self.spec_task.max_primitives * per_primitive)
         h, w = self.image_size
+        if robot == "panda":
+            from simeval.sim.panda import STATE_HIGH as state_high, STATE_LOW as state_low
+        else:
+            state_low, state_high = STATE_LOW, STATE_HIGH
         self.observation_space = spaces.Dict({
             "rgb": spaces.Dict({c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}),
-            "state": spaces.Box(STATE_LOW, STATE_HIGH, dtype=np.float32)})
-        if action_space == "joint":
+            "state": spaces.Box(state_low, state_high, dtype=np.float32)})
+        if action_space == "ee_pose":
+            self.action_space = spaces.Box(EE_POSE_LOW, EE_POSE_HIGH, dtype=np.float32)
+            self.action_info = ee_pose_action_space(self.control_hz)
+        elif action_space == "joint":
             self.action_space = spaces.Box(np.array([*JOINT_LOWER, 0.0], np.float32),
                                            np.array([*JOINT_UPPER, 1.0], np.float32), dtype=np.float32)
             self.action_info = joint_action_space(self.control_hz)
@@ -148,6 +181,11 @@ class SimEnv(_gym().Env):
         self._steps += 1
         if self.mode == "joint":
             self.arm.apply(action)
+        elif self.mode == "ee_pose":
+            self.arm.apply(action)
+            if self.park_at_end and (self._info()["success"] or self._steps >= self.max_steps):
+                self._settle_ee(8)  # let what was just released come to rest before the arm leaves
+                self.arm.park()  # out of the cameras' view: the last observation shows the result
         else:
             self._low = low = ({"action": [], "obs": [], "progress": [], "success": [], "object_poses": []}
                                if self.record_low_level else None)
@@ -201,10 +239,16 @@ class SimEnv(_gym().Env):
         rng = np.random.default_rng(task_seed(spec.name, seed).spawn(1)[0])
         piles = any(o.shape == "pile" for o in self.inst.objects)
         self.world = World(self.control_hz, solver_residual=PILE_SOLVER_RESIDUAL if piles else None)
-        self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
+        if spec.robot == "panda":
+            from simeval.sim.panda import Panda
+
+            self.arm = Panda(self.world, home_noise, rng)
+        else:
+            self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
-            make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
+            lo, hi = spec.object(obj.name).opening  # drawn only when it varies: other tasks' streams stay as they were
+            make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z, float(rng.uniform(lo, hi)) if hi > lo else lo)
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step
 
@@ -217,6 +261,14 @@ class SimEnv(_gym().Env):
         self._low["progress"].append(info["progress"])
         self._low["success"].append(info["success"])
         self._low["object_poses"].append(self.object_poses())
+
+    def _settle_ee(self, max_steps: int) -> None:
+        """ee_pose: hold the last target (whole control steps of physics, not logged) until every object rests."""
+        bodies = [b for o in self.inst.objects for b in o.body_ids]
+        for _ in range(max_steps):
+            if all(still(self.world, b) for b in bodies):
+                return
+            self.world.step()
 
     def _settle(self, max_steps: int) -> None:
         """Hold still until every object rests (at most `max_steps` control steps), so the step returns a
@@ -236,7 +288,7 @@ class SimEnv(_gym().Env):
         return np.asarray(rows, np.float32).reshape(-1, 7)
 
 
-def make_env(task: str | TaskSpec, action_space: str = "joint", variation: dict | None = None,
+def make_env(task: str | TaskSpec, action_space: str | None = None, variation: dict | None = None,
              image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"), **kwargs) -> SimEnv:
     """A Gymnasium environment of a suite task (name or TaskSpec); see the module docstring. kwargs: control_hz,
     max_steps, record_low_level, scene_view_size, render_mode, park_at_end."""

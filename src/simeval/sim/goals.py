@@ -112,6 +112,37 @@ def in_bowl(world: World, obj: SimObject, bowl: SimObject, tol: float = 0.003) -
     return bool(np.linalg.norm(p[:2] - bp[:2]) <= inner - half_width + tol and bottom < bp[2] + bowl.size[2] / 2)
 
 
+def in_container(world: World, obj: SimObject, target: SimObject) -> bool:
+    """Inside a bowl, or inside a bin's or a drawer's box (simeval.sim.fixtures)."""
+    if target.shape in ("bin", "drawer"):
+        from simeval.sim.fixtures import inside
+
+        return inside(world.c, pose(world, obj)[0], target.body_ids[0], target.shape, target.size)
+    return in_bowl(world, obj, target)
+
+
+def joint_fraction(world: World, obj: SimObject) -> float:
+    """The object's articulation (first non-fixed joint) as a fraction of its limits: 0 lower, 1 upper."""
+    from simeval.sim.fixtures import articulation_fraction
+
+    return articulation_fraction(world.c, obj.body_ids[0])
+
+
+def joint_range_progress(world: World, inst: Instance, goal: GoalSpec) -> tuple[float, bool]:
+    """(progress, done) of a joint_range goal: done inside [lo, hi]; progress = the share of the way from the
+    fraction at the first measurement (reset) to the nearest end of the range, clipped to [0, 1]."""
+    obj = inst.by_name(goal.what[0])[0]
+    f = joint_fraction(world, obj)
+    f0 = inst.initial_fraction.setdefault(obj.id, f)
+    lo, hi = goal.range
+    if lo - 1e-9 <= f <= hi + 1e-9:
+        return 1.0, True
+    end = lo if f0 < lo else hi
+    if abs(end - f0) < 1e-9:
+        return 0.0, False
+    return float(np.clip((f - f0) / (end - f0), 0.0, 1.0)), False
+
+
 def _matching(ok: list[list[bool]]) -> list[int | None]:
     """Maximum one-to-one assignment of rows (objects) to columns (targets) where ok[i][j]; row -> column."""
     match_col: dict[int, int] = {}
@@ -152,7 +183,7 @@ def container_assignment(world: World, inst: Instance, goal: GoalSpec, held: set
             good = good and p[2] - height(obj) / 2 < TABLE_Z + 0.015
             ok.append([good and in_zone(world, p, t) for t in targets])
         else:
-            ok.append([good and in_bowl(world, obj, t) for t in targets])
+            ok.append([good and in_container(world, obj, t) for t in targets])
     if goal.each:
         return movers, targets, _matching(ok)
     return movers, targets, [next((j for j, g in enumerate(row) if g), None) for row in ok]
@@ -197,6 +228,8 @@ def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
             ok = np.linalg.norm(p[:2] - target) < XY_TOL and resting(world, obj) and placed(world, obj, held)
             out.append(bool(ok and (not goal.upright or upright(world, obj))))
         return out
+    if goal.type == "joint_range":
+        return [joint_range_progress(world, inst, goal)[1]]
     if goal.type == "pile_in_zone":
         return [f >= goal.fraction - 1e-9 for f in pile_fractions(world, inst, goal, held)]
     raise ValueError(f"unknown goal type {goal.type}")
@@ -230,6 +263,8 @@ def offset_target(anchor_pos: np.ndarray, anchor_yaw: float, offset: list[float]
 
 
 def goal_progress(world: World, inst: Instance, goal: GoalSpec) -> float:
+    if goal.type == "joint_range":
+        return joint_range_progress(world, inst, goal)[0]
     if goal.type == "pile_in_zone":  # partial credit per particle, as GenSim's pile rewards
         fracs = [min(1.0, f / goal.fraction) for f in pile_fractions(world, inst, goal)]
         return float(np.mean(fracs)) if fracs else 1.0

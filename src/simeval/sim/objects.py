@@ -19,7 +19,8 @@ _RAVENS_255 = {
 }
 COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS_255.items()}
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
-SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
+SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile",
+          "drawer", "bin", "button")  # the last three: simeval.sim.fixtures (fixed-base URDF fixtures)
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
 PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
@@ -60,7 +61,8 @@ def outline_rgba(color: str) -> list[float]:
 
 
 def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: np.random.Generator,
-                table_z: float) -> SimObject:
+                table_z: float, opening: float = 0.0) -> SimObject:
+    """Build `obj` at (position, yaw) on the table; `opening`: a fixture's initial articulation fraction."""
     c = client
     x, y = float(position[0]), float(position[1])
     sx, sy, sz = obj.size
@@ -96,6 +98,10 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
             ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + PARTICLE / 2 + 1e-3], q,
                                          useMaximalCoordinates=PARTICLE_MAXIMAL))
         obj.body_ids = ids
+    elif obj.shape in ("drawer", "bin", "button"):
+        from simeval.sim.fixtures import make_fixture
+
+        obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z, opening)]
     else:
         raise ValueError(f"unknown shape '{obj.shape}'; known: {', '.join(SHAPES)}")
     for b in obj.body_ids:

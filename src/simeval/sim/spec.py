@@ -42,7 +42,9 @@ from simeval.sim.objects import COLORS, SHAPES, SimObject
 from simeval.sim.world import WORKSPACE
 from simeval.errors import UserError
 
-GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone")
+GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone", "joint_range")
+ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robot.Arm, simeval.sim.panda.Panda
+TASK_ACTION_SPACES = ("joint", "pick_place", "ee_pose")  # the spec field `action_space` (simeval.sim.env)
 
 
 class SpecError(UserError):
@@ -61,6 +63,7 @@ class ObjectSpec:
     distractor: bool = False
     color_per_instance: bool = False
     color_as: str | None = None  # take the colour of another (earlier) object, e.g. a block matching its zone
+    opening: tuple[float, float] = (0.0, 0.0)  # fixtures: initial articulation fraction (0 closed, 1 open), uniform
 
 
 @dataclass
@@ -72,6 +75,7 @@ class GoalSpec:
     fraction: float = 0.95  # piles: GenSim/Ravens count a pile done at about all particles (reward within 0.01 of max)
     upright: bool = False  # the text says upright / stand: objects must stand on their base
     each: bool = False  # in_zone/in_container: one `what` per `where` instance ("one ball into each zone")
+    range: tuple[float, float] = (0.0, 1.0)  # joint_range: the articulation fraction that counts as done
 
 
 @dataclass
@@ -85,6 +89,9 @@ class TaskSpec:
     max_primitives: int = 10
     home_noise: float = 0.0
     source: str = ""
+    robot: str = "xarm6"
+    action_space: str = "joint"  # the task's native action space (make_env's default for it)
+    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.primitives
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -126,7 +133,8 @@ def _parse_object(o, w: str, earlier: list[ObjectSpec]) -> ObjectSpec:
         region=tuple(tuple(r) for r in o["region"]) if o.get("region") else None,
         yaw=tuple(float(x) for x in _pair(o.get("yaw", [-math.pi, math.pi]), "yaw", w)),
         distractor=bool(o.get("distractor", False)), color_per_instance=bool(o.get("color_per_instance", False)),
-        color_as=o.get("color_as"))
+        color_as=o.get("color_as"),
+        opening=tuple(float(x) for x in _pair(o.get("opening", 0.0), "opening", w)))
 
 
 def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
@@ -136,11 +144,18 @@ def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
     for n in what + where:
         if n not in names:
             raise SpecError(f"{w}: names object '{n}', not among {names}")
+    rng = (0.0, 1.0)
+    if g["type"] == "joint_range":
+        rng = g.get("range")
+        ok = isinstance(rng, (list, tuple)) and len(rng) == 2 and all(isinstance(x, (int, float)) for x in rng)
+        if not ok or not 0 <= rng[0] <= rng[1] <= 1 or len(what) != 1:
+            raise SpecError(f"{w}: joint_range needs one `what` and `range: [lo, hi]` with 0 <= lo <= hi <= 1, "
+                            f"got what={what} range={g.get('range')!r}")
     if g.get("each") and g["type"] not in ("in_zone", "in_container"):
         raise SpecError(f"{w}: `each` applies to in_zone and in_container goals, not {g['type']}")
     return GoalSpec(g["type"], what, where, [list(map(float, o)) for o in g.get("offset", [])],
                     float(g.get("fraction", GoalSpec.fraction)), bool(g.get("upright", False)),
-                    bool(g.get("each", False)))
+                    bool(g.get("each", False)), tuple(float(x) for x in rng))
 
 
 def parse_spec(data: dict, source: str = "") -> TaskSpec:
@@ -157,10 +172,35 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     if len(set(names)) != len(names):
         raise SpecError(f"{where}: object names must be unique, got {names}")
     goals = [_parse_goal(g, f"{where}: goals[{i}]", names) for i, g in enumerate(data["goals"])]
+    robot, action_space = data.get("robot", "xarm6"), data.get("action_space", "joint")
+    if robot not in ROBOTS:
+        raise SpecError(f"{where}: robot {robot!r} is not one of {', '.join(ROBOTS)}")
+    if action_space not in TASK_ACTION_SPACES:
+        raise SpecError(f"{where}: action_space {action_space!r} is not one of {', '.join(TASK_ACTION_SPACES)}")
+    plan = _parse_plan(data.get("plan", []), where, names)
     return TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
                     objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
                     max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
-                    source=source)
+                    source=source, robot=robot, action_space=action_space, plan=plan)
+
+
+def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
+    """`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]` -> [(primitive, object name)]."""
+    from simeval.sim.primitives import PRIMITIVES  # the primitives' names live with their code
+
+    if not isinstance(plan, list):
+        raise SpecError(f"{where}: plan must be a list of {{primitive: object}}, got {plan!r}")
+    out = []
+    for i, step in enumerate(plan):
+        if not (isinstance(step, dict) and len(step) == 1):
+            raise SpecError(f"{where}: plan[{i}] must be one {{primitive: object}}, got {step!r}")
+        (prim, obj), = step.items()
+        if prim not in PRIMITIVES:
+            raise SpecError(f"{where}: plan[{i}]: primitive {prim!r} is not one of {', '.join(PRIMITIVES)}")
+        if obj not in names:
+            raise SpecError(f"{where}: plan[{i}]: {prim} names object {obj!r}, not among {names}")
+        out.append((prim, obj))
+    return out
 
 
 def load_spec(path: str | os.PathLike) -> TaskSpec:
@@ -274,6 +314,8 @@ class Instance:
     objects: list[SimObject]
     poses: dict[str, tuple[np.ndarray, float]]  # object id -> (xy, yaw)
     description: str
+    # joint_range goals: each fixture's articulation fraction when first measured (at reset), for progress
+    initial_fraction: dict[str, float] = field(default_factory=dict)
 
     def by_name(self, name: str) -> list[SimObject]:
         return [o for o in self.objects if o.name == name]
