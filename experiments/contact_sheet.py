@@ -33,7 +33,7 @@ def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
 def main() -> None:
     from PIL import Image, ImageDraw
 
-    from simeval.sim.spec import SUITES_DIR
+    from simeval.sim.spec import SUITES_DIR, task_files
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", default="gensim")
@@ -41,7 +41,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
-    paths = sorted((SUITES_DIR / args.suite).glob("*.yaml"))
+    paths = task_files(SUITES_DIR / args.suite)
     with ProcessPoolExecutor(args.workers) as pool:
         tiles = sorted(pool.map(tile, [(str(p), args.seed, args.size) for p in paths]), key=lambda t: (t[1], t[0]))
     s, label_h, cols = args.size, 58, 4

@@ -62,7 +62,7 @@ def table_rows(episodes: dict[tuple[str, int], dict], tasks: list[str], seeds: i
 
 def main() -> None:
     from simeval.report.tables import write_table
-    from simeval.sim.spec import SUITES_DIR
+    from simeval.sim.spec import SUITES_DIR, task_files
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", default="gensim")
@@ -73,7 +73,7 @@ def main() -> None:
     ap.add_argument("--fresh", action="store_true", help="forget the episodes of earlier runs")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from the episodes file, run nothing")
     args = ap.parse_args()
-    paths = sorted((SUITES_DIR / args.suite).glob("*.yaml"))
+    paths = task_files(SUITES_DIR / args.suite)
     if args.tasks:
         paths = [p for p in paths if p.stem in args.tasks.split(",")]
     out = ROOT / "outputs" / "tables"

@@ -247,7 +247,8 @@ class SimEnv(_gym().Env):
             self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
-            lo, hi = spec.object(obj.name).opening  # drawn only when it varies: other tasks' streams stay as they were
+            # drawn only when it varies: other tasks' random streams stay as they were
+            lo, hi = variation.get(obj.name, {}).get("opening", spec.object(obj.name).opening)
             make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z, float(rng.uniform(lo, hi)) if hi > lo else lo)
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step

@@ -13,7 +13,8 @@ targets are a few centimetres apart (the primitives in simeval.sim.primitives ke
 Grasping: the fingers close with a bounded force; PyBullet's friction grasps of small boxes slip under the Panda's
 mesh fingers, so when the gripper is commanded closed and both fingers touch the same body (link), that body is
 attached to the hand by a fixed constraint (the suction arm's approach, applied to the jaws), and released when the
-gripper opens. The check runs at the end of every control step, from the simulator's state only: a replay of the
+gripper opens. The check runs at the end of each of the first GRASP_WINDOW control steps after the close
+command (closed fingers that press or push do not grasp), from the simulator's state only: a replay of the
 same actions attaches at the same step.
 
 State (STATE_NAMES, 16): 7 joint positions (rad), 7 joint velocities (rad/s), the gripper opening (m, the sum of
@@ -39,9 +40,11 @@ HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 PARK = (-1.5, -0.9, 0.0, -2.6, 0.0, 1.8, 0.785)
 JOINT_LOWER = (-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671)
 JOINT_UPPER = (2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671)
+PARK_LIFT_Z = 0.3  # m: the grasp point rises to this height before the arm folds away
 FINGER_OPEN = 0.04  # per finger (m)
 GRIP_FORCE = 40.0  # N per finger
 ARM_FORCES = (87.0,) * 4 + (12.0,) * 3  # the URDF's effort limits
+GRASP_WINDOW = 2  # control steps after the close command during which a touched body is attached
 RAMP = 0.75  # share of a control step over which the joint targets move to the IK solution
 DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: grasp axis pointing down, yaw 0 (fingers closing along world y)
 STATE_NAMES = (*(f"q{i}" for i in range(1, 8)), *(f"dq{i}" for i in range(1, 8)), "gripper_opening",
@@ -73,6 +76,7 @@ class Panda:
         self.home = home
         self.target = home.copy()  # joint targets in force
         self.closed = False  # gripper command in force
+        self.closed_steps = 0  # control steps the command has been closed for, in a row
         self.grasp: int | None = None  # constraint id while something is held
         self.held: tuple[int, int] | None = None  # (body, link) held
         self.on_step = None  # callable(action (8,) float32) after every control step (set by the environment)
@@ -129,6 +133,7 @@ class Panda:
         goes to its command, then the grasp is attached or released."""
         c, n = self.w.c, self.w.substeps
         self.closed = closed
+        self.closed_steps = self.closed_steps + 1 if closed else 0
         if not closed and self.grasp is not None:
             self._release()
         start = self.joint_positions()
@@ -138,7 +143,9 @@ class Panda:
             self.target = start + (goal - start) * (3 * a * a - 2 * a * a * a)
             self._hold_motors()
             c.stepSimulation()
-        if closed and self.grasp is None:
+        # only while the jaws are closing (the first GRASP_WINDOW steps closed): pressing a button or pushing a
+        # block with the closed fingers must not pick it up
+        if closed and self.grasp is None and self.closed_steps <= GRASP_WINDOW:
             self._attach()
 
     def _hold_motors(self) -> None:
@@ -196,6 +203,10 @@ class Panda:
         self.closed = False
         if self.grasp is not None:
             self._release()
+        # first straight up (the hand may still be around what it just let go of), then the joints to PARK
+        pos, quat = self.ee_pose()
+        for z in np.linspace(pos[2], max(pos[2], PARK_LIFT_Z), 3)[1:]:
+            self._run(self.ik(np.r_[pos[:2], z], quat), False)
         start, n = self.joint_positions(), max(1, steps) * self.w.substeps
         for k in range(1, n + 1):
             a = k / n

@@ -13,8 +13,9 @@ Primitives (the object named is the instance 0 of that spec object):
   place_at X      put what is held on the table at X's centre (X: a zone)
   place_in X      put what is held into X (a bin, a bowl, or the open part of a drawer)
   push X          push X with the closed gripper to the zone of the in_zone goal that names X
-  open_drawer X   pinch X's handle, pull it out to the middle of its joint_range goal (fully, without one), let go
-  close_drawer X  pinch the handle and push it in to the middle of its joint_range goal (closed, without one)
+  open_drawer X   pinch X's handle, pull it out to the middle of its joint_range goal if that is an open one
+                  (fully otherwise), let go
+  close_drawer X  pinch the handle and push it in to the middle of its closed joint_range goal (fully otherwise)
   press X         press the button X down with the closed fingers and come back up
 """
 
@@ -34,6 +35,7 @@ CARRY_Z = 0.25  # grasp-point height for moves across the table (clears the cabi
 APPROACH = 0.10  # height above a grasp or release point where the straight descent starts
 FINGER_BELOW = 0.011  # the finger tips are this far below the grasp point
 RETRIES = 2
+SETTLE_STEPS = 6  # control steps held after the plan (1.5 s at 4 Hz)
 
 
 class Context:
@@ -189,11 +191,13 @@ def push(ctx: Context, name: str):
         yield from ctx.move([ctx.pos[0], ctx.pos[1], CARRY_Z])
 
 
-def _drawer_target(ctx: Context, name: str, default: float) -> float:
+def _drawer_target(ctx: Context, name: str, opening: bool) -> float:
+    """Where open_drawer (close_drawer) takes the drawer: the middle of the drawer's joint_range goal when that
+    goal is an open (closed) one, else all the way (a plan may open a drawer that its goal wants closed)."""
     for g in ctx.inst.spec.goals:
-        if g.type == "joint_range" and g.what[0] == name:
+        if g.type == "joint_range" and g.what[0] == name and (g.range[0] >= 0.5 if opening else g.range[1] <= 0.5):
             return (g.range[0] + g.range[1]) / 2
-    return default
+    return 1.0 if opening else 0.0
 
 
 def _slide_drawer(ctx: Context, name: str, fraction: float):
@@ -222,11 +226,11 @@ def _slide_drawer(ctx: Context, name: str, fraction: float):
 
 
 def open_drawer(ctx: Context, name: str):
-    yield from _slide_drawer(ctx, name, _drawer_target(ctx, name, 1.0))
+    yield from _slide_drawer(ctx, name, _drawer_target(ctx, name, True))
 
 
 def close_drawer(ctx: Context, name: str):
-    yield from _slide_drawer(ctx, name, _drawer_target(ctx, name, 0.0))
+    yield from _slide_drawer(ctx, name, _drawer_target(ctx, name, False))
 
 
 def press(ctx: Context, name: str):
@@ -267,6 +271,10 @@ class PlanPolicy:
         for prim, name in self.ctx.inst.spec.plan:
             self.plan_step.append(self._steps)
             yield from PRIMITIVES[prim](self.ctx, name)
+        # the plan is done: hold still while what was let go of comes to rest (a goal counts only objects at
+        # rest); the environment ends the episode at the first step the goals are met
+        for _ in range(SETTLE_STEPS):
+            yield self.ctx.action()
 
     def __call__(self, obs) -> np.ndarray | None:
         try:

@@ -212,9 +212,17 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
     return parse_spec(data, str(path))
 
 
+SPLITS_FILE = "splits.yaml"  # a suite folder's held-out tasks per group (simeval.sim.splits), not a task
+
+
+def task_files(folder: str | os.PathLike) -> list[Path]:
+    """The task spec files of a suite folder: every *.yaml but its splits file."""
+    return [p for p in sorted(Path(folder).glob("*.yaml")) if p.name != SPLITS_FILE]
+
+
 def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     folder = Path(folder)
-    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml"))]
+    specs = [load_spec(p) for p in task_files(folder)]
     if not specs:
         raise SpecError(f"{folder}: no task specs (*.yaml)")
     return specs
@@ -245,7 +253,7 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
     return [s for s in specs if s.group == group]
 
 
-OBJECT_KNOBS = ("colors", "count")
+OBJECT_KNOBS = ("colors", "count", "size", "opening")  # size: [x, y, z] m; opening: fixtures, [lo, hi] fraction
 ROBOT_KNOBS = ("home_noise",)
 
 
@@ -295,6 +303,20 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
             if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(map(whole, pair))
                     and 0 <= pair[0] <= pair[1]):
                 raise SpecError(f"{key}.count: expected a count >= 0 or [low, high] with 0 <= low <= high, got {c!r}")
+        if "size" in knobs:
+            sz = knobs["size"]
+            if not (isinstance(sz, (list, tuple)) and len(sz) == 3
+                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
+                raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
+            knobs["size"] = [float(x) for x in sz]
+        if "opening" in knobs:
+            op = knobs["opening"]
+            pair = [op, op] if isinstance(op, (int, float)) and not isinstance(op, bool) else op
+            if not (isinstance(pair, (list, tuple)) and len(pair) == 2
+                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair)
+                    and 0 <= pair[0] <= pair[1] <= 1):
+                raise SpecError(f"{key}.opening: expected a fraction or [lo, hi] with 0 <= lo <= hi <= 1, got {op!r}")
+            knobs["opening"] = [float(x) for x in pair]
         out[name] = knobs
     return out
 
@@ -389,7 +411,8 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
             chosen = [str(rng.choice(free))] * n
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
         used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
-        objects += [SimObject(o.name, i, o.shape, chosen[i], o.size) for i in range(n)]
+        size = tuple(float(x) for x in v.get("size", o.size))
+        objects += [SimObject(o.name, i, o.shape, chosen[i], size) for i in range(n)]
     for g in spec.goals:
         if g.each:
             n_what = sum(o.name in g.what for o in objects)
