@@ -32,7 +32,7 @@ from pathlib import Path
 
 from simeval.episodes.store import EpisodeStore, read_meta, read_recording
 from simeval.errors import UserError
-from simeval.sim.action_spaces import JOINT_KIND
+from simeval.sim.action_spaces import EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
 
@@ -164,12 +164,15 @@ def _prepare_store(root: Path) -> None:
         raise UserError(f"store={root}: no permission to write episodes there")
 
 
-def _check_recorded_like(path: Path, settings: RecordSettings) -> None:
-    """An episode already stored counts as done only if it was recorded as `settings` asks."""
+def _check_recorded_like(path: Path, settings: RecordSettings, spec: TaskSpec | None = None) -> None:
+    """An episode already stored counts as done only if it was recorded as `settings` asks. ee_pose tasks (the
+    BBSEA suite) record at their own rate in their own action space, whatever record.control_hz says."""
     stored = read_recording(path)
+    ee_pose = spec is not None and spec.action_space == "ee_pose"
     wanted = {"record.cameras": sorted(settings.cameras), "record.image_size": list(settings.image_size),
               "record.scene_view_size": list(settings.scene_view_size),
-              "record.control_hz": float(settings.control_hz), "action_space": JOINT_KIND}
+              "record.control_hz": EE_POSE_HZ if ee_pose else float(settings.control_hz),
+              "action_space": EE_POSE_KIND if ee_pose else JOINT_KIND}
     for key, want in wanted.items():
         have = stored[key]
         if key == "record.scene_view_size" and have is None:
@@ -206,7 +209,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     for s in specs:
         for seed in seeds:
             if store.exists_intact(pipeline, s.name, seed, variation_for(s, variation)):
-                _check_recorded_like(store.path_for(pipeline, s.name, seed, variation_for(s, variation)), settings)
+                _check_recorded_like(store.path_for(pipeline, s.name, seed, variation_for(s, variation)), settings, s)
             else:
                 todo.append((s, seed))
     skipped = len(specs) * len(seeds) - len(todo)
