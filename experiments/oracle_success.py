@@ -5,7 +5,9 @@ Every finished episode is appended to outputs/tables/oracle_success_<suite>_epis
 ...), so a killed or time-limited run resumes where it stopped and the table is rebuilt from that file; runs for
 different --tasks add up. Delete the file (or pass --fresh) after changing the suite, goals or oracle.
 
-    python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b]
+    python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b] [--variation eval]
+`--variation NAME` applies each task's own `variations: {NAME: ...}` from its YAML (tasks without it are skipped)
+and writes oracle_success_<suite>_<NAME>.* instead.
                                          [--budget-s SECONDS] [--fresh] [--table-only]
 """
 
@@ -28,11 +30,11 @@ def one(args):
     from simeval.sim.rollout import RecordSettings, run_episode
     from simeval.sim.spec import load_spec
 
-    path, seed = args
+    path, seed, variation = args
     spec = load_spec(path)
     t0 = time.perf_counter()
     try:
-        ep = run_episode(spec, seed, RecordSettings(cameras=()))
+        ep = run_episode(spec, seed, RecordSettings(cameras=()), variation=variation)
         return [spec.name, spec.group, seed, int(ep.success), round(float(ep.progress[-1]), 4), ep.n_steps,
                 round(time.perf_counter() - t0, 2), ""]
     except Exception as e:  # a crash is a failure of that seed, reported with its message
@@ -71,19 +73,30 @@ def main() -> None:
     ap.add_argument("--tasks", default="")
     ap.add_argument("--budget-s", type=float, default=0.0, help="stop starting episodes after this many seconds")
     ap.add_argument("--fresh", action="store_true", help="forget the episodes of earlier runs")
+    ap.add_argument("--variation", default="", help="apply each task's own variations.<name> (e.g. eval)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from the episodes file, run nothing")
     args = ap.parse_args()
     paths = task_files(SUITES_DIR / args.suite)
     if args.tasks:
         paths = [p for p in paths if p.stem in args.tasks.split(",")]
+    variations = {}
+    if args.variation:
+        import yaml
+
+        for p in paths:
+            v = (yaml.safe_load(p.read_text(encoding="utf-8")).get("variations") or {}).get(args.variation)
+            if v:
+                variations[str(p)] = v
+        paths = [p for p in paths if str(p) in variations]
+    tag = f"{args.suite}_{args.variation}" if args.variation else args.suite
     out = ROOT / "outputs" / "tables"
     out.mkdir(parents=True, exist_ok=True)
-    ep_path = out / f"oracle_success_{args.suite}_episodes.csv"
+    ep_path = out / f"oracle_success_{tag}_episodes.csv"
     if args.fresh and ep_path.exists():
         ep_path.unlink()
     done = read_episodes(ep_path)
     # seed-major order: a run cut short by --budget-s covers every task about equally
-    jobs = [] if args.table_only else [(str(p), s) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
+    jobs = [] if args.table_only else [(str(p), s, variations.get(str(p))) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
     t0 = time.monotonic()
     new = ep_path.exists()
     with ep_path.open("a", newline="", encoding="utf-8") as f, ProcessPoolExecutor(args.workers) as pool:
@@ -108,11 +121,12 @@ def main() -> None:
     counts = sorted({int(r[2].split("/")[1]) for r in rows})
     over = f"{counts[0]} seeds" if len(counts) == 1 else f"seeds 0..n-1 (n per task in the Success column)"
     header = ["Group", "Task", "Success", "Rate", "Mean progress", "Mean steps", "s/episode", "Failed seeds"]
-    notes = [f"Oracle success over {over} per task ({args.suite} suite); per-episode results in {ep_path.name}."]
+    what = f"{args.suite} suite, each task's `{args.variation}` variation" if args.variation else f"{args.suite} suite"
+    notes = [f"Oracle success over {over} per task ({what}); per-episode results in {ep_path.name}."]
     if len(counts) > 1 or (counts and counts[0] < args.seeds):
         notes.append(f"Fewer than {args.seeds} seeds for some tasks: the run was cut by its time budget; run the "
                      "same command again to resume.")
-    write_table(out / f"oracle_success_{args.suite}", header, rows, caption=notes[0], notes=notes)
+    write_table(out / f"oracle_success_{tag}", header, rows, caption=notes[0], notes=notes)
     print(f"| {' | '.join(header)} |")
     for r in rows:
         print(f"| {' | '.join(r)} |")

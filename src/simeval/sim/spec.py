@@ -21,6 +21,13 @@ one-to-one assignment, "one ball into each zone"), stack (`what`: names, each re
 `where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction` of the pile's particles in the
 zone). `upright: true` on a goal also requires its objects to stand upright (where the text says upright or stand).
 
+Panda tasks (the BBSEA suite) add `robot: panda`, `action_space: ee_pose` and a `plan`, the task's primitives in
+order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.primitives); fixtures
+(shapes drawer, bin, button) take `opening: [lo, hi]`, their initial articulation fraction. Goal `joint_range`
+(`what`: one fixture, `range: [lo, hi]`): its articulation's fraction of its limits (0 lower/closed, 1
+upper/open) within the range; in_container also takes bins and drawers as `where`. A suite folder's
+`splits.yaml` (held-out tasks per group) is not a task (`task_files`).
+
 Every task draws from its own random stream, seeded by (task name, seed): the same episode seed gives unrelated
 layouts in different tasks. A layout that does not fit is redrawn from the same stream, so every seed is valid.
 Counts in a `variation` must agree with the text and goals (see `valid_counts`).
@@ -258,7 +265,8 @@ ROBOT_KNOBS = ("home_noise",)
 
 
 def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
-    """Validate a variation {object name: {colors, count}, robot: {home_noise}} against the tasks it is for and
+    """Validate a variation {object name: {colors, count, size, opening}, robot: {home_noise}} (size: [x, y, z] m
+    for every instance; opening: a fixture's initial articulation fraction or [lo, hi]) against the tasks it is for and
     return it normalised (a single colour may be given as a string). Every object it names must belong to at
     least one of `specs`; tasks without that object ignore it, so one variation can cover a group of tasks.
     A name no task has is a typo that would otherwise vary nothing: it is an error naming the tasks' objects."""
