@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from simeval.collect import collect  # noqa: E402
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows  # noqa: E402
 from simeval.sim.objects import make_object  # noqa: E402
+import simeval.sim.panda as panda  # noqa: E402
 import simeval.sim.robot as robot  # noqa: E402
 from simeval.sim.robot import Arm  # noqa: E402
 from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
@@ -74,13 +75,11 @@ def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[f
         robot.RENDER_MESH = default
 
 
-def bbsea_render_bound(spec_name: str, size: tuple[int, int], n: int = 60) -> float:
-    from simeval.sim.panda import Panda
-
+def bbsea_render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
     spec = load_spec(SUITES_DIR / "bbsea" / f"{spec_name}.yaml")
     inst = sample_instance(spec, 0)
     with World(4.0) as w:
-        Panda(w)
+        panda.Panda(w, render_mesh=mesh)
         rng = np.random.default_rng(0)
         for o in inst.objects:
             make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z, spec.object(o.name).opening[0])
@@ -96,18 +95,25 @@ def bbsea_main() -> None:
     out: dict = {"benchmark": "collect_bbsea", "machine": machine(), "cameras": list(CAMERAS), "control_hz": 4.0,
                  "physics_substeps_per_step": 60}
     size = (64, 64)
-    rows = {}
-    for task in BBSEA_TASKS:
-        spec = load_spec(SUITES_DIR / "bbsea" / f"{task}.yaml")
-        bound = bbsea_render_bound(task, size)
-        t0 = time.perf_counter()
-        ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)),
-                         pipeline="bbsea")
-        rate = ep.n_steps / (time.perf_counter() - t0)
-        rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
-                      "ratio": round(rate / bound, 3), "episode_steps": ep.n_steps, "success": bool(ep.success)}
-    out["tasks_64x64"] = rows
-    out["mean_ratio"] = round(float(np.mean([r["ratio"] for r in rows.values()])), 3)
+    out["render_mesh_default"] = panda.RENDER_MESH
+    for mesh in MESHES:  # the Panda drawn with its visual meshes and with its collision meshes (the default)
+        rows = {}
+        default, panda.RENDER_MESH = panda.RENDER_MESH, mesh
+        try:
+            for task in BBSEA_TASKS:
+                spec = load_spec(SUITES_DIR / "bbsea" / f"{task}.yaml")
+                bound = bbsea_render_bound(task, size, mesh)
+                t0 = time.perf_counter()
+                ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)),
+                                 pipeline="bbsea")
+                rate = ep.n_steps / (time.perf_counter() - t0)
+                rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
+                              "ratio": round(rate / bound, 3), "episode_steps": ep.n_steps, "success": bool(ep.success)}
+        finally:
+            panda.RENDER_MESH = default
+        out[f"{mesh}_64x64"] = {"tasks": rows, "mean_ratio": round(float(np.mean([r["ratio"] for r in rows.values()])), 3),
+                                "mean_collect_steps_per_s": round(float(np.mean(
+                                    [r["collect_steps_per_s"] for r in rows.values()])), 1)}
     specs = [load_spec(SUITES_DIR / "bbsea" / f"{t}.yaml") for t in BBSEA_TASKS]
     settings = RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64))
     timing = {}

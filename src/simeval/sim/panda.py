@@ -30,6 +30,9 @@ import numpy as np
 from simeval.sim.world import TABLE_Z, World
 
 PANDA_URDF = "franka_panda/panda.urdf"
+# what the Panda is drawn with: "collision" (its collision meshes, ~50x fewer bytes than the visual OBJs: TinyRenderer
+# draws a frame several times faster; experiments/benchmarks/collect_bench.py --suite bbsea) or "visual"
+RENDER_MESH = "collision"
 ARM_JOINTS = tuple(range(7))
 FINGER_JOINTS = (9, 10)
 GRASP_LINK = 11  # panda_grasptarget
@@ -53,6 +56,34 @@ STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 7 + [0.0, 0.0],
 STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 7 + [0.1, 1.0], np.float32)
 
 
+def render_urdf(mesh: str = "collision") -> str:
+    """The Panda's URDF for loading: pybullet_data's as it is (`visual`), or a copy (written once per process
+    in the temp folder) whose visual geometry is the collision meshes (`collision`), as simeval.sim.robot does
+    for the xArm6. Physics is the same either way (collision geometry is untouched)."""
+    import hashlib
+    import os
+    import tempfile
+
+    import pybullet_data
+
+    if mesh == "visual":
+        return PANDA_URDF
+    if mesh != "collision":
+        raise ValueError(f"mesh={mesh!r}: expected 'collision' or 'visual'")
+    src = os.path.join(pybullet_data.getDataPath(), PANDA_URDF)
+    with open(src, encoding="utf-8") as f:
+        text = f.read()
+    text = text.replace("package://meshes/visual/", "package://meshes/collision/")
+    text = text.replace("package://meshes/", os.path.join(os.path.dirname(src), "meshes") + os.sep)
+    out = os.path.join(tempfile.gettempdir(), f"simeval-panda-render-{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf")
+    if not os.path.exists(out):
+        tmp = f"{out}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, out)  # atomic: parallel workers never read a half-written file
+    return out
+
+
 def down_quat(yaw: float) -> np.ndarray:
     """The xyzw quaternion of the hand pointing down, turned by `yaw` about the vertical (fingers close along
     the direction yaw + 90 degrees)."""
@@ -62,9 +93,10 @@ def down_quat(yaw: float) -> np.ndarray:
 
 
 class Panda:
-    def __init__(self, world: World, home_noise: float = 0.0, rng: np.random.Generator | None = None) -> None:
+    def __init__(self, world: World, home_noise: float = 0.0, rng: np.random.Generator | None = None,
+                 render_mesh: str | None = None) -> None:
         self.w, c = world, world.c
-        self.body = c.loadURDF(PANDA_URDF, [0, 0, TABLE_Z], useFixedBase=True)
+        self.body = c.loadURDF(render_urdf(render_mesh or RENDER_MESH), [0, 0, TABLE_Z], useFixedBase=True)
         self.joints = list(ARM_JOINTS)
         home = np.array(HOME) + (rng.normal(0, home_noise, 7) if home_noise and rng is not None else 0.0)
         home = np.clip(home, JOINT_LOWER, JOINT_UPPER)
