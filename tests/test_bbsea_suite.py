@@ -162,3 +162,12 @@ def test_plan_and_goal_mistakes_are_spec_errors():
         parse_spec({**base, "goals": [{"type": "joint_range", "what": "drawer", "range": [0.9, 0.2]}]})
     with pytest.raises(SpecError, match=r"variation.drawer.opening: expected a fraction or \[lo, hi\]"):
         check_variation([SUITE["bbsea-open-drawer"]], {"drawer": {"opening": [0.5, 2]}})
+
+
+def test_rollout_policy_uses_the_tasks_own_action_space():
+    from simeval.sim.rollout import rollout_policy
+
+    res = rollout_policy(PlanPolicy(), "bbsea-press-button", [2], cameras=("top",), image_size=(8, 8),
+                         video_camera="top")
+    (ep,) = res["episodes"]
+    assert res["success"] == 1.0 and not ep["gave_up"] and ep["video"].shape[0] == ep["steps"] + 1

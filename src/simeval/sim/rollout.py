@@ -209,11 +209,12 @@ def _one_rollout(policy, task, seed: int, env_kwargs: dict, video_camera: str | 
             "steps": steps, "gave_up": gave_up, "video": np.stack(frames) if frames else None}
 
 
-def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str = "joint",
+def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str | None = None,
                    variation: dict | None = None, image_size: Sequence[int] = (64, 64),
-                   cameras: Sequence[str] = ("top", "front"), max_steps: int | None = None, control_hz: float = 30.0,
+                   cameras: Sequence[str] = ("top", "front"), max_steps: int | None = None,
+                   control_hz: float | None = None,
                    video_camera: str | None = None, workers: int = 1) -> dict:
-    """Roll `policy` out once per seed through make_env(task, action_space, ...). Returns {"success": rate,
+    """Roll `policy` out once per seed through make_env(task, action_space, ...) (None: the task's own space). Returns {"success": rate,
     "progress": mean final progress, "episodes": [{seed, success, progress, steps, gave_up, video}]}; `video` is
     (N, H, W, 3) uint8 frames of `video_camera` (every control step, also for pick_place) or None.
     workers > 1 runs seeds in separate processes (spawned: the policy must pickle; each process has its own
