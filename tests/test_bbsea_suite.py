@@ -171,3 +171,19 @@ def test_rollout_policy_uses_the_tasks_own_action_space():
                          video_camera="top")
     (ep,) = res["episodes"]
     assert res["success"] == 1.0 and not ep["gave_up"] and ep["video"].shape[0] == ep["steps"] + 1
+
+
+@pytest.mark.parametrize("task", ["bbsea-open-drawer", "bbsea-press-button"])
+def test_panda_env_passes_gymnasiums_checker(task):
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    env = make_env(task, image_size=(16, 20), cameras=("top",))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            warnings.filterwarnings("ignore", message=".*symmetric and normalized space")  # physical units (m)
+            check_env(env, skip_render_check=True)
+    finally:
+        env.close()
