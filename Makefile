@@ -104,3 +104,22 @@ clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite 
 	  find $(CACHE_DIR) -type f -exec ls -lh {} + | awk '{print "  " $$5 "  " $$NF}'; \
 	  rm -rf $(CACHE_DIR); \
 	else echo "no $(CACHE_DIR)/: nothing to delete"; fi
+
+# The whole chain at a profile's cost (experiments/profiles/<PROFILE>.yaml): quick = minutes, tiny models (a first
+# look and the CI smoke test); cpu = the default presets (hours); paper = the authors' sizes (GPU jobs).
+PROFILE ?= quick
+PIPELINE ?= gensim
+.PHONY: paper evaluate
+paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures under outputs/paper/$(PROFILE)/ (resumable)
+	$(MAKE) --no-print-directory table3
+	$(PY) experiments/paper.py --profile $(PROFILE)
+
+evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea
+	$(PY) experiments/paper.py --profile $(PROFILE) --pipelines $(PIPELINE)
+
+# The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
+# outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.
+RUNS ?= outputs/runs
+.PHONY: report-html
+report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) of RUNS=folder: RUNS/report/index.html
+	$(PY) src/report.py report=html report.runs_dir=$(RUNS)

@@ -5,10 +5,12 @@ Every finished episode is appended to outputs/tables/oracle_success_<suite>_epis
 ...), so a killed or time-limited run resumes where it stopped and the table is rebuilt from that file; runs for
 different --tasks add up. Delete the file (or pass --fresh) after changing the suite, goals or oracle.
 
-    python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b] [--variation eval]
-`--variation NAME` applies each task's own `variations: {NAME: ...}` from its YAML (tasks without it are skipped)
-and writes oracle_success_<suite>_<NAME>.* instead.
-                                         [--budget-s SECONDS] [--fresh] [--table-only]
+    python experiments/oracle_success.py [--suite gensim] [--seeds 100] [--workers 2] [--tasks a,b]
+                                         [--budget-s SECONDS] [--fresh] [--table-only] [--split train|eval]
+
+--split eval runs each task under its own `variations.eval` on the evaluation seeds (100000 + i), writing
+oracle_success_<suite>_eval.*: the varied distribution must stay solvable, or a policy's failures there say
+nothing about generalization.
 """
 
 from __future__ import annotations
@@ -26,15 +28,22 @@ sys.path.insert(0, str(ROOT / "src"))
 FIELDS = ["task", "group", "seed", "success", "progress", "steps", "seconds", "error"]
 
 
+EVAL_SEED_OFFSET = 100000  # conf/variation/eval.yaml
+
+
 def one(args):
     from simeval.sim.rollout import RecordSettings, run_episode
     from simeval.sim.spec import load_spec
 
-    path, seed, variation = args
+    path, seed, split = args
     spec = load_spec(path)
     t0 = time.perf_counter()
     try:
-        ep = run_episode(spec, seed, RecordSettings(cameras=()), variation=variation)
+        if split == "eval":
+            ep = run_episode(spec, EVAL_SEED_OFFSET + seed, RecordSettings(cameras=()),
+                             variation=spec.variations.get("eval") or {})
+        else:
+            ep = run_episode(spec, seed, RecordSettings(cameras=()))
         return [spec.name, spec.group, seed, int(ep.success), round(float(ep.progress[-1]), 4), ep.n_steps,
                 round(time.perf_counter() - t0, 2), ""]
     except Exception as e:  # a crash is a failure of that seed, reported with its message
@@ -64,7 +73,7 @@ def table_rows(episodes: dict[tuple[str, int], dict], tasks: list[str], seeds: i
 
 def main() -> None:
     from simeval.report.tables import write_table
-    from simeval.sim.spec import SUITES_DIR, task_files
+    from simeval.sim.spec import SUITES_DIR
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", default="gensim")
@@ -73,30 +82,22 @@ def main() -> None:
     ap.add_argument("--tasks", default="")
     ap.add_argument("--budget-s", type=float, default=0.0, help="stop starting episodes after this many seconds")
     ap.add_argument("--fresh", action="store_true", help="forget the episodes of earlier runs")
-    ap.add_argument("--variation", default="", help="apply each task's own variations.<name> (e.g. eval)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from the episodes file, run nothing")
+    ap.add_argument("--split", choices=["train", "eval"], default="train",
+                    help="eval: each task under its own variations.eval, seeds 100000+")
     args = ap.parse_args()
-    paths = task_files(SUITES_DIR / args.suite)
+    paths = sorted(p for p in (SUITES_DIR / args.suite).glob("*.yaml") if p.name != "splits.yaml")
     if args.tasks:
         paths = [p for p in paths if p.stem in args.tasks.split(",")]
-    variations = {}
-    if args.variation:
-        import yaml
-
-        for p in paths:
-            v = (yaml.safe_load(p.read_text(encoding="utf-8")).get("variations") or {}).get(args.variation)
-            if v:
-                variations[str(p)] = v
-        paths = [p for p in paths if str(p) in variations]
-    tag = f"{args.suite}_{args.variation}" if args.variation else args.suite
     out = ROOT / "outputs" / "tables"
     out.mkdir(parents=True, exist_ok=True)
-    ep_path = out / f"oracle_success_{tag}_episodes.csv"
+    name = f"oracle_success_{args.suite}" + ("_eval" if args.split == "eval" else "")
+    ep_path = out / f"{name}_episodes.csv"
     if args.fresh and ep_path.exists():
         ep_path.unlink()
     done = read_episodes(ep_path)
     # seed-major order: a run cut short by --budget-s covers every task about equally
-    jobs = [] if args.table_only else [(str(p), s, variations.get(str(p))) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
+    jobs = [] if args.table_only else [(str(p), s, args.split) for s in range(args.seeds) for p in paths if (p.stem, s) not in done]
     t0 = time.monotonic()
     new = ep_path.exists()
     with ep_path.open("a", newline="", encoding="utf-8") as f, ProcessPoolExecutor(args.workers) as pool:
@@ -121,12 +122,13 @@ def main() -> None:
     counts = sorted({int(r[2].split("/")[1]) for r in rows})
     over = f"{counts[0]} seeds" if len(counts) == 1 else f"seeds 0..n-1 (n per task in the Success column)"
     header = ["Group", "Task", "Success", "Rate", "Mean progress", "Mean steps", "s/episode", "Failed seeds"]
-    what = f"{args.suite} suite, each task's `{args.variation}` variation" if args.variation else f"{args.suite} suite"
-    notes = [f"Oracle success over {over} per task ({what}); per-episode results in {ep_path.name}."]
+    split = " under each task's eval variation (seeds 100000 + i)" if args.split == "eval" else ""
+    notes = [f"Oracle success over {over} per task ({args.suite} suite){split}; per-episode results in "
+             f"{ep_path.name}."]
     if len(counts) > 1 or (counts and counts[0] < args.seeds):
         notes.append(f"Fewer than {args.seeds} seeds for some tasks: the run was cut by its time budget; run the "
                      "same command again to resume.")
-    write_table(out / f"oracle_success_{tag}", header, rows, caption=notes[0], notes=notes)
+    write_table(out / name, header, rows, caption=notes[0], notes=notes)
     print(f"| {' | '.join(header)} |")
     for r in rows:
         print(f"| {' | '.join(r)} |")

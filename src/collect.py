@@ -26,11 +26,14 @@ def main(cfg: DictConfig) -> None:
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.rollout import RecordSettings
     from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+    from simeval.sim.splits import heldout_of, load_heldout, split_tasks
 
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
     tasks = cfg.tasks if cfg.tasks is None or isinstance(cfg.tasks, str) else list(cfg.tasks)
-    specs = select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), tasks, cfg.task_group)
+    suite_dir = SUITES_DIR / cfg.pipeline.suite
+    suite = load_suite(suite_dir)
+    specs = select_specs(suite, tasks, cfg.task_group)
     if isinstance(cfg.episodes, bool) or not isinstance(cfg.episodes, int) or cfg.episodes < 1:
         raise UserError(f"episodes must be a whole number >= 1, got {cfg.episodes!r}")
     offset = cfg.seed_offset
@@ -38,12 +41,19 @@ def main(cfg: DictConfig) -> None:
         raise UserError(f"seed_offset must be a whole number >= 0, got {offset!r}")
     settings = RecordSettings(**OmegaConf.to_container(cfg.record, resolve=True))
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
-    variation = cfg.variation
-    if OmegaConf.is_config(variation):
-        variation = OmegaConf.to_container(variation, resolve=True)
+    knobs = OmegaConf.to_container(cfg.variation, resolve=True)["knobs"]
+    variation, per_task = knobs, None
+    if cfg.variation.split != "train":  # train: every selected task, held-out ones too (the world model's data)
+        pairs = split_tasks(specs, cfg.variation.split, heldout_of(specs, load_heldout(suite_dir, suite)),
+                            eval_override=knobs)
+        if not pairs:
+            raise UserError(f"variation={cfg.variation.split}: none of the selected tasks "
+                            f"({', '.join(s.name for s in specs)}) is in that split; see {suite_dir}/splits.yaml "
+                            "and the tasks' `variations:`")
+        specs, variation, per_task = [s for s, _ in pairs], None, {s.name: v for s, v in pairs}
     try:
         summary = collect(specs, seeds, EpisodeStore(cfg.store), settings, pipeline=cfg.pipeline.name,
-                          workers=cfg.workers, variation=variation)
+                          workers=cfg.workers, variation=variation, task_variations=per_task)
     except KeyboardInterrupt:  # the library has logged what was kept; no traceback for a Ctrl-C
         raise SystemExit(130) from None
     except WorkerDied as e:  # not the user's mistake (exit 2): a resumable failure of the machine

@@ -25,22 +25,16 @@ def main(cfg: DictConfig) -> None:
     from simeval.models.policy.data import PolicyDataset
     from simeval.models.policy.experiment import checkpoint_key, episodes_for, run_splits
     from simeval.results import hydra_run_info, write_result
-    from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+    from simeval.sim.spec import SUITES_DIR
+    from simeval.sim.splits import group_and_heldout, split_tasks
 
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
-    group = [s.name for s in select_specs(load_suite(SUITES_DIR / cfg.pipeline.suite), None, cfg.task_group)]
-    if cfg.tasks:
-        names = [cfg.tasks] if isinstance(cfg.tasks, str) else list(cfg.tasks)
-        if set(names) - set(group):
-            raise UserError(f"tasks={names}: {sorted(set(names) - set(group))} not in task_group={cfg.task_group} "
-                            f"({group})")
-        group = [t for t in group if t in names]
-    heldout = list(cfg.heldout_tasks or [])
-    if set(heldout) - set(group) or set(heldout) == set(group):
-        raise UserError(f"heldout_tasks={heldout}: must be some but not all of task_group={cfg.task_group} ({group})")
+    specs, heldout = group_and_heldout(SUITES_DIR / cfg.pipeline.suite, cfg.task_group, cfg.tasks,
+                                       None if cfg.heldout_tasks is None else list(cfg.heldout_tasks))
+    group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     pcfg = PolicyConfig.from_mapping(OmegaConf.to_container(cfg.policy.model, resolve=True))
     settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
@@ -59,18 +53,20 @@ def main(cfg: DictConfig) -> None:
             val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
             values["sampler_check"] = ev.sampler_action_error(policy, val, {
                 "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
-        plan = {"train": trained, "variations": trained if cfg.eval.variation else [], "heldout": heldout}
-        plan = {s: plan[s] for s in cfg.eval.splits if plan.get(s)}
+        override = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
+        plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
+                for split in cfg.eval.splits}
+        plan = {split: pairs for split, pairs in plan.items() if pairs}
         seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
-        variation = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
-        rows = run_splits(policy, plan, seeds, variation, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json",
-                          summary["steps"], progress=True)
+        rows = run_splits(policy, plan, seeds, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json", summary["steps"],
+                          progress=True)
         values.update(tasks=rows, splits=ev.summarize(rows))
         if cfg.eval.videos and rows:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
-                                                        cfg.eval.video_camera, variation, run["output_dir"])
+                                                        cfg.eval.video_camera, run["output_dir"])
         identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "tasks": group, "policy": cfg.policy.name,
-                    "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task, "variation": variation,
+                    "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task,
+                    "variations": {t: v for t, v in plan.get("eval", [])},
                     "eval_seeds": cfg.eval.seeds, "settings": {"model": vars(pcfg), "train": vars(settings)}}
         write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
                      choices=run["choices"], config=config, identity=identity)

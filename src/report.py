@@ -1,4 +1,5 @@
-"""Rebuild a paper table from result.json files (no rerun). See conf/report.yaml and conf/report/."""
+"""Rebuild a paper table, figure or the HTML report from files on disk (no rerun). See conf/report.yaml and
+conf/report/."""
 
 import logging
 from pathlib import Path
@@ -19,6 +20,13 @@ def main(cfg: DictConfig) -> None:
     from simeval.report.quality_figure import build_quality_figure
 
     spec = OmegaConf.to_container(cfg.report, resolve=True)
+    if spec.get("kind") == "html":
+        from simeval.report.html import build_html_report
+
+        page = build_html_report(spec["runs_dir"], spec.get("out_dir"), tables_dir=spec.get("tables_dir"),
+                                 figures_dir=spec.get("figures_dir"), title=spec.get("title", "simeval report"))
+        print(f"HTML report: {page} (open it in a browser; the folder is self-contained)")
+        return
     if spec["metric"] == "quality":
         written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
         print(Path(written["table"][1]).read_text())

@@ -7,11 +7,11 @@ import pytest
 import yaml
 
 from simeval.sim.env import make_env
-from simeval.sim.fixtures import articulation
+from simeval.sim.articulated import joint_limits
 from simeval.sim.goals import task_progress
 from simeval.sim.primitives import PlanPolicy
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance, task_files
+from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance
 
 SUITE_DIR = SUITES_DIR / "bbsea"
 SUITE = {s.name: s for s in load_suite(SUITE_DIR)}
@@ -78,8 +78,8 @@ def test_joint_range_goal_fraction_and_progress():
     try:
         env.reset(seed=0)
         c, drawer = env.world.c, env.inst.by_name("drawer")[0].body_ids[0]
-        j, q, lo, hi = articulation(c, drawer)
-        assert q == pytest.approx(lo) and task_progress(env.world, env.inst) == (0.0, False)
+        j, (lo, hi) = 0, joint_limits(c, drawer, 0)
+        assert c.getJointState(drawer, j)[0] == pytest.approx(lo) and task_progress(env.world, env.inst) == (0.0, False)
         c.resetJointState(drawer, j, lo + 0.35 * (hi - lo))  # half way from 0 to the range's start, 0.7
         progress, ok = task_progress(env.world, env.inst)
         assert progress == pytest.approx(0.5, abs=1e-6) and not ok
@@ -130,11 +130,10 @@ def test_failed_episode_is_kept_and_flagged(tmp_path):
     assert again["skipped"] == 1 and again["new"] == []
 
 
-@pytest.mark.parametrize("path", task_files(SUITE_DIR), ids=lambda p: p.stem)
-def test_every_eval_variation_is_accepted_and_samples(path):
-    data = yaml.safe_load(path.read_text())
-    spec = SUITE[data["name"]]
-    variation = check_variation([spec], data["variations"]["eval"])
+@pytest.mark.parametrize("name", sorted(SUITE))
+def test_every_eval_variation_is_accepted_and_samples(name):
+    spec = SUITE[name]
+    variation = check_variation([spec], spec.variations["eval"])
     objects = {k: v for k, v in variation.items() if k != "robot"}
     inst = sample_instance(spec, 5, objects)
     for name, knobs in objects.items():
@@ -158,10 +157,12 @@ def test_plan_and_goal_mistakes_are_spec_errors():
         parse_spec({**base, "plan": [{"open": "drawer"}]})
     with pytest.raises(SpecError, match=r"plan\[0\]: open_drawer names object 'drawr'"):
         parse_spec({**base, "plan": [{"open_drawer": "drawr"}]})
-    with pytest.raises(SpecError, match=r"joint_range needs one `what` and `range: \[lo, hi\]`"):
+    with pytest.raises(SpecError, match=r"joint_range needs `range: \[lo, hi\]` with 0 <= lo <= hi <= 1"):
         parse_spec({**base, "goals": [{"type": "joint_range", "what": "drawer", "range": [0.9, 0.2]}]})
-    with pytest.raises(SpecError, match=r"variation.drawer.opening: expected a fraction or \[lo, hi\]"):
-        check_variation([SUITE["bbsea-open-drawer"]], {"drawer": {"opening": [0.5, 2]}})
+    with pytest.raises(SpecError, match=r"variation.block: joint_init_noise applies to articulated objects \(.*drawer_cabinet, button\) only"):
+        check_variation([SUITE["bbsea-block-in-bin"]], {"block": {"joint_init_noise": 0.2}})
+    with pytest.raises(SpecError, match=r"variation.block.size: expected \[x, y, z\] in metres"):
+        check_variation([SUITE["bbsea-block-in-bin"]], {"block": {"size": [0.04, 0.04]}})
 
 
 def test_rollout_policy_uses_the_tasks_own_action_space():

@@ -31,7 +31,7 @@ def _collect(tmp_path, *args):
     (["record.image_size=[12]"], "error: record.image_size must be [H, W] with whole numbers H, W >= 1, got [12]"),
     (["workers=-1"], "error: workers must be 0 (one per CPU core) or a positive number of processes, got -1"),
     (["tasks=stack-two-blok"], "error: unknown task(s) ['stack-two-blok']; available: align-balls-in-zones, "),
-    (["tasks=[build-bridge]", "variation={pilar: {colors: [white]}}"],
+    (["tasks=[build-bridge]", "variation.knobs={pilar: {colors: [white]}}"],
      "error: variation.pilar: task build-bridge has no object 'pilar'; its objects: pad, pillar, deck (and robot)"),
 ])
 def test_collect_command_line_mistakes_are_one_line(tmp_path, args, expected):
@@ -43,8 +43,8 @@ def test_collect_command_line_mistakes_are_one_line(tmp_path, args, expected):
 
 
 def test_the_readme_variation_command_works_with_a_single_task_name(tmp_path):
-    # README: python src/collect.py tasks=[build-bridge] episodes=10 variation='{pillar: {colors: [white]}}' ...
-    res = _collect(tmp_path, "tasks=build-bridge", "episodes=1", "workers=1", "variation={pillar: {colors: [white]}}",
+    # README: python src/collect.py tasks=[build-bridge] episodes=10 variation.knobs='{pillar: {colors: [white]}}' ...
+    res = _collect(tmp_path, "tasks=build-bridge", "episodes=1", "workers=1", "variation.knobs={pillar: {colors: [white]}}",
                    *TINY)
     assert res.returncode == 0, res.stderr[-2000:]
     summary = json.loads((tmp_path / "run" / "result.json").read_text())["values"]

@@ -72,7 +72,9 @@ def test_entrypoint_trains_compares_samplers_and_writes_a_result(tmp_path):
     rec = json.loads((out / "result.json").read_text())
     assert rec["identity"]["task_group"] == GROUP and rec["identity"]["policy"] == "tiny"
     tr = rec["values"]["training"]
-    assert tr["steps"] == 20 and len(tr["trained_tasks"]) == 3 and tr["windows"] == 3 * 2 * 29  # 30 rows: 29 actions (row 29's is padding)
+    # the suite's splits.yaml holds sweep-two-piles out: the policy trains on the group's other 2 tasks
+    assert rec["identity"]["heldout_tasks"] == ["sweep-two-piles"]
+    assert tr["steps"] == 20 and len(tr["trained_tasks"]) == 2 and tr["windows"] == 2 * 2 * 29  # 30 rows: 29 actions (row 29's is padding)
     assert set(rec["values"]["sampler_check"]) == {"ddpm", "ddim"}
     ckpt = torch.load(tr["checkpoint"], weights_only=False)
     assert ckpt["policy_config"]["horizon"] == 8 and ckpt["step"] == 20  # the checkpoint carries its config
@@ -128,25 +130,26 @@ def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_s
 
     out = tmp_path / "run"
     p = run("debug=tiny", f"store={tiny_sim_store}", "task_group=stacking", "tasks=[stack-two-blocks]",
-            f"checkpoint_dir={tmp_path / 'ckpt'}", "eval.splits=[train,variations]",
+            f"checkpoint_dir={tmp_path / 'ckpt'}", "eval.splits=[train,eval]",
             "eval.variation={robot: {home_noise: 0.1}}", f"hydra.run.dir={out}")
     assert p.returncode == 0, p.stderr[-2000:]
     rec = json.loads((out / "result.json").read_text())
     ident, v = rec["identity"], rec["values"]
-    assert ident["tasks"] == ["stack-two-blocks"] and ident["variation"] == {"robot": {"home_noise": 0.1}}
+    assert ident["tasks"] == ["stack-two-blocks"]
+    assert ident["variations"] == {"stack-two-blocks": {"robot": {"home_noise": 0.1}}}
     assert v["training"]["steps"] == 20 and v["training"]["trained_tasks"] == ["stack-two-blocks"]
     assert v["training"]["windows"] == sum(
         int(h5py_attr(pth, "n_actions")) for pth in sorted((tiny_sim_store / "gensim" / "stack-two-blocks").glob(
             "episode_*.h5"))[:2])  # (row t, action t) pairs of the 2 training episodes, no padding row
     assert [(r["split"], r["task"]) for r in v["tasks"]] == [("train", "stack-two-blocks"),
-                                                             ("variations", "stack-two-blocks")]
+                                                             ("eval", "stack-two-blocks")]
     for row in v["tasks"]:
         (ep,) = row["episodes"]
         assert ep["seed"] == 100000 and 0 < ep["steps"] <= 40  # the rollout really stepped the environment
         assert 0.0 <= ep["progress"] <= 1.0 and isinstance(ep["success"], bool)
         s = row["success"]
         assert s["n"] == 1 and s["k"] == int(ep["success"]) and 0 <= s["ci"][0] <= s["rate"] <= s["ci"][1] <= 1
-    for split in ("train", "variations"):
+    for split in ("train", "eval"):
         s = v["splits"][split]["success"]
         assert s["n"] == 1 and 0 <= s["ci"][0] < s["ci"][1] <= 1 and 0 <= v["splits"][split]["mean_progress"] <= 1
     video = Path(v["videos"]["worst"])

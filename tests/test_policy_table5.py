@@ -9,14 +9,14 @@ from simeval.models.policy.table5 import build, write
 
 def rec(path, k, n, seed=0, policy="cpu"):
     return {"path": path, "identity": {"pipeline": "gensim", "task_group": "piles", "policy": policy, "seed": seed},
-            "values": {"splits": {"variations": {"success": {"k": k, "n": n}}}}}
+            "values": {"splits": {"eval": {"success": {"k": k, "n": n}}}}}
 
 
 def test_seeds_pool_and_the_table_shows_paper_and_interval(tmp_path):
     rows = build([rec("a", 2, 10), rec("b", 4, 10, seed=1)])
     piles = next(r for r in rows if r["group"] == "piles")
-    assert piles["paper"] == 0.2 and piles["variations"]["k"] == 6 and piles["variations"]["n"] == 20
-    assert piles["variations"]["ci"][0] == pytest.approx(0.1455, abs=1e-3)  # Wilson 6/20
+    assert piles["paper"] == 0.2 and piles["eval"]["k"] == 6 and piles["eval"]["n"] == 20
+    assert piles["eval"]["ci"][0] == pytest.approx(0.1455, abs=1e-3)  # Wilson 6/20
     md, _ = write(rows, tmp_path / "table5")
     line = next(x for x in md.read_text().splitlines() if "| piles |" in x)
     assert "0.20 |" in line and "0.30 [0.15, 0.52] (6/20)" in line

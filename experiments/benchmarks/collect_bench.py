@@ -38,24 +38,30 @@ import simeval.sim.panda as panda  # noqa: E402
 import simeval.sim.robot as robot  # noqa: E402
 from simeval.sim.robot import Arm  # noqa: E402
 from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
+from simeval.sim.articulated import set_joint_fraction  # noqa: E402
+from simeval.sim.env import find_task  # noqa: E402
 from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance  # noqa: E402
 from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World  # noqa: E402
 
 BBSEA_TASKS = ["bbsea-block-in-bin", "bbsea-stack-three-blocks", "bbsea-open-drawer-put-block",
-               "bbsea-put-block-in-drawer-and-close"]  # two per group
-TASKS = ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge"]  # one per group
+               "bbsea-put-block-in-drawer-and-close"]  # two per group of the BBSEA suite (--suite bbsea)
+# one per group of each suite: GenSim's 4 groups (oracle, pick-and-place), RoboGen's 2 (controller, ee_delta)
+TASKS = ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge",
+         "open-laptop", "close-the-oven-door"]
 CAMERAS = ("top", "front")
 MESHES = ("visual", "collision")
 
 
 def render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
-    spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
+    spec = find_task(spec_name)
     inst = sample_instance(spec, 0)
     with World() as w:
         Arm(w, spec.end_effector, render_mesh=mesh)
         rng = np.random.default_rng(0)
         for o in inst.objects:
             make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
+            for k, f in enumerate(inst.joints.get(o.id, [])):  # articulated objects as the episode starts
+                set_joint_fraction(w.c, o.body_ids[0], k, f)
         w.settle(30)
         t0 = time.perf_counter()
         for _ in range(n):
@@ -65,7 +71,7 @@ def render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) 
 
 
 def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[float, int]:
-    spec = load_spec(SUITES_DIR / "gensim" / f"{spec_name}.yaml")
+    spec = find_task(spec_name)
     default, robot.RENDER_MESH = robot.RENDER_MESH, mesh  # run_episode builds its own Arm: set its default
     try:
         t0 = time.perf_counter()
@@ -82,7 +88,9 @@ def bbsea_render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int 
         panda.Panda(w, render_mesh=mesh)
         rng = np.random.default_rng(0)
         for o in inst.objects:
-            make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z, spec.object(o.name).opening[0])
+            make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
+            for k, f in enumerate(inst.joints.get(o.id, ())):
+                set_joint_fraction(w.c, o.body_ids[0], k, f)
         w.settle(30)
         t0 = time.perf_counter()
         for _ in range(n):
@@ -161,7 +169,7 @@ def main() -> None:
         speedup = {k: round(per_mesh["collision"][k] / per_mesh["visual"][k], 2)
                    for k in ("mean_render_bound_steps_per_s", "mean_collect_steps_per_s")}
         out["per_size"][f"{size[0]}x{size[1]}"] = {**per_mesh, "collision_over_visual": speedup}
-    specs = [load_spec(SUITES_DIR / "gensim" / f"{t}.yaml") for t in TASKS]
+    specs = [find_task(t) for t in TASKS]
     settings = RecordSettings(cameras=CAMERAS, image_size=(64, 64), scene_view_size=(64, 64))
     timing = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from simeval.episodes.store import EpisodeStore, read_meta, read_recording
 from simeval.errors import UserError
-from simeval.sim.action_spaces import EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
+from simeval.sim.action_spaces import EE_DELTA_KIND, EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
 
@@ -72,13 +72,14 @@ def _die_with_parent(parent: int, started=None) -> None:
 
 
 def _collect_one(spec_path: str, seed: int, store_root: str, settings: dict, pipeline: str,
-                 variation: dict | None = None) -> dict:
+                 variations: dict[str, dict] | None = None) -> dict:
+    """Record and store one episode; `variations` maps task names to their (checked) variations."""
     spec = load_spec(spec_path)
     if _started is not None:
         _started.put((os.getpid(), spec.name, seed))
     t0 = time.perf_counter()
     ep = run_episode(spec, seed, RecordSettings(**settings), pipeline=pipeline,
-                     variation=variation_for(spec, variation or {}))
+                     variation=(variations or {}).get(spec.name, {}))
     path = EpisodeStore(store_root).write(ep)
     return {"task": spec.name, "seed": seed, "success": ep.success, "steps": ep.n_steps,
             "seconds": time.perf_counter() - t0, "bytes": os.path.getsize(path)}
@@ -164,15 +165,14 @@ def _prepare_store(root: Path) -> None:
         raise UserError(f"store={root}: no permission to write episodes there")
 
 
-def _check_recorded_like(path: Path, settings: RecordSettings, spec: TaskSpec | None = None) -> None:
-    """An episode already stored counts as done only if it was recorded as `settings` asks. ee_pose tasks (the
-    BBSEA suite) record at their own rate in their own action space, whatever record.control_hz says."""
+def _check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:
+    """An episode already stored counts as done only if it was recorded as `settings` asks (in the task's
+    action-space `kind`). ee_pose tasks (the BBSEA suite) record at their own 4 Hz, whatever record.control_hz."""
     stored = read_recording(path)
-    ee_pose = spec is not None and spec.action_space == "ee_pose"
     wanted = {"record.cameras": sorted(settings.cameras), "record.image_size": list(settings.image_size),
               "record.scene_view_size": list(settings.scene_view_size),
-              "record.control_hz": EE_POSE_HZ if ee_pose else float(settings.control_hz),
-              "action_space": EE_POSE_KIND if ee_pose else JOINT_KIND}
+              "record.control_hz": EE_POSE_HZ if kind == EE_POSE_KIND else float(settings.control_hz),
+              "action_space": kind}
     for key, want in wanted.items():
         have = stored[key]
         if key == "record.scene_view_size" and have is None:
@@ -188,17 +188,23 @@ def _check_recorded_like(path: Path, settings: RecordSettings, spec: TaskSpec | 
 
 def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore, settings: RecordSettings,
             *, pipeline: str = "gensim", workers: int = 0, progress: bool = True,
-            variation: dict | None = None) -> dict:
+            variation: dict | None = None, task_variations: dict[str, dict] | None = None) -> dict:
     """Returns {"new": [per-episode dicts], "skipped": n, "tasks": {task: {episodes, success, rate, group}}}.
 
     `variation` ({object: {colors, count}, robot: {home_noise}}) applies to every task that has the objects
-    it names; naming an object none of `specs` has is an error. An unreadable file already in the store is
-    moved aside (`<name>.corrupt-<time>`, with a warning) and its episode collected again."""
+    it names; naming an object none of `specs` has is an error. `task_variations` ({task: variation}, e.g. each
+    task's own `eval` variation, simeval.sim.splits) gives tasks their own instead; give one or the other.
+    An unreadable file already in the store is moved aside (`<name>.corrupt-<time>`, with a warning) and its
+    episode collected again."""
     from tqdm import tqdm
 
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+    if variation and task_variations:
+        raise UserError("give a variation for every task or one per task (task_variations), not both")
     variation = check_variation(list(specs), variation)
+    var_of = {s.name: check_variation([s], (task_variations or {}).get(s.name)) if task_variations
+              else variation_for(s, variation) for s in specs}
     bad_seed = next((s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0), None)
     if bad_seed is not None:
         raise UserError(f"seeds must be whole numbers >= 0 (seed_offset >= 0), got seed {bad_seed!r}")
@@ -208,13 +214,14 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     todo = []
     for s in specs:
         for seed in seeds:
-            if store.exists_intact(pipeline, s.name, seed, variation_for(s, variation)):
-                _check_recorded_like(store.path_for(pipeline, s.name, seed, variation_for(s, variation)), settings, s)
+            if store.exists_intact(pipeline, s.name, seed, var_of[s.name]):
+                _check_recorded_like(store.path_for(pipeline, s.name, seed, var_of[s.name]), settings,
+                                     {"ee_delta": EE_DELTA_KIND, "ee_pose": EE_POSE_KIND}.get(s.action_space, JOINT_KIND))
             else:
                 todo.append((s, seed))
     skipped = len(specs) * len(seeds) - len(todo)
     new: list[dict] = []
-    args = (str(store.root), asdict(settings), pipeline, variation)
+    args = (str(store.root), asdict(settings), pipeline, var_of)
     bar = tqdm(total=len(todo), desc=f"collecting ({workers} workers)", unit="episode", disable=not progress)
     try:
         if workers == 1 or len(todo) <= 1:
@@ -231,7 +238,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
         bar.close()
     tasks = {}
     for s in specs:  # the summary covers the whole store for these seeds, earlier runs included
-        metas = [read_meta(store.path_for(pipeline, s.name, seed, variation_for(s, variation))) for seed in seeds]
+        metas = [read_meta(store.path_for(pipeline, s.name, seed, var_of[s.name])) for seed in seeds]
         ok = sum(m["success"] for m in metas)
         tasks[s.name] = {"group": s.group, "episodes": len(metas), "success": ok, "rate": ok / len(metas)}
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped, "tasks": tasks}

@@ -36,6 +36,25 @@ def pick_place_action_space(control_hz: float | None = None) -> dict:
 
 
 
+EE_DELTA_KIND = "ee_delta+suction"
+EE_DELTA_NAMES = ("dx", "dy", "dz", "droll", "dpitch", "dyaw", "suction")
+# per-control-step bounds of ee_delta (at 30 Hz: 0.3 m/s and 1.5 rad/s at most): RoboGen's end-effector deltas are
+# small per step; these keep one step inside what the arm follows in one control period
+EE_MAX_TRANSLATION = 0.01  # m per step
+EE_MAX_ROTATION = 0.05  # rad per step
+EE_LOW = np.array([-EE_MAX_TRANSLATION] * 3 + [-EE_MAX_ROTATION] * 3 + [0.0], np.float32)
+EE_HIGH = np.array([EE_MAX_TRANSLATION] * 3 + [EE_MAX_ROTATION] * 3 + [1.0], np.float32)
+
+
+def ee_delta_action_space(control_hz: float) -> dict:
+    """End-effector deltas with suction (RoboGen's low-level action), per control step; see simeval.sim.env."""
+    return {"kind": EE_DELTA_KIND, "dims": list(EE_DELTA_NAMES), "units": ["m"] * 3 + ["rad"] * 3 + ["on=1/off=0"],
+            "control_hz": float(control_hz), "low": EE_LOW.tolist(), "high": EE_HIGH.tolist(),
+            "convention": "tool tip translation in the world frame; rotation: a small rotation about the world x, y, "
+                          "z axes (Euler XYZ of the increment) applied to the commanded tool orientation; both "
+                          "clipped to low/high; the commanded pose is integrated and reached by IK"}
+
+
 def ee_pose_action_space(control_hz: float = EE_POSE_HZ) -> dict:
     """The Panda's absolute end-effector target per control step (simeval.sim.panda): grasp-point position,
     orientation, gripper command."""

@@ -31,10 +31,21 @@ Action spaces (`ACTION_SPACES`; each stored episode records the one it was recor
                   step that ends the episode (success, or the step limit) then parks the arm out of the
                   cameras' view and holds still for 10 control steps (`park_at_end`, on by default), so the
                   final observation shows the result (those control steps are part of the step).
+  ee_delta        kind `ee_delta+suction`, 7-d per control step (RoboGen's low-level action): [dx, dy, dz (m),
+                  droll, dpitch, dyaw (rad), suction (>= 0.5: on)], each clipped to +-EE_MAX_TRANSLATION (1 cm)
+                  and +-EE_MAX_ROTATION (0.05 rad) per step. The environment keeps a commanded tool pose (from the
+                  tool's pose at reset), moves it by the delta (translation in the world frame; rotation: the
+                  increment's XYZ Euler angles about the world axes, applied on the left), keeps the commanded tip
+                  within EE_MAX_LAG of the real one (a blocked arm does not wind up a far target), and sends the IK
+                  solution with the suction command through the same low-level step as `joint`. Suction on with
+                  nothing held attaches what the cup touches: a free object rigidly, a moving link of an
+                  articulated object by a point at the cup's tip.
+
   ee_pose         kind `ee_pose+gripper` (Panda tasks), 8-d at the control rate (4 Hz by default, BBSEA's): the
                   absolute grasp-point target [x, y, z (m), qx, qy, qz, qw, gripper (>= 0.5 closed)], reached
                   within the step (simeval.sim.panda). A step that ends the episode parks the arm as above.
-The default action space of make_env is the task's own (spec field `action_space`, default joint).
+A task's native action space is its spec's `action_space` (default joint); `make_env(task)` uses it.
+
 With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
 {"action": [(7,)], "obs": [...], "progress": [...], "success": [...], "object_poses": [(N, 7)]} -- each entry
 exactly what a joint step with that action would have returned. Collection records that (simeval.sim.rollout),
@@ -52,19 +63,24 @@ import numpy as np
 from simeval.errors import UserError
 from simeval.sim.goals import still, task_progress
 from simeval.sim.objects import make_object
-from simeval.sim.action_spaces import (EE_POSE_HIGH, EE_POSE_HZ, EE_POSE_KIND, EE_POSE_LOW,  # noqa: F401
-                                       JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,
-                                       ee_pose_action_space, joint_action_space, pick_place_action_space)
+from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, EE_POSE_HIGH, EE_POSE_HZ,  # noqa: F401
+                                       EE_POSE_KIND, EE_POSE_LOW, JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,
+                                       ee_delta_action_space, ee_pose_action_space, joint_action_space,
+                                       pick_place_action_space)
+from simeval.sim.articulated import set_joint_fraction
 from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
 from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
-                             task_seed)
+                             scene_seed, task_seed)
 from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
 
 # state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
 STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
 STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
-ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_pose": EE_POSE_KIND}
-ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place"), "panda": ("ee_pose",)}
+ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_delta": EE_DELTA_KIND,
+                 "ee_pose": EE_POSE_KIND}
+ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place", "ee_delta"), "panda": ("ee_pose",)}
+EE_MAX_LAG = 0.03  # m: the commanded tip of ee_delta stays within this of the real tip
+EE_STEPS_PER_PRIMITIVE = 150  # ee_delta's default step limit: 5 s at 30 Hz per `max_primitives` of the task
 
 
 def state_names(robot: str = "xarm6") -> tuple[str, ...]:
@@ -130,8 +146,8 @@ class SimEnv(_gym().Env):
         self.park_at_end = bool(park_at_end)
         # joint: a generous bound on an oracle episode (~150-300 control steps per primitive)
         # ee_pose: a primitive takes 20-40 control steps at 4 Hz
-        per_primitive = {"joint": 400, "pick_place": 1, "ee_pose": 60}[action_space]
-        self.max_steps = int(max_steps or self.spec_task.max_primitives * per_primitive)
+        per = {"joint": 400, "pick_place": 1, "ee_delta": EE_STEPS_PER_PRIMITIVE, "ee_pose": 60}[action_space]
+        self.max_steps = int(max_steps or (self.spec_task.max_primitives * per))
         h, w = self.image_size
         if robot == "panda":
             from simeval.sim.panda import STATE_HIGH as state_high, STATE_LOW as state_low
@@ -147,6 +163,9 @@ class SimEnv(_gym().Env):
             self.action_space = spaces.Box(np.array([*JOINT_LOWER, 0.0], np.float32),
                                            np.array([*JOINT_UPPER, 1.0], np.float32), dtype=np.float32)
             self.action_info = joint_action_space(self.control_hz)
+        elif action_space == "ee_delta":
+            self.action_space = spaces.Box(EE_LOW, EE_HIGH, dtype=np.float32)
+            self.action_info = ee_delta_action_space(self.control_hz)
         else:
             self.action_space = spaces.Box(POSE_LOW, POSE_HIGH, dtype=np.float32)
             self.action_info = pick_place_action_space(self.control_hz)
@@ -186,6 +205,8 @@ class SimEnv(_gym().Env):
             if self.park_at_end and (self._info()["success"] or self._steps >= self.max_steps):
                 self._settle_ee(8)  # let what was just released come to rest before the arm leaves
                 self.arm.park()  # out of the cameras' view: the last observation shows the result
+        elif self.mode == "ee_delta":
+            self.apply_ee_delta(action)
         else:
             self._low = low = ({"action": [], "obs": [], "progress": [], "success": [], "object_poses": []}
                                if self.record_low_level else None)
@@ -229,10 +250,35 @@ class SimEnv(_gym().Env):
         progress, success = task_progress(self.world, self.inst)
         return {"progress": float(progress), "success": bool(success)}
 
+    @property
+    def ee_target(self) -> np.ndarray:
+        """The commanded tool tip of ee_delta (m, world frame): where the deltas are added."""
+        return np.array(self._ee_pos, dtype=float)
+
+    def apply_ee_delta(self, action) -> np.ndarray:
+        """One ee_delta control step (see the module docstring); returns the action as applied (clipped, float32,
+        suction 0/1), which replays bit for bit."""
+        c = self.world.c
+        a = np.clip(np.asarray(action, np.float32).reshape(-1), EE_LOW, EE_HIGH).astype(np.float32)
+        a[6] = np.float32(a[6] >= 0.5)
+        tip = self.arm.tip()
+        target = self._ee_pos + a[:3].astype(np.float64)
+        lag = target - tip
+        if np.linalg.norm(lag) > EE_MAX_LAG:
+            target = tip + lag * (EE_MAX_LAG / np.linalg.norm(lag))
+        self._ee_pos = target
+        if np.any(a[3:6]):
+            turn = c.getQuaternionFromEuler(a[3:6].astype(np.float64).tolist())
+            self._ee_orn = c.multiplyTransforms([0, 0, 0], turn, [0, 0, 0], self._ee_orn)[1]
+        self.arm.apply(np.r_[self.arm.ik_pose(target, self._ee_orn), a[6]])
+        return a
+
     def _build(self, seed: int) -> None:
         self.close()
         spec, variation = self.spec_task, dict(self.variation)
         home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
+        seed = scene_seed(spec, seed, variation)  # a `fixed` task: every episode from the scene of seed 0
+        variation.pop("scene", None)
         self.inst = sample_instance(spec, seed, variation)
         # the physical randomness (pile spreads, the arm's home noise): a child of the task's own stream, so two
         # tasks with the same seed differ here too, and it stays unrelated to the draws of sample_instance
@@ -247,11 +293,14 @@ class SimEnv(_gym().Env):
             self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
-            # drawn only when it varies: other tasks' random streams stay as they were
-            lo, hi = variation.get(obj.name, {}).get("opening", spec.object(obj.name).opening)
-            make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z, float(rng.uniform(lo, hi)) if hi > lo else lo)
+            make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
+            for k, f in enumerate(self.inst.joints.get(obj.id, ())):  # articulated objects, jointed fixtures
+                set_joint_fraction(self.world.c, obj.body_ids[0], k, f)
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step
+        if spec.robot == "xarm6":  # ee_delta's commanded tool pose (the Panda takes absolute targets instead)
+            self._ee_pos = self.arm.tip()
+            self._ee_orn = tuple(self.world.c.getLinkState(self.arm.body, self.arm.ee)[5])
 
     def _on_low_level_step(self, action: np.ndarray) -> None:
         if self._low is None:
@@ -291,6 +340,7 @@ class SimEnv(_gym().Env):
 
 def make_env(task: str | TaskSpec, action_space: str | None = None, variation: dict | None = None,
              image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"), **kwargs) -> SimEnv:
-    """A Gymnasium environment of a suite task (name or TaskSpec); see the module docstring. kwargs: control_hz,
+    """A Gymnasium environment of a suite task (name or TaskSpec); action_space None: the task's native one (its
+    spec's `action_space`); see the module docstring. kwargs: control_hz,
     max_steps, record_low_level, scene_view_size, render_mode, park_at_end."""
     return SimEnv(task, action_space, variation, image_size, cameras, **kwargs)

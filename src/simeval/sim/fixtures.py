@@ -2,14 +2,14 @@
 button. Each is a fixed-base body whose base frame sits on the table at the object's (x, y, yaw).
 
 Conventions (the object's `size` is its outer extents x, y, z in its own frame):
-  drawer  a cabinet open towards its local -x (face it to the robot with yaw 0 and the robot at smaller x); the
+  drawer_cabinet  a cabinet open towards its local -x (face it to the robot with yaw 0 and the robot at smaller x); the
           drawer slides out along local -x on a prismatic joint from 0 (closed) to DRAWER_TRAVEL (open) and has
           a vertical fin as its handle on the front panel, to be pinched from above with the fingers closing along
           local y. Holding friction (a velocity motor with a small force) keeps it where it is left.
   bin     an open box: floor and four walls, WALL thick.
   button  a housing with a cap on a prismatic joint pressed down by BUTTON_TRAVEL; it stays pressed (friction).
-The articulation of each (its first non-fixed joint) is what the `joint_range` goal measures, as a fraction of
-its limits: 0 closed / not pressed, 1 open / pressed. Files go to the temp folder, named by a hash of their
+The articulation of each (joint 0, its only joint) is what the `joint_range` goal measures, as a fraction of its
+limits (simeval.sim.articulated.joint_fraction): 0 closed / not pressed, 1 open / pressed; `joint_init` sets it. Files go to the temp folder, named by a hash of their
 text (written once per parameter set, atomically, so parallel workers never read a half-written file).
 """
 
@@ -22,13 +22,13 @@ import tempfile
 
 import numpy as np
 
-FIXTURE_SHAPES = ("drawer", "bin", "button")
+FIXTURE_SHAPES = ("drawer_cabinet", "bin", "button")
 WALL = 0.01  # cabinet and bin wall thickness (m)
 DRAWER_TRAVEL = 0.18  # m: how far the drawer slides out
 DRAWER_INNER_H = 0.06  # m: height of the drawer box's walls
 HANDLE = (0.04, 0.012, 0.03)  # the fin: length out of the panel (x), thickness (y), height (z)
 BUTTON_TRAVEL = 0.012
-HOLD_FORCE = {"drawer": 3.0, "button": 4.0}  # N: the friction that keeps the articulation where it is left
+HOLD_FORCE = {"drawer_cabinet": 3.0, "button": 4.0}  # N: the friction that keeps the articulation where it is left
 
 
 def _box(xyz, size, rgba, name: str) -> str:
@@ -122,31 +122,14 @@ def _write(text: str, kind: str) -> str:
     return path
 
 
-def make_fixture(c, shape: str, size, rgba, x: float, y: float, yaw: float, table_z: float,
-                 opening: float = 0.0) -> int:
-    """Load the fixture at (x, y, yaw) on the table; `opening` sets its articulation's initial fraction."""
-    urdf = {"drawer": drawer_urdf, "bin": bin_urdf, "button": button_urdf}[shape](size, rgba)
+def make_fixture(c, shape: str, size, rgba, x: float, y: float, yaw: float, table_z: float) -> int:
+    """Load the fixture at (x, y, yaw) on the table, its joint (if any) at its lower limit, held by friction."""
+    urdf = {"drawer_cabinet": drawer_urdf, "bin": bin_urdf, "button": button_urdf}[shape](size, rgba)
     body = c.loadURDF(_write(urdf, shape), [x, y, table_z], c.getQuaternionFromEuler([0, 0, yaw]),
                       useFixedBase=True)
     if shape in HOLD_FORCE:
-        info = c.getJointInfo(body, 0)
-        c.resetJointState(body, 0, info[8] + (info[9] - info[8]) * float(opening))
         c.setJointMotorControl2(body, 0, c.VELOCITY_CONTROL, targetVelocity=0.0, force=HOLD_FORCE[shape])
     return body
-
-
-def articulation(c, body: int) -> tuple[int, float, float, float] | None:
-    """(joint index, position, lower, upper) of the body's first non-fixed joint; None if it has none."""
-    for j in range(c.getNumJoints(body)):
-        info = c.getJointInfo(body, j)
-        if info[2] != c.JOINT_FIXED:
-            return j, c.getJointState(body, j)[0], info[8], info[9]
-    return None
-
-
-def articulation_fraction(c, body: int) -> float:
-    j, q, lo, hi = articulation(c, body)
-    return float((q - lo) / (hi - lo)) if hi > lo else 0.0
 
 
 def inside(c, point, container_body: int, shape: str, size) -> bool:
@@ -155,7 +138,7 @@ def inside(c, point, container_body: int, shape: str, size) -> bool:
         pos, orn = c.getBasePositionAndOrientation(container_body)
         half = (size[0] / 2 - WALL, size[1] / 2 - WALL)
         floor, top = WALL, size[2]
-    elif shape == "drawer":
+    elif shape == "drawer_cabinet":
         ls = c.getLinkState(container_body, 0, computeForwardKinematics=True)
         pos, orn = ls[4], ls[5]
         g = drawer_geometry(size)

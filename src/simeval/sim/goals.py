@@ -4,7 +4,8 @@ the task's partial reward is the mean over goals and success is every goal done.
 A unit counts as done only as strictly as the task's text reads: an object still on the suction cup, touched by
 the spatula or the arm, or still moving is never placed; "each" goals need a one-to-one assignment; `upright`
 goals need the object standing on its base; stacks need the object resting on (in contact with) the one below;
-a bowl's inside is measured from its real wall."""
+a bowl's inside is measured from its real wall. An articulation (joint_range) counts by its joint's position alone:
+the joint holds by friction, so where the arm leaves it is where it stays."""
 
 from __future__ import annotations
 
@@ -114,33 +115,11 @@ def in_bowl(world: World, obj: SimObject, bowl: SimObject, tol: float = 0.003) -
 
 def in_container(world: World, obj: SimObject, target: SimObject) -> bool:
     """Inside a bowl, or inside a bin's or a drawer's box (simeval.sim.fixtures)."""
-    if target.shape in ("bin", "drawer"):
+    if target.shape in ("bin", "drawer_cabinet"):
         from simeval.sim.fixtures import inside
 
         return inside(world.c, pose(world, obj)[0], target.body_ids[0], target.shape, target.size)
     return in_bowl(world, obj, target)
-
-
-def joint_fraction(world: World, obj: SimObject) -> float:
-    """The object's articulation (first non-fixed joint) as a fraction of its limits: 0 lower, 1 upper."""
-    from simeval.sim.fixtures import articulation_fraction
-
-    return articulation_fraction(world.c, obj.body_ids[0])
-
-
-def joint_range_progress(world: World, inst: Instance, goal: GoalSpec) -> tuple[float, bool]:
-    """(progress, done) of a joint_range goal: done inside [lo, hi]; progress = the share of the way from the
-    fraction at the first measurement (reset) to the nearest end of the range, clipped to [0, 1]."""
-    obj = inst.by_name(goal.what[0])[0]
-    f = joint_fraction(world, obj)
-    f0 = inst.initial_fraction.setdefault(obj.id, f)
-    lo, hi = goal.range
-    if lo - 1e-9 <= f <= hi + 1e-9:
-        return 1.0, True
-    end = lo if f0 < lo else hi
-    if abs(end - f0) < 1e-9:
-        return 0.0, False
-    return float(np.clip((f - f0) / (end - f0), 0.0, 1.0)), False
 
 
 def _matching(ok: list[list[bool]]) -> list[int | None]:
@@ -228,10 +207,10 @@ def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
             ok = np.linalg.norm(p[:2] - target) < XY_TOL and resting(world, obj) and placed(world, obj, held)
             out.append(bool(ok and (not goal.upright or upright(world, obj))))
         return out
-    if goal.type == "joint_range":
-        return [joint_range_progress(world, inst, goal)[1]]
     if goal.type == "pile_in_zone":
         return [f >= goal.fraction - 1e-9 for f in pile_fractions(world, inst, goal, held)]
+    if goal.type == "joint_range":
+        return [joint_range_progress(world, inst, goal, obj) >= 1.0 for obj in inst.by_name(goal.what[0])]
     raise ValueError(f"unknown goal type {goal.type}")
 
 
@@ -262,9 +241,26 @@ def offset_target(anchor_pos: np.ndarray, anchor_yaw: float, offset: list[float]
     return anchor_pos[:2] + np.array([c * dx - s * dy, s * dx + c * dy])
 
 
+def joint_range_progress(world: World, inst: Instance, goal: GoalSpec, obj: SimObject) -> float:
+    """joint_range: 1 when the joint's fraction of its limits is within the goal's range; otherwise how far it has
+    moved from its initial fraction towards the range (the share of the way), clipped to [0, 1]."""
+    from simeval.sim.articulated import joint_fraction
+
+    lo, hi = goal.range
+    f = joint_fraction(world.c, obj.body_ids[0], goal.joint)
+    if lo - 1e-9 <= f <= hi + 1e-9:
+        return 1.0
+    f0 = inst.joints[obj.id][goal.joint]
+    edge = lo if f0 < lo else hi
+    if abs(edge - f0) < 1e-9:
+        return 0.0
+    return float(np.clip((f - f0) / (edge - f0), 0.0, 1.0))
+
+
 def goal_progress(world: World, inst: Instance, goal: GoalSpec) -> float:
     if goal.type == "joint_range":
-        return joint_range_progress(world, inst, goal)[0]
+        objs = inst.by_name(goal.what[0])
+        return float(np.mean([joint_range_progress(world, inst, goal, o) for o in objs])) if objs else 1.0
     if goal.type == "pile_in_zone":  # partial credit per particle, as GenSim's pile rewards
         fracs = [min(1.0, f / goal.fraction) for f in pile_fractions(world, inst, goal)]
         return float(np.mean(fracs)) if fracs else 1.0

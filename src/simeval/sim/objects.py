@@ -19,8 +19,11 @@ _RAVENS_255 = {
 }
 COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS_255.items()}
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
-SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile",
-          "drawer", "bin", "button")  # the last three: simeval.sim.fixtures (fixed-base URDF fixtures)
+SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
+from simeval.sim.articulated import ARTICULATED  # noqa: E402 (articulated objects: simeval.sim.articulated)
+
+FIXTURES = ("drawer_cabinet", "bin", "button")  # the BBSEA suite's fixtures (simeval.sim.fixtures)
+SHAPES = SHAPES + ARTICULATED + FIXTURES
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
 PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
@@ -37,6 +40,7 @@ class SimObject:
     color: str
     size: tuple[float, float, float]  # full extents x, y, z (bowl: outer diameter, diameter, height)
     body_ids: list[int] = field(default_factory=list)  # one body, or many for a pile
+    on_table: bool = False  # articulated objects: stands on a wooden table board (simeval.sim.articulated)
 
     @property
     def id(self) -> str:
@@ -61,8 +65,7 @@ def outline_rgba(color: str) -> list[float]:
 
 
 def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: np.random.Generator,
-                table_z: float, opening: float = 0.0) -> SimObject:
-    """Build `obj` at (position, yaw) on the table; `opening`: a fixture's initial articulation fraction."""
+                table_z: float) -> SimObject:
     c = client
     x, y = float(position[0]), float(position[1])
     sx, sy, sz = obj.size
@@ -86,6 +89,14 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
         obj.body_ids = [_bowl(c, obj, x, y, table_z, rgba)]
     elif obj.shape in FLAT:
         obj.body_ids = [_flat(c, obj, x, y, yaw, table_z)]
+    elif obj.shape in ARTICULATED:
+        from simeval.sim.articulated import make_articulated
+
+        obj.body_ids = [make_articulated(c, obj, x, y, yaw, table_z)]
+    elif obj.shape in FIXTURES:
+        from simeval.sim.fixtures import make_fixture
+
+        obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z)]
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
         r = sx / 2
@@ -98,10 +109,6 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
             ids.append(c.createMultiBody(0.005, col, vis, [x + dx, y + dy, table_z + PARTICLE / 2 + 1e-3], q,
                                          useMaximalCoordinates=PARTICLE_MAXIMAL))
         obj.body_ids = ids
-    elif obj.shape in ("drawer", "bin", "button"):
-        from simeval.sim.fixtures import make_fixture
-
-        obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z, opening)]
     else:
         raise ValueError(f"unknown shape '{obj.shape}'; known: {', '.join(SHAPES)}")
     for b in obj.body_ids:

@@ -147,7 +147,7 @@ def place_in(ctx: Context, name: str):
 
     target = ctx.obj(name)
     c, body = ctx.world.c, target.body_ids[0]
-    if target.shape == "drawer":
+    if target.shape == "drawer_cabinet":
         spot = drawer_drop_point(c, body, target.size)
         # hand yaw along the drawer's front (a long object ends across the drawer's opening, where it fits)
         yield from _release_at(ctx, spot[:2], spot[2], _wrap(yaw_of_body(c, body), math.pi), drop=0.015)
@@ -201,14 +201,16 @@ def _drawer_target(ctx: Context, name: str, opening: bool) -> float:
 
 
 def _slide_drawer(ctx: Context, name: str, fraction: float):
-    from simeval.sim.fixtures import articulation, handle_point, yaw_of_body
+    from simeval.sim.articulated import joint_limits
+    from simeval.sim.fixtures import handle_point, yaw_of_body
 
     drawer = ctx.obj(name)
     c, body = ctx.world.c, drawer.body_ids[0]
     yaw = yaw_of_body(c, body)
     out = np.array([-math.cos(yaw), -math.sin(yaw)])  # the drawer slides out along the cabinet's local -x
     for _ in range(RETRIES + 1):
-        _, q, lo, hi = articulation(c, body)
+        lo, hi = joint_limits(c, body, 0)
+        q = c.getJointState(body, 0)[0]
         delta = lo + fraction * (hi - lo) - q
         if abs(delta) < 0.1 * (hi - lo):
             return

@@ -94,6 +94,7 @@ class Arm:
         self.target = np.array(home, dtype=float)
         self.grasp = None  # constraint id while something is held
         self.held: int | None = None
+        self.held_link: int = -1  # the moving link held (articulated objects), -1: a whole body
         self.suction_cmd = False  # the suction command in force (applied by the next low-level step)
         self.on_step = None  # callable(action (7,) float32) after every low-level step (set by the environment)
 
@@ -186,10 +187,26 @@ class Arm:
 
     def touching(self) -> int | None:
         """The body the tool touches (not the arm, not the table), if any."""
+        hit = self.touching_link()
+        return None if hit is None else hit[0]
+
+    def touching_link(self) -> tuple[int, int] | None:
+        """(body, link) the tool touches (not the arm, not the table), if any."""
         for cp in self.w.c.getContactPoints(bodyA=self.tool):
             if cp[2] not in (self.body, self.w.plane):
-                return cp[2]
+                return cp[2], cp[4]
         return None
+
+    def ik_pose(self, tip: np.ndarray, orn) -> np.ndarray:
+        """Joint targets that put the tool tip at `tip` with the tool's frame at quaternion `orn` (xyzw; the tool
+        points along its z axis: (pi, 0, yaw) Euler angles point it down)."""
+        c = self.w.c
+        down = np.asarray(c.getMatrixFromQuaternion(orn)).reshape(3, 3)[:, 2]
+        flange = np.asarray(tip, float) - self.tool_length * down
+        q = c.calculateInverseKinematics(self.body, self.ee, flange.tolist(), list(orn), lowerLimits=self.lower,
+                                         upperLimits=self.upper, jointRanges=[u - l for l, u in zip(self.lower, self.upper)],
+                                         restPoses=list(self.home), maxNumIterations=100, residualThreshold=1e-5)
+        return np.asarray(q[: len(self.joints)])
 
     def suction_on(self) -> bool:
         """Turn the suction on if the cup touches something and attach it now; otherwise leave it off. Returns
@@ -210,8 +227,12 @@ class Arm:
 
     def _attach(self) -> None:
         c = self.w.c
-        other = self.touching()
-        if other is None:
+        hit = self.touching_link()
+        if hit is None:
+            return
+        other, link = hit
+        if link >= 0 and c.getJointInfo(other, link)[2] != c.JOINT_FIXED:
+            self._attach_link(other, link)
             return
         tp, to = c.getBasePositionAndOrientation(self.tool)
         op, oo = c.getBasePositionAndOrientation(other)
@@ -222,9 +243,29 @@ class Arm:
         c.changeConstraint(self.grasp, maxForce=200)
         self.held = other
 
+    def _attach_link(self, body: int, link: int) -> None:
+        """Grip a moving link of an articulated object: a point constraint at the cup's tip (the seal turns freely,
+        so the tool can stay pointing down while a lid or door turns under it), and no contact between the cup and
+        that link while it holds (the point constraint stands in for the seal; contact would fight it as the
+        surface turns)."""
+        c = self.w.c
+        tp, to = c.getBasePositionAndOrientation(self.tool)
+        tip = self.tip()
+        inv_p, inv_o = c.invertTransform(tp, to)
+        in_tool, _ = c.multiplyTransforms(inv_p, inv_o, tip.tolist(), [0, 0, 0, 1])
+        lp, lo = c.getLinkState(body, link, computeForwardKinematics=True)[0:2]  # the link's centre-of-mass frame
+        inv_p, inv_o = c.invertTransform(lp, lo)
+        in_link, _ = c.multiplyTransforms(inv_p, inv_o, tip.tolist(), [0, 0, 0, 1])
+        self.grasp = c.createConstraint(self.tool, -1, body, link, c.JOINT_POINT2POINT, [0, 0, 0], in_tool, in_link)
+        c.changeConstraint(self.grasp, maxForce=200)
+        c.setCollisionFilterPair(self.tool, body, -1, link, 0)
+        self.held, self.held_link = body, link
+
     def _release(self) -> None:
         self.w.c.removeConstraint(self.grasp)
-        self.grasp, self.held = None, None
+        if self.held_link >= 0:
+            self.w.c.setCollisionFilterPair(self.tool, self.held, -1, self.held_link, 1)
+        self.grasp, self.held, self.held_link = None, None, -1
 
     def hold(self, steps: int) -> None:
         for _ in range(steps):

@@ -30,6 +30,7 @@ class RecordSettings:
     image_size: tuple[int, int] = (64, 64)
     scene_view_size: tuple[int, int] = (128, 128)
     control_hz: float = 30.0  # every control step is one stored transition; for a coarser rate lower this
+    noise_std: float = 0.002  # ee_delta tasks: the controller's action noise (m per step per axis); oracle tasks ignore it
 
     def __post_init__(self) -> None:
         # configs give lists; the settings travel to worker processes and into keys, so keep them immutable.
@@ -43,6 +44,9 @@ class RecordSettings:
         hz = self.control_hz
         if isinstance(hz, bool) or not isinstance(hz, numbers.Real) or not hz > 0:
             raise UserError(f"record.control_hz must be a number > 0, got {self.control_hz!r}")
+        ns = self.noise_std
+        if isinstance(ns, bool) or not isinstance(ns, numbers.Real) or not ns >= 0:
+            raise UserError(f"record.noise_std must be a number of metres >= 0, got {self.noise_std!r}")
 
 
 def image_size_pair(value, key: str) -> tuple[int, int]:
@@ -78,6 +82,8 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
     {"robot": {"home_noise": radians}} (what a generalization test varies)."""
     settings = settings or RecordSettings()
     variation = check_variation([spec], variation)
+    if spec.action_space == "ee_delta":
+        return run_controller_episode(spec, seed, settings, pipeline, variation, final_frame_size)
     if spec.action_space == "ee_pose":
         return run_plan_episode(spec, seed, settings, pipeline, variation, final_frame_size)
     env = SimEnv(spec, "pick_place", variation, settings.image_size, settings.cameras,
@@ -126,6 +132,76 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         variation=variation, object_poses=np.stack(poses).astype(np.float32),
         extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
                            for o in inst.objects}})
+
+
+def run_controller_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeline: str = "robogen",
+                           variation: dict | None = None,
+                           final_frame_size: tuple[int, int] | None = None) -> Episode:
+    """An ee_delta task (RoboGen-style) solved by the closed-loop articulation controller (simeval.sim.controllers,
+    action noise `settings.noise_std`) through make_env(action_space="ee_delta"), stored as its control steps:
+    the reset observation, then per step the 7-d action as the environment applied it and the observation it
+    produced; no high-level actions. The episode ends at success or the step limit. `final_view` (if asked) is
+    rendered after the episode with the suction off and the arm parked, so it shows the articulation; those moves
+    are not part of the recorded steps."""
+    from simeval.sim.action_spaces import EE_HIGH, EE_LOW, ee_delta_action_space
+    from simeval.sim.controllers import ArticulationController
+
+    env = SimEnv(spec, "ee_delta", variation, settings.image_size, settings.cameras,
+                 control_hz=settings.control_hz, scene_view_size=settings.scene_view_size)
+    try:
+        obs, info = env.reset(seed=seed)
+        views = info.pop("scene_views")
+        rows, progress, poses = [obs], [info["progress"]], [env.object_poses()]
+        actions: list[np.ndarray] = []
+        policy = ArticulationController(settings.noise_std)
+        policy.reset(env)
+        while True:
+            action = policy(obs)
+            if action is None:
+                break
+            action = np.clip(np.asarray(action, np.float32), EE_LOW, EE_HIGH).astype(np.float32)
+            action[6] = np.float32(action[6] >= 0.5)  # stored as applied: replays bit for bit
+            obs, _, terminated, truncated, info = env.step(action)
+            actions.append(action)
+            rows.append(obs)
+            progress.append(info["progress"])
+            poses.append(env.object_poses())
+            if terminated or truncated:
+                break
+        success = info["success"]
+        joints_final = {o.id: [float(x) for x in _joint_fractions(env, o)] for o in env.inst.objects
+                        if o.id in env.inst.joints}
+        final_view = None
+        if final_frame_size:
+            env.arm.suction_off()
+            env.arm.park()
+            final_view = env.world.render(SCENE_VIEWS[0], final_frame_size)
+        inst = env.inst
+    finally:
+        env.close()
+    t = len(actions)
+    if t == 0:
+        raise RuntimeError(f"{spec.name} seed {seed}: the controller made no move; is the task solved at start?")
+    prog = np.asarray(progress, np.float32)
+    return Episode(
+        pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
+        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
+        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
+        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
+        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
+        scene_views=views, control_hz=settings.control_hz, source="simeval-suite", final_view=final_view,
+        action_space=ee_delta_action_space(settings.control_hz), state_names=list(STATE_NAMES),
+        variation=variation, object_poses=np.stack(poses).astype(np.float32),
+        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
+                           for o in inst.objects},
+               "initial_state": spec.initial_state, "noise_std": settings.noise_std,
+               "joint_fractions": {"initial": inst.joints, "final": joints_final}})
+
+
+def _joint_fractions(env: SimEnv, obj) -> list[float]:
+    from simeval.sim.articulated import joint_fraction
+
+    return [joint_fraction(env.world.c, obj.body_ids[0], k) for k in range(len(env.inst.joints[obj.id]))]
 
 
 def run_plan_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeline: str, variation: dict,

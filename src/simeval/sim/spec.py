@@ -21,12 +21,28 @@ one-to-one assignment, "one ball into each zone"), stack (`what`: names, each re
 `where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction` of the pile's particles in the
 zone). `upright: true` on a goal also requires its objects to stand upright (where the text says upright or stand).
 
+Articulated objects (simeval.sim.articulated: laptop, lamp, display, faucet, drawer, oven, window, toilet,
+dishwasher, table_doors) take `on_table: true` (stands on a wooden table board) and `joint_init` (the initial
+position of each of its joints as a fraction of the joint's limits, 0 = closed/lower, 1 = open/upper; one number for
+every joint or a list, one per joint). Goal type joint_range: `{type: joint_range, what: <object>, range: [lo, hi]}`
+(optionally `joint: k`, the k-th non-fixed joint, default 0) -- done when the joint's fraction is within [lo, hi].
+
 Panda tasks (the BBSEA suite) add `robot: panda`, `action_space: ee_pose` and a `plan`, the task's primitives in
-order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.primitives); fixtures
-(shapes drawer, bin, button) take `opening: [lo, hi]`, their initial articulation fraction. Goal `joint_range`
-(`what`: one fixture, `range: [lo, hi]`): its articulation's fraction of its limits (0 lower/closed, 1
-upper/open) within the range; in_container also takes bins and drawers as `where`. A suite folder's
-`splits.yaml` (held-out tasks per group) is not a task (`task_files`).
+order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.primitives). Their
+fixtures (simeval.sim.fixtures: drawer_cabinet, bin, button) are URDF bodies too; the jointed ones (drawer_cabinet,
+button) take `joint_init` and joint_range goals like articulated objects; in_container also takes bins and
+drawer cabinets as `where`. The `size` knob ([x, y, z] m) resizes every instance of an object.
+
+Task-level fields: `action_space` (the task's native action space for make_env: joint | pick_place | ee_delta |
+ee_pose; default joint) and `initial_state`: `random` (default: layout, colours, sizes and the arm's start drawn from the
+episode seed, GenSim's protocol) or `fixed` (RoboGen's protocol: every episode starts from the scene of seed 0, bit
+for bit; the seed then drives only what the policy does, e.g. a controller's action noise).
+
+Variation knobs (`check_variation`), all per episode seed: objects' `colors`, `count`, and for articulated objects
+`scale` (a factor or [lo, hi]: the object's overall size times a factor drawn uniformly) and `joint_init_noise`
+(fraction: each joint's initial fraction moved by a uniform draw in [-x, x], clipped to [0, 1]); `robot:
+{home_noise}` (radians); `scene: {initial_state: random}` (a `fixed` task's scene drawn from the episode seed, as
+test-time variation does; without it a fixed task ignores the seed whatever the other knobs say).
 
 Every task draws from its own random stream, seeded by (task name, seed): the same episode seed gives unrelated
 layouts in different tasks. A layout that does not fit is redrawn from the same stream, so every seed is valid.
@@ -45,13 +61,17 @@ from types import SimpleNamespace
 import numpy as np
 import yaml
 
+from simeval.sim.articulated import ARTICULATED, n_joints
 from simeval.sim.objects import COLORS, SHAPES, SimObject
 from simeval.sim.world import WORKSPACE
 from simeval.errors import UserError
 
 GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone", "joint_range")
+ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta", "ee_pose")  # a task's native action space (simeval.sim.env)
 ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robot.Arm, simeval.sim.panda.Panda
-TASK_ACTION_SPACES = ("joint", "pick_place", "ee_pose")  # the spec field `action_space` (simeval.sim.env)
+FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.fixtures with one joint (joint_init, joint_range)
+JOINTED = ARTICULATED + FIXTURE_JOINTED
+INITIAL_STATES = ("random", "fixed")
 
 
 class SpecError(UserError):
@@ -70,7 +90,8 @@ class ObjectSpec:
     distractor: bool = False
     color_per_instance: bool = False
     color_as: str | None = None  # take the colour of another (earlier) object, e.g. a block matching its zone
-    opening: tuple[float, float] = (0.0, 0.0)  # fixtures: initial articulation fraction (0 closed, 1 open), uniform
+    on_table: bool = False  # articulated objects: on a table board
+    joint_init: tuple[float, ...] = (0.0,)  # articulated objects: initial joint fractions (one for all, or per joint)
 
 
 @dataclass
@@ -82,7 +103,8 @@ class GoalSpec:
     fraction: float = 0.95  # piles: GenSim/Ravens count a pile done at about all particles (reward within 0.01 of max)
     upright: bool = False  # the text says upright / stand: objects must stand on their base
     each: bool = False  # in_zone/in_container: one `what` per `where` instance ("one ball into each zone")
-    range: tuple[float, float] = (0.0, 1.0)  # joint_range: the articulation fraction that counts as done
+    range: tuple[float, float] = (0.0, 1.0)  # joint_range: the goal's joint fractions
+    joint: int = 0  # joint_range: which non-fixed joint of the object
 
 
 @dataclass
@@ -96,8 +118,11 @@ class TaskSpec:
     max_primitives: int = 10
     home_noise: float = 0.0
     source: str = ""
+    action_space: str = "joint"  # native action space of make_env
+    initial_state: str = "random"  # random | fixed (RoboGen: every episode from the scene of seed 0)
+    # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.splits)
+    variations: dict[str, dict] = field(default_factory=dict)
     robot: str = "xarm6"
-    action_space: str = "joint"  # the task's native action space (make_env's default for it)
     plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.primitives
 
     def object(self, name: str) -> ObjectSpec:
@@ -140,8 +165,16 @@ def _parse_object(o, w: str, earlier: list[ObjectSpec]) -> ObjectSpec:
         region=tuple(tuple(r) for r in o["region"]) if o.get("region") else None,
         yaw=tuple(float(x) for x in _pair(o.get("yaw", [-math.pi, math.pi]), "yaw", w)),
         distractor=bool(o.get("distractor", False)), color_per_instance=bool(o.get("color_per_instance", False)),
-        color_as=o.get("color_as"),
-        opening=tuple(float(x) for x in _pair(o.get("opening", 0.0), "opening", w)))
+        color_as=o.get("color_as"), on_table=bool(o.get("on_table", False)),
+        joint_init=_joint_init(o.get("joint_init", 0.0), w))
+
+
+def _joint_init(v, w: str) -> tuple[float, ...]:
+    vals = [v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+    if not isinstance(vals, (list, tuple)) or not vals or any(
+            isinstance(x, bool) or not isinstance(x, (int, float)) or not 0 <= x <= 1 for x in vals):
+        raise SpecError(f"{w}: joint_init must be a fraction in [0, 1] or a list of them (one per joint), got {v!r}")
+    return tuple(float(x) for x in vals)
 
 
 def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
@@ -151,18 +184,22 @@ def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
     for n in what + where:
         if n not in names:
             raise SpecError(f"{w}: names object '{n}', not among {names}")
-    rng = (0.0, 1.0)
-    if g["type"] == "joint_range":
-        rng = g.get("range")
-        ok = isinstance(rng, (list, tuple)) and len(rng) == 2 and all(isinstance(x, (int, float)) for x in rng)
-        if not ok or not 0 <= rng[0] <= rng[1] <= 1 or len(what) != 1:
-            raise SpecError(f"{w}: joint_range needs one `what` and `range: [lo, hi]` with 0 <= lo <= hi <= 1, "
-                            f"got what={what} range={g.get('range')!r}")
     if g.get("each") and g["type"] not in ("in_zone", "in_container"):
         raise SpecError(f"{w}: `each` applies to in_zone and in_container goals, not {g['type']}")
+    rng, joint = (0.0, 1.0), 0
+    if g["type"] == "joint_range":
+        r, joint = g.get("range"), g.get("joint", 0)
+        if not (isinstance(r, (list, tuple)) and len(r) == 2 and all(isinstance(x, (int, float)) for x in r)
+                and 0 <= r[0] <= r[1] <= 1):
+            raise SpecError(f"{w}: joint_range needs `range: [lo, hi]` with 0 <= lo <= hi <= 1, got {r!r}")
+        if len(what) != 1 or where:
+            raise SpecError(f"{w}: joint_range names one object in `what` (and no `where`), got what={what}")
+        if isinstance(joint, bool) or not isinstance(joint, int) or joint < 0:
+            raise SpecError(f"{w}: joint must be a joint index >= 0, got {joint!r}")
+        rng = (float(r[0]), float(r[1]))
     return GoalSpec(g["type"], what, where, [list(map(float, o)) for o in g.get("offset", [])],
                     float(g.get("fraction", GoalSpec.fraction)), bool(g.get("upright", False)),
-                    bool(g.get("each", False)), tuple(float(x) for x in rng))
+                    bool(g.get("each", False)), rng, joint)
 
 
 def parse_spec(data: dict, source: str = "") -> TaskSpec:
@@ -179,16 +216,36 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     if len(set(names)) != len(names):
         raise SpecError(f"{where}: object names must be unique, got {names}")
     goals = [_parse_goal(g, f"{where}: goals[{i}]", names) for i, g in enumerate(data["goals"])]
-    robot, action_space = data.get("robot", "xarm6"), data.get("action_space", "joint")
+    for i, g in enumerate(goals):
+        if g.type == "joint_range":
+            o = objects[names.index(g.what[0])]
+            if o.shape not in JOINTED:
+                raise SpecError(f"{where}: goals[{i}]: joint_range needs an articulated object "
+                                f"({', '.join(JOINTED)}), '{o.name}' is a {o.shape}")
+            n = joint_count(SimObject(o.name, 0, o.shape, o.colors[0], o.size))
+            if g.joint >= n:
+                raise SpecError(f"{where}: goals[{i}]: joint {g.joint} does not exist; a {o.shape} has {n} joint(s)")
+    action_space = data.get("action_space", "joint")
+    if action_space not in ACTION_SPACE_NAMES:
+        raise SpecError(f"{where}: action_space {action_space!r} is not one of {', '.join(ACTION_SPACE_NAMES)}")
+    initial_state = data.get("initial_state", "random")
+    if initial_state not in INITIAL_STATES:
+        raise SpecError(f"{where}: initial_state {initial_state!r} is not one of {', '.join(INITIAL_STATES)}")
+    robot = data.get("robot", "xarm6")
     if robot not in ROBOTS:
         raise SpecError(f"{where}: robot {robot!r} is not one of {', '.join(ROBOTS)}")
-    if action_space not in TASK_ACTION_SPACES:
-        raise SpecError(f"{where}: action_space {action_space!r} is not one of {', '.join(TASK_ACTION_SPACES)}")
-    plan = _parse_plan(data.get("plan", []), where, names)
-    return TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
+    spec = TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
                     objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
                     max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
-                    source=source, robot=robot, action_space=action_space, plan=plan)
+                    source=source, action_space=action_space, initial_state=initial_state, robot=robot,
+                    plan=_parse_plan(data.get("plan", []), where, names))
+    spec.variations = _parse_variations(data.get("variations"), spec, where)
+    return spec
+
+
+def joint_count(obj) -> int:
+    """Joints of an articulated object or a jointed fixture (one)."""
+    return 1 if obj.shape in FIXTURE_JOINTED else n_joints(obj)
 
 
 def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
@@ -210,6 +267,32 @@ def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
     return out
 
 
+VARIATION_SPLITS = ("eval",)  # the splits a task spec may vary; `train` is the spec itself, `heldout` whole tasks
+
+
+def _parse_variations(raw, spec: TaskSpec, where: str) -> dict[str, dict]:
+    """`variations: {eval: {<object>: {colors, count}, robot: {home_noise}}}`, each checked against the task."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict) or set(raw) - set(VARIATION_SPLITS):
+        raise SpecError(f"{where}: `variations` is a mapping with the key(s) {', '.join(VARIATION_SPLITS)}, got "
+                        f"{raw!r}")
+    out = {}
+    for split, knobs in raw.items():
+        try:
+            out[split] = check_variation([spec], knobs)
+        except SpecError as e:
+            raise SpecError(f"{where}: variations.{split}: {e}") from None
+        for name, v in out[split].items():  # counts must fit the text and goals, as for a variation given to collect
+            if name != "robot" and "count" in v:
+                lo, hi = (v["count"], v["count"]) if isinstance(v["count"], int) else v["count"]
+                try:
+                    _check_count(spec, name, int(lo), int(hi))
+                except SpecError as e:
+                    raise SpecError(f"{where}: variations.{split}: {e}") from None
+    return out
+
+
 def load_spec(path: str | os.PathLike) -> TaskSpec:
     path = Path(path)
     try:
@@ -219,17 +302,10 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
     return parse_spec(data, str(path))
 
 
-SPLITS_FILE = "splits.yaml"  # a suite folder's held-out tasks per group (simeval.sim.splits), not a task
-
-
-def task_files(folder: str | os.PathLike) -> list[Path]:
-    """The task spec files of a suite folder: every *.yaml but its splits file."""
-    return [p for p in sorted(Path(folder).glob("*.yaml")) if p.name != SPLITS_FILE]
-
-
 def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     folder = Path(folder)
-    specs = [load_spec(p) for p in task_files(folder)]
+    # splits.yaml names the groups' held-out tasks (simeval.sim.splits); every other YAML file is a task
+    specs = [load_spec(p) for p in sorted(folder.glob("*.yaml")) if p.name != "splits.yaml"]
     if not specs:
         raise SpecError(f"{folder}: no task specs (*.yaml)")
     return specs
@@ -260,13 +336,13 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
     return [s for s in specs if s.group == group]
 
 
-OBJECT_KNOBS = ("colors", "count", "size", "opening")  # size: [x, y, z] m; opening: fixtures, [lo, hi] fraction
+OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size")  # size: [x, y, z] m, every instance
 ROBOT_KNOBS = ("home_noise",)
+SCENE_KNOBS = ("initial_state",)
 
 
 def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
-    """Validate a variation {object name: {colors, count, size, opening}, robot: {home_noise}} (size: [x, y, z] m
-    for every instance; opening: a fixture's initial articulation fraction or [lo, hi]) against the tasks it is for and
+    """Validate a variation {object name: {colors, count}, robot: {home_noise}} against the tasks it is for and
     return it normalised (a single colour may be given as a string). Every object it names must belong to at
     least one of `specs`; tasks without that object ignore it, so one variation can cover a group of tasks.
     A name no task has is a typo that would otherwise vary nothing: it is an error naming the tasks' objects."""
@@ -278,17 +354,23 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
     out: dict = {}
     for name, knobs in variation.items():
         key = f"variation.{name}"
-        allowed = ROBOT_KNOBS if name == "robot" else OBJECT_KNOBS
+        allowed = ROBOT_KNOBS if name == "robot" else SCENE_KNOBS if name == "scene" else OBJECT_KNOBS
         if not isinstance(knobs, dict):
             raise SpecError(f"{key}: expected a mapping of {', '.join(allowed)}, got {knobs!r}")
         unknown = sorted(set(knobs) - set(allowed))
         if unknown:
-            what = "the robot" if name == "robot" else "an object"
+            what = "the robot" if name == "robot" else "the scene" if name == "scene" else "an object"
             raise SpecError(f"{key}: unknown knob(s) {unknown}; valid for {what}: {', '.join(allowed)}")
         if name == "robot":
             noise = knobs.get("home_noise", 0.0)
             if isinstance(noise, bool) or not isinstance(noise, (int, float)) or noise < 0:
                 raise SpecError(f"{key}.home_noise: expected radians >= 0, got {noise!r}")
+            out[name] = dict(knobs)
+            continue
+        if name == "scene":
+            if knobs.get("initial_state", "random") not in INITIAL_STATES:
+                raise SpecError(f"{key}.initial_state: expected one of {', '.join(INITIAL_STATES)}, "
+                                f"got {knobs['initial_state']!r}")
             out[name] = dict(knobs)
             continue
         if not any(name == o.name for s in specs for o in s.objects):
@@ -311,27 +393,44 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
             if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(map(whole, pair))
                     and 0 <= pair[0] <= pair[1]):
                 raise SpecError(f"{key}.count: expected a count >= 0 or [low, high] with 0 <= low <= high, got {c!r}")
+        if "scale" in knobs:
+            sc = knobs["scale"]
+            pair = (sc, sc) if isinstance(sc, (int, float)) and not isinstance(sc, bool) else sc
+            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair) and 0.5 <= pair[0] <= pair[1] <= 1.5):
+                raise SpecError(f"{key}.scale: expected a factor or [low, high] within [0.5, 1.5], got {sc!r}")
+            knobs["scale"] = [float(pair[0]), float(pair[1])]
+        if "joint_init_noise" in knobs:
+            jn = knobs["joint_init_noise"]
+            if isinstance(jn, bool) or not isinstance(jn, (int, float)) or not 0 <= jn <= 0.5:
+                raise SpecError(f"{key}.joint_init_noise: expected a fraction in [0, 0.5], got {jn!r}")
         if "size" in knobs:
             sz = knobs["size"]
             if not (isinstance(sz, (list, tuple)) and len(sz) == 3
                     and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
                 raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
             knobs["size"] = [float(x) for x in sz]
-        if "opening" in knobs:
-            op = knobs["opening"]
-            pair = [op, op] if isinstance(op, (int, float)) and not isinstance(op, bool) else op
-            if not (isinstance(pair, (list, tuple)) and len(pair) == 2
-                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair)
-                    and 0 <= pair[0] <= pair[1] <= 1):
-                raise SpecError(f"{key}.opening: expected a fraction or [lo, hi] with 0 <= lo <= hi <= 1, got {op!r}")
-            knobs["opening"] = [float(x) for x in pair]
+        if "joint_init_noise" in knobs and not any(
+                o.name == name and o.shape in JOINTED for s in specs for o in s.objects):
+            raise SpecError(f"{key}: joint_init_noise applies to articulated objects ({', '.join(JOINTED)}) only")
+        if "scale" in knobs and not any(
+                o.name == name and o.shape in ARTICULATED for s in specs for o in s.objects):
+            raise SpecError(f"{key}: scale applies to articulated objects "
+                            f"({', '.join(ARTICULATED)}) only")
         out[name] = knobs
     return out
 
 
+def scene_seed(spec: TaskSpec, seed: int, variation: dict | None = None) -> int:
+    """The seed the scene is drawn from: the episode seed, or 0 for a `fixed` task (RoboGen's protocol) unless the
+    variation asks for `scene: {initial_state: random}`."""
+    mode = (variation or {}).get("scene", {}).get("initial_state", spec.initial_state)
+    return 0 if mode == "fixed" else int(seed)
+
+
 def variation_for(spec: TaskSpec, variation: dict) -> dict:
     """The part of a (checked) variation that applies to `spec`: the robot and the objects it has."""
-    names = {o.name for o in spec.objects} | {"robot"}
+    names = {o.name for o in spec.objects} | {"robot", "scene"}
     return {k: v for k, v in variation.items() if k in names}
 
 
@@ -344,8 +443,7 @@ class Instance:
     objects: list[SimObject]
     poses: dict[str, tuple[np.ndarray, float]]  # object id -> (xy, yaw)
     description: str
-    # joint_range goals: each fixture's articulation fraction when first measured (at reset), for progress
-    initial_fraction: dict[str, float] = field(default_factory=dict)
+    joints: dict[str, list[float]] = field(default_factory=dict)  # articulated object id -> initial joint fractions
 
     def by_name(self, name: str) -> list[SimObject]:
         return [o for o in self.objects if o.name == name]
@@ -420,7 +518,9 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
         used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
         size = tuple(float(x) for x in v.get("size", o.size))
-        objects += [SimObject(o.name, i, o.shape, chosen[i], size) for i in range(n)]
+        if o.shape in ARTICULATED and "scale" in v:
+            size = _scaled(o.size, rng, v["scale"])  # one factor per object name: its instances alike
+        objects += [SimObject(o.name, i, o.shape, chosen[i], size, on_table=o.on_table) for i in range(n)]
     for g in spec.goals:
         if g.each:
             n_what = sum(o.name in g.what for o in objects)
@@ -436,6 +536,16 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         raise SpecError(f"task {spec.name} seed {seed}: cannot place its {len(objects)} objects without overlap in "
                         f"{_LAYOUT_ATTEMPTS} layouts; enlarge the regions or reduce counts/sizes")
     objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
+    joints: dict[str, list[float]] = {}
+    for obj in objects:  # drawn after the layout, so tasks without articulated objects keep their streams
+        if obj.shape in JOINTED:
+            o, noise = spec.object(obj.name), float(variation.get(obj.name, {}).get("joint_init_noise", 0.0))
+            k = joint_count(obj)
+            init = list(o.joint_init) * k if len(o.joint_init) == 1 else list(o.joint_init)
+            if len(init) != k:
+                raise SpecError(f"task {spec.name}: joint_init of '{o.name}' gives {len(o.joint_init)} fractions, "
+                                f"a {o.shape} has {k} joint(s)")
+            joints[obj.id] = [float(np.clip(f + rng.uniform(-noise, noise), 0, 1)) if noise else f for f in init]
     fields = {}
     for o in spec.objects:
         inst = [x for x in objects if x.name == o.name]
@@ -444,7 +554,12 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
         description = spec.description.format(**fields)
     except (KeyError, AttributeError) as e:
         raise SpecError(f"task {spec.name}: description field {e} is not <object>.color or <object>.count") from e
-    return Instance(spec, seed, objects, poses, description)
+    return Instance(spec, seed, objects, poses, description, joints)
+
+
+def _scaled(size, rng: np.random.Generator, scale) -> tuple[float, float, float]:
+    factor = float(rng.uniform(scale[0], scale[1]))
+    return tuple(float(x) * factor for x in size)
 
 
 def _layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator):

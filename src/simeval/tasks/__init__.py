@@ -64,6 +64,9 @@ SOURCES: dict[str, list[Source]] = {
                lambda o: robogen.load_robogen_checkout(o["root"], _template(o, robogen.DEFAULT_TEMPLATE))),
         Source("file", "tasks_path", "ROBOGEN_TASKS",
                lambda o: robogen.load_robogen_records(o["tasks_path"], _template(o, robogen.DEFAULT_TEMPLATE))),
+        # Not tried by auto, as for GenSim: a RoboGen row must never silently become simeval's own suite.
+        Source("suite", "suite", None, lambda o: load_suite_tasks("robogen", o["suite"], _template(
+            o, robogen.DEFAULT_TEMPLATE)), auto=False),
     ],
     "bbsea": [
         Source("output", "root", "BBSEA_ROOT", lambda o: bbsea.load_bbsea_output(o["root"])),

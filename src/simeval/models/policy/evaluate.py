@@ -113,7 +113,7 @@ def sampler_action_error(policy: DiffusionPolicy, dataset, samplers: Mapping[str
 
 
 def best_and_worst_videos(policy: DiffusionPolicy, rows: Sequence[Mapping], seed: int, max_steps: int | None,
-                          camera: str, variation: Mapping | None, out_dir: str | os.PathLike) -> dict:
+                          camera: str, out_dir: str | os.PathLike) -> dict:
     """Roll out the best and the worst task (by success rate, then mean progress) of the first split again at
     `seed` with frames kept, and write `videos/<best|worst>_<split>_<task>.mp4`. Returns {which: path}."""
     split = rows[0]["split"]
@@ -124,8 +124,7 @@ def best_and_worst_videos(policy: DiffusionPolicy, rows: Sequence[Mapping], seed
         if which == "best" and row is ranked[0] and "worst" in out:
             out["best"] = out["worst"]  # one task only
             continue
-        var = variation if split == "variations" else None
-        rec = rollout_task(policy, row["task"], [seed], split=split, variation=var, max_steps=max_steps,
-                           keep_frames=True, video_camera=camera)
+        rec = rollout_task(policy, row["task"], [seed], split=split, variation=row.get("variation") or None,
+                           max_steps=max_steps, keep_frames=True, video_camera=camera)
         out[which] = str(write_video(rec["frames"][seed], Path(out_dir) / "videos" / f"{which}_{split}_{row['task']}.mp4"))
     return out

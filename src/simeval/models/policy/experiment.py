@@ -50,28 +50,28 @@ def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, see
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def run_splits(policy, plan: Mapping[str, Sequence[str]], seeds: Sequence[int], variation: Mapping | None,
+def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds: Sequence[int],
                max_steps: int | None, cache_file: str | os.PathLike, policy_step: int,
                progress: bool = False) -> list[dict]:
-    """plan: {split: [task, ...]}; `variations` rolls out with `variation`, the others without."""
+    """plan: {split: [(task, variation), ...]} (simeval.sim.splits.split_tasks); every (split, task) is rolled out
+    on `seeds`, its row cached in `cache_file` so a killed evaluation resumes. Each row records its variation."""
     from simeval.models.policy.evaluate import rollout_task
 
     cache_file = Path(cache_file)
     cache = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
     rows = []
-    todo = [(s, t) for s, tasks in plan.items() for t in tasks]
+    todo = [(s, t, dict(v or {})) for s, pairs in plan.items() for t, v in pairs]
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
-    for split, task in todo:
-        var = dict(variation or {}) if split == "variations" else {}
+    for split, task, var in todo:
         key = json.dumps([policy_step, split, task, list(seeds), var, max_steps], sort_keys=True)
         if key not in cache:
             cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps)
             atomic_write_text(cache_file, dumps_strict(cache))
-        rows.append(cache[key])
+        rows.append({**cache[key], "variation": var})
         if bar is not None:
             bar.update(1)
             bar.set_postfix(task=task, split=split, success=cache[key]["success"]["rate"])

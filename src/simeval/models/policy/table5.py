@@ -1,7 +1,7 @@
 """Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group.
 
     python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5]
-writes table5.md and table5.csv. Ours: success rate of the `variations` split (the paper's protocol: the group's
+writes table5.md and table5.csv. Ours: success rate of the `eval` split (the paper's protocol: the group's
 tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up).
 """
@@ -20,7 +20,7 @@ from simeval.results import atomic_write_text, identity_difference, read_results
 PAPER = {("gensim", "stacking"): 0.15, ("gensim", "placement"): 0.32, ("gensim", "piles"): 0.2,
          ("gensim", "assembling"): 0.08, ("robogen", "table-top"): 0.0, ("robogen", "ground"): 0.0,
          ("bbsea", "table-top"): 0.0, ("bbsea", "drawer"): 0.0}
-SPLITS = ("variations", "train", "heldout")
+SPLITS = ("eval", "train", "heldout")
 
 
 def build(records: list[dict]) -> list[dict]:
@@ -54,7 +54,7 @@ def _fmt(v) -> str:
 
 def write(rows: list[dict], out: str | Path) -> tuple[Path, Path]:
     out = Path(out)
-    head = ["Pipeline", "Task group", "Paper", "Ours: variations", "Ours: train", "Ours: held-out", "Policy", "Runs"]
+    head = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: train", "Ours: held-out", "Policy", "Runs"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     table = []
     for r in rows:

@@ -1,0 +1,144 @@
+"""Reproduce the paper's measurements for some pipelines with one command, at the cost a profile sets.
+
+    python experiments/paper.py --profile quick                        # minutes: every stage, tiny models
+    python experiments/paper.py --profile cpu --pipelines gensim       # one pipeline, all aspects, cpu presets
+    make paper PROFILE=quick        make evaluate PIPELINE=bbsea PROFILE=quick
+
+For each pipeline with a simeval suite (conf/pipeline/<name>.yaml `suite:`), it runs the entrypoints a user would
+type, as subprocesses, each into its own folder under outputs/paper/<profile>/:
+    collect/        src/collect.py: the profile's episodes of the first `tasks_per_group` tasks of every group
+    quality/        src/quality.py judge=oracle on those episodes (a VLM judge: run quality.py yourself, see README)
+    table4/         src/diversity.py per group and training-episode count (the paper's 10/20/40, scaled)
+    table5/         src/generalization.py per group: train, eval (varied) and held-out splits
+then rebuilds, from the result.json files only, tables/table4.*, tables/table5.*, figures/table4.png,
+figures/figure4.* and the HTML report, and prints where they are. Text diversity (Table 3) runs on the pipelines'
+real task lists: `make table3`, which `make paper` also runs.
+
+Resumable: a stage whose result.json exists is skipped, and the entrypoints resume their own work (collection
+per episode, training from checkpoints under outputs/paper/<profile>/checkpoints/). A failing stage stops the run
+with its exit status; rerun the same command after fixing the cause.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+PROFILES = ROOT / "experiments" / "profiles"
+
+
+def load_profile(name: str) -> dict:
+    path = PROFILES / f"{name}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
+        raise SystemExit(f"error: --profile {name}: no {path.relative_to(ROOT)}; profiles: {known}")
+    return yaml.safe_load(path.read_text())
+
+
+def suite_of(pipeline: str) -> str | None:
+    path = ROOT / "conf" / "pipeline" / f"{pipeline}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
+        raise SystemExit(f"error: --pipelines {pipeline}: no conf/pipeline/{pipeline}.yaml; pipelines: {known}")
+    return (yaml.safe_load(path.read_text()) or {}).get("suite")
+
+
+def groups_of(suite: str, tasks_per_group: int | None) -> dict[str, list[str]]:
+    """{group: the first `tasks_per_group` task names by name (all when None)}."""
+    from simeval.sim.spec import SUITES_DIR, load_suite
+
+    groups: dict[str, list[str]] = {}
+    for spec in sorted(load_suite(SUITES_DIR / suite), key=lambda s: s.name):
+        groups.setdefault(spec.group, []).append(spec.name)
+    return {g: names[:tasks_per_group] if tasks_per_group else names for g, names in sorted(groups.items())}
+
+
+def run(cmd: list[str], log: Path) -> None:
+    """Run one stage; its output goes to `log` (and the last lines to the console if it fails)."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    print(f"  $ {shlex.join(cmd)}", flush=True)
+    t0 = time.monotonic()
+    with log.open("w") as f:
+        p = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT)
+    if p.returncode != 0:
+        tail = log.read_text().splitlines()[-15:]
+        print("\n".join(f"    | {line}" for line in tail), file=sys.stderr)
+        print(f"error: stage failed with exit status {p.returncode} (log: {log}); fix the cause and rerun the "
+              "same command: finished stages are kept", file=sys.stderr)
+        raise SystemExit(p.returncode)
+    print(f"    done in {time.monotonic() - t0:.0f} s", flush=True)
+
+
+def entry(name: str) -> list[str]:
+    return [sys.executable, str(ROOT / "src" / f"{name}.py")]
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--profile", default="quick")
+    ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
+    ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")
+    ap.add_argument("--stages", default="collect,quality,table4,table5,report")
+    args = ap.parse_args(argv)
+    prof = load_profile(args.profile)
+    out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
+    stages = set(args.stages.split(","))
+    store, logs, ov = out / "episodes", out / "logs", prof["overrides"]
+    t_start = time.monotonic()
+    for pipeline in args.pipelines.split(","):
+        suite = suite_of(pipeline)
+        if not suite:
+            print(f"{pipeline}: no simeval suite (pipeline.suite is null): import its episodes with "
+                  "src/import_data.py and run the entrypoints on them; skipped here")
+            continue
+        groups = groups_of(suite, prof["tasks_per_group"])
+        print(f"{pipeline} ({args.profile}): groups {', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
+        for group, tasks in groups.items():
+            sel = f"tasks=[{','.join(tasks)}]"
+            if "collect" in stages:
+                run([*entry("collect"), f"pipeline={pipeline}", sel, f"episodes={prof['episodes']}", f"store={store}",
+                     *ov["collect"], f"hydra.run.dir={out / 'collect' / pipeline / group}"],
+                    logs / f"collect_{pipeline}_{group}.log")
+            for k in prof["world_model_episodes"] if "table4" in stages else []:
+                run_dir = out / "table4" / pipeline / group / f"episodes_{k}"
+                if not (run_dir / "result.json").exists():
+                    run([*entry("diversity"), f"pipeline={pipeline}", f"task_group={group}", f"episodes={k}",
+                         f"store={store}", f"checkpoint_dir={out / 'checkpoints' / 'world_model'}",
+                         *ov["diversity"], f"hydra.run.dir={run_dir}"],
+                        logs / f"table4_{pipeline}_{group}_{k}.log")
+            run_dir = out / "table5" / pipeline / group
+            if "table5" in stages and not (run_dir / "result.json").exists():
+                run([*entry("generalization"), f"pipeline={pipeline}", f"task_group={group}", sel, f"store={store}",
+                     f"checkpoint_dir={out / 'checkpoints' / 'policy'}", *ov["generalization"],
+                     f"hydra.run.dir={run_dir}"], logs / f"table5_{pipeline}_{group}.log")
+        run_dir = out / "quality" / pipeline
+        if "quality" in stages and not (run_dir / "result.json").exists():
+            run([*entry("quality"), f"episodes.store={store}", f"episodes.pipeline={pipeline}", *ov["quality"],
+                 f"cache_dir={out / 'cache'}", f"hydra.run.dir={run_dir}"], logs / f"quality_{pipeline}.log")
+    if "report" in stages:
+        tables, figures = out / "tables", out / "figures"
+        run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), f"--root={out / 'table4'}",
+             f"--out={tables / 'table4'}", f"--figure={figures / 'table4.png'}"], logs / "report_table4.log")
+        run([sys.executable, "-m", "simeval.models.policy.table5", f"--runs={out / 'table5'}",
+             f"--out={tables / 'table5'}"], logs / "report_table5.log")
+        run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}", f"report.out_dir={figures}"],
+            logs / "report_figure4.log")
+        run([*entry("report"), "report=html", f"report.runs_dir={out}", f"report.tables_dir={tables}",
+             f"report.figures_dir={figures}"], logs / "report_html.log")
+        print(f"HTML report: {out / 'report' / 'index.html'}")
+    print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
+    for sub in ("tables", "figures"):
+        for p in sorted((out / sub).glob("*")) if (out / sub).is_dir() else []:
+            print(f"  {p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}")
+
+
+if __name__ == "__main__":
+    main()
