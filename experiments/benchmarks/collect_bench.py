@@ -9,6 +9,12 @@
 - scaling: the same episodes with 1 and 2 worker processes (near-linear on an idle 2-core machine);
 - bytes per frame on disk, and read throughput of 40-step windows (the paper's GenSim chunk length).
 Writes outputs/bench/collect.json.
+
+`--suite bbsea` measures the BBSEA suite instead (the Panda under ee_pose control at 4 Hz, 60 physics substeps per
+recorded step): render bound, collection rate and ratio for one task per group, 1 and 2 workers on 2 episodes of
+each, bytes on disk. Writes outputs/bench/collect_bbsea.json.
+
+    python experiments/benchmarks/collect_bench.py [--suite gensim|bbsea]
 """
 
 from __future__ import annotations
@@ -28,14 +34,17 @@ sys.path.insert(0, str(ROOT / "src"))
 from simeval.collect import collect  # noqa: E402
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows  # noqa: E402
 from simeval.sim.objects import make_object  # noqa: E402
+import simeval.sim.panda as panda  # noqa: E402
 import simeval.sim.robot as robot  # noqa: E402
 from simeval.sim.robot import Arm  # noqa: E402
 from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
 from simeval.sim.articulated import set_joint_fraction  # noqa: E402
 from simeval.sim.env import find_task  # noqa: E402
-from simeval.sim.spec import sample_instance  # noqa: E402
+from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance  # noqa: E402
 from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World  # noqa: E402
 
+BBSEA_TASKS = ["bbsea-block-in-bin", "bbsea-stack-three-blocks", "bbsea-open-drawer-put-block",
+               "bbsea-put-block-in-drawer-and-close"]  # two per group of the BBSEA suite (--suite bbsea)
 # one per group of each suite: GenSim's 4 groups (oracle, pick-and-place), RoboGen's 2 (controller, ee_delta)
 TASKS = ["put-block-in-zone", "stack-block-tower", "sweep-pile-into-zone", "build-bridge",
          "open-laptop", "close-the-oven-door"]
@@ -72,7 +81,71 @@ def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[f
         robot.RENDER_MESH = default
 
 
+def bbsea_render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
+    spec = load_spec(SUITES_DIR / "bbsea" / f"{spec_name}.yaml")
+    inst = sample_instance(spec, 0)
+    with World(4.0) as w:
+        panda.Panda(w, render_mesh=mesh)
+        rng = np.random.default_rng(0)
+        for o in inst.objects:
+            make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
+            for k, f in enumerate(inst.joints.get(o.id, ())):
+                set_joint_fraction(w.c, o.body_ids[0], k, f)
+        w.settle(30)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            for cam in CAMERAS:
+                w.render(OBS_CAMERAS[cam], size)
+        return n / (time.perf_counter() - t0)
+
+
+def bbsea_main() -> None:
+    out: dict = {"benchmark": "collect_bbsea", "machine": machine(), "cameras": list(CAMERAS), "control_hz": 4.0,
+                 "physics_substeps_per_step": 60}
+    size = (64, 64)
+    out["render_mesh_default"] = panda.RENDER_MESH
+    for mesh in MESHES:  # the Panda drawn with its visual meshes and with its collision meshes (the default)
+        rows = {}
+        default, panda.RENDER_MESH = panda.RENDER_MESH, mesh
+        try:
+            for task in BBSEA_TASKS:
+                spec = load_spec(SUITES_DIR / "bbsea" / f"{task}.yaml")
+                bound = bbsea_render_bound(task, size, mesh)
+                t0 = time.perf_counter()
+                ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)),
+                                 pipeline="bbsea")
+                rate = ep.n_steps / (time.perf_counter() - t0)
+                rows[task] = {"render_bound_steps_per_s": round(bound, 1), "collect_steps_per_s": round(rate, 1),
+                              "ratio": round(rate / bound, 3), "episode_steps": ep.n_steps, "success": bool(ep.success)}
+        finally:
+            panda.RENDER_MESH = default
+        out[f"{mesh}_64x64"] = {"tasks": rows, "mean_ratio": round(float(np.mean([r["ratio"] for r in rows.values()])), 3),
+                                "mean_collect_steps_per_s": round(float(np.mean(
+                                    [r["collect_steps_per_s"] for r in rows.values()])), 1)}
+    specs = [load_spec(SUITES_DIR / "bbsea" / f"{t}.yaml") for t in BBSEA_TASKS]
+    settings = RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64))
+    timing = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers in (1, 2):
+            store = EpisodeStore(Path(tmp) / f"w{workers}")
+            t0 = time.perf_counter()
+            summary = collect(specs, range(2), store, settings, pipeline="bbsea", workers=workers, progress=False)
+            timing[workers] = time.perf_counter() - t0
+        steps = sum(r["steps"] for r in summary["new"])
+        size_bytes = sum(r["bytes"] for r in summary["new"])
+    out["scaling"] = {"episodes": len(specs) * 2, "seconds_1_worker": round(timing[1], 2),
+                      "seconds_2_workers": round(timing[2], 2), "speedup": round(timing[1] / timing[2], 2)}
+    out["disk"] = {"bytes_per_step_all_cameras": round(size_bytes / steps), "steps": steps}
+    save("collect_bbsea", out)
+
+
 def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--suite", choices=("gensim", "bbsea"), default="gensim")
+    if ap.parse_args().suite == "bbsea":
+        return bbsea_main()
     out: dict = {"benchmark": "collect", "machine": machine(),
                  "cameras": list(CAMERAS), "per_size": {}}
     out["render_mesh_default"] = robot.RENDER_MESH

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from simeval.episodes.store import EpisodeStore, read_meta, read_recording
 from simeval.errors import UserError
-from simeval.sim.action_spaces import EE_DELTA_KIND, JOINT_KIND
+from simeval.sim.action_spaces import EE_DELTA_KIND, EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
 
@@ -167,11 +167,12 @@ def _prepare_store(root: Path) -> None:
 
 def _check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:
     """An episode already stored counts as done only if it was recorded as `settings` asks (in the task's
-    action-space `kind`)."""
+    action-space `kind`). ee_pose tasks (the BBSEA suite) record at their own 4 Hz, whatever record.control_hz."""
     stored = read_recording(path)
     wanted = {"record.cameras": sorted(settings.cameras), "record.image_size": list(settings.image_size),
               "record.scene_view_size": list(settings.scene_view_size),
-              "record.control_hz": float(settings.control_hz), "action_space": kind}
+              "record.control_hz": EE_POSE_HZ if kind == EE_POSE_KIND else float(settings.control_hz),
+              "action_space": kind}
     for key, want in wanted.items():
         have = stored[key]
         if key == "record.scene_view_size" and have is None:
@@ -215,7 +216,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
         for seed in seeds:
             if store.exists_intact(pipeline, s.name, seed, var_of[s.name]):
                 _check_recorded_like(store.path_for(pipeline, s.name, seed, var_of[s.name]), settings,
-                                     EE_DELTA_KIND if s.action_space == "ee_delta" else JOINT_KIND)
+                                     {"ee_delta": EE_DELTA_KIND, "ee_pose": EE_POSE_KIND}.get(s.action_space, JOINT_KIND))
             else:
                 todo.append((s, seed))
     skipped = len(specs) * len(seeds) - len(todo)

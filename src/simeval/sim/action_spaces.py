@@ -8,7 +8,12 @@ import numpy as np
 
 from simeval.sim.robot import JOINT_ACTION_NAMES, JOINT_LOWER, JOINT_UPPER
 
-JOINT_KIND, PICK_PLACE_KIND = "joint_pos+suction", "pick_place_14d"
+JOINT_KIND, PICK_PLACE_KIND, EE_POSE_KIND = "joint_pos+suction", "pick_place_14d", "ee_pose+gripper"
+EE_POSE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
+EE_POSE_HZ = 4.0  # BBSEA's end-effector control rate
+# bounds of the ee_pose action: a box around the workspace and the drawer cabinet, quaternion components in [-1, 1]
+EE_POSE_LOW = np.array([-0.2, -0.6, 0.0, -1, -1, -1, -1, 0.0], np.float32)
+EE_POSE_HIGH = np.array([0.9, 0.6, 0.8, 1, 1, 1, 1, 1.0], np.float32)
 POSE14_NAMES = ("pose0_x", "pose0_y", "pose0_z", "pose0_qx", "pose0_qy", "pose0_qz", "pose0_qw",
                 "pose1_x", "pose1_y", "pose1_z", "pose1_qx", "pose1_qy", "pose1_qz", "pose1_qw")
 # bounds of the pick_place action: positions inside a box around the workspace, quaternion components in [-1, 1]
@@ -48,3 +53,11 @@ def ee_delta_action_space(control_hz: float) -> dict:
             "convention": "tool tip translation in the world frame; rotation: a small rotation about the world x, y, "
                           "z axes (Euler XYZ of the increment) applied to the commanded tool orientation; both "
                           "clipped to low/high; the commanded pose is integrated and reached by IK"}
+
+
+def ee_pose_action_space(control_hz: float = EE_POSE_HZ) -> dict:
+    """The Panda's absolute end-effector target per control step (simeval.sim.panda): grasp-point position,
+    orientation, gripper command."""
+    return {"kind": EE_POSE_KIND, "dims": list(EE_POSE_NAMES), "units": ["m"] * 3 + ["quat_xyzw"] * 4 + ["closed=1/open=0"],
+            "control_hz": float(control_hz), "low": EE_POSE_LOW.tolist(), "high": EE_POSE_HIGH.tolist(),
+            "frame": "world; the pose of panda_grasptarget (between the finger pads)"}

@@ -5,8 +5,10 @@
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(action)
 
-Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": (14,) float32} -- the state is 6 joint positions (rad),
-6 joint velocities (rad/s), the suction command in force (0/1) and whether an object is held (0/1) (`STATE_NAMES`).
+Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": float32} -- the state follows the task's robot (spec
+field `robot`; names in `state_names(robot)`): xarm6 (14): 6 joint positions (rad), 6 joint velocities (rad/s), the
+suction command in force (0/1) and whether an object is held (0/1) (simeval.sim.robot.STATE_NAMES); panda (16):
+7 joint positions, 7 velocities, the gripper opening (m) and the gripper command (simeval.sim.panda.STATE_NAMES).
 `info` carries `progress` (partial progress in [0, 1], the mean over the task's goals) and `success` (every goal
 done); the reward is the change in progress; `terminated` is success; `truncated` is the step limit.
 
@@ -38,6 +40,10 @@ Action spaces (`ACTION_SPACES`; each stored episode records the one it was recor
                   solution with the suction command through the same low-level step as `joint`. Suction on with
                   nothing held attaches what the cup touches: a free object rigidly, a moving link of an
                   articulated object by a point at the cup's tip.
+
+  ee_pose         kind `ee_pose+gripper` (Panda tasks), 8-d at the control rate (4 Hz by default, BBSEA's): the
+                  absolute grasp-point target [x, y, z (m), qx, qy, qz, qw, gripper (>= 0.5 closed)], reached
+                  within the step (simeval.sim.panda). A step that ends the episode parks the arm as above.
 A task's native action space is its spec's `action_space` (default joint); `make_env(task)` uses it.
 
 With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
@@ -57,10 +63,11 @@ import numpy as np
 from simeval.errors import UserError
 from simeval.sim.goals import still, task_progress
 from simeval.sim.objects import make_object
-from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, JOINT_KIND,  # noqa: F401 (re-exported)
-                                       PICK_PLACE_KIND, POSE_HIGH, POSE_LOW, ee_delta_action_space,
-                                       joint_action_space, pick_place_action_space)
-from simeval.sim.articulated import ARTICULATED, set_joint_fraction
+from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, EE_POSE_HIGH, EE_POSE_HZ,  # noqa: F401
+                                       EE_POSE_KIND, EE_POSE_LOW, JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,
+                                       ee_delta_action_space, ee_pose_action_space, joint_action_space,
+                                       pick_place_action_space)
+from simeval.sim.articulated import set_joint_fraction
 from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
 from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
                              scene_seed, task_seed)
@@ -69,9 +76,20 @@ from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TA
 # state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
 STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
 STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
-ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_delta": EE_DELTA_KIND}
+ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_delta": EE_DELTA_KIND,
+                 "ee_pose": EE_POSE_KIND}
+ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place", "ee_delta"), "panda": ("ee_pose",)}
 EE_MAX_LAG = 0.03  # m: the commanded tip of ee_delta stays within this of the real tip
 EE_STEPS_PER_PRIMITIVE = 150  # ee_delta's default step limit: 5 s at 30 Hz per `max_primitives` of the task
+
+
+def state_names(robot: str = "xarm6") -> tuple[str, ...]:
+    """The names of the state dimensions of `robot` (a spec's `robot` field)."""
+    if robot == "panda":
+        from simeval.sim.panda import STATE_NAMES as PANDA_STATE_NAMES
+
+        return PANDA_STATE_NAMES
+    return STATE_NAMES
 
 
 def find_task(task: str | TaskSpec) -> TaskSpec:
@@ -97,7 +115,7 @@ class SimEnv(_gym().Env):
 
     def __init__(self, task: str | TaskSpec, action_space: str | None = None, variation: dict | None = None,
                  image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"),
-                 control_hz: float = 30.0, max_steps: int | None = None, record_low_level: bool = False,
+                 control_hz: float | None = None, max_steps: int | None = None, record_low_level: bool = False,
                  scene_view_size: Sequence[int] | None = None, render_mode: str | None = None,
                  park_at_end: bool = True) -> None:
         from gymnasium import spaces
@@ -106,6 +124,12 @@ class SimEnv(_gym().Env):
         action_space = action_space or self.spec_task.action_space
         if action_space not in ACTION_SPACES:
             raise UserError(f"action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
+        robot = self.spec_task.robot
+        if action_space not in ROBOT_ACTION_SPACES[robot]:
+            raise UserError(f"action_space={action_space!r}: task {self.spec_task.name} (robot {robot}) takes "
+                            f"{', '.join(ROBOT_ACTION_SPACES[robot])}")
+        if control_hz is None:
+            control_hz = EE_POSE_HZ if action_space == "ee_pose" else 30.0
         self.cameras = tuple(cameras)
         unknown = [c for c in self.cameras if c not in OBS_CAMERAS]
         if unknown:
@@ -121,13 +145,21 @@ class SimEnv(_gym().Env):
         self.render_mode = render_mode
         self.park_at_end = bool(park_at_end)
         # joint: a generous bound on an oracle episode (~150-300 control steps per primitive)
-        per = {"joint": 400, "pick_place": 1, "ee_delta": EE_STEPS_PER_PRIMITIVE}[action_space]
+        # ee_pose: a primitive takes 20-40 control steps at 4 Hz
+        per = {"joint": 400, "pick_place": 1, "ee_delta": EE_STEPS_PER_PRIMITIVE, "ee_pose": 60}[action_space]
         self.max_steps = int(max_steps or (self.spec_task.max_primitives * per))
         h, w = self.image_size
+        if robot == "panda":
+            from simeval.sim.panda import STATE_HIGH as state_high, STATE_LOW as state_low
+        else:
+            state_low, state_high = STATE_LOW, STATE_HIGH
         self.observation_space = spaces.Dict({
             "rgb": spaces.Dict({c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}),
-            "state": spaces.Box(STATE_LOW, STATE_HIGH, dtype=np.float32)})
-        if action_space == "joint":
+            "state": spaces.Box(state_low, state_high, dtype=np.float32)})
+        if action_space == "ee_pose":
+            self.action_space = spaces.Box(EE_POSE_LOW, EE_POSE_HIGH, dtype=np.float32)
+            self.action_info = ee_pose_action_space(self.control_hz)
+        elif action_space == "joint":
             self.action_space = spaces.Box(np.array([*JOINT_LOWER, 0.0], np.float32),
                                            np.array([*JOINT_UPPER, 1.0], np.float32), dtype=np.float32)
             self.action_info = joint_action_space(self.control_hz)
@@ -168,6 +200,11 @@ class SimEnv(_gym().Env):
         self._steps += 1
         if self.mode == "joint":
             self.arm.apply(action)
+        elif self.mode == "ee_pose":
+            self.arm.apply(action)
+            if self.park_at_end and (self._info()["success"] or self._steps >= self.max_steps):
+                self._settle_ee(8)  # let what was just released come to rest before the arm leaves
+                self.arm.park()  # out of the cameras' view: the last observation shows the result
         elif self.mode == "ee_delta":
             self.apply_ee_delta(action)
         else:
@@ -248,17 +285,22 @@ class SimEnv(_gym().Env):
         rng = np.random.default_rng(task_seed(spec.name, seed).spawn(1)[0])
         piles = any(o.shape == "pile" for o in self.inst.objects)
         self.world = World(self.control_hz, solver_residual=PILE_SOLVER_RESIDUAL if piles else None)
-        self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
+        if spec.robot == "panda":
+            from simeval.sim.panda import Panda
+
+            self.arm = Panda(self.world, home_noise, rng)
+        else:
+            self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
             make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
-            if obj.shape in ARTICULATED:
-                for k, f in enumerate(self.inst.joints[obj.id]):
-                    set_joint_fraction(self.world.c, obj.body_ids[0], k, f)
+            for k, f in enumerate(self.inst.joints.get(obj.id, ())):  # articulated objects, jointed fixtures
+                set_joint_fraction(self.world.c, obj.body_ids[0], k, f)
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step
-        self._ee_pos = self.arm.tip()
-        self._ee_orn = tuple(self.world.c.getLinkState(self.arm.body, self.arm.ee)[5])
+        if spec.robot == "xarm6":  # ee_delta's commanded tool pose (the Panda takes absolute targets instead)
+            self._ee_pos = self.arm.tip()
+            self._ee_orn = tuple(self.world.c.getLinkState(self.arm.body, self.arm.ee)[5])
 
     def _on_low_level_step(self, action: np.ndarray) -> None:
         if self._low is None:
@@ -269,6 +311,14 @@ class SimEnv(_gym().Env):
         self._low["progress"].append(info["progress"])
         self._low["success"].append(info["success"])
         self._low["object_poses"].append(self.object_poses())
+
+    def _settle_ee(self, max_steps: int) -> None:
+        """ee_pose: hold the last target (whole control steps of physics, not logged) until every object rests."""
+        bodies = [b for o in self.inst.objects for b in o.body_ids]
+        for _ in range(max_steps):
+            if all(still(self.world, b) for b in bodies):
+                return
+            self.world.step()
 
     def _settle(self, max_steps: int) -> None:
         """Hold still until every object rests (at most `max_steps` control steps), so the step returns a

@@ -113,6 +113,15 @@ def in_bowl(world: World, obj: SimObject, bowl: SimObject, tol: float = 0.003) -
     return bool(np.linalg.norm(p[:2] - bp[:2]) <= inner - half_width + tol and bottom < bp[2] + bowl.size[2] / 2)
 
 
+def in_container(world: World, obj: SimObject, target: SimObject) -> bool:
+    """Inside a bowl, or inside a bin's or a drawer's box (simeval.sim.fixtures)."""
+    if target.shape in ("bin", "drawer_cabinet"):
+        from simeval.sim.fixtures import inside
+
+        return inside(world.c, pose(world, obj)[0], target.body_ids[0], target.shape, target.size)
+    return in_bowl(world, obj, target)
+
+
 def _matching(ok: list[list[bool]]) -> list[int | None]:
     """Maximum one-to-one assignment of rows (objects) to columns (targets) where ok[i][j]; row -> column."""
     match_col: dict[int, int] = {}
@@ -153,7 +162,7 @@ def container_assignment(world: World, inst: Instance, goal: GoalSpec, held: set
             good = good and p[2] - height(obj) / 2 < TABLE_Z + 0.015
             ok.append([good and in_zone(world, p, t) for t in targets])
         else:
-            ok.append([good and in_bowl(world, obj, t) for t in targets])
+            ok.append([good and in_container(world, obj, t) for t in targets])
     if goal.each:
         return movers, targets, _matching(ok)
     return movers, targets, [next((j for j, g in enumerate(row) if g), None) for row in ok]

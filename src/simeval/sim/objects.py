@@ -22,7 +22,8 @@ OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines,
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
 from simeval.sim.articulated import ARTICULATED  # noqa: E402 (articulated objects: simeval.sim.articulated)
 
-SHAPES = SHAPES + ARTICULATED
+FIXTURES = ("drawer_cabinet", "bin", "button")  # the BBSEA suite's fixtures (simeval.sim.fixtures)
+SHAPES = SHAPES + ARTICULATED + FIXTURES
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
 PARTICLE = 0.010  # edge of a pile's particle (Ravens' sweeping piles: 50 blocks of about 1 cm)
@@ -92,6 +93,10 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
         from simeval.sim.articulated import make_articulated
 
         obj.body_ids = [make_articulated(c, obj, x, y, yaw, table_z)]
+    elif obj.shape in FIXTURES:
+        from simeval.sim.fixtures import make_fixture
+
+        obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z)]
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
         r = sx / 2

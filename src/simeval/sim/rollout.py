@@ -16,8 +16,8 @@ import numpy as np
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
-from simeval.sim.action_spaces import joint_action_space, pick_place_action_space
-from simeval.sim.env import SimEnv
+from simeval.sim.action_spaces import ee_pose_action_space, joint_action_space, pick_place_action_space
+from simeval.sim.env import SimEnv, state_names
 from simeval.sim.oracle import next_primitive
 from simeval.sim.robot import STATE_NAMES
 from simeval.sim.spec import TaskSpec, check_variation
@@ -84,6 +84,8 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
     variation = check_variation([spec], variation)
     if spec.action_space == "ee_delta":
         return run_controller_episode(spec, seed, settings, pipeline, variation, final_frame_size)
+    if spec.action_space == "ee_pose":
+        return run_plan_episode(spec, seed, settings, pipeline, variation, final_frame_size)
     env = SimEnv(spec, "pick_place", variation, settings.image_size, settings.cameras,
                  control_hz=settings.control_hz, record_low_level=True, scene_view_size=settings.scene_view_size)
     try:
@@ -202,6 +204,57 @@ def _joint_fractions(env: SimEnv, obj) -> list[float]:
     return [joint_fraction(env.world.c, obj.body_ids[0], k) for k in range(len(env.inst.joints[obj.id]))]
 
 
+def run_plan_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeline: str, variation: dict,
+                     final_frame_size: tuple[int, int] | None = None) -> Episode:
+    """An ee_pose task (the BBSEA suite): its plan (simeval.sim.primitives.PlanPolicy) through
+    make_env(action_space="ee_pose") at the task's 4 Hz, one stored row per control step: the reset observation,
+    then each 8-d action and the observation it produced. `settings.control_hz` does not apply (the rate is
+    the task's); the plan and the row where each primitive starts are kept in `extra`. A failed episode is
+    returned like any other, with success False."""
+    from simeval.sim.primitives import PlanPolicy
+
+    env = SimEnv(spec, "ee_pose", variation, settings.image_size, settings.cameras,
+                 scene_view_size=settings.scene_view_size)
+    try:
+        obs, info = env.reset(seed=seed)
+        views = info.pop("scene_views")
+        rows, progress, poses, actions = [obs], [info["progress"]], [env.object_poses()], []
+        policy = PlanPolicy()
+        policy.reset(env)
+        while True:
+            action = policy(obs)
+            if action is None:
+                break
+            obs, _, terminated, truncated, info = env.step(action)
+            actions.append(np.asarray(env.arm.last_action, np.float32))  # as applied: replays bit for bit
+            rows.append(obs)
+            progress.append(info["progress"])
+            poses.append(env.object_poses())
+            if terminated or truncated:
+                break
+        success = info["success"]
+        final_view = env.world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
+        inst, hz = env.inst, env.control_hz
+    finally:
+        env.close()
+    t = len(actions)
+    if t == 0:
+        raise RuntimeError(f"{spec.name} seed {seed}: the plan made no move; is the task solved at start?")
+    prog = np.asarray(progress, np.float32)
+    return Episode(
+        pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
+        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
+        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
+        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
+        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
+        scene_views=views, control_hz=hz, source="simeval-suite", final_view=final_view,
+        action_space=ee_pose_action_space(hz), state_names=list(state_names(spec.robot)),
+        variation=variation, object_poses=np.stack(poses).astype(np.float32),
+        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
+                           for o in inst.objects},
+               "plan": [{p: n} for p, n in spec.plan], "plan_step": [int(x) for x in policy.plan_step]})
+
+
 # --- closed-loop evaluation ----------------------------------------------------------------------------------
 def _one_rollout(policy, task, seed: int, env_kwargs: dict, video_camera: str | None) -> dict:
     video_low = video_camera is not None and env_kwargs.get("action_space") == "pick_place"
@@ -232,11 +285,12 @@ def _one_rollout(policy, task, seed: int, env_kwargs: dict, video_camera: str | 
             "steps": steps, "gave_up": gave_up, "video": np.stack(frames) if frames else None}
 
 
-def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str = "joint",
+def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str | None = None,
                    variation: dict | None = None, image_size: Sequence[int] = (64, 64),
-                   cameras: Sequence[str] = ("top", "front"), max_steps: int | None = None, control_hz: float = 30.0,
+                   cameras: Sequence[str] = ("top", "front"), max_steps: int | None = None,
+                   control_hz: float | None = None,
                    video_camera: str | None = None, workers: int = 1) -> dict:
-    """Roll `policy` out once per seed through make_env(task, action_space, ...). Returns {"success": rate,
+    """Roll `policy` out once per seed through make_env(task, action_space, ...) (None: the task's own space). Returns {"success": rate,
     "progress": mean final progress, "episodes": [{seed, success, progress, steps, gave_up, video}]}; `video` is
     (N, H, W, 3) uint8 frames of `video_camera` (every control step, also for pick_place) or None.
     workers > 1 runs seeds in separate processes (spawned: the policy must pickle; each process has its own

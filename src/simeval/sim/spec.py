@@ -27,8 +27,14 @@ position of each of its joints as a fraction of the joint's limits, 0 = closed/l
 every joint or a list, one per joint). Goal type joint_range: `{type: joint_range, what: <object>, range: [lo, hi]}`
 (optionally `joint: k`, the k-th non-fixed joint, default 0) -- done when the joint's fraction is within [lo, hi].
 
-Task-level fields: `action_space` (the task's native action space for make_env: joint | pick_place | ee_delta;
-default joint) and `initial_state`: `random` (default: layout, colours, sizes and the arm's start drawn from the
+Panda tasks (the BBSEA suite) add `robot: panda`, `action_space: ee_pose` and a `plan`, the task's primitives in
+order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.primitives). Their
+fixtures (simeval.sim.fixtures: drawer_cabinet, bin, button) are URDF bodies too; the jointed ones (drawer_cabinet,
+button) take `joint_init` and joint_range goals like articulated objects; in_container also takes bins and
+drawer cabinets as `where`. The `size` knob ([x, y, z] m) resizes every instance of an object.
+
+Task-level fields: `action_space` (the task's native action space for make_env: joint | pick_place | ee_delta |
+ee_pose; default joint) and `initial_state`: `random` (default: layout, colours, sizes and the arm's start drawn from the
 episode seed, GenSim's protocol) or `fixed` (RoboGen's protocol: every episode starts from the scene of seed 0, bit
 for bit; the seed then drives only what the policy does, e.g. a controller's action noise).
 
@@ -61,7 +67,10 @@ from simeval.sim.world import WORKSPACE
 from simeval.errors import UserError
 
 GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone", "joint_range")
-ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta")  # a task's native action space (simeval.sim.env)
+ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta", "ee_pose")  # a task's native action space (simeval.sim.env)
+ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robot.Arm, simeval.sim.panda.Panda
+FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.fixtures with one joint (joint_init, joint_range)
+JOINTED = ARTICULATED + FIXTURE_JOINTED
 INITIAL_STATES = ("random", "fixed")
 
 
@@ -113,6 +122,8 @@ class TaskSpec:
     initial_state: str = "random"  # random | fixed (RoboGen: every episode from the scene of seed 0)
     # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.splits)
     variations: dict[str, dict] = field(default_factory=dict)
+    robot: str = "xarm6"
+    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.primitives
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -208,10 +219,10 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     for i, g in enumerate(goals):
         if g.type == "joint_range":
             o = objects[names.index(g.what[0])]
-            if o.shape not in ARTICULATED:
+            if o.shape not in JOINTED:
                 raise SpecError(f"{where}: goals[{i}]: joint_range needs an articulated object "
-                                f"({', '.join(ARTICULATED)}), '{o.name}' is a {o.shape}")
-            n = n_joints(SimObject(o.name, 0, o.shape, o.colors[0], o.size))
+                                f"({', '.join(JOINTED)}), '{o.name}' is a {o.shape}")
+            n = joint_count(SimObject(o.name, 0, o.shape, o.colors[0], o.size))
             if g.joint >= n:
                 raise SpecError(f"{where}: goals[{i}]: joint {g.joint} does not exist; a {o.shape} has {n} joint(s)")
     action_space = data.get("action_space", "joint")
@@ -220,12 +231,40 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     initial_state = data.get("initial_state", "random")
     if initial_state not in INITIAL_STATES:
         raise SpecError(f"{where}: initial_state {initial_state!r} is not one of {', '.join(INITIAL_STATES)}")
+    robot = data.get("robot", "xarm6")
+    if robot not in ROBOTS:
+        raise SpecError(f"{where}: robot {robot!r} is not one of {', '.join(ROBOTS)}")
     spec = TaskSpec(name=str(data["name"]), group=str(data["group"]), description=str(data["description"]),
                     objects=objects, goals=goals, end_effector=data.get("end_effector", "suction"),
                     max_primitives=int(data.get("max_primitives", 10)), home_noise=float(data.get("home_noise", 0.0)),
-                    source=source, action_space=action_space, initial_state=initial_state)
+                    source=source, action_space=action_space, initial_state=initial_state, robot=robot,
+                    plan=_parse_plan(data.get("plan", []), where, names))
     spec.variations = _parse_variations(data.get("variations"), spec, where)
     return spec
+
+
+def joint_count(obj) -> int:
+    """Joints of an articulated object or a jointed fixture (one)."""
+    return 1 if obj.shape in FIXTURE_JOINTED else n_joints(obj)
+
+
+def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
+    """`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]` -> [(primitive, object name)]."""
+    from simeval.sim.primitives import PRIMITIVES  # the primitives' names live with their code
+
+    if not isinstance(plan, list):
+        raise SpecError(f"{where}: plan must be a list of {{primitive: object}}, got {plan!r}")
+    out = []
+    for i, step in enumerate(plan):
+        if not (isinstance(step, dict) and len(step) == 1):
+            raise SpecError(f"{where}: plan[{i}] must be one {{primitive: object}}, got {step!r}")
+        (prim, obj), = step.items()
+        if prim not in PRIMITIVES:
+            raise SpecError(f"{where}: plan[{i}]: primitive {prim!r} is not one of {', '.join(PRIMITIVES)}")
+        if obj not in names:
+            raise SpecError(f"{where}: plan[{i}]: {prim} names object {obj!r}, not among {names}")
+        out.append((prim, obj))
+    return out
 
 
 VARIATION_SPLITS = ("eval",)  # the splits a task spec may vary; `train` is the spec itself, `heldout` whole tasks
@@ -297,7 +336,7 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
     return [s for s in specs if s.group == group]
 
 
-OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise")
+OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size")  # size: [x, y, z] m, every instance
 ROBOT_KNOBS = ("home_noise",)
 SCENE_KNOBS = ("initial_state",)
 
@@ -365,9 +404,18 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
             jn = knobs["joint_init_noise"]
             if isinstance(jn, bool) or not isinstance(jn, (int, float)) or not 0 <= jn <= 0.5:
                 raise SpecError(f"{key}.joint_init_noise: expected a fraction in [0, 0.5], got {jn!r}")
-        if ("scale" in knobs or "joint_init_noise" in knobs) and not any(
+        if "size" in knobs:
+            sz = knobs["size"]
+            if not (isinstance(sz, (list, tuple)) and len(sz) == 3
+                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
+                raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
+            knobs["size"] = [float(x) for x in sz]
+        if "joint_init_noise" in knobs and not any(
+                o.name == name and o.shape in JOINTED for s in specs for o in s.objects):
+            raise SpecError(f"{key}: joint_init_noise applies to articulated objects ({', '.join(JOINTED)}) only")
+        if "scale" in knobs and not any(
                 o.name == name and o.shape in ARTICULATED for s in specs for o in s.objects):
-            raise SpecError(f"{key}: scale and joint_init_noise apply to articulated objects "
+            raise SpecError(f"{key}: scale applies to articulated objects "
                             f"({', '.join(ARTICULATED)}) only")
         out[name] = knobs
     return out
@@ -469,7 +517,7 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
             chosen = [str(rng.choice(free))] * n
         named_color[o.name] = chosen[0] if chosen else (colors[0] if not o.color_as else named_color[o.color_as])
         used_colors.update(chosen)  # zones too: a roof on a pad of its own colour would be hard to see
-        size = o.size
+        size = tuple(float(x) for x in v.get("size", o.size))
         if o.shape in ARTICULATED and "scale" in v:
             size = _scaled(o.size, rng, v["scale"])  # one factor per object name: its instances alike
         objects += [SimObject(o.name, i, o.shape, chosen[i], size, on_table=o.on_table) for i in range(n)]
@@ -490,9 +538,9 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
     objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
     joints: dict[str, list[float]] = {}
     for obj in objects:  # drawn after the layout, so tasks without articulated objects keep their streams
-        if obj.shape in ARTICULATED:
+        if obj.shape in JOINTED:
             o, noise = spec.object(obj.name), float(variation.get(obj.name, {}).get("joint_init_noise", 0.0))
-            k = n_joints(obj)
+            k = joint_count(obj)
             init = list(o.joint_init) * k if len(o.joint_init) == 1 else list(o.joint_init)
             if len(init) != k:
                 raise SpecError(f"task {spec.name}: joint_init of '{o.name}' gives {len(o.joint_init)} fractions, "

@@ -71,6 +71,9 @@ SOURCES: dict[str, list[Source]] = {
     "bbsea": [
         Source("output", "root", "BBSEA_ROOT", lambda o: bbsea.load_bbsea_output(o["root"])),
         Source("file", "tasks_path", "BBSEA_TASKS", lambda o: bbsea.load_bbsea_list(o["tasks_path"])),
+        # simeval's own BBSEA-style suite; not tried by auto, as for GenSim
+        Source("suite", "suite", None, lambda o: load_suite_tasks("bbsea", o["suite"], _template(o, "{description}")),
+               auto=False),
     ],
     "custom": [
         Source("file", "tasks_path", None,
