@@ -26,10 +26,12 @@ def test_debug_overlay_is_the_tiny_preset():
 
 
 def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(tmp_path):
-    r = run("pipeline=bbsea", "task_group=drawer", f"store={tmp_path}/store", cwd=tmp_path)
+    r = run("pipeline=custom", "task_group=drawer", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2
-    assert r.stderr.count("\n") == 1 and "bbsea" in r.stderr and "no simeval suite" in r.stderr
+    assert r.stderr.count("\n") == 1 and "custom" in r.stderr and "no simeval suite" in r.stderr
     assert "src/import_data.py" in r.stderr
+    r = run("pipeline=bbsea", "task_group=drawer", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and "src/collect.py pipeline=bbsea task_group=drawer" in r.stderr
     r = run("pipeline=gensim", "task_group=stacking", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and "src/collect.py pipeline=gensim task_group=stacking" in r.stderr
 
