@@ -51,19 +51,22 @@ report-table3: setup ## rebuild Table 3 from the result.json files only (no reru
 figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tables + figure under outputs/figures/
 	$(PY) src/agreement.py scores_path=$(HUMAN_SCORES) hydra.run.dir=outputs/figures/figure3
 
-contact-sheet: setup ## one image per suite task (initial scene + final state): outputs/figures/contact_sheet_gensim.png
-	$(PY) experiments/contact_sheet.py --suite gensim
+SUITES ?= gensim robogen bbsea
+contact-sheet: setup ## one sheet per suite (initial scene + final state per task): outputs/figures/contact_sheet_<suite>.png
+	for s in $(SUITES); do $(PY) experiments/contact_sheet.py --suite $$s || exit 1; done
 
-oracle-table: setup ## oracle success of every suite task over 100 seeds: outputs/tables/oracle_success_gensim.md (resumable)
-	$(PY) experiments/oracle_success.py --suite gensim --seeds 100
+oracle-table: setup ## oracle success of every suite task, 100 seeds (+ eval variations, 20): outputs/tables/oracle_success_<suite>*.md (resumable)
+	for s in $(SUITES); do $(PY) experiments/oracle_success.py --suite $$s --seeds 100 || exit 1; \
+	  $(PY) experiments/oracle_success.py --suite $$s --seeds 20 --split eval || exit 1; done
 
-collect: setup ## collect 40 oracle episodes per GenSim-style task into outputs/episodes (resumable)
-	$(PY) src/collect.py pipeline=gensim episodes=40
+collect: setup ## collect 40 oracle episodes per task of every suite into outputs/episodes (resumable)
+	for s in $(SUITES); do $(PY) src/collect.py pipeline=$$s episodes=40 || exit 1; done
 
 bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/text_diversity_bench.py
 	$(PY) experiments/benchmarks/judge_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py
+	$(PY) experiments/benchmarks/collect_bench.py --suite bbsea
 	$(PY) experiments/benchmarks/policy_bench.py --presets tiny cpu authors_gensim
 	$(PY) experiments/benchmarks/world_model_bench.py
 
