@@ -23,7 +23,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.data import PolicyDataset
-    from simeval.models.policy.experiment import checkpoint_key, episodes_for, run_splits
+    from simeval.models.policy.experiment import checkpoint_key, episodes_for, resolve_action_space, run_splits
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import group_and_heldout, split_tasks
@@ -36,7 +36,8 @@ def main(cfg: DictConfig) -> None:
                                        None if cfg.heldout_tasks is None else list(cfg.heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
-    pcfg = PolicyConfig.from_mapping(OmegaConf.to_container(cfg.policy.model, resolve=True))
+    model = OmegaConf.to_container(cfg.policy.model, resolve=True)
+    pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
     settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
     train_eps, val_eps, metas = episodes_for(EpisodeStore(cfg.store), cfg.pipeline.name, trained,
                                              cfg.episodes_per_task, cfg.val_episodes_per_task, pcfg.cameras)

@@ -170,3 +170,21 @@ def test_config_mistakes_name_the_key():
         PolicyConfig(**{**TINY, "crop": 40})
     with pytest.raises(UserError, match="unknown key"):
         PolicyConfig.from_mapping({**TINY, "hidden": 3})
+
+
+def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_refused():
+    from simeval.models.policy.experiment import resolve_action_space
+    from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+
+    robogen = select_specs(load_suite(SUITES_DIR / "robogen"), None, "table_top")
+    bbsea = select_specs(load_suite(SUITES_DIR / "bbsea"), None, "drawer")
+    gensim = select_specs(load_suite(SUITES_DIR / "gensim"), None, "piles")
+    assert [resolve_action_space("native", g) for g in (gensim, robogen, bbsea)] == ["joint", "ee_delta", "ee_pose"]
+    assert resolve_action_space("pick_place", gensim) == "pick_place"
+    with pytest.raises(UserError, match="different action spaces"):
+        resolve_action_space("native", [robogen[0], bbsea[0]])
+    ep = moving_square_episode()
+    ep.action_space = {"kind": "joint_pos+suction"}  # as the store records joint-target episodes
+    assert PolicyDataset([ep], "joint", ["top"], (16, 16), 4, 2).action_dim == 7
+    with pytest.raises(UserError, match=r"recorded as 'joint_pos\+suction', the policy's action_space=ee_delta"):
+        PolicyDataset([ep], "ee_delta", ["top"], (16, 16), 4, 2)

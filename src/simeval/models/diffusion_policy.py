@@ -39,13 +39,17 @@ from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, cent
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
 SCHEDULERS = ("ddpm", "ddim")
+POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place")
 
 
 @dataclass
 class PolicyConfig:
     """The model and its sampler; `policy` config group (conf/policy/*.yaml). Validated on construction."""
 
-    action_space: str = "joint"  # joint (7-d joint targets + suction) | pick_place (14-d poses)
+    # native (the task group's own: joint for GenSim-style, ee_delta for RoboGen-style, ee_pose for BBSEA-style
+    # tasks; resolved by simeval.models.policy.experiment.resolve_action_space) | joint | ee_delta | ee_pose (one
+    # action per control step) | pick_place (14-d poses, one per primitive)
+    action_space: str = "joint"
     cameras: list = field(default_factory=lambda: ["top"])
     image_size: list = field(default_factory=lambda: [64, 64])
     crop: int = 56
@@ -72,8 +76,9 @@ class PolicyConfig:
                 "step_embed_dim", "kernel_size", "n_groups", "num_train_timesteps", "num_inference_steps")
         for k in ints:
             require_whole(f"policy.model.{k}", getattr(self, k))
-        if self.action_space not in ("joint", "pick_place"):
-            raise UserError(f"policy.action_space={self.action_space!r}: expected joint or pick_place")
+        if self.action_space not in POLICY_ACTION_SPACES:
+            raise UserError(f"policy.action_space={self.action_space!r}: expected one of "
+                            f"{', '.join(POLICY_ACTION_SPACES)}")
         if not self.cameras:
             raise UserError("policy.cameras must name at least one camera (an image policy), got []")
         if len(self.image_size) != 2 or self.crop > min(self.image_size):

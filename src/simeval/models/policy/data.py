@@ -1,7 +1,8 @@
 """Training windows for the Diffusion Policy, held in memory (a task group at 64x64 is a few hundred MB at most).
 
     PolicyDataset(episodes, ...): per episode the observation before each action (image per camera, state) and the
-        action. `action_space="joint"`: every control step; `"pick_place"`: one step per primitive (the 14-d
+        action. `action_space` joint, ee_delta or ee_pose: every control step (the stored episode must have been
+        recorded in that action space); `"pick_place"`: one step per primitive (the 14-d
         pose and the observation where the primitive starts, `high_level_step`).
     sample(batch_size, generator) -> {"rgb": {cam: (B, To, H, W, 3) uint8}, "state": (B, To, S), "action": (B, Tp, A)}
 
@@ -28,7 +29,8 @@ from torch.nn import functional as F
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
 
-ACTION_SPACES = ("joint", "pick_place")
+LOW_LEVEL = ("joint", "ee_delta", "ee_pose")  # one stored action per control step
+ACTION_SPACES = (*LOW_LEVEL, "pick_place")
 
 
 def _resize(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -47,8 +49,15 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
     if missing:
         raise UserError(f"{ep.task} seed {ep.seed}: no camera {missing} in the stored episode (has {sorted(ep.rgb)});"
                         f" set policy.cameras to stored ones or collect with record.cameras including them")
-    if action_space == "joint":  # the store's rows 0..T-1 with the action taken after each; row T (the final
-        idx = np.arange(ep.n_actions)  # observation) has only padding for an action, which no policy should learn
+    if action_space in LOW_LEVEL:  # the store's rows 0..T-1 with the action taken after each; row T (the final
+        from simeval.sim.env import ACTION_SPACES as KINDS  # observation) has only padding for an action
+
+        stored = (ep.action_space or {}).get("kind")  # None: an episode built in memory, not read from a store
+        if stored is not None and stored != KINDS[action_space]:
+            raise UserError(f"{ep.task} seed {ep.seed}: its actions were recorded as {stored!r}, the policy's "
+                            f"action_space={action_space} needs {KINDS[action_space]!r}; set policy.model."
+                            f"action_space=native (the tasks' own) or collect in that action space")
+        idx = np.arange(ep.n_actions)
         action = np.asarray(ep.action, np.float32)[: ep.n_actions]
     else:
         if ep.high_level_action is None or len(ep.high_level_action) == 0:

@@ -78,3 +78,16 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
     if bar is not None:
         bar.close()
     return rows
+
+
+def resolve_action_space(requested: str, specs) -> str:
+    """The policy's action space: `requested`, or for "native" the one every task of `specs` is recorded in
+    (joint for GenSim-style tasks, ee_delta for RoboGen-style, ee_pose for BBSEA-style); a group mixing them
+    cannot be trained as one policy."""
+    if requested != "native":
+        return requested
+    native = sorted({s.action_space for s in specs})
+    if len(native) != 1:
+        raise UserError(f"policy.model.action_space=native: the tasks use different action spaces "
+                        f"({', '.join(f'{s.name}: {s.action_space}' for s in specs)}); name one")
+    return native[0]
