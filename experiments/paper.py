@@ -136,6 +136,8 @@ def main(argv: list[str] | None = None) -> None:
              f"report.figures_dir={figures}"], logs / "report_html.log")
         print(f"HTML report: {out / 'report' / 'index.html'}")
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
+    if "report" not in stages:
+        print("  (no tables or figures: they are built by the report stage, --stages ...,report)")
     for sub in ("tables", "figures"):
         for p in sorted((out / sub).glob("*")) if (out / sub).is_dir() else []:
             print(f"  {p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}")

@@ -43,9 +43,9 @@ def main(cfg: DictConfig) -> None:
     seeds = range(cfg.seed_offset, cfg.seed_offset + cfg.episodes)
     knobs = OmegaConf.to_container(cfg.variation, resolve=True)["knobs"]
     variation, per_task = knobs, None
+    heldout = heldout_of(specs, load_heldout(suite_dir, suite))  # read for every split: a broken file is an error
     if cfg.variation.split != "train":  # train: every selected task, held-out ones too (the world model's data)
-        pairs = split_tasks(specs, cfg.variation.split, heldout_of(specs, load_heldout(suite_dir, suite)),
-                            eval_override=knobs)
+        pairs = split_tasks(specs, cfg.variation.split, heldout, eval_override=knobs)
         if not pairs:
             raise UserError(f"variation={cfg.variation.split}: none of the selected tasks "
                             f"({', '.join(s.name for s in specs)}) is in that split; see {suite_dir}/splits.yaml "

@@ -37,7 +37,7 @@ def main(cfg: DictConfig) -> None:
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
     window = WindowSpec(**wm["window"])
-    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, bool(cfg.pipeline.get("suite")))
+    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"))
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
                     preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),

@@ -116,3 +116,29 @@ def test_collect_variation_eval_stores_each_task_with_its_own_variation(tmp_path
                         "tasks=[stack-two-blocks]", "episodes=1", f"store={store}",
                         f"hydra.run.dir={tmp_path / 'run2'}"], cwd=ROOT, env=env, capture_output=True, text=True)
     assert p.returncode == 2 and "variation=heldout: none of the selected tasks (stack-two-blocks)" in p.stderr
+
+
+def test_a_broken_splits_file_is_one_line_with_where_and_why(tmp_path):
+    suite = _suite(tmp_path, "g1: {heldout: [c\n")
+    with pytest.raises(SpecError) as e:
+        load_heldout(suite, load_suite(suite))
+    msg = str(e.value)
+    assert "\n" not in msg and "splits.yaml" in msg and "line" in msg and "column" in msg
+
+
+def test_a_non_finite_action_is_refused_not_stepped():
+    import numpy as np
+
+    from simeval.errors import UserError
+    from simeval.sim.env import make_env
+
+    for task in ("open-laptop", "bbsea-open-drawer"):
+        env = make_env(task, image_size=(16, 16), cameras=("top",))
+        env.reset(seed=0)
+        bad = env.action_space.sample()
+        bad[0] = np.nan
+        with pytest.raises(UserError, match="non-finite"):
+            env.step(bad)
+        obs, *_ = env.step(env.action_space.sample())  # the environment is still usable
+        assert np.all(np.isfinite(obs["state"]))
+        env.close()

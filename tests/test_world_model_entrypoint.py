@@ -96,3 +96,9 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
                   "open_loop_state_error"):
             assert math.isfinite(ev[k]) and ev[k] >= 0, k
         assert ev["image_error_per_pixel"] == pytest.approx(ev["image_error"] / (16 * 16 * 3))
+
+
+def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tmp_path):
+    r = run("pipeline=bbsea", "task_group=table-top", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "the bbsea suite's groups are drawer, table" in r.stderr and "task_group=table-top episodes" not in r.stderr

@@ -94,16 +94,25 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     return values
 
 
-def store_source(store: str | Path, pipeline: str, group: str, camera: str, has_suite: bool):
-    """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it."""
+def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None):
+    """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
+    (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none)."""
     from simeval.episodes.dataset import StoreSource, store_paths_for
 
     try:
         paths = store_paths_for(store, pipeline, group)
     except UserError as e:
-        how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40"
-               if has_suite else f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its "
-                                 f"episodes into the store with src/import_data.py")
+        if not suite:
+            how = (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into "
+                   "the store with src/import_data.py")
+        else:
+            from simeval.sim.spec import SUITES_DIR, load_suite
+
+            groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
+            how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40"
+                   if group in groups or group == "all" else
+                   f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
+                   f"pipeline={pipeline} task_group={groups[0]} episodes=40), or import episodes of yours")
         raise UserError(f"{e}; {how}") from None
     return StoreSource(paths, camera)
 

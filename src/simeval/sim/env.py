@@ -196,6 +196,8 @@ class SimEnv(_gym().Env):
         if action.shape != self.action_space.shape:
             raise UserError(f"action_space={self.mode!r} takes {self.action_space.shape[0]} values per action, "
                             f"got shape {action.shape}")
+        if not np.all(np.isfinite(action)):  # NaN targets leave the solver's state non-finite and later steps hang
+            raise UserError(f"action_space={self.mode!r}: the action has non-finite values {action.tolist()}")
         low = None
         self._steps += 1
         if self.mode == "joint":

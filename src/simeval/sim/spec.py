@@ -298,7 +298,8 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as e:
-        raise SpecError(f"cannot read task spec {path}: {e}") from e
+        raise SpecError(f"cannot read task spec {path}: {' '.join(str(e).split())}") from e  # one line, with the
+        # YAML error's line, column and what it expected
     return parse_spec(data, str(path))
 
 

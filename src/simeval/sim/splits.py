@@ -36,7 +36,7 @@ def load_heldout(suite_dir: str | os.PathLike, specs: list[TaskSpec]) -> dict[st
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError) as e:
-        raise SpecError(f"cannot read {path}: {e}") from e
+        raise SpecError(f"cannot read {path}: {' '.join(str(e).split())}") from e  # one line, line/column kept
     groups = {s.group: [t.name for t in specs if t.group == s.group] for s in specs}
     if not isinstance(raw, dict):
         raise SpecError(f"{path}: expected a mapping group -> {{heldout: [task, ...]}}, got {type(raw).__name__}")
