@@ -32,7 +32,7 @@ from common import ROOT, machine, save  # noqa: E402
 sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.collect import collect  # noqa: E402
-from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows  # noqa: E402
+from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_meta  # noqa: E402
 from simeval.sim.objects import make_object  # noqa: E402
 import simeval.sim.panda as panda  # noqa: E402
 import simeval.sim.robot as robot  # noqa: E402
@@ -180,7 +180,8 @@ def main() -> None:
             timing[workers] = time.perf_counter() - t0
         steps = sum(r["steps"] for r in summary["new"])
         size_bytes = sum(r["bytes"] for r in summary["new"])
-        paths = store.paths()
+        # windows of one action space (a training set never mixes them): the joint-target (GenSim-style) episodes
+        paths = [p for p in store.paths() if read_meta(p)["action_space"]["kind"] == "joint_pos+suction"]
         t0 = time.perf_counter()
         windows = sum(1 for _ in iter_windows(paths, WindowSpec(length=40), camera="top"))
         read_s = time.perf_counter() - t0
