@@ -130,8 +130,12 @@ def main(argv: list[str] | None = None) -> None:
              f"--episodes={','.join(map(str, prof['world_model_episodes']))}"], logs / "report_table4.log")
         run([sys.executable, "-m", "simeval.models.policy.table5", f"--runs={out / 'table5'}",
              f"--out={tables / 'table5'}"], logs / "report_table5.log")
-        run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}", f"report.out_dir={figures}"],
-            logs / "report_figure4.log")
+        if "judge=oracle" in ov["quality"]:  # ground truth scores completion only; Figure 4 plots both scores
+            print("  Figure 4 (scene alignment vs completion) needs a model judge: run src/quality.py judge=openai "
+                  "(see README) on these episodes, then src/report.py report=figure4")
+        else:
+            run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}",
+                 f"report.out_dir={figures}"], logs / "report_figure4.log")
         run([*entry("report"), "report=html", f"report.runs_dir={out}", f"report.tables_dir={tables}",
              f"report.figures_dir={figures}"], logs / "report_html.log")
         print(f"HTML report: {out / 'report' / 'index.html'}")
