@@ -179,23 +179,34 @@ def run_controller_episode(spec: TaskSpec, seed: int, settings: RecordSettings, 
         inst = env.inst
     finally:
         env.close()
-    t = len(actions)
-    if t == 0:
+    if not actions:
         raise RuntimeError(f"{spec.name} seed {seed}: the controller made no move; is the task solved at start?")
+    return _low_level_episode(
+        spec, seed, pipeline, inst, settings.cameras, rows, actions, progress, poses, success=success, views=views,
+        final_view=final_view, control_hz=settings.control_hz,
+        action_space=ee_delta_action_space(settings.control_hz), state_names=STATE_NAMES, variation=variation,
+        extra={"initial_state": spec.initial_state, "noise_std": settings.noise_std,
+               "joint_fractions": {"initial": inst.joints, "final": joints_final}})
+
+
+def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, rows: list, actions: list,
+                       progress: list, poses: list, *, success: bool, views, final_view, control_hz: float,
+                       action_space: dict, state_names, variation: dict, extra: dict) -> Episode:
+    """The stored episode of a closed-loop rollout: `rows` = the reset observation then one per action (T + 1),
+    the last row's action repeated as padding (format 2, simeval.episodes.store)."""
+    t = len(actions)
     prog = np.asarray(progress, np.float32)
     return Episode(
         pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
-        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
+        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in cameras},
         state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
         reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
         is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
-        scene_views=views, control_hz=settings.control_hz, source="simeval-suite", final_view=final_view,
-        action_space=ee_delta_action_space(settings.control_hz), state_names=list(STATE_NAMES),
+        scene_views=views, control_hz=control_hz, source="simeval-suite", final_view=final_view,
+        action_space=action_space, state_names=list(state_names),
         variation=variation, object_poses=np.stack(poses).astype(np.float32),
         extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                           for o in inst.objects},
-               "initial_state": spec.initial_state, "noise_std": settings.noise_std,
-               "joint_fractions": {"initial": inst.joints, "final": joints_final}})
+                           for o in inst.objects}, **extra})
 
 
 def _joint_fractions(env: SimEnv, obj) -> list[float]:
@@ -237,22 +248,13 @@ def run_plan_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeli
         inst, hz = env.inst, env.control_hz
     finally:
         env.close()
-    t = len(actions)
-    if t == 0:
+    if not actions:
         raise RuntimeError(f"{spec.name} seed {seed}: the plan made no move; is the task solved at start?")
-    prog = np.asarray(progress, np.float32)
-    return Episode(
-        pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
-        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
-        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
-        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
-        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
-        scene_views=views, control_hz=hz, source="simeval-suite", final_view=final_view,
-        action_space=ee_pose_action_space(hz), state_names=list(state_names(spec.robot)),
-        variation=variation, object_poses=np.stack(poses).astype(np.float32),
-        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                           for o in inst.objects},
-               "plan": [{p: n} for p, n in spec.plan], "plan_step": [int(x) for x in policy.plan_step]})
+    return _low_level_episode(
+        spec, seed, pipeline, inst, settings.cameras, rows, actions, progress, poses, success=success, views=views,
+        final_view=final_view, control_hz=hz, action_space=ee_pose_action_space(hz),
+        state_names=state_names(spec.robot), variation=variation,
+        extra={"plan": [{p: n} for p, n in spec.plan], "plan_step": [int(x) for x in policy.plan_step]})
 
 
 # --- closed-loop evaluation ----------------------------------------------------------------------------------
