@@ -22,10 +22,7 @@ pressed down), table_doors (two doors hinged at the sides, joints 0 and 1)."""
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -239,14 +236,10 @@ def _with_board(d: Design, size) -> Design:
 
 
 def write_urdf(text: str) -> str:
-    """The URDF in the temp folder, once per distinct text (atomic: parallel workers never read half a file)."""
-    path = os.path.join(tempfile.gettempdir(), f"simeval-artic-{hashlib.sha1(text.encode()).hexdigest()[:16]}.urdf")
-    if not os.path.exists(path):
-        tmp = f"{path}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    return path
+    """The URDF in the temp folder, once per distinct text (simeval.sim.urdf_files)."""
+    from simeval.sim.urdf_files import write_temp_urdf
+
+    return write_temp_urdf(text, "artic")
 
 
 def object_design(obj) -> Design:

@@ -15,10 +15,7 @@ text (written once per parameter set, atomically, so parallel workers never read
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import tempfile
 
 import numpy as np
 
@@ -113,13 +110,9 @@ def button_urdf(size, rgba) -> str:
 
 
 def _write(text: str, kind: str) -> str:
-    path = os.path.join(tempfile.gettempdir(), f"simeval-{kind}-{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf")
-    if not os.path.exists(path):
-        tmp = f"{path}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    return path
+    from simeval.sim.urdf_files import write_temp_urdf
+
+    return write_temp_urdf(text, kind)
 
 
 def make_fixture(c, shape: str, size, rgba, x: float, y: float, yaw: float, table_z: float) -> int:

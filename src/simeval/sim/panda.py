@@ -60,9 +60,7 @@ def render_urdf(mesh: str = "collision") -> str:
     """The Panda's URDF for loading: pybullet_data's as it is (`visual`), or a copy (written once per process
     in the temp folder) whose visual geometry is the collision meshes (`collision`), as simeval.sim.robot does
     for the xArm6. Physics is the same either way (collision geometry is untouched)."""
-    import hashlib
     import os
-    import tempfile
 
     import pybullet_data
 
@@ -75,13 +73,9 @@ def render_urdf(mesh: str = "collision") -> str:
         text = f.read()
     text = text.replace("package://meshes/visual/", "package://meshes/collision/")
     text = text.replace("package://meshes/", os.path.join(os.path.dirname(src), "meshes") + os.sep)
-    out = os.path.join(tempfile.gettempdir(), f"simeval-panda-render-{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf")
-    if not os.path.exists(out):
-        tmp = f"{out}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, out)  # atomic: parallel workers never read a half-written file
-    return out
+    from simeval.sim.urdf_files import write_temp_urdf
+
+    return write_temp_urdf(text, "panda-render")
 
 
 def down_quat(yaw: float) -> np.ndarray:

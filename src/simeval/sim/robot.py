@@ -46,9 +46,7 @@ def render_urdf(mesh: str = "collision") -> str:
     visual geometry points at the collision meshes (convex decompositions, about 100x fewer triangles than the
     visual STLs): TinyRenderer then draws the arm several times faster and the image barely changes (the
     collection benchmark measures both). `mesh="visual"` returns pybullet_data's URDF as it is."""
-    import hashlib
     import os
-    import tempfile
 
     import pybullet_data
 
@@ -65,13 +63,9 @@ def render_urdf(mesh: str = "collision") -> str:
     text = re.sub(r"package://xarm_description/meshes/xarm6/visual/(\w+)\.stl",
                   r"package://xarm_description/meshes/xarm6/collision/\1_vhacd.obj", text)
     text = text.replace("package://xarm_description/", meshes)
-    out = os.path.join(tempfile.gettempdir(), f"simeval-xarm6-render-{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf")
-    if not os.path.exists(out):
-        tmp = f"{out}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, out)  # atomic: parallel workers never read a half-written file
-    return out
+    from simeval.sim.urdf_files import write_temp_urdf
+
+    return write_temp_urdf(text, "xarm6-render")
 
 
 class Arm:
