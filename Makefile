@@ -75,8 +75,8 @@ table5: setup ## paper Table 5: Diffusion Policy per GenSim group (cpu preset; n
 	for g in $(TABLE5_GROUPS); do $(PY) src/generalization.py task_group=$$g || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
-report-table5: setup ## rebuild Table 5 from the generalization result.json files only: outputs/tables/table5.{md,csv}
-	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5
+report-table5: setup ## rebuild Table 5 + figure from result.json files only: outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
+	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png
 
 # Table 4 (dynamics diversity): one world model per (GenSim group, 10/20/40 episodes) on the episodes `make collect`
 # stored; WM_PRESET=paper for the authors' sizes (a GPU job). BBSEA/RoboGen need imported episodes (src/import_data.py).
@@ -87,7 +87,7 @@ table4: setup ## paper Table 4: world-model eval error at 10/20/40 episodes per 
 	for g in $(TABLE4_GROUPS); do $(PY) src/diversity.py pipeline=gensim task_group=$$g world_model=$(WM_PRESET) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
-report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md}, outputs/figures/table4.png) from result.json files only
+report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}) from result.json files only
 	$(PY) experiments/world_model_table4.py
 
 world-model-control: setup ## synthetic control for dynamics diversity: outputs/figures/world_model_control.png
@@ -123,6 +123,12 @@ evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make
 # The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
 # outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.
 RUNS ?= outputs/runs
-.PHONY: report-html
+.PHONY: report-html report
 report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) of RUNS=folder: RUNS/report/index.html
 	$(PY) src/report.py report=html report.runs_dir=$(RUNS)
+
+# Every table and figure again from the result.json files on disk (experiments/report_all.py; nothing is rerun):
+# Tables 3, 4 and 5 with their figures, Figure 4 when quality runs with a model judge exist, and the HTML report of
+# RUNS. A step with no runs prints one line saying what makes them and is skipped; the others still run.
+report: setup ## rebuild EVERY table and figure from result.json files only (no reruns); steps without runs are skipped with a note
+	$(PY) experiments/report_all.py --html-runs $(RUNS)

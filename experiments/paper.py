@@ -10,9 +10,10 @@ type, as subprocesses, each into its own folder under outputs/paper/<profile>/:
     quality/        src/quality.py judge=oracle on those episodes (a VLM judge: run quality.py yourself, see README)
     table4/         src/diversity.py per group and training-episode count (the paper's 10/20/40, scaled)
     table5/         src/generalization.py per group: train, eval (varied) and held-out splits
-then rebuilds, from the result.json files only, tables/table4.*, tables/table5.*, figures/table4.png,
-figures/figure4.* and the HTML report, and prints where they are. Text diversity (Table 3) runs on the pipelines'
-real task lists: `make table3`, which `make paper` also runs.
+then rebuilds, from the result.json files only (experiments/report_all.py, as `make report` does), tables/table4.*,
+tables/table5.*, figures/table4.*, figures/table5.* (success with Wilson intervals per group and split),
+figures/figure4.* (with a model judge) and the HTML report, and prints where they are. Text diversity (Table 3)
+runs on the pipelines' real task lists: `make table3`, which `make paper` also runs.
 
 Resumable: a stage whose result.json exists is skipped, and the entrypoints resume their own work (collection
 per episode, training from checkpoints under outputs/paper/<profile>/checkpoints/). A failing stage stops the run
@@ -61,8 +62,9 @@ def groups_of(suite: str, tasks_per_group: int | None) -> dict[str, list[str]]:
     return {g: names[:tasks_per_group] if tasks_per_group else names for g, names in sorted(groups.items())}
 
 
-def run(cmd: list[str], log: Path) -> None:
-    """Run one stage; its output goes to `log` (and the last lines to the console if it fails)."""
+def run(cmd: list[str], log: Path, echo: bool = False) -> None:
+    """Run one stage; its output goes to `log` (and the last lines to the console if it fails; all of it with
+    `echo`)."""
     log.parent.mkdir(parents=True, exist_ok=True)
     print(f"  $ {shlex.join(cmd)}", flush=True)
     t0 = time.monotonic()
@@ -74,6 +76,8 @@ def run(cmd: list[str], log: Path) -> None:
         print(f"error: stage failed with exit status {p.returncode} (log: {log}); fix the cause and rerun the "
               "same command: finished stages are kept", file=sys.stderr)
         raise SystemExit(p.returncode)
+    if echo:
+        print("\n".join(f"    {line}" for line in log.read_text().splitlines()))
     print(f"    done in {time.monotonic() - t0:.0f} s", flush=True)
 
 
@@ -123,22 +127,12 @@ def main(argv: list[str] | None = None) -> None:
         if "quality" in stages and not (run_dir / "result.json").exists():
             run([*entry("quality"), f"episodes.store={store}", f"episodes.pipeline={pipeline}", *ov["quality"],
                  f"cache_dir={out / 'cache'}", f"hydra.run.dir={run_dir}"], logs / f"quality_{pipeline}.log")
-    if "report" in stages:
+    if "report" in stages:  # tables and figures from the result.json files only, as `make report` builds them
         tables, figures = out / "tables", out / "figures"
-        run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), f"--root={out / 'table4'}",
-             f"--out={tables / 'table4'}", f"--figure={figures / 'table4.png'}",
-             f"--episodes={','.join(map(str, prof['world_model_episodes']))}"], logs / "report_table4.log")
-        run([sys.executable, "-m", "simeval.models.policy.table5", f"--runs={out / 'table5'}",
-             f"--out={tables / 'table5'}"], logs / "report_table5.log")
-        if "judge=oracle" in ov["quality"]:  # ground truth scores completion only; Figure 4 plots both scores
-            print("  Figure 4 (scene alignment vs completion) needs a model judge: run src/quality.py judge=openai "
-                  "(see README) on these episodes, then src/report.py report=figure4")
-        else:
-            run([*entry("report"), "report=figure4", f"report.runs_dir={out / 'quality'}",
-                 f"report.out_dir={figures}"], logs / "report_figure4.log")
-        run([*entry("report"), "report=html", f"report.runs_dir={out}", f"report.tables_dir={tables}",
-             f"report.figures_dir={figures}"], logs / "report_html.log")
-        print(f"HTML report: {out / 'report' / 'index.html'}")
+        run([sys.executable, str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5,figure4,html",
+             f"--table4-runs={out / 'table4'}", f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
+             f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
+             f"--tables={tables}", f"--figures={figures}"], logs / "report.log", echo=True)
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:
         print("  (no tables or figures: they are built by the report stage, --stages ...,report)")

@@ -17,7 +17,7 @@ def test_seeds_pool_and_the_table_shows_paper_and_interval(tmp_path):
     piles = next(r for r in rows if r["group"] == "piles")
     assert piles["paper"] == 0.2 and piles["eval"]["k"] == 6 and piles["eval"]["n"] == 20
     assert piles["eval"]["ci"][0] == pytest.approx(0.1455, abs=1e-3)  # Wilson 6/20
-    md, _ = write(rows, tmp_path / "table5")
+    md = write(rows, tmp_path / "table5")["md"]
     line = next(x for x in md.read_text().splitlines() if "| piles |" in x)
     assert "0.20 |" in line and "0.30 [0.15, 0.52] (6/20)" in line
 

@@ -1,28 +1,32 @@
-"""Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group.
+"""Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group, as tables
+and a figure.
 
-    python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5]
-writes table5.md and table5.csv. Ours: success rate of the `eval` split (the paper's protocol: the group's
-tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
-runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up).
+    python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5] [--figure outputs/figures/table5.png]
+writes table5.{csv,md,tex} and table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
+group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
+runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
+paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
+No generalization result.json under --runs: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
+import sys
 from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.metrics.intervals import wilson_interval
 from simeval.report.paper_groups import suite_group
-from simeval.results import atomic_write_text, identity_difference, read_results
+from simeval.report.paper_values import TABLE5 as PAPER
+from simeval.report.paper_values import TABLE5_MEANING
+from simeval.report.tables import write_table
+from simeval.results import identity_difference, read_results
 
-# paper Table 5: GenSim reports step-wise reward (1.0 = success), RoboGen/BBSEA success rate
-# keyed by our suites' group names (simeval.report.paper_groups: the paper's "Table-Top" is table_top / table)
-PAPER = {("gensim", "stacking"): 0.15, ("gensim", "placement"): 0.32, ("gensim", "piles"): 0.2,
-         ("gensim", "assembling"): 0.08, ("robogen", "table_top"): 0.0, ("robogen", "ground"): 0.0,
-         ("bbsea", "table"): 0.0, ("bbsea", "drawer"): 0.0}
-SPLITS = ("eval", "train", "heldout")
+METRIC = "generalization"
+SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
+PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
+               "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
 
 def build(records: list[dict]) -> list[dict]:
@@ -54,33 +58,91 @@ def _fmt(v) -> str:
     return "-" if v is None else f"{v['rate']:.2f} [{v['ci'][0]:.2f}, {v['ci'][1]:.2f}] ({v['k']}/{v['n']})"
 
 
-def write(rows: list[dict], out: str | Path) -> tuple[Path, Path]:
-    out = Path(out)
+def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
+    """`<out>.csv`, `<out>.md` and `<out>.tex` (booktabs): {suffix: path}."""
     head = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: train", "Ours: held-out", "Policy", "Runs"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    table = []
-    for r in rows:
-        cells = [r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}",
-                 *(_fmt(r[s]) for s in SPLITS), r["policy"] or "-", str(r["runs"])]
-        table.append(cells)
-        lines.append("| " + " | ".join(cells) + " |")
-    note = ("\nSuccess rate with Wilson 95% interval (successes/rollouts). Paper: GenSim step-wise reward, "
-            "RoboGen/BBSEA success rate; '-' = not run.\n")
-    md = atomic_write_text(out.with_suffix(".md"), "\n".join(lines) + "\n" + note)
-    import io
+    table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}",
+              *(_fmt(r[s]) for s in SPLITS), r["policy"] or "-", str(r["runs"])] for r in rows]
+    notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
+             TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:]]
+    paths = write_table(out, head, table, notes=notes, label="tab:table5",
+                        caption="Diffusion Policy trained per task group: success rate on the group's tasks under "
+                                "variations (eval), on the training distribution (train) and on held-out tasks.")
+    return {p.suffix.lstrip("."): p for p in paths}
 
-    buf = io.StringIO()
-    csv.writer(buf).writerows([head, *table])
-    return md, atomic_write_text(out.with_suffix(".csv"), buf.getvalue())
+
+def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
+    """Success rate with its Wilson 95% interval per group and split, one panel per pipeline, successes/rollouts
+    above each interval and the paper's value as a dashed line over its group. Written as `path` with each suffix
+    of `formats`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from simeval.report.figures import save_figure
+
+    pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
+    per = {p: [r for r in rows if r["pipeline"] == p] for p in pipelines}
+    fig, axes = plt.subplots(1, len(pipelines), figsize=(1.6 + 1.25 * len(rows), 4.2), sharey=True, squeeze=False,
+                             gridspec_kw={"width_ratios": [len(per[p]) for p in pipelines]})
+    for ax, p in zip(axes[0], pipelines):
+        for i, r in enumerate(per[p]):
+            ran = False
+            for j, (split, (_, color, marker)) in enumerate(PLOT_SPLITS.items()):
+                v = r[split]
+                if v is None:
+                    continue
+                ran, x, (lo, hi) = True, i + (j - 1) * 0.27, v["ci"]
+                ax.errorbar(x, v["rate"], yerr=[[v["rate"] - lo], [hi - v["rate"]]], fmt=marker, color=color, ms=5,
+                            capsize=3, lw=1.4)
+                ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
+                            va="bottom", fontsize=6.5, color=color)
+            if r["paper"] is not None:
+                ax.hlines(r["paper"], i - 0.45, i + 0.45, colors="k", linestyles="--", lw=1.3, zorder=0)
+            if not ran:
+                ax.text(i, 0.5, "not run", ha="center", va="center", rotation=90, color="0.55", fontsize=8)
+        for i in range(1, len(per[p])):
+            ax.axvline(i - 0.5, color="0.85", lw=0.8)
+        ax.set_xticks(range(len(per[p])), [r["group"] for r in per[p]], fontsize=8)
+        ax.set_xlim(-0.5, len(per[p]) - 0.5)
+        ax.set_ylim(-0.04, 1.12)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_title(p)
+    axes[0][0].set_ylabel("success rate (Wilson 95% interval)")
+    handles = [Line2D([], [], color=c, marker=m, ls="-", label=label) for label, c, m in PLOT_SPLITS.values()]
+    handles.append(Line2D([], [], color="k", ls="--", label=TABLE5_MEANING))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    policies = sorted({r["policy"] for r in rows if r["policy"]})
+    fig.suptitle("Table 5: Diffusion Policy success per task group"
+                 + (f" (policy {', '.join(policies)})" if policies else " (no runs)"))
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    path = Path(path)
+    written = [save_figure(fig, path.with_suffix(f".{fmt}"), dpi=150) for fmt in formats]  # byte-reproducible
+    plt.close(fig)
+    return written
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="paper Table 5 from generalization result.json files")
     ap.add_argument("--runs", default="outputs", help="folder searched for result.json files")
-    ap.add_argument("--out", default="outputs/tables/table5", help="output path without suffix")
+    ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
+    ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
     args = ap.parse_args(argv)
-    md, _ = write(build(read_results(args.runs, metric="generalization")), args.out)
-    print(md.read_text())
+    try:
+        records = read_results(args.runs, metric=METRIC)
+        if not records:
+            raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
+                            "src/generalization.py), or give --runs the folder that holds them")
+        rows = build(records)
+        written = write(rows, args.out)
+        figures = plot(rows, args.figure)
+    except UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print(written["md"].read_text())
+    print("wrote", ", ".join(str(p) for p in [*written.values(), *figures]))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,151 @@
+"""Paper Table 4 from dynamics_diversity result.json records: the world model's eval error after training on 3
+numbers of episodes per task, per pipeline and group, the paper's values (simeval.report.paper_values) beside ours.
+
+    rows = build(read_results(root, "dynamics_diversity"), episodes=(10, 20, 40))
+    write(rows, "outputs/tables/table4", episodes=(10, 20, 40))   # table4.csv (numbers), .md, .tex
+    plot(rows, "outputs/figures/table4.png")                      # and table4.pdf beside it
+
+One row per (pipeline, group, world-model preset) that has runs, plus a paper-only row for every paper cell that has
+none. `ours_<k>` is the mean eval image error (summed over pixels at the preset's resolution) of the runs trained
+on the k-th of `episodes` (several seeds of one cell are averaged; failed runs are left out), `ours_<k>_per_pixel`
+the same per pixel and colour channel, `runs_<k>` how many runs were averaged. The paper sums over 128x128x3
+pixels: compare shapes (how the error falls with episodes) and per-pixel values, not raw magnitudes.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+from simeval.errors import UserError
+from simeval.report.paper_groups import suite_group
+from simeval.report.paper_values import TABLE4 as PAPER
+from simeval.report.paper_values import TABLE4_EPISODES as EPISODES
+from simeval.report.paper_values import TABLE4_PIXELS as PAPER_PIXELS
+from simeval.report.tables import to_csv, to_latex, to_markdown
+from simeval.results import atomic_write_text
+
+METRIC = "dynamics_diversity"
+
+
+def _order(pipeline: str) -> int:
+    return list(PAPER).index(pipeline) if pipeline in PAPER else len(PAPER)
+
+
+def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISODES, preset: str | None = None
+          ) -> list[dict]:
+    """Rows of Table 4 (see the module docstring); `episodes`: our training-episode counts, one per paper column
+    (the quick profile trains on 1/2/4 in the columns of the paper's 10/20/40); `preset`: only runs of that
+    world_model preset."""
+    episodes = [int(k) for k in episodes]
+    if len(episodes) != len(EPISODES):
+        raise UserError(f"episodes={episodes}: give {len(EPISODES)} counts, one per paper column "
+                        f"({'/'.join(map(str, EPISODES))})")
+    cells: dict = defaultdict(list)
+    for rec in records:
+        ident = rec.get("identity") or {}
+        if rec.get("metric") != METRIC or rec.get("status") != "ok" or (preset and ident.get("preset") != preset):
+            continue
+        cells[(ident["pipeline"], ident["task_group"], int(ident["episodes"]), ident["preset"])].append(rec)
+    keys = sorted({(p, g, pr) for p, g, _, pr in cells} | {(p, g, None) for p in PAPER for g in PAPER[p]},
+                  key=lambda x: (_order(x[0]), x[1], str(x[2])))
+    ours_pg = {(p, suite_group(p, g)) for p, g, pr in keys if pr is not None}
+    rows = []
+    for p, g, pr in keys:
+        if pr is None and (p, g) in ours_pg:
+            continue
+        row = {"pipeline": p, "group": g, "preset": pr or ""}
+        for k, ours_k in zip(EPISODES, episodes):
+            row[f"paper_{k}"] = PAPER.get(p, {}).get(suite_group(p, g), {}).get(k)
+            row[f"episodes_{k}"] = ours_k
+            recs = cells.get((p, g, ours_k, pr), [])
+            vals = [r["values"]["eval"]["image_error"] for r in recs]
+            pix = [r["values"]["eval"]["image_error_per_pixel"] for r in recs]
+            row[f"ours_{k}"] = sum(vals) / len(vals) if vals else None
+            row[f"ours_{k}_per_pixel"] = sum(pix) / len(pix) if pix else None
+            row[f"runs_{k}"] = len(recs)
+        rows.append(row)
+    return rows
+
+
+def _fmt(v, digits: int = 1) -> str:
+    return "—" if v is None else f"{v:.{digits}f}"
+
+
+def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) -> tuple[list[str], list[list[str]],
+                                                                                           list[str]]:
+    """(header, body, notes) of the Markdown and LaTeX tables: 'paper / ours' per column, ours per pixel."""
+    header = (["Method", "Task group", "preset"] + [f"Eval error on {k} ep (paper / ours)" for k in EPISODES]
+              + [f"ours per pixel at {'/'.join(map(str, EPISODES))}"])
+    body = [[r["pipeline"], r["group"], r["preset"] or "—"]
+            + [f"{_fmt(r[f'paper_{k}'])} / {_fmt(r[f'ours_{k}'])}" for k in EPISODES]
+            + [" / ".join(_fmt(r[f"ours_{k}_per_pixel"], 5) for k in EPISODES)] for r in rows]
+    notes = [f"Paper: image error summed over 128x128x3 pixels in [0, 1] (per pixel = value / {PAPER_PIXELS}). "
+             "Ours: the same sum at the preset's resolution; '—' = not run"]
+    if [int(k) for k in episodes] != list(EPISODES):
+        notes.append(f"Ours trained on {'/'.join(map(str, episodes))} episodes per task in the columns of the "
+                     f"paper's {'/'.join(map(str, EPISODES))}")
+    return header, body, notes
+
+
+def write(rows: list[dict], stem: str | Path, episodes: tuple[int, ...] | list[int] = EPISODES) -> dict[str, Path]:
+    """`<stem>.csv` (every number of the rows, for scripts), `<stem>.md` and `<stem>.tex` (booktabs) as shown."""
+    stem = Path(stem)
+    header, body, notes = display(rows, episodes)
+    caption = ("World-model evaluation error with a different number of training episodes per task (paper Table 4: "
+               "for a diverse task group the error drops as the training episodes increase).")
+    return {"csv": atomic_write_text(stem.with_suffix(".csv"),
+                                     to_csv(list(rows[0]), [[r[c] for c in rows[0]] for r in rows])),
+            "md": atomic_write_text(stem.with_suffix(".md"), to_markdown(header, body, notes)),
+            "tex": atomic_write_text(stem.with_suffix(".tex"),
+                                     to_latex(header, body, caption=caption, label="tab:table4", notes=notes))}
+
+
+def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
+    """Eval error per pixel against training episodes per task: the paper's (left) and ours (right), one colour
+    per pipeline/group in both panels, one marker per preset. Written as `path` with each suffix of `formats`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from simeval.report.figures import save_figure
+
+    groups = list(dict.fromkeys((r["pipeline"], suite_group(r["pipeline"], r["group"])) for r in rows))
+    color = {pg: f"C{i % 10}" for i, pg in enumerate(groups)}
+    presets = list(dict.fromkeys(r["preset"] for r in rows if r["preset"]))
+    marker = {pr: "os^Dv<>"[i % 7] for i, pr in enumerate(presets)}
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10.5, 4.2))
+    drawn_paper, drawn_ours = set(), set()
+    for r in rows:
+        pg = (r["pipeline"], suite_group(r["pipeline"], r["group"]))
+        paper = [r[f"paper_{k}"] for k in EPISODES]
+        if all(v is not None for v in paper) and pg not in drawn_paper:
+            drawn_paper.add(pg)
+            ax1.plot(EPISODES, [v / PAPER_PIXELS for v in paper], "o--", color=color[pg], alpha=0.8)
+        ours = [(r[f"episodes_{k}"], r[f"ours_{k}_per_pixel"]) for k in EPISODES if r[f"ours_{k}_per_pixel"] is not None]
+        if ours:
+            drawn_ours.add(pg)
+            ax2.plot(*zip(*ours), "-", marker=marker[r["preset"]], color=color[pg])
+    ours_ticks = sorted({r[f"episodes_{k}"] for r in rows for k in EPISODES})
+    for ax, title, ticks, drawn in ((ax1, "paper (128x128)", EPISODES, drawn_paper),
+                                    (ax2, "ours", ours_ticks, drawn_ours)):
+        ax.set_xticks(ticks)
+        ax.set_xlabel("training episodes per task")
+        ax.set_ylabel("eval error per pixel")
+        ax.set_title(title)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        if not drawn:
+            ax.text(0.5, 0.5, "no runs", ha="center", va="center", transform=ax.transAxes, color="0.5")
+    handles = [Line2D([], [], color=color[(p, g)], lw=2, label=f"{p}/{g}") for p, g in groups]
+    handles += [Line2D([], [], color="0.3", ls="--", marker="o", label="paper")]
+    handles += [Line2D([], [], color="0.3", ls="-", marker=marker[pr], label=f"ours ({pr})") for pr in presets]
+    fig.legend(handles=handles, loc="center left", bbox_to_anchor=(0.83, 0.5), fontsize=8, frameon=False)
+    fig.suptitle("Table 4: world-model evaluation error vs training episodes")
+    fig.tight_layout(rect=(0, 0, 0.83, 1))
+    path = Path(path)
+    written = [save_figure(fig, path.with_suffix(f".{fmt}"), dpi=120) for fmt in formats]  # byte-reproducible
+    plt.close(fig)
+    return written
