@@ -4,11 +4,12 @@
     python experiments/report_all.py --only table4,table5 --table4-runs outputs/paper/quick/table4 ...
 
 Steps, each with the same library calls as its own command:
-    table3   Table 3 (text diversity)      src/report.py report=table3       tables/table3*.{csv,md,tex}
-    table4   Table 4 (world models)        experiments/world_model_table4.py tables/table4.{csv,md,tex}, figures/table4.{png,pdf}
-    table5   Table 5 (Diffusion Policy)    python -m simeval.models.policy.table5  tables/table5.*, figures/table5.{png,pdf}
-    figure4  Figure 4 (quality)            src/report.py report=figure4      figures/figure4.{png,pdf} + table
-    html     the HTML report               src/report.py report=html         <html-runs>/report/index.html
+    table3   Table 3 (text diversity)    as src/report.py report=table3             tables/table3*.{csv,md,tex}
+    table4   Table 4 (world models)      as experiments/world_model_table4.py       tables/table4.*, figures/table4.*
+    table5   Table 5 (Diffusion Policy)  as python -m simeval.models.policy.table5  tables/table5.*, figures/table5.*
+    figure4  Figure 4 (quality)          as src/report.py report=figure4            figures/figure4.{png,pdf,md,...}
+    html     the HTML report             as src/report.py report=html               <html-runs>/report/index.html
+(tables: .csv, .md and .tex; figures: .png and .pdf)
 A step whose inputs are missing (no result.json of its metric; for Figure 4, no quality run scored by a model
 judge) prints one line saying what to run and is skipped; the others still run. A step that fails on its inputs
 (an unreadable result.json, two runs of one cell with different settings) prints one line and the command exits
@@ -134,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         print(f"{TITLES[step]}: " + ", ".join(str(p) for p in written), flush=True)
     if failed:
-        print(f"error: {', '.join(TITLES[s] for s in failed)} not rebuilt (see above); the others were", file=sys.stderr)
+        print(f"error: {', '.join(TITLES[s] for s in failed)} not rebuilt (see above); the others were",
+              file=sys.stderr)
         return 2
     return 0
 

@@ -44,3 +44,44 @@ def tiny_sim_store(tmp_path_factory) -> Path:
     assert r.returncode == 0, r.stderr[-2000:]
     assert len(list((root / "store" / "gensim" / "stack-two-blocks").glob("episode_*.h5"))) == 3
     return root / "store"
+
+
+def _run_entrypoint(name: str, *args: str, cwd: Path) -> None:
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "0"}
+    r = subprocess.run([sys.executable, str(ROOT / "src" / f"{name}.py"), *args], cwd=cwd, env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+@pytest.fixture(scope="session")
+def world_model_runs(tmp_path_factory) -> Path:
+    """A folder of 6 real dynamics_diversity runs, as `make table4` makes them: src/diversity.py debug=tiny (the
+    tiny world model) on two synthetic groups of simeval.models.synthetic written into a store as pipeline gensim
+    ("shared": one dynamics, "diverse": two; 2 tasks x 4 episodes of 12 actions, 16x16), trained on the first 1, 2
+    and 3 episodes per task and evaluated on all 4. Takes seconds; a report or notebook test copies it."""
+    from simeval.models.synthetic import write_group
+
+    root = tmp_path_factory.mktemp("world_model_runs")
+    for kind in ("shared", "diverse"):
+        write_group(root / "store", kind, n_tasks=2, episodes=4, n_actions=12, size=16, pipeline="gensim")
+    _run_entrypoint("diversity", "debug=tiny", "pipeline=gensim", f"store={root / 'store'}",
+                    f"checkpoint_dir={root / 'ck'}", "progress=false", "threads=1", "eval_episodes=[1,4]",
+                    "heldout_episodes=null", f"hydra.sweep.dir={root / 'runs' / 'table4'}", "-m",
+                    "task_group=shared,diverse", "episodes=1,2,3", cwd=root)
+    return root / "runs"
+
+
+@pytest.fixture(scope="session")
+def policy_run(tiny_sim_store, tmp_path_factory) -> Path:
+    """One real generalization run folder, as `make table5` makes them: src/generalization.py debug=tiny (the tiny
+    policy, 20 training steps) on tiny_sim_store's stack-two-blocks episodes, one rollout on the train split and one
+    under a perturbed robot start (eval). About 10 s."""
+    root = tmp_path_factory.mktemp("policy_run")
+    _run_entrypoint("generalization", "debug=tiny", f"store={tiny_sim_store}", "task_group=stacking",
+                    "tasks=[stack-two-blocks]", f"checkpoint_dir={root / 'ck'}", "eval.splits=[train,eval]",
+                    "eval.variation={robot: {home_noise: 0.1}}", "eval.videos=false", "eval.sampler_check=false",
+                    f"hydra.run.dir={root / 'table5' / 'stacking'}", cwd=root)
+    return root / "table5" / "stacking"

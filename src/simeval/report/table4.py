@@ -80,8 +80,8 @@ def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) 
     body = [[r["pipeline"], r["group"], r["preset"] or "—"]
             + [f"{_fmt(r[f'paper_{k}'])} / {_fmt(r[f'ours_{k}'])}" for k in EPISODES]
             + [" / ".join(_fmt(r[f"ours_{k}_per_pixel"], 5) for k in EPISODES)] for r in rows]
-    notes = [f"Paper: image error summed over 128x128x3 pixels in [0, 1] (per pixel = value / {PAPER_PIXELS}). "
-             "Ours: the same sum at the preset's resolution; '—' = not run"]
+    notes = [(f"Paper: image error summed over 128x128x3 pixels in [0, 1] (per pixel = value / {PAPER_PIXELS}). "
+              "Ours: the same sum at the preset's resolution; '—' = not run")]
     if [int(k) for k in episodes] != list(EPISODES):
         notes.append(f"Ours trained on {'/'.join(map(str, episodes))} episodes per task in the columns of the "
                      f"paper's {'/'.join(map(str, EPISODES))}")
@@ -124,7 +124,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         if all(v is not None for v in paper) and pg not in drawn_paper:
             drawn_paper.add(pg)
             ax1.plot(EPISODES, [v / PAPER_PIXELS for v in paper], "o--", color=color[pg], alpha=0.8)
-        ours = [(r[f"episodes_{k}"], r[f"ours_{k}_per_pixel"]) for k in EPISODES if r[f"ours_{k}_per_pixel"] is not None]
+        ours = [(r[f"episodes_{k}"], r[f"ours_{k}_per_pixel"]) for k in EPISODES
+                if r[f"ours_{k}_per_pixel"] is not None]
         if ours:
             drawn_ours.add(pg)
             ax2.plot(*zip(*ours), "-", marker=marker[r["preset"]], color=color[pg])
@@ -135,7 +136,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         ax.set_xlabel("training episodes per task")
         ax.set_ylabel("eval error per pixel")
         ax.set_title(title)
-        ax.set_ylim(bottom=0)
+        tops = [y for line in ax.get_lines() for y in line.get_ydata()]
+        ax.set_ylim(0, 1.08 * max(tops) if tops else 1)  # from 0, so the drop with episodes is seen at its scale
         ax.grid(alpha=0.3)
         if not drawn:
             ax.text(0.5, 0.5, "no runs", ha="center", va="center", transform=ax.transAxes, color="0.5")

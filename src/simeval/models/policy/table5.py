@@ -1,7 +1,8 @@
 """Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group, as tables
 and a figure.
 
-    python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5] [--figure outputs/figures/table5.png]
+    python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5] \
+        [--figure outputs/figures/table5.png]
 writes table5.{csv,md,tex} and table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
 group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
@@ -30,13 +31,16 @@ PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (va
 
 
 def build(records: list[dict]) -> list[dict]:
+    """One row per paper cell (then per other group run): {pipeline, group, paper, policy, runs, eval, train,
+    heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run."""
     cells: dict = {}
     for rec in records:
         ident = rec["identity"]
         key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]))
         base = {k: v for k, v in ident.items() if k != "seed"}
         if key in cells and cells[key]["identity"] != base:
-            raise UserError(f"{rec['path']}: runs of {key} differ in {identity_difference(cells[key]['identity'], base)}")
+            diff = identity_difference(cells[key]["identity"], base)
+            raise UserError(f"{rec['path']}: runs of {key} differ in {diff}")
         cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": []})
         cell["runs"].append(rec["path"])
         for split, v in rec["values"].get("splits", {}).items():
