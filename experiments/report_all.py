@@ -61,6 +61,10 @@ def table4(a) -> list[Path]:
     records = _records(Path(a.table4_runs), t4.METRIC, "`make table4` trains the world models")
     episodes = [int(x) for x in a.table4_episodes.split(",")]
     rows = t4.build(records, episodes=episodes)
+    unused = t4.unused_episodes(records, episodes)
+    if unused:
+        print(f"Table 4: note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
+              f"(--table4-episodes {a.table4_episodes} chose its columns)")
     return [*t4.write(rows, Path(a.tables) / "table4", episodes).values(),
             *t4.plot(rows, Path(a.figures) / "table4.png")]
 

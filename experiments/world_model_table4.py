@@ -42,15 +42,20 @@ def main(argv: list[str] | None = None) -> None:
             raise UserError(f"no {table4.METRIC} result.json under {a.root}: run the world models first "
                             "(make table4, or src/diversity.py), or give --root the folder that holds them")
         rows = table4.build(records, episodes=episodes, preset=a.preset)
-        if a.preset and all(r["preset"] == "" for r in rows):
-            raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs: "
-                            f"{', '.join(sorted({str(r['identity'].get('preset')) for r in records}))})")
+        presets = sorted({str(r["identity"].get("preset")) for r in records})
+        if a.preset and a.preset not in presets:
+            raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
+                            f"presets: {', '.join(presets)})")
+        unused = table4.unused_episodes(records, episodes)
         written = table4.write(rows, a.out, episodes)
         figures = table4.plot(rows, a.figure)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     print(written["md"].read_text())
+    if unused:
+        print(f"note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
+              f"(--episodes {a.episodes} chose its columns)")
     print("wrote", ", ".join(str(p) for p in [*written.values(), *figures]))
 
 

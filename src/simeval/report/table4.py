@@ -5,11 +5,12 @@ numbers of episodes per task, per pipeline and group, the paper's values (simeva
     write(rows, "outputs/tables/table4", episodes=(10, 20, 40))   # table4.csv (numbers), .md, .tex
     plot(rows, "outputs/figures/table4.png")                      # and table4.pdf beside it
 
-One row per (pipeline, group, world-model preset) that has runs, plus a paper-only row for every paper cell that has
-none. `ours_<k>` is the mean eval image error (summed over pixels at the preset's resolution) of the runs trained
-on the k-th of `episodes` (several seeds of one cell are averaged; failed runs are left out), `ours_<k>_per_pixel`
-the same per pixel and colour channel, `runs_<k>` how many runs were averaged. The paper sums over 128x128x3
-pixels: compare shapes (how the error falls with episodes) and per-pixel values, not raw magnitudes.
+One row per (pipeline, group, world-model preset) that has runs at one of the chosen episode counts, plus a
+paper-only row for every paper cell that has none. `ours_<k>` is the mean eval image error (summed over pixels at
+the preset's resolution) of the runs trained on the k-th of `episodes` (several seeds of one cell are averaged;
+failed runs are left out), `ours_<k>_per_pixel` the same per pixel and colour channel, `runs_<k>` how many runs
+were averaged. The paper sums over 128x128x3 pixels: compare shapes (how the error falls with episodes) and
+per-pixel values, not raw magnitudes.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
         ident = rec.get("identity") or {}
         if rec.get("metric") != METRIC or rec.get("status") != "ok" or (preset and ident.get("preset") != preset):
             continue
+        if int(ident["episodes"]) not in episodes:  # see unused_episodes
+            continue
         cells[(ident["pipeline"], ident["task_group"], int(ident["episodes"]), ident["preset"])].append(rec)
     keys = sorted({(p, g, pr) for p, g, _, pr in cells} | {(p, g, None) for p in PAPER for g in PAPER[p]},
                   key=lambda x: (_order(x[0]), x[1], str(x[2])))
@@ -66,6 +69,13 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
             row[f"runs_{k}"] = len(recs)
         rows.append(row)
     return rows
+
+
+def unused_episodes(records: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) -> list[int]:
+    """The training-episode counts of ok runs that a table with columns `episodes` leaves out (say so to the
+    user: the quick profile's 1/2/4-episode runs beside the cpu preset's 10/20/40 ones give two tables)."""
+    return sorted({int((r.get("identity") or {})["episodes"]) for r in records
+                   if r.get("metric") == METRIC and r.get("status") == "ok"} - {int(k) for k in episodes})
 
 
 def _fmt(v, digits: int = 1) -> str:
