@@ -70,21 +70,26 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/policy_bench.py --presets tiny cpu authors_gensim
 	$(PY) experiments/benchmarks/world_model_bench.py
 
-TABLE5_GROUPS ?= stacking placement piles assembling
-table5: setup ## paper Table 5: Diffusion Policy per GenSim group (cpu preset; needs `make collect` with 42 episodes/task)
-	for g in $(TABLE5_GROUPS); do $(PY) src/generalization.py task_group=$$g || exit 1; done
+# pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
+CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
+table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Policy per CELLS group (cpu preset), table + figure
+	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; \
+	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=42 && \
+	  $(PY) src/generalization.py pipeline=$$p task_group=$$g || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
 report-table5: setup ## rebuild Table 5 + figure from result.json files only: outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
 	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png
 
-# Table 4 (dynamics diversity): one world model per (GenSim group, 10/20/40 episodes) on the episodes `make collect`
-# stored; WM_PRESET=paper for the authors' sizes (a GPU job). BBSEA/RoboGen need imported episodes (src/import_data.py).
+# Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
+# (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job). Imported episodes: run
+# src/diversity.py on them directly, then `make report-table4`.
 WM_PRESET ?= cpu
-TABLE4_GROUPS ?= stacking placement piles assembling
 .PHONY: table4 report-table4 world-model-control
-table4: setup ## paper Table 4: world-model eval error at 10/20/40 episodes per GenSim group, table + plot
-	for g in $(TABLE4_GROUPS); do $(PY) src/diversity.py pipeline=gensim task_group=$$g world_model=$(WM_PRESET) -m episodes=10,20,40 || exit 1; done
+table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error at 10/20/40 per CELLS group, table + plot
+	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; \
+	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=40 && \
+	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}) from result.json files only
