@@ -1,7 +1,8 @@
 """Sweeps through the Hydra launcher plugins: `hydra/launcher=joblib` (parallel local processes) and
 `hydra/launcher=submitit_local` (the SLURM plugin's local executor) each run a 2-job text_diversity sweep with
-`debug=tiny` on a loopback embedding server, with `-m` typed after the overrides as users do. The SLURM config
-(conf/hydra/launcher/slurm.yaml) is composed and checked, not submitted: there is no cluster here."""
+`debug=tiny` on a loopback embedding server, with `-m` typed after the overrides as users do. A user error inside a
+job is one line and exit 2 under both. The SLURM config (conf/hydra/launcher/slurm.yaml) is composed and checked,
+not submitted: there is no cluster here."""
 
 from __future__ import annotations
 
@@ -65,6 +66,41 @@ def test_a_user_error_in_a_joblib_job_is_one_line_and_exit_2(openai_server, tmp_
     res = _sweep(tmp_path, openai_server, "joblib", "hydra.launcher.n_jobs=2", tasks_path=tmp_path / "nope.yaml")
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
     assert f"error: task file not found: {tmp_path / 'nope.yaml'}" in res.stderr.splitlines()
+
+
+def _diversity_sweep(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny",
+                           "threads=1", "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}",
+                           "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path / 'sweep'}", *args],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+
+
+def _job_logs(sweep: Path) -> str:
+    return "".join(p.read_text() for p in sorted(sweep.glob(".submitit/*/*_log.err")))
+
+
+def test_a_user_error_in_a_submitit_job_is_one_line_and_exit_2(tmp_path):
+    res = _diversity_sweep(tmp_path, "task_group=nope", "-m", "episodes=1")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    [line] = res.stderr.splitlines()
+    assert line.startswith(f"error: no episodes of pipeline 'gensim' group 'nope' in store {tmp_path / 'store'}")
+    assert "the gensim suite's groups are assembling, piles, placement, stacking" in line  # what would be valid
+    assert line in _job_logs(tmp_path / "sweep").splitlines()  # the job's own log says it too (SLURM users read it)
+
+
+def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_the_other_result(tmp_path):
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
+    res = _diversity_sweep(tmp_path, "task_group=diverse", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
+                           "-m", "episodes=0,2")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert res.stderr.splitlines() == ["error: episodes=0: expected a whole number >= 1 (the paper uses 10, 20, 40)"]
+    assert not (tmp_path / "sweep" / "0" / "result.json").exists()
+    rec = json.loads((tmp_path / "sweep" / "1" / "result.json").read_text())  # the good job ran to the end
+    assert rec["identity"]["episodes"] == 2 and rec["values"]["train"]["steps"] > 0
 
 
 def test_slurm_launcher_config_asks_for_one_gpu_per_job():
