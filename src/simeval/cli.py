@@ -50,8 +50,15 @@ def allow_multirun_anywhere() -> None:
     sys.argv[:] = move_multirun_flag_first(sys.argv)
 
 
+def _print_error(message: str) -> None:
+    """`error: <message>` on stderr in one write: jobs of a parallel sweep share the terminal, and print() makes
+    two writes (text, then newline) when stderr is unbuffered (PYTHONUNBUFFERED=1), so their lines interleaved."""
+    sys.stderr.write(f"error: {message}\n")
+    sys.stderr.flush()
+
+
 def _fail(message: str) -> None:
-    print(f"error: {message}", file=sys.stderr)
+    _print_error(message)
     sys.exit(USER_ERROR_EXIT)
 
 
@@ -138,7 +145,7 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
             text = str(cause).strip()
             line = text.splitlines()[0] if text else type(cause).__name__
             if in_submitit_job():
-                print(f"error: {line}", file=sys.stderr)
+                _print_error(line)
                 raise UserError(line) from None  # picklable, unlike some config errors and their chained causes
             _fail(line)
 
@@ -158,7 +165,7 @@ def stop_sweep_on_user_errors(results: Any) -> None:
              if r.status == JobStatus.FAILED and isinstance(r._return_value, UserError)]
     if lines:
         for line in dict.fromkeys(lines):
-            print(f"error: {line}", file=sys.stderr)
+            _print_error(line)
         sys.exit(USER_ERROR_EXIT)
 
 
