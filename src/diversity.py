@@ -6,7 +6,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 log = logging.getLogger("diversity")
 
@@ -27,12 +27,13 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import data_fingerprint, fit_and_evaluate, store_source
+    from simeval.models.dynamics_diversity import VIDEO_FPS, data_fingerprint, fit_and_evaluate, store_source
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
 
     torch.set_num_threads(int(cfg.threads))
+    require_whole("videos", cfg.videos, low=0)
     wm = OmegaConf.to_container(cfg.world_model, resolve=True)
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
@@ -48,7 +49,12 @@ def main(cfg: DictConfig) -> None:
             eval_episodes=_ranks(cfg.eval_episodes, "eval_episodes"),
             heldout_episodes=_ranks(cfg.heldout_episodes, "heldout_episodes"), eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
-            checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress))
+            checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
+            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos")
+        for task, video in values["videos"].items():
+            logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
+                f"{task}: ground truth | reconstruction | open loop after {values['eval']['context']} observed "
+                "frames (red separators: imagined)"))
         path = write_result(run["output_dir"], metric="dynamics_diversity", version=VERSION, values=values,
                             config=config, choices=run["choices"], seed=int(cfg.seed), identity=identity,
                             overrides=run["overrides"])

@@ -2,6 +2,7 @@
 conf/generalization.yaml."""
 
 import logging
+from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -65,6 +66,10 @@ def main(cfg: DictConfig) -> None:
         if cfg.eval.videos and rows:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
                                                         cfg.eval.video_camera, run["output_dir"])
+            for which, video in values["videos"].items():
+                _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
+                logger.log_video(f"rollout/{which}", video, caption=(
+                    f"{which} task of the {split} split: {task} (seed {seeds[0]}, camera {cfg.eval.video_camera})"))
         identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "tasks": group, "policy": cfg.policy.name,
                     "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task,
                     "variations": {t: v for t, v in plan.get("eval", [])},

@@ -1,14 +1,18 @@
 """Sweeps through the Hydra launcher plugins: `hydra/launcher=joblib` (parallel local processes) and
 `hydra/launcher=submitit_local` (the SLURM plugin's local executor) each run a 2-job text_diversity sweep with
-`debug=tiny` on a loopback embedding server, with `-m` typed after the overrides as users do. The SLURM config
-(conf/hydra/launcher/slurm.yaml) is composed and checked, not submitted: there is no cluster here."""
+`debug=tiny` on a loopback embedding server, with `-m` typed after the overrides as users do. A user error inside a
+job is one line and exit 2 under both. The SLURM config (conf/hydra/launcher/slurm.yaml) is composed and checked,
+not submitted: there is no cluster here."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -67,6 +71,81 @@ def test_a_user_error_in_a_joblib_job_is_one_line_and_exit_2(openai_server, tmp_
     assert f"error: task file not found: {tmp_path / 'nope.yaml'}" in res.stderr.splitlines()
 
 
+def _diversity_sweep(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny",
+                           "threads=1", "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}",
+                           "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path / 'sweep'}", *args],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+
+
+def _job_logs(sweep: Path) -> str:
+    return "".join(p.read_text() for p in sorted(sweep.glob(".submitit/*/*_log.err")))
+
+
+def test_a_user_error_in_a_submitit_job_is_one_line_and_exit_2(tmp_path):
+    res = _diversity_sweep(tmp_path, "task_group=nope", "-m", "episodes=1")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    [line] = res.stderr.splitlines()
+    assert line.startswith(f"error: no episodes of pipeline 'gensim' group 'nope' in store {tmp_path / 'store'}")
+    assert "the gensim suite's groups are assembling, piles, placement, stacking" in line  # what would be valid
+    assert line in _job_logs(tmp_path / "sweep").splitlines()  # the job's own log says it too (SLURM users read it)
+
+
+def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_the_other_result(tmp_path):
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
+    res = _diversity_sweep(tmp_path, "task_group=diverse", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
+                           "-m", "episodes=0,2")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert res.stderr.splitlines() == ["error: episodes=0: expected a whole number >= 1 (the paper uses 10, 20, 40)"]
+    assert not (tmp_path / "sweep" / "0" / "result.json").exists()
+    rec = json.loads((tmp_path / "sweep" / "1" / "result.json").read_text())  # the good job ran to the end
+    assert rec["identity"]["episodes"] == 2 and rec["values"]["train"]["steps"] > 0
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="finds the job's process through /proc (Linux)")
+def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_checkpoint(tmp_path):
+    """What SLURM does to a preempted job, with submitit's local executor: the job's process gets submitit's
+    preemption signal (USR2), submitit requeues the same job (the same overrides, so the same run folder and the
+    same checkpoint key), and the training resumes from the last checkpoint instead of step 0."""
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
+    steps = 400  # 4 training windows, batch 8: one step (and one checkpoint) per epoch
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+    env.pop("SUBMITIT_PREEMPT_SIGNAL", None)
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
+         "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
+         "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", f"world_model.train.epochs={steps}",
+         "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 120
+        while not list((tmp_path / "ck").glob("world_model-*.pt")):
+            assert proc.poll() is None and time.time() < deadline, proc.communicate()[1][-2000:]
+            time.sleep(0.05)
+        # the local executor's controller is named by the job folder; the job runs in its one child process
+        [controller] = [d.name for d in (sweep / ".submitit").iterdir() if d.name.isdigit()]
+        [job] = Path(f"/proc/{controller}/task/{controller}/children").read_text().split()
+        os.kill(int(job), signal.SIGUSR2)
+        _, err = proc.communicate(timeout=280)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-3000:]
+    log = _job_logs(sweep) + "".join(p.read_text() for p in sweep.glob(".submitit/*/*_log.out"))
+    assert "this job is preempted" in log and f"Requeued job {controller}" in log
+    [resumed] = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)", log)
+    assert 0 < int(resumed) < steps
+    rec = json.loads((sweep / "0" / "result.json").read_text())  # the requeued job wrote to the same folder
+    assert rec["values"]["train"]["steps"] == steps and rec["status"] == "ok"
+
+
 def test_slurm_launcher_config_asks_for_one_gpu_per_job():
     from hydra import compose, initialize_config_dir
     from hydra.utils import get_class
@@ -77,3 +156,63 @@ def test_slurm_launcher_config_asks_for_one_gpu_per_job():
     assert get_class(launcher._target_).__name__ == "SlurmLauncher"
     assert (launcher.gpus_per_node, launcher.tasks_per_node, launcher.nodes) == (1, 1, 1)
     assert launcher.max_num_timeout >= 1  # preempted jobs are requeued
+
+
+class _Submitted(Exception):
+    pass
+
+
+def _sbatch_script(tmp_path: Path, monkeypatch, *overrides: str) -> tuple[str, object]:
+    """The sbatch script hydra/launcher=slurm would submit for one diversity job, built by the plugin's own launch()
+    and submitit's own script writer; submission is stopped before `sbatch` runs (there is no cluster here).
+    submitit only checks that an `srun` is on PATH: a stub stands in."""
+    import submitit
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import get_class
+
+    stub = tmp_path / "bin" / "srun"
+    stub.parent.mkdir(exist_ok=True)
+    stub.write_text("#!/bin/sh\nexit 1\n")
+    stub.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{stub.parent}{os.pathsep}{os.environ['PATH']}")
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        cfg = compose("diversity", overrides=["hydra/launcher=slurm", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                                              *overrides], return_hydra_config=True)
+    params = {k: v for k, v in cfg.hydra.launcher.items() if k != "_target_"}
+    launcher = get_class(cfg.hydra.launcher._target_)(**params)
+    launcher.config = cfg
+    captured = {}
+
+    def capture(executor, fn, *iterables):
+        captured["executor"] = executor._executor
+        raise _Submitted
+
+    monkeypatch.setattr(submitit.AutoExecutor, "map_array", capture)
+    with pytest.raises(_Submitted):
+        launcher.launch([["episodes=10"]], initial_job_idx=0)
+    ex = captured["executor"]
+    return ex._make_submission_file_text(ex._submitit_command_str, "uid"), ex
+
+
+def test_slurm_launcher_submits_one_gpu_8_cpus_12_h_with_the_requeue_signal(tmp_path, monkeypatch):
+    monkeypatch.delenv("SLURM_PARTITION", raising=False)
+    monkeypatch.delenv("SLURM_ACCOUNT", raising=False)
+    script, ex = _sbatch_script(tmp_path, monkeypatch)
+    flags = {line for line in script.splitlines() if line.startswith("#SBATCH")}
+    assert {"#SBATCH --gpus-per-node=1", "#SBATCH --cpus-per-task=8", "#SBATCH --mem=32GB", "#SBATCH --time=720",
+            "#SBATCH --nodes=1", "#SBATCH --ntasks-per-node=1", "#SBATCH --signal=USR2@120",
+            "#SBATCH --open-mode=append"} <= flags, script
+    assert not any(f.startswith(("#SBATCH --partition", "#SBATCH --account")) for f in flags)  # sbatch's defaults
+    assert "export SUBMITIT_EXECUTOR=slurm" in script and "srun --unbuffered" in script
+    assert ex.max_num_timeout == 3  # a job that hits its time limit is requeued up to 3 times
+    # the job's logs are kept in the sweep folder (appended to across requeues)
+    assert f"#SBATCH --output={tmp_path / 'sweep' / '.submitit' / '%j' / '%j_0_log.out'}" in flags
+
+
+def test_slurm_partition_and_account_come_from_the_environment_or_the_command_line(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLURM_PARTITION", "gpu-long")
+    monkeypatch.setenv("SLURM_ACCOUNT", "robotics")
+    script, _ = _sbatch_script(tmp_path, monkeypatch)
+    assert "#SBATCH --partition=gpu-long" in script and "#SBATCH --account=robotics" in script
+    script, _ = _sbatch_script(tmp_path, monkeypatch, "hydra.launcher.partition=a100", "hydra.launcher.gpus_per_node=0")
+    assert "#SBATCH --partition=a100" in script and "#SBATCH --gpus-per-node=0" in script

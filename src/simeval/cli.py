@@ -50,8 +50,15 @@ def allow_multirun_anywhere() -> None:
     sys.argv[:] = move_multirun_flag_first(sys.argv)
 
 
+def _print_error(message: str) -> None:
+    """`error: <message>` on stderr in one write: jobs of a parallel sweep share the terminal, and print() makes
+    two writes (text, then newline) when stderr is unbuffered (PYTHONUNBUFFERED=1), so their lines interleaved."""
+    sys.stderr.write(f"error: {message}\n")
+    sys.stderr.flush()
+
+
 def _fail(message: str) -> None:
-    print(f"error: {message}", file=sys.stderr)
+    _print_error(message)
     sys.exit(USER_ERROR_EXIT)
 
 
@@ -102,10 +109,29 @@ def scrub_saved_config_of_secrets(cfg: Any) -> None:
                     f"variable and give its name (e.g. judge.provider.api_key_env=OPENAI_API_KEY), never the value")
 
 
+def in_submitit_job() -> bool:
+    """True inside a job of a Hydra sweep that submitit runs in a process of its own (`hydra/launcher=
+    submitit_local`, `slurm`, `submitit_slurm`). Such a job cannot end the sweep by exiting: submitit only sees a
+    job that left no result and the launching process prints its own traceback."""
+    if not os.environ.get("SUBMITIT_EXECUTOR"):
+        return False
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        return HydraConfig.get().mode == RunMode.MULTIRUN
+    except (ImportError, ValueError):
+        return False
+
+
 def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
     """Decorate a Hydra task function (under `@hydra.main`): a UserError or a config-access error, also one
     raised inside `instantiate`, becomes one line on stderr and exit status 2. HYDRA_FULL_ERROR=1 re-raises
-    for the full traceback. A config holding a key-shaped value is refused before anything runs."""
+    for the full traceback. A config holding a key-shaped value is refused before anything runs.
+
+    In a submitit job the line goes to the job's log and the error is raised as a plain UserError holding that
+    line: Hydra stores it in the job's result, which submitit carries back to the launching process, where
+    `stop_sweep_on_user_errors` (called by the sweeper of conf/hydra/default.yaml) prints it and exits 2."""
 
     @functools.wraps(fn)
     def wrapper(cfg: Any, *args: Any, **kwargs: Any) -> Any:
@@ -117,9 +143,30 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
             if cause is None or os.environ.get("HYDRA_FULL_ERROR") == "1":
                 raise
             text = str(cause).strip()
-            _fail(text.splitlines()[0] if text else type(cause).__name__)
+            line = text.splitlines()[0] if text else type(cause).__name__
+            if in_submitit_job():
+                _print_error(line)
+                raise UserError(line) from None  # picklable, unlike some config errors and their chained causes
+            _fail(line)
 
     return wrapper
+
+
+def stop_sweep_on_user_errors(results: Any) -> None:
+    """In the launching process of a sweep, given the launcher's JobReturns: when any job stopped on a UserError
+    (see exit_cleanly_on_user_error), print each distinct one as one `error: ...` line and exit 2, as a run
+    without a launcher does, instead of Hydra's traceback of the first failed job. The other jobs of the batch
+    have finished by then (the submitit launchers wait for all of them); their results are kept."""
+    from hydra.core.utils import JobStatus
+
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the job raised the original error: Hydra shows its traceback
+        return
+    lines = [str(r._return_value) for r in results  # the exception itself: `return_value` would raise it
+             if r.status == JobStatus.FAILED and isinstance(r._return_value, UserError)]
+    if lines:
+        for line in dict.fromkeys(lines):
+            _print_error(line)
+        sys.exit(USER_ERROR_EXIT)
 
 
 def launch(main: Callable[[], Any]) -> None:

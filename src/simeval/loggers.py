@@ -1,9 +1,12 @@
 """Run loggers, chosen by the `logger` config group: none, csv, wandb. All are context managers so that
 `finish()` runs even when the run fails.
 
-Every logger has `log_metrics(mapping, step)` (nested mappings are flattened to `a/b/c` keys) and
+Every logger has `log_metrics(mapping, step)` (nested mappings are flattened to `a/b/c` keys),
 `log_table(name, columns, rows)`, where a cell may be a `LogImage` (a PNG path or an array, with a caption): W&B
-gets a `wandb.Table` with images, the CSV logger a `<name>.csv` holding the image paths, the null logger nothing.
+gets a `wandb.Table` with images, the CSV logger a `<name>.csv` holding the image paths, the null logger nothing;
+and `log_video(name, video, fps, caption)`, where video is an mp4/gif/webm/ogg file or (T, H, W, 3) uint8 frames
+(written first to `<run_dir>/videos/<name>.mp4`): W&B gets a `wandb.Video` of the file (which needs no encoder),
+the CSV logger a row of `videos.csv` (name, path, caption), the null logger nothing.
 On a clean exit from the `with` block, the csv and wandb loggers mirror the tables of the run's result.json
 (`mirror_result`: a quality run's per-task scores with its images).
 
@@ -63,6 +66,21 @@ class NullLogger:
 
     def log_table(self, name: str, columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
         pass
+
+    def log_video(self, name: str, video: Any, fps: int = 15, caption: str = "") -> None:
+        pass
+
+    def _video_file(self, name: str, video: Any, fps: int) -> Path:
+        """The file of a logged video: `video` itself when it is a path, else its frames written to
+        `<run_dir>/videos/<name>.mp4` (slashes in the name become `_`)."""
+        if isinstance(video, (str, os.PathLike)):
+            path = Path(video)
+            if not path.is_file():
+                raise FileNotFoundError(f"video {name!r}: no file {path}")
+            return path
+        from simeval.media import write_video
+
+        return write_video(video, Path(self.run_dir) / "videos" / f"{name.replace('/', '_')}.mp4", fps=fps)
 
     def finish(self, exit_code: int = 0) -> None:
         pass
@@ -130,6 +148,17 @@ class CsvLogger(NullLogger):
             w = csv.writer(f)
             w.writerow(list(columns))
             w.writerows([[cell(v) for v in r] for r in rows])
+
+    def log_video(self, name: str, video: Any, fps: int = 15, caption: str = "") -> None:
+        """A row (name, path, caption) of `<run_dir>/videos.csv`; frames are first written to an mp4."""
+        path = self._video_file(name, video, fps)
+        index = self.path.parent / "videos.csv"
+        new = not index.exists()
+        with index.open("a", newline="") as f:
+            w = csv.writer(f)
+            if new:
+                w.writerow(["name", "path", "caption"])
+            w.writerow([name, str(path), caption])
 
 
 def image_strip(images: Sequence[LogImage], height: int = 128, gap: int = 4):
@@ -257,6 +286,15 @@ class WandbLogger(NullLogger):
             return v
 
         self.run.log({name: wandb.Table(columns=list(columns), data=[[cell(v) for v in r] for r in rows])})
+
+    def log_video(self, name: str, video: Any, fps: int = 15, caption: str = "") -> None:
+        """A `wandb.Video` of the file (frames are first written to an mp4 in the run folder): W&B copies it into
+        the run's `media/videos/`, so the offline run is whole for `wandb sync`. Logged from a file because W&B
+        encodes arrays with moviepy, which is not a dependency; a file's own frame rate is kept (fps is for arrays)."""
+        import wandb
+
+        path = self._video_file(name, video, fps)
+        self.run.log({name: wandb.Video(str(path), caption=caption or None)})
 
     def finish(self, exit_code: int = 0) -> None:
         if self.run is not None:

@@ -20,10 +20,13 @@ import torch
 
 from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks
 from simeval.errors import UserError
+from simeval.media import write_video
 from simeval.models.training import TrainConfig, evaluate, load_checkpoint, train
-from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig
+from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
 
 log = logging.getLogger(__name__)
+
+VIDEO_FPS = 5  # a window's frames are control steps: the paper's 40-step window plays in 8 s
 
 
 def data_fingerprint(infos) -> str:
@@ -36,11 +39,14 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
                      heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
                      eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
-                     log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True) -> dict:
+                     log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
+                     videos: int = 0, video_dir: str | Path | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
-    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model}. With `checkpoint_dir`,
-    the model is checkpointed there under a name keyed by its config and training data, so the same command run
-    again resumes a killed run (or, when it finished, only evaluates)."""
+    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
+    With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
+    the same command run again resumes a killed run (or, when it finished, only evaluates). With `videos` > 0 and a
+    `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
+    episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file."""
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
     ranks = episode_ranks(tasks, seeds)
@@ -74,13 +80,18 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             raise UserError("evaluation episodes have another action space than the training ones")
         out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
         out["episodes"] = [lo + 1, hi]
-        return out
+        return out, ds
 
-    values = {"eval": run_eval(*eval_episodes), "heldout": None}
+    main_eval, eval_ds = run_eval(*eval_episodes)
+    values = {"eval": main_eval, "heldout": None, "videos": {}}
+    if videos > 0 and video_dir is not None:
+        clips = prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
+        values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
+                            for task, frames in clips.items()}
     counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
     if heldout_episodes is not None:
         if min(counts.values()) >= heldout_episodes[1]:
-            values["heldout"] = run_eval(*heldout_episodes)
+            values["heldout"] = run_eval(*heldout_episodes)[0]
         else:
             log.info("no held-out evaluation: needs %d episodes per task, the fewest is %d", heldout_episodes[1],
                      min(counts.values()))
@@ -92,6 +103,21 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     values["tasks"] = sorted(counts)
     values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
     return values
+
+
+def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, seed: int = 0,
+                      n_tasks: int | None = None) -> dict[str, np.ndarray]:
+    """{task: open_loop_video(...)} for the first `n_tasks` tasks by name (all when None): each task's first window
+    (its earliest start) of its first episode by seed among the dataset's episodes, a fixed choice, so runs that
+    differ in training data show the same windows. The same `seed` as the evaluation gives its samples."""
+    infos, windows = dataset.source.infos, dataset.windows(0)
+    first: dict[str, tuple[int, int]] = {}  # task -> (episode, start)
+    for e, start in sorted((int(e), int(s)) for e, s in windows):
+        task, held = infos[e].task, first.get(infos[e].task)
+        if held is None or (infos[e].seed, start) < (infos[held[0]].seed, held[1]):
+            first[task] = (e, start)
+    chosen = sorted(first)[:n_tasks] if n_tasks is not None else sorted(first)
+    return {task: open_loop_video(model, dataset[first[task]], context, seed=seed) for task in chosen}
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None):

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from einops import rearrange
@@ -365,21 +366,35 @@ class WorldModel(nn.Module):
         metrics["loss"] = float(loss.detach())
         return loss, metrics
 
+    def _open_loop(self, image: torch.Tensor, batch: dict, context: int, generator=None) -> tuple[dict, dict]:
+        """Posterior states of the first `context` steps and the prior states imagined after them from the actions
+        alone (each a dict of (B, steps, ...)); the generator draws for the context first, then for imagination."""
+        sl = slice(0, context)
+        post, _ = self.rssm.observe(self.embed(image[:, sl], batch["state"][:, sl]), batch["prev_action"][:, sl],
+                                    batch["is_first"][:, sl], generator=generator)
+        last = {k: v[:, -1] for k, v in post.items()}
+        return post, self.rssm.imagine(batch["prev_action"][:, context:], last, generator)
+
     @torch.no_grad()
     def open_loop_errors(self, batch: dict, context: int, generator=None) -> dict[str, torch.Tensor]:
         """Observe the first `context` steps, then imagine the rest from the actions alone and decode the prior:
         per-step (B, T - context) image_se and state_se of the imagined frames."""
         image = self._images(batch)
-        sl = slice(0, context)
-        post, _ = self.rssm.observe(self.embed(image[:, sl], batch["state"][:, sl]), batch["prev_action"][:, sl],
-                                    batch["is_first"][:, sl], generator=generator)
-        last = {k: v[:, -1] for k, v in post.items()}
-        prior = self.rssm.imagine(batch["prev_action"][:, context:], last, generator)
+        _, prior = self._open_loop(image, batch, context, generator)
         feat = self.rssm.features(prior)
         out = {"image_se": (self.image_decoder(feat) - image[:, context:]).pow(2).sum((-3, -2, -1))}
         if self.state_decoder is not None:
             out["state_se"] = (self.state_decoder(feat) - symlog(batch["state"][:, context:])).pow(2).sum(-1)
         return out
+
+    @torch.no_grad()
+    def open_loop_images(self, batch: dict, context: int, generator=None) -> torch.Tensor:
+        """(B, T, H, W, 3) mean images (not clamped): steps < context decoded from the posterior of the observed
+        frames, steps >= context imagined from the actions alone, the frames `open_loop_errors` scores (the same
+        generator seed gives the same samples)."""
+        post, prior = self._open_loop(self._images(batch), batch, context, generator)
+        return torch.cat([self.image_decoder(self.rssm.features(post)), self.image_decoder(self.rssm.features(prior))],
+                         1)
 
     @torch.no_grad()
     def reconstruct(self, batch: dict, generator=None) -> torch.Tensor:
@@ -388,3 +403,38 @@ class WorldModel(nn.Module):
         post, _ = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
                                     generator=generator)
         return self.image_decoder(self.rssm.features(post)).clamp(0, 1)
+
+
+IMAGINED_GAP_RGB = (220, 40, 40)  # the separators of open_loop_video while the open-loop panel is imagined
+
+
+def open_loop_video(model: WorldModel, window: dict, context: int, seed: int = 0, gap: int = 2) -> np.ndarray:
+    """One window as three panels side by side, a (T, H, 3 W + 2 gap, 3) uint8 array (T: the window's real rows):
+        ground truth | posterior reconstruction (every frame observed) | open loop (the first `context` frames
+        observed, the rest imagined from the actions alone)
+    The separators are white while the open-loop panel shows observed frames and red once it shows imagined ones.
+    `window`: a window of a WindowDataset (arrays (T, ...): image uint8, state, prev_action, is_first, mask), with or
+    without a batch axis of one. Samples come from generators seeded with `seed`: the imagined frames are those that
+    `open_loop_errors` scores with a generator of the same seed."""
+    from simeval.media import side_by_side
+
+    batch = {k: torch.as_tensor(np.asarray(window[k])) for k in ("image", "state", "prev_action", "is_first", "mask")}
+    if batch["image"].dim() == 4:  # one window without a batch axis
+        batch = {k: v[None] for k, v in batch.items()}
+    if batch["image"].shape[0] != 1:
+        raise ValueError(f"expected one window, got a batch of {batch['image'].shape[0]}")
+    length = batch["image"].shape[1]
+    if not 1 <= context < length:
+        raise UserError(f"eval.context={context}: expected 1 <= context < window length ({length})")
+    recon = model.reconstruct(batch, generator=torch.Generator().manual_seed(int(seed)))
+    imagined = model.open_loop_images(batch, context, generator=torch.Generator().manual_seed(int(seed)))
+
+    def to_uint8(x: torch.Tensor) -> np.ndarray:
+        return (x[0].clamp(0, 1) * 255).round().to(torch.uint8).numpy()
+
+    image = batch["image"]
+    truth = image[0].numpy() if image.dtype == torch.uint8 else to_uint8(image)  # float images are in [0, 1]
+    real = batch["mask"][0].numpy().astype(bool)
+    colors = np.where((np.arange(length) >= context)[:, None], IMAGINED_GAP_RGB, 255).astype(np.uint8)
+    return side_by_side([truth[real], to_uint8(recon)[real], to_uint8(imagined)[real]], gap=gap,
+                        gap_colors=colors[real])

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from simeval.media import write_video
 from simeval.metrics.intervals import success_summary
 from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
 
@@ -77,20 +78,6 @@ def summarize(rows: Sequence[Mapping]) -> dict:
                       "mean_progress": float(np.mean([e["progress"] for e in eps])) if eps else None,
                       "tasks": len([r for r in rows if r["split"] == split])}
     return out
-
-
-def write_video(frames: np.ndarray, path: str | os.PathLike, fps: int = 15) -> Path:
-    """(T, H, W, 3) uint8 -> an mp4 (imageio-ffmpeg), written to a temp name and renamed."""
-    import imageio.v2 as imageio
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    with imageio.get_writer(tmp, fps=fps, macro_block_size=1) as w:
-        for f in frames:
-            w.append_data(f)
-    os.replace(tmp, path)
-    return path
 
 
 @torch.no_grad()
