@@ -188,3 +188,31 @@ def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_ref
     assert PolicyDataset([ep], "joint", ["top"], (16, 16), 4, 2).action_dim == 7
     with pytest.raises(UserError, match=r"recorded as 'joint_pos\+suction', the policy's action_space=ee_delta"):
         PolicyDataset([ep], "ee_delta", ["top"], (16, 16), 4, 2)
+
+
+def test_a_trained_checkpoint_is_reused_with_another_sampler_but_not_with_other_training_settings(tmp_path):
+    """The inference sampler does not shape the weights: a finished checkpoint rolled out with DDPM instead of
+    DDIM is loaded (no step retrained, same weights), while a change of a training field is refused."""
+    from simeval.models.policy.experiment import checkpoint_key
+
+    ep = moving_square_episode()
+    cfg = PolicyConfig(**{**TINY, "down_dims": [32, 64], "step_embed_dim": 32})
+    ds = PolicyDataset([ep], "joint", ["top"], [32, 32], cfg.horizon, cfg.n_obs_steps)
+    settings = TrainSettings(train_steps=3, batch_size=4, checkpoint_every=10_000, log_every=100)
+    first, _ = train_policy(DiffusionPolicy(cfg, ds.state_dim, ds.action_dim, ds.stats()), ds, settings, tmp_path)
+
+    ddpm = PolicyConfig(**{**vars(cfg), "inference_scheduler": "ddpm", "num_inference_steps": cfg.num_train_timesteps})
+    # another init seed: equal weights below can only come from the checkpoint
+    again, summary = train_policy(DiffusionPolicy(ddpm, ds.state_dim, ds.action_dim, ds.stats(), seed=1), ds,
+                                  settings, tmp_path)
+    assert summary["steps"] == settings.train_steps
+    for (name, a), b in zip(first.state_dict().items(), again.state_dict().values()):
+        assert torch.equal(a, b), name
+    assert again.cfg.inference_scheduler == "ddpm"  # the rollouts use the sampler asked for, not the stored one
+
+    key = lambda c: checkpoint_key([("a.h5", 1)], vars(c), vars(settings), 0)  # noqa: E731
+    assert key(cfg) == key(ddpm)
+    wider = PolicyConfig(**{**vars(cfg), "step_embed_dim": 64})
+    assert key(wider) != key(cfg)
+    with pytest.raises(UserError, match="other settings"):
+        train_policy(DiffusionPolicy(wider, ds.state_dim, ds.action_dim, ds.stats()), ds, settings, tmp_path)

@@ -39,6 +39,7 @@ from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, cent
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
 SCHEDULERS = ("ddpm", "ddim")
+SAMPLING_FIELDS = ("inference_scheduler", "num_inference_steps")  # inference only: not part of a checkpoint's identity
 POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place")
 
 
@@ -95,6 +96,11 @@ class PolicyConfig:
         if self.num_inference_steps > self.num_train_timesteps:
             raise UserError(f"policy.num_inference_steps={self.num_inference_steps} exceeds "
                             f"num_train_timesteps={self.num_train_timesteps}")
+
+    def training_fields(self) -> dict:
+        """The fields that shape the trained weights: every field but the sampler used at inference, so a
+        checkpoint trained once can be rolled out with DDIM-k or DDPM without retraining."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if k not in SAMPLING_FIELDS}
 
     @classmethod
     def from_mapping(cls, d: Mapping) -> "PolicyConfig":
@@ -296,7 +302,8 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     ckpt_path = Path(ckpt_dir) / "last.ckpt" if ckpt_dir else None
     if ckpt_path is not None and ckpt_path.is_file():
         ckpt = load_checkpoint(ckpt_path)
-        if ckpt["policy_config"] != dataclasses.asdict(policy.cfg) or ckpt["train"] != dataclasses.asdict(settings):
+        trained = {k: v for k, v in ckpt["policy_config"].items() if k not in SAMPLING_FIELDS}
+        if trained != policy.cfg.training_fields() or ckpt["train"] != dataclasses.asdict(settings):
             raise UserError(f"{ckpt_path} was trained with other settings; delete it or use another checkpoint_dir")
         policy.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])

@@ -45,7 +45,12 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
 
 
 def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, seed: int) -> str:
-    blob = json.dumps({"episodes": list(metas), "policy": dict(policy_cfg), "train": dict(train_cfg), "seed": seed},
+    """The folder of a training run: a hash of its data and of the settings that shape the weights (the
+    inference sampler is left out, so rolling a trained policy out with another sampler reuses it)."""
+    from simeval.models.diffusion_policy import SAMPLING_FIELDS
+
+    policy = {k: v for k, v in dict(policy_cfg).items() if k not in SAMPLING_FIELDS}
+    blob = json.dumps({"episodes": list(metas), "policy": policy, "train": dict(train_cfg), "seed": seed},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -67,7 +72,8 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
 
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
     for split, task, var in todo:
-        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps], sort_keys=True)
+        sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
+        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler], sort_keys=True)
         if key not in cache:
             cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps)
             atomic_write_text(cache_file, dumps_strict(cache))
