@@ -27,12 +27,14 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.episodes.dataset import WindowSpec
+    from simeval.models.device import resolve_device
     from simeval.models.dynamics_diversity import VIDEO_FPS, data_fingerprint, fit_and_evaluate, store_source
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
 
     torch.set_num_threads(int(cfg.threads))
+    device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     require_whole("videos", cfg.videos, low=0)
     wm = OmegaConf.to_container(cfg.world_model, resolve=True)
     model_cfg = WorldModelConfig.from_dict(wm["model"])
@@ -50,7 +52,7 @@ def main(cfg: DictConfig) -> None:
             heldout_episodes=_ranks(cfg.heldout_episodes, "heldout_episodes"), eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
-            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos")
+            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device)
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {values['eval']['context']} observed "
@@ -60,8 +62,8 @@ def main(cfg: DictConfig) -> None:
                             overrides=run["overrides"])
         logger.log_metrics({"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}})
     e = values["eval"]
-    log.info("%s/%s episodes=%d [%s]: eval error %.2f (%.5f per pixel), state %.3f, KL %.2f, open-loop %.2f",
-             cfg.pipeline.name, cfg.task_group, cfg.episodes, wm["name"], e["image_error"],
+    log.info("%s/%s episodes=%d [%s, %s]: eval error %.2f (%.5f per pixel), state %.3f, KL %.2f, open-loop %.2f",
+             cfg.pipeline.name, cfg.task_group, cfg.episodes, wm["name"], device, e["image_error"],
              e["image_error_per_pixel"], e["state_error"], e["kl_dyn"], e["open_loop_image_error"])
     log.info("wrote %s", path)
 

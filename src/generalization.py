@@ -21,6 +21,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.episodes.store import EpisodeStore
+    from simeval.models.device import resolve_device
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.data import PolicyDataset
@@ -31,6 +32,7 @@ def main(cfg: DictConfig) -> None:
 
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
+    device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
     specs, heldout = group_and_heldout(SUITES_DIR / cfg.pipeline.suite, cfg.task_group, cfg.tasks,
@@ -48,7 +50,7 @@ def main(cfg: DictConfig) -> None:
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=cfg.seed)
         policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics, extra={"config": config},
-                                       progress=True)
+                                       progress=True, device=device)
         values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
                                "windows": len(data)}}
         if cfg.eval.sampler_check and val_eps:

@@ -14,6 +14,17 @@ def machine() -> dict:
     return {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
 
 
+def device_info(device) -> dict:
+    """What the timed steps ran on: the torch.device, torch's build (a +cpu one cannot use a GPU) and, for a GPU,
+    its name (timings differ by model)."""
+    import torch
+
+    info = {"device": str(device), "torch": torch.__version__}
+    if device.type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
 def save(name: str, result: dict) -> Path:
     """Write outputs/bench/<name>.json and print it."""
     path = ROOT / "outputs" / "bench" / f"{name}.json"

@@ -3,7 +3,9 @@ the preset's sampler) per preset in conf/policy/, with random data of the preset
 action). Reference on this kind of machine (2 CPU cores): the official implementation's U-Net at the `cpu`
 settings takes 0.32 s per training step (batch 64) and 0.11 s per 16-step chunk; the `cpu` preset's numbers are
 reported as ratios to those (ours include the image encoder, the reference is the U-Net alone).
-Usage: policy_bench.py [--presets cpu tiny] [--threads N] [--repeats 5]. Writes outputs/bench/policy.json.
+Usage: policy_bench.py [--presets cpu tiny] [--threads N] [--repeats 5] [--device auto]. Writes
+outputs/bench/policy.json, with the device (auto: cuda if available, else cpu) the steps ran on; the ratios to the
+reference are only meaningful on cpu.
 """
 
 from __future__ import annotations
@@ -18,37 +20,45 @@ import torch
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ROOT, machine, save  # noqa: E402
+from common import ROOT, device_info, machine, save  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "src"))
 
+from simeval.errors import UserError  # noqa: E402
+from simeval.models.device import resolve_device  # noqa: E402
 from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig  # noqa: E402
 
 REFERENCE = {"train_step_s": 0.32, "chunk_s": 0.11}  # official U-Net at the cpu settings, batch 64 / 16 steps
 
 
-def _timed(fn, repeats: int) -> float:
+def _timed(fn, repeats: int, device: torch.device) -> float:
+    # CUDA calls return before the GPU is done: wait for it, or the clock stops early
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     fn()  # warm-up
+    sync()
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
+        sync()
         times.append(time.perf_counter() - t0)
     return sorted(times)[len(times) // 2]  # median
 
 
-def bench(preset: str, repeats: int) -> dict:
+def bench(preset: str, repeats: int, device: torch.device) -> dict:
     spec = yaml.safe_load((ROOT / "conf" / "policy" / f"{preset}.yaml").read_text())
     cfg = PolicyConfig.from_mapping(spec["model"])
     batch_size = spec["train"]["batch_size"]
     a_dim = 14 if cfg.action_space == "pick_place" else 7
-    policy = DiffusionPolicy(cfg, 12, a_dim, seed=0)
+    policy = DiffusionPolicy(cfg, 12, a_dim, seed=0).to(device)
     opt = torch.optim.AdamW(policy.parameters(), lr=1e-4)
     h, w = cfg.image_size
 
-    def batch(b):
-        return {"rgb": {c: torch.randint(0, 255, (b, cfg.n_obs_steps, h, w, 3), dtype=torch.uint8) for c in cfg.cameras},
-                "state": torch.randn(b, cfg.n_obs_steps, 12), "action": torch.randn(b, cfg.horizon, a_dim)}
+    def batch(b):  # on the device already: the step is timed, not the copy
+        return {"rgb": {c: torch.randint(0, 255, (b, cfg.n_obs_steps, h, w, 3), dtype=torch.uint8, device=device)
+                        for c in cfg.cameras},
+                "state": torch.randn(b, cfg.n_obs_steps, 12, device=device),
+                "action": torch.randn(b, cfg.horizon, a_dim, device=device)}
 
     train_batch, obs = batch(batch_size), batch(1)
 
@@ -59,18 +69,20 @@ def bench(preset: str, repeats: int) -> dict:
         opt.step()
 
     def unet_step():
-        cond = torch.randn(batch_size, _cond_dim(policy))
-        loss = policy.unet(train_batch["action"], torch.randint(0, 100, (batch_size,)), cond).pow(2).mean()
+        cond = torch.randn(batch_size, _cond_dim(policy), device=device)
+        t = torch.randint(0, 100, (batch_size,), device=device)
+        loss = policy.unet(train_batch["action"], t, cond).pow(2).mean()
         opt.zero_grad()
         loss.backward()
 
     with torch.no_grad():
-        chunk = _timed(lambda: policy.predict_action(obs), repeats)
+        chunk = _timed(lambda: policy.predict_action(obs), repeats, device)
     out = {"batch_size": batch_size, "sampler": cfg.inference_scheduler, "sampler_steps": cfg.num_inference_steps
            if cfg.inference_scheduler == "ddim" else cfg.num_train_timesteps,
            "params_m": round(sum(p.numel() for p in policy.parameters()) / 1e6, 3),
            "unet_params_m": round(sum(p.numel() for p in policy.unet.parameters()) / 1e6, 3),
-           "train_step_s": round(_timed(step, repeats), 4), "unet_train_step_s": round(_timed(unet_step, repeats), 4),
+           "train_step_s": round(_timed(step, repeats, device), 4),
+           "unet_train_step_s": round(_timed(unet_step, repeats, device), 4),
            "chunk_s": round(chunk, 4)}
     if preset == "cpu":
         out["ratio_to_reference"] = {"train_step": round(out["train_step_s"] / REFERENCE["train_step_s"], 2),
@@ -89,12 +101,17 @@ def main() -> None:
     ap.add_argument("--presets", nargs="+", default=["tiny", "cpu", "authors_gensim", "official"])
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's, all cores)")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--device", default="auto", help="auto (cuda if available, else cpu) | cpu | cuda | cuda:N")
     args = ap.parse_args()
+    try:
+        device = resolve_device(args.device, key="--device")
+    except UserError as e:
+        ap.error(str(e))
     if args.threads:
         torch.set_num_threads(args.threads)
     result = {"benchmark": "policy", "machine": machine(), "torch_threads": torch.get_num_threads(),
-              "load_average_at_start": list(os.getloadavg()), "reference": REFERENCE,
-              "presets": {p: bench(p, args.repeats) for p in args.presets}}
+              **device_info(device), "load_average_at_start": list(os.getloadavg()), "reference": REFERENCE,
+              "presets": {p: bench(p, args.repeats, device) for p in args.presets}}
     result["load_average_at_end"] = list(os.getloadavg())
     save("policy", result)
 

@@ -1,9 +1,11 @@
 """World-model training throughput per preset (step time, frames/s) and window reading (samples/s).
 
-    python experiments/benchmarks/world_model_bench.py [--presets tiny cpu paper] [--threads 2]
+    python experiments/benchmarks/world_model_bench.py [--presets tiny cpu paper] [--threads 2] [--device auto]
 Writes outputs/bench/world_model.json. Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s
 per training step at 128x128 (the `paper` settings) and 0.24 s at the `cpu` settings (numbers given in issue 10;
-not re-measured here). The machine's load average is recorded: on a shared machine, steps slow down with it.
+not re-measured here; the speed-up is only comparable with device cpu). The machine's load average is recorded: on
+a shared machine, steps slow down with it. `--device` (auto, cpu, cuda, cuda:N) is where the training steps run,
+recorded in the JSON; window reading is CPU work either way.
 """
 
 from __future__ import annotations
@@ -18,23 +20,24 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import ROOT, machine, save  # noqa: E402
+from common import ROOT, device_info, machine, save  # noqa: E402
 
 REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
 STEPS = {"tiny": 20, "cpu": 6, "paper": 2}
 
 
-def bench_preset(name: str, steps: int) -> dict:
+def bench_preset(name: str, steps: int, device) -> dict:
     import torch
     import yaml
 
+    from simeval.models.device import to_device
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
     wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{name}.yaml").read_text())
     cfg = WorldModelConfig.from_dict(wm["model"])
     b, t = wm["train"]["batch_size"], wm["window"]["length"]
     torch.manual_seed(0)
-    model = WorldModel(cfg, state_dim=7, action_dim=7)  # joint_pos+suction: 6 joints + suction, in and out
+    model = WorldModel(cfg, state_dim=7, action_dim=7).to(device)  # joint_pos+suction: 6 joints + suction, in and out
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     g = torch.Generator().manual_seed(0)
     is_first = torch.zeros(b, t, dtype=torch.bool)
@@ -42,6 +45,9 @@ def bench_preset(name: str, steps: int) -> dict:
     batch = {"image": torch.randint(0, 256, (b, t, cfg.image_size, cfg.image_size, 3), generator=g, dtype=torch.uint8),
              "state": torch.randn(b, t, 7, generator=g), "prev_action": torch.randn(b, t, 7, generator=g),
              "is_first": is_first, "mask": torch.ones(b, t, dtype=torch.bool)}
+    batch = to_device(batch, device)  # on the device once: the step is timed, not the copy
+    # CUDA calls return before the GPU is done: wait for it, or the clock stops early
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
     def step():
         loss, _ = model.loss(batch, generator=g)
@@ -49,6 +55,7 @@ def bench_preset(name: str, steps: int) -> dict:
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1000.0)
         opt.step()
+        sync()
 
     step()  # warm-up
     times = []
@@ -103,14 +110,22 @@ def main() -> None:
     ap.add_argument("--presets", nargs="+", default=["tiny", "cpu", "paper"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-reading", action="store_true")
+    ap.add_argument("--device", default="auto", help="auto (cuda if available, else cpu) | cpu | cuda | cuda:N")
     a = ap.parse_args()
     import torch
 
+    from simeval.errors import UserError
+    from simeval.models.device import resolve_device
+
+    try:
+        device = resolve_device(a.device, key="--device")
+    except UserError as e:
+        ap.error(str(e))
     torch.set_num_threads(a.threads)
-    result = {"benchmark": "world_model", "machine": machine(), "threads": a.threads,
+    result = {"benchmark": "world_model", "machine": machine(), "threads": a.threads, **device_info(device),
               "load_average_before": os.getloadavg(), "presets": {}}
     for name in a.presets:
-        result["presets"][name] = bench_preset(name, STEPS.get(name, 5))
+        result["presets"][name] = bench_preset(name, STEPS.get(name, 5), device)
         print(name, result["presets"][name], flush=True)
     if not a.no_reading:
         try:

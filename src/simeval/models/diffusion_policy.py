@@ -13,6 +13,10 @@ loss = mean (eps_theta(x_t, t, cond) - eps)^2 with cond = [image features of To 
 Sampling: x_K ~ N(0, I) and the scheduler's reverse steps: DDPM (all K steps) or DDIM (few steps, eta = 0).
 EMA: diffusers' EMAModel with the official warm-up decay 1 - (1 + step)^-0.75, capped at 0.9999.
 Receding horizon: predict Tp actions from the last To observations, execute Ta of them (from index To-1), repeat.
+Device: train_policy(..., device=...) moves the policy there (auto, cpu, cuda, cuda:N; simeval.models.device);
+compute_loss, predict_action and the runner bring their inputs to wherever the policy is. Every random tensor (crop
+offsets, noise, timesteps, the sampler's initial noise) is drawn from a CPU generator and moved, so a seed gives the
+same draws on every device. Checkpoints hold CPU tensors and are not keyed by the device.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from simeval.errors import UserError, require_whole
+from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
 
 log = logging.getLogger(__name__)
@@ -179,10 +184,13 @@ class DiffusionPolicy(nn.Module):
 
     # --- training --------------------------------------------------------------------------------------------
     def compute_loss(self, batch: Mapping, generator: torch.Generator | None = None) -> torch.Tensor:
+        """`batch` anywhere (it is moved to the policy's device); `generator`: a CPU one (see the module docstring)."""
+        batch = to_device(batch, module_device(self))
         cond = self.encode_obs(batch, train=True, generator=generator)
         x0 = self.action_norm(batch["action"].float())
-        noise = torch.randn(x0.shape, generator=generator)
-        t = torch.randint(0, self.noise_scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator)
+        noise = torch.randn(x0.shape, generator=generator).to(x0.device)
+        t = torch.randint(0, self.noise_scheduler.config.num_train_timesteps, (x0.shape[0],),
+                          generator=generator).to(x0.device)
         noisy = self.noise_scheduler.add_noise(x0, noise, t)
         return F.mse_loss(self.unet(noisy, t, cond), noise)
 
@@ -194,7 +202,9 @@ class DiffusionPolicy(nn.Module):
         cfg = self.cfg
         scheduler = scheduler or make_scheduler(cfg.inference_scheduler, cfg.num_train_timesteps, cfg.beta_schedule)
         scheduler.set_timesteps(steps or cfg.num_inference_steps)
-        x = torch.randn((cond.shape[0], cfg.horizon, self.action_dim), generator=generator)
+        x = torch.randn((cond.shape[0], cfg.horizon, self.action_dim), generator=generator).to(cond.device)
+        # the timesteps stay on the CPU (the U-Net moves each); diffusers draws DDPM's noise from a CPU generator on
+        # the CPU and moves it (diffusers.utils.torch_utils.randn_tensor)
         for t in scheduler.timesteps:
             eps = self.unet(x, t, cond)
             x = scheduler.step(eps, t, x, generator=generator).prev_sample
@@ -203,12 +213,13 @@ class DiffusionPolicy(nn.Module):
     @torch.no_grad()
     def predict_action(self, obs: Mapping, scheduler: str | None = None, steps: int | None = None,
                        generator: torch.Generator | None = None) -> torch.Tensor:
-        """(B, horizon, A) actions in the data's units (quaternions unit-norm if cfg.normalize_quaternions)."""
+        """(B, horizon, A) actions in the data's units (quaternions unit-norm if cfg.normalize_quaternions), on the
+        policy's device; `obs` may be anywhere."""
         cfg = self.cfg
         sched = make_scheduler(scheduler or cfg.inference_scheduler, cfg.num_train_timesteps, cfg.beta_schedule)
         if steps is None:
             steps = cfg.num_train_timesteps if (scheduler or cfg.inference_scheduler) == "ddpm" else cfg.num_inference_steps
-        cond = self.encode_obs(obs, train=False)
+        cond = self.encode_obs(to_device(obs, module_device(self)), train=False)
         actions = self.action_norm.inverse(self.sample(cond, sched, steps, generator))
         if cfg.normalize_quaternions:
             actions = normalize_pose14_quaternions(actions)
@@ -275,22 +286,27 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     return ckpt
 
 
-def policy_from_checkpoint(ckpt: Mapping, ema: bool = True) -> DiffusionPolicy:
-    """The policy a checkpoint describes (its config is inside), with EMA weights unless ema=False."""
+def policy_from_checkpoint(ckpt: Mapping, ema: bool = True,
+                           device: str | torch.device | None = "auto") -> DiffusionPolicy:
+    """The policy a checkpoint describes (its config is inside), with EMA weights unless ema=False, on `device`
+    (load_checkpoint reads it onto the CPU, so one trained on a GPU loads anywhere)."""
+    device = resolve_device(device)
     policy = DiffusionPolicy(PolicyConfig.from_mapping(ckpt["policy_config"]), ckpt["state_dim"], ckpt["action_dim"])
     policy.load_state_dict(ckpt["ema_model" if ema else "model"])
-    return policy.eval()
+    return policy.to(device).eval()
 
 
 def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt_dir: str | os.PathLike | None = None,
                  log_fn: Callable[[dict, int], None] | None = None, extra: Mapping | None = None,
-                 progress: bool = False) -> tuple[DiffusionPolicy, dict]:
+                 progress: bool = False, device: str | torch.device | None = "auto") -> tuple[DiffusionPolicy, dict]:
     """Train for settings.train_steps gradient steps; return (EMA policy, summary). With ckpt_dir, `last.ckpt`
     there (model, EMA, optimiser, LR schedule, sampler RNG, config) is written every checkpoint_every steps and
     at the end, atomically, and a run finding one resumes from it: a killed run loses at most checkpoint_every
     steps, and the resumed run draws the same batches as an uninterrupted one would have."""
     from diffusers.optimization import get_scheduler
 
+    device = resolve_device(device)
+    policy.to(device)  # before the optimiser and the EMA are made: their state is created beside the parameters
     torch.manual_seed(settings.seed)
     optimizer = torch.optim.AdamW(policy.parameters(), lr=settings.lr, betas=settings.betas,
                                   weight_decay=settings.weight_decay)
@@ -305,10 +321,11 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         trained = {k: v for k, v in ckpt["policy_config"].items() if k not in SAMPLING_FIELDS}
         if trained != policy.cfg.training_fields() or ckpt["train"] != dataclasses.asdict(settings):
             raise UserError(f"{ckpt_path} was trained with other settings; delete it or use another checkpoint_dir")
-        policy.load_state_dict(ckpt["model"])
-        optimizer.load_state_dict(ckpt["optimizer"])
+        policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
+        optimizer.load_state_dict(ckpt["optimizer"])  # torch moves the state to its parameters' device
         lr_sched.load_state_dict(ckpt["lr_scheduler"])
         ema.load_state_dict(ckpt["ema"])
+        ema.to(device)  # EMAModel keeps the loaded (CPU) shadow weights where they are
         gen.set_state(ckpt["generator"])
         step, losses, t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
         log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
@@ -320,9 +337,9 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         ema.copy_to(ema_model.parameters())
         _atomic_torch_save({"version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
                             "train": dataclasses.asdict(settings), "state_dim": policy.state_dim,
-                            "action_dim": policy.action_dim, "model": policy.state_dict(),
-                            "ema_model": ema_model.state_dict(), "ema": ema.state_dict(),
-                            "optimizer": optimizer.state_dict(), "lr_scheduler": lr_sched.state_dict(),
+                            "action_dim": policy.action_dim, "model": to_cpu(policy.state_dict()),
+                            "ema_model": to_cpu(ema_model.state_dict()), "ema": to_cpu(ema.state_dict()),
+                            "optimizer": to_cpu(optimizer.state_dict()), "lr_scheduler": lr_sched.state_dict(),
                             "generator": gen.get_state(), "step": step, "losses": losses,
                             "train_seconds": t_train, "extra": dict(extra or {})}, ckpt_path)
 
@@ -362,7 +379,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     ema_policy = copy.deepcopy(policy)
     ema.copy_to(ema_policy.parameters())
     summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,
-               "train_seconds": t_train, "seconds_per_step": t_train / max(step, 1)}
+               "train_seconds": t_train, "seconds_per_step": t_train / max(step, 1), "device": str(device)}
     return ema_policy.eval(), summary
 
 
@@ -395,7 +412,7 @@ class RecedingHorizonRunner:
             hist = list(self.history)
             batch = {"rgb": {c: torch.from_numpy(np.stack([o["rgb"][c] for o in hist]))[None] for c in cfg.cameras},
                      "state": torch.from_numpy(np.stack([np.asarray(o["state"], np.float32) for o in hist]))[None]}
-            actions = self.policy.predict_action(batch, self.scheduler, self.steps, self.generator)[0].numpy()
+            actions = self.policy.predict_action(batch, self.scheduler, self.steps, self.generator)[0].cpu().numpy()
             start = cfg.n_obs_steps - 1
             self.queue.extend(actions[start : start + cfg.n_action_steps])
             self.chunks += 1

@@ -21,6 +21,7 @@ import torch
 from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks
 from simeval.errors import UserError
 from simeval.media import write_video
+from simeval.models.device import resolve_device
 from simeval.models.training import TrainConfig, evaluate, load_checkpoint, train
 from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
 
@@ -40,13 +41,17 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
                      eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
-                     videos: int = 0, video_dir: str | Path | None = None) -> dict:
+                     videos: int = 0, video_dir: str | Path | None = None,
+                     device: str | torch.device | None = "auto") -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
     the same command run again resumes a killed run (or, when it finished, only evaluates). With `videos` > 0 and a
     `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
-    episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file."""
+    episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
+    `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
+    so a run resumes on another device; `train.device` in the result records the one used."""
+    device = resolve_device(device)  # a bad value fails here, before any data is read
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
     ranks = episode_ranks(tasks, seeds)
@@ -71,7 +76,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
         checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
     summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                    progress=progress)
+                    progress=progress, device=device)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
@@ -97,7 +102,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      min(counts.values()))
     values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
                        "frames": summary["frames"], "episodes": int(train_mask.sum()),
-                       "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"]}
+                       "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"],
+                       "device": str(device)}
     values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
                        "action_space": train_ds.action_space.get("kind")}
     values["tasks"] = sorted(counts)
@@ -143,10 +149,12 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     return StoreSource(paths, camera)
 
 
-def load_model(checkpoint: str | Path) -> tuple[WorldModel, dict]:
-    """A trained model and the meta (config, stats, data fingerprint) its checkpoint carries."""
+def load_model(checkpoint: str | Path, device: str | torch.device | None = "auto") -> tuple[WorldModel, dict]:
+    """A trained model on `device` and the meta (config, stats, data fingerprint) its checkpoint carries. The
+    checkpoint is read onto the CPU and then moved, so one trained on a GPU loads anywhere."""
+    device = resolve_device(device)
     ck = load_checkpoint(checkpoint)
     meta = ck["meta"]
     model = WorldModel(WorldModelConfig.from_dict(meta["model"]), meta["state_dim"], meta["action_dim"])
     model.load_state_dict(ck["model"])
-    return model, meta
+    return model.to(device), meta

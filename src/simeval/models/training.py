@@ -7,6 +7,10 @@ norm). Everything random is seeded from `seed`: the window order of epoch e, the
 dataset), and the latent samples of step i (a generator seeded with (seed, i)). So a run killed and resumed from
 its last checkpoint takes the same steps as one never interrupted (on the same machine and thread count).
 
+Device (`device`: auto, cpu, cuda, cuda:N; simeval.models.device): the model, Adam's state and each batch live
+there; the random draws come from the CPU generators above and are moved, so they do not depend on the device.
+Checkpoints hold CPU tensors and not the device: a run started on a GPU resumes on a CPU machine and vice versa.
+
 Evaluation (`evaluate`): the model observes each evaluation window with posterior samples from a generator seeded
 with `seed` and reports, averaged over all valid evaluation frames:
   image_error            squared error summed over the H x W x 3 pixels in [0, 1] of the posterior reconstruction
@@ -31,6 +35,7 @@ import numpy as np
 import torch
 
 from simeval.errors import UserError, require_whole
+from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 
 log = logging.getLogger(__name__)
 
@@ -75,13 +80,14 @@ def collate(items: list[dict]) -> dict[str, torch.Tensor]:
     return {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
 
 
-def _loader(dataset, batches: list[list[tuple[int, int]]], num_workers: int):
+def _loader(dataset, batches: list[list[tuple[int, int]]], num_workers: int, pin_memory: bool = False):
     from torch.utils.data import DataLoader
 
     if num_workers == 0:  # no worker processes: read in the training thread
         return (collate([dataset[i] for i in b]) for b in batches)
+    # pin_memory (for a GPU): batches in page-locked memory, whose non_blocking copy can overlap with computation
     return DataLoader(dataset, batch_sampler=batches, num_workers=num_workers, collate_fn=collate,
-                      persistent_workers=False, prefetch_factor=4)
+                      persistent_workers=False, prefetch_factor=4, pin_memory=pin_memory)
 
 
 def epoch_batches(windows: np.ndarray, batch_size: int, seed: int, epoch: int) -> list[list[tuple[int, int]]]:
@@ -121,12 +127,16 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
 
 
 def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None = None, meta: dict | None = None,
-          log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True) -> dict:
-    """Train in place; return {steps, epochs, seconds, frames, last: metrics}. With `checkpoint`, resume from it
-    when it exists and its `meta` (config, data identity) matches, and save to it every `checkpoint_every` steps
-    and at each epoch end. `meta` is stored in the checkpoint (the config that made it)."""
+          log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
+          device: str | torch.device | None = "auto") -> dict:
+    """Train in place on `device` (the model is moved there); return {steps, epochs, seconds, frames, last:
+    metrics}. With `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device)
+    matches, and save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint
+    (the config that made it)."""
     from tqdm.auto import tqdm
 
+    device = resolve_device(device)
+    model.to(device)  # before Adam is made: its state is created beside the parameters
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
     epoch, done_in_epoch, step = 0, 0, 0
     meta = dict(meta or {})
@@ -136,16 +146,16 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             diff = sorted(k for k in set(ck["meta"]) | set(meta) if ck["meta"].get(k) != meta.get(k))
             raise UserError(f"{checkpoint}: made with a different config or data ({', '.join(diff)}); delete it or "
                             f"use another run folder")
-        model.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
+        model.load_state_dict(ck["model"])  # copies the checkpoint's CPU tensors into the parameters on `device`
+        opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
         epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
         log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
 
     def save(e: int, b: int, finished: bool = False) -> None:
         if checkpoint is not None:
-            save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": model.state_dict(),
-                                         "optimizer": opt.state_dict(), "epoch": e, "batches_done": b, "step": step,
-                                         "meta": meta, "finished": finished})
+            save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": to_cpu(model.state_dict()),
+                                         "optimizer": to_cpu(opt.state_dict()), "epoch": e, "batches_done": b,
+                                         "step": step, "meta": meta, "finished": finished})
 
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
@@ -160,8 +170,9 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             todo = todo[: cap - step]
         bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
                    disable=not progress, leave=False)
-        for batch in _loader(dataset, todo, cfg.num_workers):
-            loss, last = model.loss(to_torch(batch), generator=step_generator(cfg.seed, step))
+        for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
+            loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
+                                    generator=step_generator(cfg.seed, step))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
@@ -187,10 +198,11 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
 def evaluate(model, dataset, seed: int = 0, batch_size: int = 16, context: int | None = None,
              per_task: bool = True, progress: bool = False) -> dict:
     """Errors over every evaluation window of `dataset` (its `windows(0)`), see the module docstring. `context`:
-    observed frames before open-loop imagination (None: half the window)."""
+    observed frames before open-loop imagination (None: half the window). Runs where the model is."""
     from tqdm.auto import tqdm
 
     model.eval()
+    device = module_device(model)
     windows = dataset.windows(0)
     if len(windows) == 0:
         raise UserError("no evaluation windows (episodes shorter than the window and no pad_end)")
@@ -210,9 +222,11 @@ def evaluate(model, dataset, seed: int = 0, batch_size: int = 16, context: int |
     batches = [[(int(e), int(s)) for e, s in windows[i : i + batch_size]] for i in range(0, len(windows), batch_size)]
     for batch in tqdm(_loader(dataset, batches, 0), total=len(batches), desc="eval", disable=not progress,
                       leave=False):
-        b = to_torch(batch)
-        e = model.step_errors(b, generator=gen)
-        ol = model.open_loop_errors(b, context, generator=gen)
+        b = to_torch(batch)  # stays on the CPU for the bookkeeping below
+        on_device = to_device(b, device, non_blocking=True)
+        # the errors come back in one copy per batch: the per-window sums below are CPU work, not GPU round trips
+        e = to_cpu(model.step_errors(on_device, generator=gen))
+        ol = to_cpu(model.open_loop_errors(on_device, context, generator=gen))
         mask = b["mask"].float()
         olmask = mask[:, context:]
         for j in range(mask.shape[0]):

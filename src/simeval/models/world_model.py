@@ -37,6 +37,7 @@ from einops import rearrange
 from torch import nn
 
 from simeval.errors import UserError, require_whole
+from simeval.models.device import module_device, to_device
 
 VERSION = "1.0"
 
@@ -111,8 +112,9 @@ def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
 
 def straight_through_sample(logp: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """A one-hot sample of Cat(exp(logp)) (Gumbel-max, so a seeded generator reproduces it) whose gradient is that
-    of the probabilities."""
-    u = torch.rand(logp.shape, generator=generator, device=logp.device, dtype=logp.dtype)
+    of the probabilities. `generator`: a CPU one; the uniforms are drawn on the CPU and moved to logp's device, so a
+    seed gives the same samples on every device."""
+    u = torch.rand(logp.shape, generator=generator, dtype=logp.dtype).to(logp.device)
     gumbel = -torch.log((-torch.log(u.clamp_min(1e-20))).clamp_min(1e-20))
     one_hot = F.one_hot(torch.argmax(logp + gumbel, -1), logp.shape[-1]).to(logp.dtype)
     probs = logp.exp()
@@ -415,7 +417,7 @@ def open_loop_video(model: WorldModel, window: dict, context: int, seed: int = 0
     The separators are white while the open-loop panel shows observed frames and red once it shows imagined ones.
     `window`: a window of a WindowDataset (arrays (T, ...): image uint8, state, prev_action, is_first, mask), with or
     without a batch axis of one. Samples come from generators seeded with `seed`: the imagined frames are those that
-    `open_loop_errors` scores with a generator of the same seed."""
+    `open_loop_errors` scores with a generator of the same seed. The model runs where it is."""
     from simeval.media import side_by_side
 
     batch = {k: torch.as_tensor(np.asarray(window[k])) for k in ("image", "state", "prev_action", "is_first", "mask")}
@@ -426,8 +428,9 @@ def open_loop_video(model: WorldModel, window: dict, context: int, seed: int = 0
     length = batch["image"].shape[1]
     if not 1 <= context < length:
         raise UserError(f"eval.context={context}: expected 1 <= context < window length ({length})")
-    recon = model.reconstruct(batch, generator=torch.Generator().manual_seed(int(seed)))
-    imagined = model.open_loop_images(batch, context, generator=torch.Generator().manual_seed(int(seed)))
+    on_device = to_device(batch, module_device(model))
+    recon = model.reconstruct(on_device, generator=torch.Generator().manual_seed(int(seed))).cpu()
+    imagined = model.open_loop_images(on_device, context, generator=torch.Generator().manual_seed(int(seed))).cpu()
 
     def to_uint8(x: torch.Tensor) -> np.ndarray:
         return (x[0].clamp(0, 1) * 255).round().to(torch.uint8).numpy()

@@ -8,6 +8,8 @@ samplers on held-out windows.
     sampler_action_error(policy, dataset, ...) -> {sampler: mean squared error of the executed actions, in the
         normalised [-1, 1] action units, against the demonstrations}: how close DDIM with k steps comes to DDPM
         with all steps without rollouts.
+Both run the policy where it is (simeval.models.device): the simulator steps on the CPU, and each action chunk is
+one policy call on the policy's device whose actions come back to the CPU.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import torch
 
 from simeval.media import write_video
 from simeval.metrics.intervals import success_summary
+from simeval.models.device import module_device, to_device
 from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
 
 log = logging.getLogger(__name__)
@@ -84,10 +87,11 @@ def summarize(rows: Sequence[Mapping]) -> dict:
 def sampler_action_error(policy: DiffusionPolicy, dataset, samplers: Mapping[str, tuple[str, int]],
                          max_windows: int = 64, seed: int = 0) -> dict:
     """samplers: {label: (scheduler, steps)}. Each sampler predicts the same windows from the same observations
-    and the same initial noise; the error is over the executed actions (indices To-1 .. To-1+Ta-1)."""
+    and the same initial noise; the error is over the executed actions (indices To-1 .. To-1+Ta-1). Runs where the
+    policy is."""
     cfg = policy.cfg
     rows = np.random.default_rng(seed).permutation(len(dataset))[:max_windows]
-    batch = dataset.window(rows)
+    batch = to_device(dataset.window(rows), module_device(policy))
     target = policy.action_norm(batch["action"].float())
     sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
     out = {}

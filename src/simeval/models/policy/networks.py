@@ -81,10 +81,11 @@ class ImageEncoder(nn.Module):
 
 
 def random_crop(x: torch.Tensor, size: int, generator: torch.Generator | None = None) -> torch.Tensor:
-    """(N, C, H, W) -> (N, C, size, size), each image cropped at its own uniformly drawn offset."""
+    """(N, C, H, W) -> (N, C, size, size), each image cropped at its own uniformly drawn offset. The offsets are
+    drawn on the CPU (a CPU `generator`) and moved to x's device: the same crops on every device."""
     n, _, h, w = x.shape
-    top = torch.randint(0, h - size + 1, (n,), generator=generator, device=x.device)
-    left = torch.randint(0, w - size + 1, (n,), generator=generator, device=x.device)
+    top = torch.randint(0, h - size + 1, (n,), generator=generator).to(x.device)
+    left = torch.randint(0, w - size + 1, (n,), generator=generator).to(x.device)
     ar = torch.arange(size, device=x.device)
     rows = (top[:, None] + ar)[:, :, None]  # (N, size, 1)
     cols = (left[:, None] + ar)[:, None, :]  # (N, 1, size)
@@ -163,7 +164,7 @@ class ConditionalUnet1D(nn.Module):
         """sample (B, T, A), timestep (B,) or scalar, global_cond (B, C) -> (B, T, A)."""
         x = rearrange(sample, "b t a -> b a t")
         t = timestep if torch.is_tensor(timestep) else torch.tensor(timestep, device=sample.device)
-        t = t.reshape(-1).expand(sample.shape[0])
+        t = t.to(sample.device).reshape(-1).expand(sample.shape[0])  # a sampler's timesteps are on the CPU
         cond = torch.cat([self.step_encoder(t), global_cond], dim=-1)
         skips = []
         for res1, res2, down in self.down:
