@@ -14,7 +14,10 @@ log = logging.getLogger("diversity")
 def _ranks(value, key: str) -> tuple[int, int] | None:
     if value is None:
         return None
-    lo, hi = list(value)
+    bounds = list(value) if isinstance(value, (list, tuple)) or OmegaConf.is_list(value) else [value]
+    if len(bounds) != 2 or not all(isinstance(b, int) and not isinstance(b, bool) for b in bounds):
+        raise UserError(f"{key}={value!r}: expected [first, last] episode numbers, e.g. {key}=[1,40]")
+    lo, hi = bounds
     if not 1 <= lo <= hi:
         raise UserError(f"{key}={list(value)}: expected [first, last] episode numbers, 1 <= first <= last")
     return lo - 1, hi
@@ -33,9 +36,13 @@ def main(cfg: DictConfig) -> None:
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
 
-    torch.set_num_threads(int(cfg.threads))
+    for key, low in {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
+                     "eval.batch_size": 1}.items():
+        require_whole(key, OmegaConf.select(cfg, key), low=low)  # before any data is read or model trained
+    eval_ranks = _ranks(cfg.eval_episodes, "eval_episodes")
+    heldout_ranks = _ranks(cfg.heldout_episodes, "heldout_episodes")
+    torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
-    require_whole("videos", cfg.videos, low=0)
     wm = OmegaConf.to_container(cfg.world_model, resolve=True)
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
@@ -48,8 +55,8 @@ def main(cfg: DictConfig) -> None:
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         values = fit_and_evaluate(
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=_ranks(cfg.eval_episodes, "eval_episodes"),
-            heldout_episodes=_ranks(cfg.heldout_episodes, "heldout_episodes"), eval_seed=int(cfg.eval.seed),
+            eval_episodes=eval_ranks,
+            heldout_episodes=heldout_ranks, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
             videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device)

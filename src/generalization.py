@@ -8,7 +8,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 
 log = logging.getLogger("generalization")
 VERSION = "1.0"
@@ -30,6 +30,11 @@ def main(cfg: DictConfig) -> None:
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import group_and_heldout, split_tasks
 
+    optional = {"torch_threads": 1, "eval.max_steps": 1}
+    for key, low in {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
+                     "eval.seed_offset": 0, **optional}.items():  # checked before training, not after it
+        if key not in optional or OmegaConf.select(cfg, key) is not None:
+            require_whole(key, OmegaConf.select(cfg, key), low=low)
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
@@ -76,13 +81,14 @@ def main(cfg: DictConfig) -> None:
                     "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task,
                     "variations": {t: v for t, v in plan.get("eval", [])},
                     "eval_seeds": cfg.eval.seeds, "settings": {"model": vars(pcfg), "train": vars(settings)}}
-        write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
+        path = write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
                      choices=run["choices"], config=config, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
     for s, v in values["splits"].items():
         sr = v["success"]
         log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", s, sr["k"], sr["n"], sr["rate"],
                  *sr["ci"], v["mean_progress"])
+    log.info("wrote %s", path)
 
 
 if __name__ == "__main__":

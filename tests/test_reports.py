@@ -196,3 +196,17 @@ def test_figure4_refuses_two_judges_in_one_point(tmp_path):
     q_record(tmp_path / "runs2", "a", model="gpt-4o", label="GenSim-gpt")
     q_record(tmp_path / "runs2", "b", model="llava", label="GenSim-llava")
     assert len(quality_points(read_results(tmp_path / "runs2"))) == 2
+
+
+def test_a_sweep_that_found_no_task_descriptions_does_not_overwrite_the_table(tmp_path):
+    """A fresh clone without the authors' task files: every run is `missing`; the committed table stays."""
+    for p in ("gensim", "robogen"):
+        write_result(tmp_path / "runs" / p, metric="text_diversity", version="2.0", values={}, status="missing",
+                     pipeline=p, embedding="minilm", missing_hint=f"set the {p} task source")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "table3.md").write_text("| committed numbers |\n")
+    with pytest.raises(UserError, match="found any task descriptions, so nothing was written"):
+        _build(tmp_path / "runs", out)
+    assert (out / "table3.md").read_text() == "| committed numbers |\n"
+    assert sorted(p.name for p in out.iterdir()) == ["table3.md"]

@@ -169,11 +169,68 @@ def stop_sweep_on_user_errors(results: Any) -> None:
         sys.exit(USER_ERROR_EXIT)
 
 
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+
+
+def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
+    """One line for what Hydra would report as a multi-line block and exit 1 on: an override it cannot parse, a
+    config-group choice with no file (`world_model=nope`), or a chosen group file that is not valid YAML. None
+    when it finds nothing (Hydra still checks everything else)."""
+    import yaml
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    overrides = [a for a in args if not a.startswith("-")]
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except OverrideParseException as e:
+        bad = next((o for o in overrides if _unparseable(o)), None)
+        first = str(e).strip().splitlines()[0] if str(e).strip() else "cannot parse"
+        return (f"override {bad!r}: {first}" if bad else first) + " (quote values with spaces, commas or braces: "\
+            "key='{a: 1}')"
+    for o in parsed:
+        group = conf_dir / o.key_or_group
+        # hydra/* groups (launchers, sweepers) also come from installed plugins, not only from conf/
+        if o.is_delete() or not group.is_dir() or o.package is not None or o.key_or_group.startswith("hydra/"):
+            continue
+        values = [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
+        options = sorted(p.stem for p in group.glob("*.yaml"))
+        for v in values:
+            path = group / f"{v}.yaml"
+            if v == "null":
+                continue
+            if not path.is_file():
+                return f"{o.key_or_group}={v}: no {path.relative_to(conf_dir.parent)}; valid: {', '.join(options)}"
+            try:
+                yaml.safe_load(path.read_text())
+            except yaml.YAMLError as e:
+                mark = getattr(e, "problem_mark", None)
+                where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+                return f"{path}:{where} is not valid YAML ({getattr(e, 'problem', None) or e})"
+    return None
+
+
+def _unparseable(override: str) -> bool:
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    try:
+        OverridesParser.create().parse_overrides([override])
+    except OverrideParseException:
+        return True
+    return False
+
+
 def launch(main: Callable[[], Any]) -> None:
-    """Run an entrypoint's `main` after the argv fixes every entrypoint shares."""
+    """Run an entrypoint's `main` after the argv fixes and checks every entrypoint shares."""
     from simeval.results import register_run_suffix_resolver
 
     refuse_secrets_on_command_line(sys.argv)
     allow_multirun_anywhere()
+    custom_search_path = any(a.startswith(("--config-dir", "-cd", "--config-path", "-cp")) for a in sys.argv[1:])
+    if not custom_search_path and os.environ.get("HYDRA_FULL_ERROR") != "1":
+        mistake = config_mistakes(sys.argv[1:])
+        if mistake:
+            _fail(mistake)
     register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders
     main()

@@ -30,13 +30,16 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
     if k < 1:
         raise UserError(f"episodes_per_task must be >= 1, got {k}")
     train, val, metas = [], [], []
+    # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
+    plain = {task: [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)] for task in tasks}
+    short = [t for t in tasks if len(plain[t]) < k]
+    if short:  # name every short task at once, so the collect command given fixes them all
+        counts = ", ".join(f"{t} has {len(plain[t])}" for t in short)
+        raise UserError(f"store {store.root}: fewer than episodes_per_task={k} episodes ({counts}); collect them "
+                        f"with: python src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] "
+                        f"episodes={k + val_k} store={store.root}")
     for task in tasks:
-        # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
-        paths = [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)]
-        if len(paths) < k:
-            raise UserError(f"store {store.root}: task {task} has {len(paths)} episodes, fewer than "
-                            f"episodes_per_task={k}; collect them with src/collect.py pipeline={pipeline} "
-                            f"tasks={task} episodes={k + val_k} store={store.root}")
+        paths = plain[task]
         paths = sorted(paths, key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))  # by seed
         train += [read_episode(p, list(cameras)) for p in paths[:k]]
         val += [read_episode(p, list(cameras)) for p in paths[k : k + val_k]]

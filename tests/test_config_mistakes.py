@@ -1,0 +1,71 @@
+"""Mistakes on the command line or in a config file stop before any data is read or model trained, with one line
+naming the key, value or file and what is valid, exit code 2 and no traceback (Hydra itself prints a block of
+text and exits 1 for most of them)."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from simeval.cli import config_mistakes
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(entrypoint: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run([sys.executable, str(ROOT / "src" / f"{entrypoint}.py"), *args,
+                           f"store={cwd / 'no-store'}", f"hydra.run.dir={cwd / 'run'}", f"hydra.sweep.dir={cwd / 'sweep'}"],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
+
+
+def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("error: ")
+    return lines[0]
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["pipeline=nope"], "pipeline=nope: no conf/pipeline/nope.yaml; valid: bbsea, custom, gensim, robogen"),
+    (["-m", "world_model=cpu,nope"], "world_model=nope: no conf/world_model/nope.yaml; valid: cpu, paper, tiny"),
+    (["episodes=abc"], "episodes must be a whole number >= 1, got 'abc'"),
+    (["episodes=1.5"], "episodes must be a whole number >= 1, got 1.5"),
+    (["threads=0"], "threads must be a whole number >= 1, got 0"),
+    (["eval_episodes=[1,2,3]"], "eval_episodes=[1, 2, 3]: expected [first, last] episode numbers"),
+])
+def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):
+    # the store does not exist: an error about the store would mean the value was checked too late
+    assert expected in one_line_exit_2(run("diversity", *args, cwd=tmp_path))
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["eval.seeds=-1"], "eval.seeds must be a whole number >= 1, got -1"),
+    (["eval.seeds=abc"], "eval.seeds must be a whole number >= 1, got 'abc'"),
+    (["episodes_per_task=abc"], "episodes_per_task must be a whole number >= 1, got 'abc'"),
+    (["eval.max_steps=0"], "eval.max_steps must be a whole number >= 1, got 0"),
+    (["policy=nope"], "policy=nope: no conf/policy/nope.yaml; valid: authors_gensim, cpu, official, tiny"),
+    (["eval.variation={robot: {home_noise: 0.2}"], "override 'eval.variation={robot: {home_noise: 0.2}'"),
+])
+def test_generalization_names_the_bad_value_before_training(args, expected, tmp_path):
+    assert expected in one_line_exit_2(run("generalization", *args, cwd=tmp_path))
+
+
+def test_a_group_file_that_is_not_yaml_is_named_with_its_line(tmp_path):
+    conf = tmp_path / "conf"
+    (conf / "world_model").mkdir(parents=True)
+    (conf / "world_model" / "mine.yaml").write_text("model:\n  image_size: 16\n  deter: [8\n")
+    line = config_mistakes(["world_model=mine"], conf)
+    assert line.startswith(f"{conf / 'world_model' / 'mine.yaml'}: line 4, column 1 is not valid YAML"), line
+
+
+def test_what_hydra_resolves_itself_is_left_to_it(tmp_path):
+    conf = tmp_path / "conf"
+    (conf / "pipeline").mkdir(parents=True)
+    (conf / "pipeline" / "a.yaml").write_text("name: a\n")
+    assert config_mistakes(["pipeline=a", "episodes=3", "hydra/launcher=joblib", "~logger", "+x=1"], conf) is None
