@@ -65,7 +65,7 @@ def table4(a) -> list[Path]:
     if unused:
         print(f"Table 4: note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
               f"(--table4-episodes {a.table4_episodes} chose its columns)")
-    return [*t4.write(rows, Path(a.tables) / "table4", episodes).values(),
+    return [*t4.write(rows, Path(a.tables) / "table4", episodes, unused).values(),
             *t4.plot(rows, Path(a.figures) / "table4.png")]
 
 

@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> None:
             raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
                             f"presets: {', '.join(presets)})")
         unused = table4.unused_episodes(records, episodes)
-        written = table4.write(rows, a.out, episodes)
+        written = table4.write(rows, a.out, episodes, unused)
         figures = table4.plot(rows, a.figure)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)

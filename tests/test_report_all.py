@@ -105,3 +105,12 @@ def test_make_report_is_listed_and_runs_the_rebuild(outputs, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "Table 4: outputs/tables/table4.csv" in r.stdout and "figures/table5.png" in r.stdout
     assert (tmp_path / "outputs" / "runs" / "report" / "index.html").is_file()
+
+
+def test_table4_says_in_the_file_which_runs_it_leaves_out():
+    from simeval.report import table4
+
+    _, body, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[1, 2, 4])
+    assert body and all("—" in cell for row in body for cell in row[3:6])  # no run at 10/20/40: paper / —
+    assert ("Runs trained on 1/2/4 episodes per task exist but are not in this table (its columns are 10/20/40): "
+            "build one for them with --episodes 1 2 4") in notes

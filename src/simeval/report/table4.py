@@ -82,8 +82,8 @@ def _fmt(v, digits: int = 1) -> str:
     return "—" if v is None else f"{v:.{digits}f}"
 
 
-def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) -> tuple[list[str], list[list[str]],
-                                                                                           list[str]]:
+def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES,
+            unused: list[int] | tuple[int, ...] = ()) -> tuple[list[str], list[list[str]], list[str]]:
     """(header, body, notes) of the Markdown and LaTeX tables: 'paper / ours' per column, ours per pixel."""
     header = (["Method", "Task group", "preset"] + [f"Eval error on {k} ep (paper / ours)" for k in EPISODES]
               + [f"ours per pixel at {'/'.join(map(str, EPISODES))}"])
@@ -95,13 +95,18 @@ def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) 
     if [int(k) for k in episodes] != list(EPISODES):
         notes.append(f"Ours trained on {'/'.join(map(str, episodes))} episodes per task in the columns of the "
                      f"paper's {'/'.join(map(str, EPISODES))}")
+    if unused:  # in the table itself, not only on the console: a reader of the file sees why a cell is '—'
+        notes.append(f"Runs trained on {'/'.join(map(str, unused))} episodes per task exist but are not in this "
+                     f"table (its columns are {'/'.join(map(str, episodes))}): build one for them with "
+                     f"--episodes {' '.join(map(str, unused[:3]))}")
     return header, body, notes
 
 
-def write(rows: list[dict], stem: str | Path, episodes: tuple[int, ...] | list[int] = EPISODES) -> dict[str, Path]:
+def write(rows: list[dict], stem: str | Path, episodes: tuple[int, ...] | list[int] = EPISODES,
+          unused: list[int] | tuple[int, ...] = ()) -> dict[str, Path]:
     """`<stem>.csv` (every number of the rows, for scripts), `<stem>.md` and `<stem>.tex` (booktabs) as shown."""
     stem = Path(stem)
-    header, body, notes = display(rows, episodes)
+    header, body, notes = display(rows, episodes, unused)
     caption = ("World-model evaluation error with a different number of training episodes per task (paper Table 4: "
                "for a diverse task group the error drops as the training episodes increase).")
     return {"csv": atomic_write_text(stem.with_suffix(".csv"),
