@@ -53,13 +53,24 @@ def suite_of(pipeline: str) -> str | None:
 
 
 def groups_of(suite: str, tasks_per_group: int | None) -> dict[str, list[str]]:
-    """{group: the first `tasks_per_group` task names by name (all when None)}."""
+    """{group: task names}: all of them when `tasks_per_group` is None, else the first `tasks_per_group` tasks by
+    name that the policy trains on, plus the group's first held-out task (splits.yaml), so a subset still trains
+    on that many tasks and still has a held-out split."""
     from simeval.sim.spec import SUITES_DIR, load_suite
+    from simeval.sim.splits import load_heldout
 
+    specs = sorted(load_suite(SUITES_DIR / suite), key=lambda s: s.name)
+    heldout = load_heldout(SUITES_DIR / suite, specs)
     groups: dict[str, list[str]] = {}
-    for spec in sorted(load_suite(SUITES_DIR / suite), key=lambda s: s.name):
+    for spec in specs:
         groups.setdefault(spec.group, []).append(spec.name)
-    return {g: names[:tasks_per_group] if tasks_per_group else names for g, names in sorted(groups.items())}
+    if not tasks_per_group:
+        return dict(sorted(groups.items()))
+    out = {}
+    for g, names in sorted(groups.items()):
+        held = [n for n in names if n in heldout.get(g, [])]
+        out[g] = [n for n in names if n not in held][:tasks_per_group] + held[:1]
+    return out
 
 
 def run(cmd: list[str], log: Path, echo: bool = False) -> None:
