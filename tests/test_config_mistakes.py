@@ -69,3 +69,16 @@ def test_what_hydra_resolves_itself_is_left_to_it(tmp_path):
     (conf / "pipeline").mkdir(parents=True)
     (conf / "pipeline" / "a.yaml").write_text("name: a\n")
     assert config_mistakes(["pipeline=a", "episodes=3", "hydra/launcher=joblib", "~logger", "+x=1"], conf) is None
+
+
+def test_group_files_on_a_searchpath_override_count_as_valid_choices(tmp_path):
+    conf, extra = tmp_path / "conf", tmp_path / "extra"
+    (conf / "embedding").mkdir(parents=True)
+    (conf / "embedding" / "minilm.yaml").write_text("name: minilm\n")
+    (extra / "embedding").mkdir(parents=True)
+    (extra / "embedding" / "leaky.yaml").write_text("name: leaky\n")
+    assert config_mistakes(["embedding=leaky", f"hydra.searchpath=[file://{extra}]"], conf) is None
+    assert config_mistakes(["embedding=nope", f"hydra.searchpath=[file://{extra}]"], conf) == \
+        "embedding=nope: no conf/embedding/nope.yaml; valid: leaky, minilm"
+    # a package on the search path is opaque from here: Hydra decides
+    assert config_mistakes(["embedding=nope", "hydra.searchpath=[pkg://somepkg.conf]"], conf) is None

@@ -100,7 +100,7 @@ def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_
     res = _diversity_sweep(tmp_path, "task_group=diverse", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
                            "-m", "episodes=0,2")
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
-    assert res.stderr.splitlines() == ["error: episodes=0: expected a whole number >= 1 (the paper uses 10, 20, 40)"]
+    assert res.stderr.splitlines() == ["error: episodes must be a whole number >= 1, got 0"]
     assert not (tmp_path / "sweep" / "0" / "result.json").exists()
     rec = json.loads((tmp_path / "sweep" / "1" / "result.json").read_text())  # the good job ran to the end
     assert rec["identity"]["episodes"] == 2 and rec["values"]["train"]["steps"] > 0

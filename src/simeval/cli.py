@@ -175,7 +175,9 @@ CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
     """One line for what Hydra would report as a multi-line block and exit 1 on: an override it cannot parse, a
     config-group choice with no file (`world_model=nope`), or a chosen group file that is not valid YAML. None
-    when it finds nothing (Hydra still checks everything else)."""
+    when it finds nothing (Hydra still checks everything else). Group files are also looked up in the
+    `file://` folders of a `hydra.searchpath=[...]` override; with a `pkg://` entry the group check is left
+    to Hydra, which can see inside packages."""
     import yaml
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
@@ -188,19 +190,27 @@ def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
         first = str(e).strip().splitlines()[0] if str(e).strip() else "cannot parse"
         return (f"override {bad!r}: {first}" if bad else first) + " (quote values with spaces, commas or braces: "\
             "key='{a: 1}')"
+    conf_dirs = [conf_dir]
     for o in parsed:
-        group = conf_dir / o.key_or_group
+        if o.key_or_group == "hydra.searchpath" and not o.is_delete():
+            entries = o.value() if isinstance(o.value(), list) else [o.value()]
+            if any(not str(e).startswith("file://") for e in entries):
+                return None
+            conf_dirs += [Path(str(e)[len("file://"):]) for e in entries]
+    for o in parsed:
+        groups = [d / o.key_or_group for d in conf_dirs if (d / o.key_or_group).is_dir()]
         # hydra/* groups (launchers, sweepers) also come from installed plugins, not only from conf/
-        if o.is_delete() or not group.is_dir() or o.package is not None or o.key_or_group.startswith("hydra/"):
+        if o.is_delete() or not groups or o.package is not None or o.key_or_group.startswith("hydra/"):
             continue
         values = [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
-        options = sorted(p.stem for p in group.glob("*.yaml"))
+        options = sorted({p.stem for g in groups for p in g.glob("*.yaml")})
         for v in values:
-            path = group / f"{v}.yaml"
             if v == "null":
                 continue
-            if not path.is_file():
-                return f"{o.key_or_group}={v}: no {path.relative_to(conf_dir.parent)}; valid: {', '.join(options)}"
+            path = next((g / f"{v}.yaml" for g in groups if (g / f"{v}.yaml").is_file()), None)
+            if path is None:
+                missing = (conf_dir / o.key_or_group / f"{v}.yaml").relative_to(conf_dir.parent)
+                return f"{o.key_or_group}={v}: no {missing}; valid: {', '.join(options)}"
             try:
                 yaml.safe_load(path.read_text())
             except yaml.YAMLError as e:
