@@ -78,8 +78,8 @@ table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Polic
 	  $(PY) src/generalization.py pipeline=$$p task_group=$$g || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
-report-table5: setup ## rebuild Table 5 + figure from result.json files only: outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
-	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png
+report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
+	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY))
 
 # Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
 # (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job). Imported episodes: run

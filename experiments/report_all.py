@@ -73,7 +73,7 @@ def table5(a) -> list[Path]:
     from simeval.models.policy import table5 as t5
 
     records = _records(Path(a.table5_runs), t5.METRIC, "`make table5` trains and rolls out the policies")
-    rows = t5.build(records)
+    rows = t5.build(records, policy=a.table5_policy)
     return [*t5.write(rows, Path(a.tables) / "table5").values(), *t5.plot(rows, Path(a.figures) / "table5.png")]
 
 
@@ -113,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table4-episodes", default="10,20,40",
                     help="our training-episode counts in the paper's 10/20/40 columns (quick profile: 1,2,4)")
     ap.add_argument("--table5-runs", default="outputs")
+    ap.add_argument("--table5-policy", default=None, help="only policy runs of this preset (default: a row per preset)")
     ap.add_argument("--quality-runs", default="outputs/runs/quality")
     ap.add_argument("--html-runs", default="outputs/runs")
     ap.add_argument("--html-out", default=None, help="default: <html-runs>/report")

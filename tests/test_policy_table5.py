@@ -23,8 +23,21 @@ def test_seeds_pool_and_the_table_shows_paper_and_interval(tmp_path):
 
 
 def test_runs_with_other_settings_are_refused():
-    with pytest.raises(UserError, match="policy"):
-        build([rec("a", 1, 10), rec("b", 1, 10, policy="tiny")])
+    other_sampler = rec("b", 1, 10)
+    other_sampler["identity"]["sampler"] = "ddpm"
+    with pytest.raises(UserError, match="differ in sampler.*move the other runs out"):
+        build([rec("a", 1, 10), other_sampler])
+
+
+def test_each_policy_preset_is_its_own_row_and_can_be_chosen():
+    # the quick profile's tiny runs beside the cpu preset's: two rows, never pooled
+    runs = [rec("a", 1, 10), rec("b", 5, 10, policy="tiny")]
+    piles = [r for r in build(runs) if r["group"] == "piles"]
+    assert [(r["policy"], r["eval"]["k"]) for r in piles] == [("cpu", 1), ("tiny", 5)]
+    only = [r for r in build(runs, policy="tiny") if r["group"] == "piles"]
+    assert [(r["policy"], r["eval"]["k"]) for r in only] == [("tiny", 5)]
+    with pytest.raises(UserError, match="--policy paper: no generalization run of that preset.*cpu, tiny"):
+        build(runs, policy="paper")
 
 
 def test_a_group_named_as_in_the_paper_lands_in_the_suite_row():

@@ -102,6 +102,10 @@ def _dead_worker_message(procs: dict, started, new: list, store_root: str) -> st
     deadline = time.monotonic() + 2.0  # the pool sees a dead worker's pipes close a moment before it can be reaped
     for p in procs.values():
         p.join(max(0.0, deadline - time.monotonic()))
+    # the pool's own thread reaps workers too: when it wins the race, our waitpid sees no child and exitcode stays
+    # None until that thread stores the status, a moment later (seen under load: the SIGKILLed worker went missing)
+    while any(p.exitcode is None for p in procs.values()) and time.monotonic() < deadline:
+        time.sleep(0.05)
     dead = [(p.pid, p.exitcode) for p in procs.values() if p.exitcode not in (None, 0)]
     # once the pool is broken it terminates the other workers (SIGTERM): the one that died first is another
     dead.sort(key=lambda d: d[1] == -signal.SIGTERM)

@@ -2,7 +2,7 @@
 and a figure.
 
     python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5] \
-        [--figure outputs/figures/table5.png]
+        [--figure outputs/figures/table5.png] [--policy cpu]
 writes table5.{csv,md,tex} and table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
 group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
@@ -30,27 +30,40 @@ PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (va
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
 
-def build(records: list[dict]) -> list[dict]:
-    """One row per paper cell (then per other group run): {pipeline, group, paper, policy, runs, eval, train,
-    heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run."""
+def build(records: list[dict], policy: str | None = None) -> list[dict]:
+    """One row per paper cell and policy preset (then per other group run): {pipeline, group, paper, policy, runs,
+    eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
+    `policy`: only runs of that policy preset (the quick profile's `tiny` runs beside the `cpu` ones give two
+    rows per group otherwise). Runs of one cell and preset with other settings (another sampler, other seeds)
+    are a UserError: pooling them would mix two experiments."""
     cells: dict = {}
     for rec in records:
         ident = rec["identity"]
-        key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]))
+        if policy is not None and ident.get("policy") != policy:
+            continue
+        key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy"))
         base = {k: v for k, v in ident.items() if k != "seed"}
         if key in cells and cells[key]["identity"] != base:
             diff = identity_difference(cells[key]["identity"], base)
-            raise UserError(f"{rec['path']}: runs of {key} differ in {diff}")
+            raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
+                            f"runs of one setting only: move the other runs out of the folder searched, or search "
+                            f"one sweep's folder (--runs)")
         cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": []})
         cell["runs"].append(rec["path"])
         for split, v in rec["values"].get("splits", {}).items():
             k, n = cell["counts"].get(split, (0, 0))
             cell["counts"][split] = (k + v["success"]["k"], n + v["success"]["n"])
+    if policy is not None and not cells:
+        presets = sorted({str(r["identity"].get("policy")) for r in records})
+        raise UserError(f"--policy {policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)})")
+    ran = {(p, g) for p, g, _ in cells}
+    keys = [(p, g, pr) for p, g in [*PAPER, *sorted(ran - set(PAPER))]
+            for pr in (sorted((k[2] for k in cells if k[:2] == (p, g)), key=str) or [None])]
     rows = []
-    for (pipeline, group) in [*PAPER, *sorted(set(cells) - set(PAPER))]:
-        cell = cells.get((pipeline, group))
+    for (pipeline, group, preset) in keys:
+        cell = cells.get((pipeline, group, preset))
         row = {"pipeline": pipeline, "group": group, "paper": PAPER.get((pipeline, group)),
-               "policy": cell["identity"]["policy"] if cell else None, "runs": len(cell["runs"]) if cell else 0}
+               "policy": preset, "runs": len(cell["runs"]) if cell else 0}
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
             row[split] = {"k": k, "n": n, "rate": k / n, "ci": wilson_interval(k, n)} if n else None
@@ -102,14 +115,17 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                 ax.errorbar(x, v["rate"], yerr=[[v["rate"] - lo], [hi - v["rate"]]], fmt=marker, color=color, ms=5,
                             capsize=3, lw=1.4)
                 ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
-                            va="bottom", fontsize=6.5, color=color)
+                            va="bottom", fontsize=6.5, color=color,
+                            bbox={"fc": "white", "ec": "none", "pad": 0.3})  # readable over the paper's line
             if r["paper"] is not None:
                 ax.hlines(r["paper"], i - 0.45, i + 0.45, colors="k", linestyles="--", lw=1.3, zorder=0)
             if not ran:
                 ax.text(i, 0.5, "not run", ha="center", va="center", rotation=90, color="0.55", fontsize=8)
         for i in range(1, len(per[p])):
             ax.axvline(i - 0.5, color="0.85", lw=0.8)
-        ax.set_xticks(range(len(per[p])), [r["group"] for r in per[p]], fontsize=8)
+        several = len({r["policy"] for r in rows if r["policy"]}) > 1
+        ax.set_xticks(range(len(per[p])), [r["group"] + (f"\n({r['policy']})" if several and r["policy"] else "")
+                                           for r in per[p]], fontsize=8)
         ax.set_xlim(-0.5, len(per[p]) - 0.5)
         ax.set_ylim(-0.04, 1.12)
         ax.grid(axis="y", alpha=0.3)
@@ -133,13 +149,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--runs", default="outputs", help="folder searched for result.json files")
     ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
     ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
+    ap.add_argument("--policy", default=None, help="only runs of this policy preset (tiny, cpu, paper)")
     args = ap.parse_args(argv)
     try:
         records = read_results(args.runs, metric=METRIC)
         if not records:
             raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
                             "src/generalization.py), or give --runs the folder that holds them")
-        rows = build(records)
+        rows = build(records, policy=args.policy)
         written = write(rows, args.out)
         figures = plot(rows, args.figure)
     except UserError as e:
