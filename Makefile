@@ -22,7 +22,8 @@ HUMAN_SCORES ?= $(wildcard ../shared/data/human_eval_tables.json)
 .PHONY: help setup test test-all table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches table5 report-table5
 
 help: ## list the targets
-	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
+	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
+	grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk -v c="$$c" -v r="$$r" 'BEGIN {FS = ":.*?## "}; {printf "  %s%-14s%s %s\n", c, $$1, r, $$2}'
 
 setup: $(STAMP) ## create .venv and install the pinned requirements (idempotent)
 
