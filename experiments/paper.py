@@ -4,16 +4,22 @@
     python experiments/paper.py --profile cpu --pipelines gensim       # one pipeline, all aspects, cpu presets
     make paper PROFILE=quick        make evaluate PIPELINE=bbsea PROFILE=quick
 
-For each pipeline with a simeval suite (conf/pipeline/<name>.yaml `suite:`), it runs the entrypoints a user would
-type, as subprocesses, each into its own folder under outputs/paper/<profile>/:
+First, two stages that need no episodes:
+    table3/         src/text_diversity.py -m experiment=table3 pipeline.source=suite: Table 3's layout on simeval's
+                    own suites' task descriptions -> tables/table3.* (the paper's task lists: `make table3`, which
+                    `make paper` runs when GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT= name them)
+    figures/figure3/  src/agreement.py on the paper's appendix score tables (src/simeval/report/
+                    paper_human_eval.json; SIMEVAL_HUMAN_SCORES=file for yours): the paper's Figure 3
+Then for each pipeline with a simeval suite (conf/pipeline/<name>.yaml `suite:`), it runs the entrypoints a user
+would type, as subprocesses, each into its own folder under outputs/paper/<profile>/:
     collect/        src/collect.py: the profile's episodes of the first `tasks_per_group` tasks of every group
     quality/        src/quality.py judge=oracle on those episodes (a VLM judge: run quality.py yourself, see README)
     table4/         src/diversity.py per group and training-episode count (the paper's 10/20/40, scaled)
     table5/         src/generalization.py per group: train, eval (varied) and held-out splits
 then rebuilds, from the result.json files only (experiments/report_all.py, as `make report` does), tables/table4.*,
 tables/table5.*, figures/table4.*, figures/table5.* (success with Wilson intervals per group and split),
-figures/figure4.* (with a model judge) and the HTML report, and prints where they are. Text diversity (Table 3)
-runs on the pipelines' real task lists: `make table3`, which `make paper` also runs.
+figures/figure4.* (with a model judge; the oracle judge scores completion only) and the HTML report, and prints
+where they are.
 
 Resumable: a stage whose result.json exists is skipped, and the entrypoints resume their own work (collection
 per episode, training from checkpoints under outputs/paper/<profile>/checkpoints/). A failing stage stops the run
@@ -23,6 +29,7 @@ with its exit status; rerun the same command after fixing the cause.
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import subprocess
 import sys
@@ -34,6 +41,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 PROFILES = ROOT / "experiments" / "profiles"
+# Figure 3 from the paper's own appendix score tables, shipped with the package (experiments/paper_human_eval.py);
+# SIMEVAL_HUMAN_SCORES points it at a table of your own
+HUMAN_SCORES = os.environ.get("SIMEVAL_HUMAN_SCORES") or str(ROOT / "src" / "simeval" / "report" / "paper_human_eval.json")
+SUITE_TABLE3_CAPTION = ("Text diversity (paper Eq. 1) of simeval's own suites' task descriptions, not the paper's "
+                        "task lists (make table3 with GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT= for those)")
 
 
 def load_profile(name: str) -> dict:
@@ -101,14 +113,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--profile", default="quick")
     ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
     ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")
-    ap.add_argument("--stages", default="collect,quality,table4,table5,report")
+    ap.add_argument("--stages", default="table3,figure3,collect,quality,table4,table5,report")
     args = ap.parse_args(argv)
     prof = load_profile(args.profile)
     out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
     stages = set(args.stages.split(","))
     store, logs, ov = out / "episodes", out / "logs", prof["overrides"]
     t_start = time.monotonic()
-    for pipeline in args.pipelines.split(","):
+    pipelines = args.pipelines.split(",")
+    if "table3" in stages:  # the suites' own task descriptions: needs no checkout of the pipelines' code
+        runs = out / "table3" / "runs"
+        if len(list(runs.glob("*/result.json"))) < 2 * len(pipelines):  # two embedding models per pipeline
+            run([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(pipelines)}",
+                 "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
+        run([*entry("report"), "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out / 'tables'}",
+             f'report.caption="{SUITE_TABLE3_CAPTION}"'], logs / "report_table3.log")
+    if "figure3" in stages and not (out / "figures" / "figure3" / "result.json").exists():
+        run([*entry("agreement"), f"scores_path={HUMAN_SCORES}", f"hydra.run.dir={out / 'figures' / 'figure3'}"],
+            logs / "figure3.log")
+    for pipeline in pipelines:
         suite = suite_of(pipeline)
         if not suite:
             print(f"{pipeline}: no simeval suite (pipeline.suite is null): import its episodes with "
@@ -146,10 +169,11 @@ def main(argv: list[str] | None = None) -> None:
              f"--tables={tables}", f"--figures={figures}"], logs / "report.log", echo=True)
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:
-        print("  (no tables or figures: they are built by the report stage, --stages ...,report)")
+        print("  (Tables 4, 5 and the HTML report are built by the report stage: --stages ...,report)")
     for sub in ("tables", "figures"):
-        for p in sorted((out / sub).glob("*")) if (out / sub).is_dir() else []:
-            print(f"  {p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}")
+        for p in sorted((out / sub).rglob("*")) if (out / sub).is_dir() else []:
+            if p.is_file() and ".hydra" not in p.parts and p.suffix in (".csv", ".md", ".tex", ".png", ".pdf"):
+                print(f"  {p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}")
 
 
 if __name__ == "__main__":

@@ -23,8 +23,15 @@ def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     t5 = {r["Task group"]: r for r in csv.DictReader((out / "tables" / "table5.csv").open())
           if r["Pipeline"] == "robogen"}
     assert t5["table_top"]["Runs"] == "1" and t5["ground"]["Runs"] == "1" and t5["ground"]["Policy"] == "tiny"
+    # Table 3's layout on the suite's own task descriptions, and Figure 3 from the paper's shipped score tables
+    t3 = {r["Task Group"]: r for r in csv.DictReader((out / "tables" / "table3.csv").open()) if r["Method"] == "RoboGen"}
+    assert set(t3) == {"Table-Top", "Ground", "All"} and all(0 < float(r["MiniLM-L6-v2"]) for r in t3.values())
+    assert (out / "figures" / "figure3" / "figure3.png").is_file()
+    agreement = (out / "figures" / "figure3" / "agreement.md").read_text()
+    assert agreement == (ROOT / "outputs" / "figures" / "figure3" / "agreement.md").read_text()
     html = (out / "report" / "index.html").read_text()
     assert "table4/robogen/ground/episodes_4" in html and "generalization" in html
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert again.returncode == 0
-    assert "diversity.py" not in again.stdout and "generalization.py" not in again.stdout  # finished stages skipped
+    for finished in ("diversity.py", "generalization.py", "text_diversity.py", "agreement.py"):
+        assert finished not in again.stdout  # finished stages are skipped

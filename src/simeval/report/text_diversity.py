@@ -35,6 +35,7 @@ from pathlib import Path
 from simeval.errors import UserError
 from simeval.metrics.agreement import kendall_tau_b
 from simeval.metrics.text_diversity import STATISTICS
+from simeval.report.paper_groups import paper_group
 from simeval.results import identity_difference, record_identity
 
 TIDY_COLUMNS = ["pipeline", "group", "embedding", "statistic", "value", "ci_low", "ci_high", "n", "status", "note",
@@ -87,6 +88,7 @@ def select_cells(records: Iterable[dict]) -> tuple[dict[tuple, list[tuple[dict, 
         if rec.get("status", "ok") != "ok":
             continue
         for group, v in (rec.get("values") or {}).items():
+            group = paper_group(ident["pipeline"], group)  # the suites' table_top / table are the paper's table-top
             cell = (ident["pipeline"], group, ident["embedding"])
             if cell in first and _settings(_identity(first[cell])) != _settings(ident):
                 other = first[cell]
