@@ -74,10 +74,10 @@ bench: setup ## benchmarks; results under outputs/bench/
 
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
-table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Policy per CELLS group (cpu preset), table + figure
-	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; \
+table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Policy per CELLS group (cpu preset; GenSim rollouts capped at 450 steps), table + figure
+	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; h=; [ $$p = gensim ] && h=eval.max_steps=450; \
 	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=42 && \
-	  $(PY) src/generalization.py pipeline=$$p task_group=$$g || exit 1; done
+	  $(PY) src/generalization.py pipeline=$$p task_group=$$g $$h || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
 report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}

@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     prof = load_profile(args.profile)
     out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
     stages = set(args.stages.split(","))
-    store, logs, ov = out / "episodes", out / "logs", prof["overrides"]
+    store, logs = out / "episodes", out / "logs"
     t_start = time.monotonic()
     pipelines = args.pipelines.split(",")
     if "table3" in stages:  # the suites' own task descriptions: needs no checkout of the pipelines' code
@@ -133,6 +133,8 @@ def main(argv: list[str] | None = None) -> None:
             logs / "figure3.log")
     for pipeline in pipelines:
         suite = suite_of(pipeline)
+        extra = (prof.get("pipeline_overrides") or {}).get(pipeline, {})
+        ov = {stage: [*args_, *extra.get(stage, [])] for stage, args_ in prof["overrides"].items()}
         if not suite:
             print(f"{pipeline}: no simeval suite (pipeline.suite is null): import its episodes with "
                   "src/import_data.py and run the entrypoints on them; skipped here")
