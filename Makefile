@@ -121,9 +121,10 @@ PROFILE ?= quick
 PIPELINE ?= gensim
 .PHONY: paper evaluate
 paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures under outputs/paper/$(PROFILE)/ (resumable)
+	@test -f experiments/profiles/$(PROFILE).yaml || { echo "error: PROFILE=$(PROFILE): no experiments/profiles/$(PROFILE).yaml; profiles: $(basename $(notdir $(wildcard experiments/profiles/*.yaml)))" >&2; exit 2; }
 	@if [ -n "$(strip $(GENSIM_DESCS)$(GENSIM_ROOT)$(ROBOGEN_TASKS)$(ROBOGEN_ROOT)$(BBSEA_TASKS)$(BBSEA_ROOT))" ]; then \
 	  $(MAKE) --no-print-directory table3; \
-	else echo "Table 3 on the pipelines' own task lists skipped: no sources (set GENSIM_DESCS=, ROBOGEN_TASKS=/ROBOGEN_ROOT=, BBSEA_ROOT=; README, Table 3); the suites' Table 3 is built below"; fi
+	else echo "note: no GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT=, so Table 3 is built on the suites' task descriptions only (README, Table 3)"; fi
 	$(PY) experiments/paper.py --profile $(PROFILE)
 
 evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea

@@ -41,6 +41,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 PROFILES = ROOT / "experiments" / "profiles"
+STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
 # Figure 3 from the paper's own appendix score tables, shipped with the package (experiments/paper_human_eval.py);
 # SIMEVAL_HUMAN_SCORES points it at a table of your own
 HUMAN_SCORES = os.environ.get("SIMEVAL_HUMAN_SCORES") or str(ROOT / "src" / "simeval" / "report" / "paper_human_eval.json")
@@ -48,11 +49,17 @@ SUITE_TABLE3_CAPTION = ("Text diversity (paper Eq. 1) of simeval's own suites' t
                         "task lists (make table3 with GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT= for those)")
 
 
+def _fail(message: str) -> None:
+    """A user error: one line, exit status 2 (as the entrypoints)."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def load_profile(name: str) -> dict:
     path = PROFILES / f"{name}.yaml"
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
-        raise SystemExit(f"error: --profile {name}: no {path.relative_to(ROOT)}; profiles: {known}")
+        _fail(f"--profile {name}: no {path.relative_to(ROOT)}; profiles: {known}")
     return yaml.safe_load(path.read_text())
 
 
@@ -60,7 +67,7 @@ def suite_of(pipeline: str) -> str | None:
     path = ROOT / "conf" / "pipeline" / f"{pipeline}.yaml"
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
-        raise SystemExit(f"error: --pipelines {pipeline}: no conf/pipeline/{pipeline}.yaml; pipelines: {known}")
+        _fail(f"--pipelines {pipeline}: no conf/pipeline/{pipeline}.yaml; pipelines: {known}")
     return (yaml.safe_load(path.read_text()) or {}).get("suite")
 
 
@@ -101,7 +108,7 @@ def run(cmd: list[str], log: Path, echo: bool = False) -> None:
         raise SystemExit(p.returncode)
     if echo:
         print("\n".join(f"    {line}" for line in log.read_text().splitlines()))
-    print(f"    done in {time.monotonic() - t0:.0f} s", flush=True)
+    print(f"    done in {time.monotonic() - t0:.0f} s ({log.stem})", flush=True)
 
 
 def entry(name: str) -> list[str]:
@@ -113,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--profile", default="quick")
     ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
     ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")
-    ap.add_argument("--stages", default="table3,figure3,collect,quality,table4,table5,report")
+    ap.add_argument("--stages", default=",".join(STAGES))
     args = ap.parse_args(argv)
     prof = load_profile(args.profile)
     out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
@@ -121,10 +128,15 @@ def main(argv: list[str] | None = None) -> None:
     store, logs = out / "episodes", out / "logs"
     t_start = time.monotonic()
     pipelines = args.pipelines.split(",")
-    if "table3" in stages:  # the suites' own task descriptions: needs no checkout of the pipelines' code
+    suites = {p: suite_of(p) for p in pipelines}  # every name checked before the first stage runs
+    unknown = sorted(stages - set(STAGES))
+    if unknown:
+        _fail(f"--stages {','.join(unknown)}: unknown; stages: {','.join(STAGES)}")
+    with_suite = [p for p in pipelines if suites[p]]
+    if "table3" in stages and with_suite:  # the suites' own task descriptions: needs no checkout of the pipelines
         runs = out / "table3" / "runs"
-        if len(list(runs.glob("*/result.json"))) < 2 * len(pipelines):  # two embedding models per pipeline
-            run([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(pipelines)}",
+        if len(list(runs.glob("*/result.json"))) < 2 * len(with_suite):  # two embedding models per pipeline
+            run([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(with_suite)}",
                  "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
         run([*entry("report"), "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out / 'tables'}",
              f'report.caption="{SUITE_TABLE3_CAPTION}"'], logs / "report_table3.log")
@@ -132,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
         run([*entry("agreement"), f"scores_path={HUMAN_SCORES}", f"hydra.run.dir={out / 'figures' / 'figure3'}"],
             logs / "figure3.log")
     for pipeline in pipelines:
-        suite = suite_of(pipeline)
+        suite = suites[pipeline]
         extra = (prof.get("pipeline_overrides") or {}).get(pipeline, {})
         ov = {stage: [*args_, *extra.get(stage, [])] for stage, args_ in prof["overrides"].items()}
         if not suite:
@@ -172,9 +184,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:
         print("  (Tables 4, 5 and the HTML report are built by the report stage: --stages ...,report)")
-    for sub in ("tables", "figures"):
+    for sub in ("tables", "figures", "report"):
         for p in sorted((out / sub).rglob("*")) if (out / sub).is_dir() else []:
-            if p.is_file() and ".hydra" not in p.parts and p.suffix in (".csv", ".md", ".tex", ".png", ".pdf"):
+            if (p.is_file() and ".hydra" not in p.parts and "assets" not in p.parts
+                    and p.suffix in (".csv", ".md", ".tex", ".png", ".pdf", ".html")):
                 print(f"  {p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}")
 
 

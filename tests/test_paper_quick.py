@@ -31,6 +31,8 @@ def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     assert agreement == (ROOT / "outputs" / "figures" / "figure3" / "agreement.md").read_text()
     html = (out / "report" / "index.html").read_text()
     assert "table4/robogen/ground/episodes_4" in html and "generalization" in html
+    # a run's label tells it from the others of its sweep (the episode count, the embedding model)
+    assert "robogen / ground · episodes 4 · preset tiny" in html and "robogen / each · embedding mpnet" in html
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert again.returncode == 0
     for finished in ("diversity.py", "generalization.py", "text_diversity.py", "agreement.py"):

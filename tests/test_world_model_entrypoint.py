@@ -31,7 +31,8 @@ def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(t
     assert r.stderr.count("\n") == 1 and "custom" in r.stderr and "no simeval suite" in r.stderr
     assert "src/import_data.py" in r.stderr
     r = run("pipeline=bbsea", "task_group=drawer", f"store={tmp_path}/store", cwd=tmp_path)
-    assert r.returncode == 2 and "src/collect.py pipeline=bbsea task_group=drawer" in r.stderr
+    # the hint names this run's store, so following it fills the store the run reads
+    assert r.returncode == 2 and f"src/collect.py pipeline=bbsea task_group=drawer episodes=40 store={tmp_path}/store" in r.stderr
     r = run("pipeline=gensim", "task_group=stacking", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and "src/collect.py pipeline=gensim task_group=stacking" in r.stderr
 

@@ -25,6 +25,7 @@ from simeval.errors import UserError
 from simeval.metrics.agreement import STATISTICS, agreement_summary
 
 RESERVED = {"table", "pipeline", "task"}
+PAPER_SCORES = "src/simeval/report/paper_human_eval.json"  # the paper's appendix tables, shipped with the package
 DEFAULT_TABLE = "scores"  # a CSV without a `table` column is one table
 
 
@@ -40,7 +41,8 @@ def load_score_tables(path: str | os.PathLike, human: str = "Human") -> dict[str
     """
     path = Path(path).expanduser()
     if not path.is_file():
-        raise ScoreFileNotFound(f"score table not found: {path}" + (" (a folder)" if path.is_dir() else ""))
+        raise ScoreFileNotFound(f"score table not found: {path}" + (" (a folder)" if path.is_dir() else "")
+                                + f"; give a .json or .csv score table (the paper's: {PAPER_SCORES})")
     suffix = path.suffix.lower()
     if suffix not in (".json", ".csv"):
         raise UserError(f"{path}: unknown extension {path.suffix!r}; expected a .json or .csv score table")
@@ -347,17 +349,17 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
                     continue
                 xs.append(x)
                 ys.append(max(0.0, r["r_over_mae"]))
-                if r["r_over_mae"] < 0:  # drawn at 0 as the paper does, but never hidden: its value is written
+                if r["r_over_mae"] < 0.05:  # negative: drawn at 0 as the paper does; tiny: too thin to see. Written
                     ax.text(x, 0.02, f"{r['r_over_mae']:.2f}", ha="center", va="bottom", fontsize=7,
-                            rotation=90, color="crimson")
+                            rotation=90, color="crimson" if r["r_over_mae"] < 0 else "black")
             ax.bar(xs, ys, width=w, label=p)
         ax.set_xticks(range(len(judges)))
         ax.set_xticklabels(judges, rotation=30, ha="right", fontsize=8)
         ax.set_title(table.replace("_", " "))
-        ax.set_ylabel("Pearson r / MAE")
+        ax.set_ylabel("Pearson r ÷ MAE")
         ax.legend(fontsize=8)
-    fig.text(0.01, 0.005, "Negative r/MAE is drawn at 0 and its value written in red; n/a: undefined (a constant "
-             "column).", fontsize=7, ha="left", va="bottom")
+    fig.text(0.01, 0.005, "Negative r/MAE is drawn at 0 and its value written in red, one near 0 in black; n/a: undefined "
+             "(a constant column).", fontsize=7, ha="left", va="bottom")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     out = []
     for fmt in formats:

@@ -141,10 +141,11 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
             from simeval.sim.spec import SUITES_DIR, load_suite
 
             groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
-            how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40"
+            into = f" store={store}"  # the collector writes where this run reads, not to its own default
+            how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40{into}"
                    if group in groups or group == "all" else
                    f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
-                   f"pipeline={pipeline} task_group={groups[0]} episodes=40), or import episodes of yours")
+                   f"pipeline={pipeline} task_group={groups[0]} episodes=40{into}), or import episodes of yours")
         raise UserError(f"{e}; {how}") from None
     return StoreSource(paths, camera)
 

@@ -223,6 +223,9 @@ def _runs_section(records: list[dict], names: list[str], assets: _Assets) -> str
             label = f"{label} (judge: {rec['judge']})" if label else f"judge: {rec['judge']}"
         if ident.get("task_group"):
             label = f"{label} / {ident['task_group']}" if label else ident["task_group"]
+        for key in ("embedding", "episodes", "policy", "preset"):  # what tells runs of one sweep apart
+            if ident.get(key) is not None:
+                label = f"{label} · {key} {ident[key]}"
         link = assets.copy(Path(rec["path"]), f"runs/{_slug(name)}", "record.json")
         status = rec.get("status", "ok")
         values = "<br>".join(f"{_e(k)}: {_e(_fmt(v, 3))}" for k, v in headline_values(rec))

@@ -54,8 +54,12 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
             k, n = cell["counts"].get(split, (0, 0))
             cell["counts"][split] = (k + v["success"]["k"], n + v["success"]["n"])
     if policy is not None and not cells:
+        from simeval.cli import CONF_DIR
+
         presets = sorted({str(r["identity"].get("policy")) for r in records})
-        raise UserError(f"--policy {policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)})")
+        known = sorted(p.stem for p in (CONF_DIR / "policy").glob("*.yaml"))
+        raise UserError(f"--policy {policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)}; "
+                        f"presets: {', '.join(known)})")
     ran = {(p, g) for p, g, _ in cells}
     keys = [(p, g, pr) for p, g in [*PAPER, *sorted(ran - set(PAPER))]
             for pr in (sorted((k[2] for k in cells if k[:2] == (p, g)), key=str) or [None])]
