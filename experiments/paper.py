@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -92,6 +93,18 @@ def groups_of(suite: str, tasks_per_group: int | None) -> dict[str, list[str]]:
     return out
 
 
+def _stop_with_parent() -> None:
+    """In a stage's process, before it starts: SIGTERM when this script dies, however it dies (kill -9 too), so an
+    orphaned stage never keeps writing beside the rerun that resumes it. Linux only (prctl PR_SET_PDEATHSIG)."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
 def run(cmd: list[str], log: Path, echo: bool = False) -> None:
     """Run one stage; its output goes to `log` (and the last lines to the console if it fails; all of it with
     `echo`)."""
@@ -99,7 +112,7 @@ def run(cmd: list[str], log: Path, echo: bool = False) -> None:
     print(f"  $ {shlex.join(cmd)}", flush=True)
     t0 = time.monotonic()
     with log.open("w") as f:
-        p = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT)
+        p = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, preexec_fn=_stop_with_parent)
     if p.returncode != 0:
         tail = log.read_text().splitlines()[-15:]
         print("\n".join(f"    | {line}" for line in tail), file=sys.stderr)

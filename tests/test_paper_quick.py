@@ -37,3 +37,38 @@ def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     assert again.returncode == 0
     for finished in ("diversity.py", "generalization.py", "text_diversity.py", "agreement.py"):
         assert finished not in again.stdout  # finished stages are skipped
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return False
+    return state != "Z"  # a zombie has exited; whoever adopted it reaps it later
+
+
+def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
+    """kill -9 of experiments/paper.py must not leave its running stage writing beside the rerun that resumes it."""
+    import os
+    import signal
+    import time
+
+    if not sys.platform.startswith("linux"):
+        import pytest
+
+        pytest.skip("PR_SET_PDEATHSIG is Linux's")
+    # collecting a GenSim group takes 8-30 s, so a stage that outlives paper.py is caught in the act
+    p = subprocess.Popen([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick",
+                          "--pipelines", "gensim", "--stages", "collect", "--out", str(tmp_path / "paper")],
+                         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline, kids = time.time() + 60, []
+    while not kids and time.time() < deadline:
+        kids = [int(k) for k in Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()]
+        time.sleep(0.05)
+    assert kids, "the collect stage never started"
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    deadline = time.time() + 3
+    while any(_alive(k) for k in kids) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(k) for k in kids), "the stage kept running after paper.py was killed"
