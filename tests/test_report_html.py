@@ -171,3 +171,13 @@ def test_an_assets_folder_that_is_not_a_reports_is_never_deleted(tmp_path):
         assert res.returncode == 0, res.stderr[-2000:]
     assert sorted(p.name for p in (out / "assets").rglob("*.png")) == ["a.png"]
     assert "No result.json here." in (out / "index.html").read_text()
+
+
+def test_an_agreement_run_is_summarised_by_its_pooled_r_over_mae():
+    from simeval.report.html import headline_values
+
+    rows = [{"table": "scene_alignment", "pipeline": "RoboGen", "judge": "GPT-4v", "r_over_mae": 0.2},
+            {"table": "scene_alignment", "pipeline": "all", "judge": "GPT-4v", "r_over_mae": 0.87},
+            {"table": "task_completion", "pipeline": "all", "judge": "LLava-1.5", "r_over_mae": None}]
+    assert headline_values({"metric": "agreement", "values": rows}) == [
+        ("scene_alignment GPT-4v (all) r/MAE", 0.87), ("task_completion LLava-1.5 (all) r/MAE", None)]

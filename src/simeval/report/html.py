@@ -189,6 +189,10 @@ def headline_values(rec: dict, limit: int = 6) -> list[tuple[str, object]]:
             if means:
                 out.append((f"{metric} (mean of {len(means)} tasks)", sum(means) / len(means)))
         return out
+    if rec.get("metric") == "agreement" and isinstance(values, list):  # rows per (table, pipeline, judge)
+        pooled = [v for v in values if isinstance(v, dict) and v.get("pipeline") == "all"] or values
+        return [(f"{v.get('table')} {v.get('judge')} ({v.get('pipeline')}) r/MAE", v.get("r_over_mae"))
+                for v in pooled[:limit] if isinstance(v, dict)]
     flat: list[tuple[str, object]] = []
 
     def walk(x, prefix):
