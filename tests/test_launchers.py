@@ -110,7 +110,9 @@ def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_
 def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_checkpoint(tmp_path):
     """What SLURM does to a preempted job, with submitit's local executor: the job's process gets submitit's
     preemption signal (USR2), submitit requeues the same job (the same overrides, so the same run folder and the
-    same checkpoint key), and the training resumes from the last checkpoint instead of step 0."""
+    same checkpoint key), and the training resumes from the step it was preempted in instead of step 0. (Before
+    simeval.models.preemption, submitit's SystemExit was now and then raised inside a finaliser and dropped: the
+    job trained on, exited 0 and was never requeued.)"""
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
@@ -140,8 +142,12 @@ def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_
     assert proc.returncode == 0, err[-3000:]
     log = _job_logs(sweep) + "".join(p.read_text() for p in sweep.glob(".submitit/*/*_log.out"))
     assert "this job is preempted" in log and f"Requeued job {controller}" in log
-    [resumed] = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)", log)
+    resumed = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)", log)
+    assert len(resumed) == 1, log[-6000:]
+    [resumed] = resumed
     assert 0 < int(resumed) < steps
+    # saved in the step the signal came in, not at the last periodic checkpoint (simeval.models.preemption)
+    assert re.findall(r"preempted at step (\d+): checkpoint saved", log) == [resumed]
     rec = json.loads((sweep / "0" / "result.json").read_text())  # the requeued job wrote to the same folder
     assert rec["values"]["train"]["steps"] == steps and rec["status"] == "ok"
 

@@ -39,6 +39,7 @@ from torch.nn import functional as F
 
 from simeval.errors import UserError, require_whole
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
+from simeval.models.preemption import PreemptionPoint
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
 
 log = logging.getLogger(__name__)
@@ -350,32 +351,36 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         bar = tqdm(total=settings.train_steps, initial=step, desc="train policy", unit="step")
     policy.train()
     window: list[float] = []
-    while step < settings.train_steps:
-        t0 = time.perf_counter()
-        loss = policy.compute_loss(dataset.sample(settings.batch_size, gen), generator=gen)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        lr_sched.step()
-        ema.step(policy.parameters())
-        t_train += time.perf_counter() - t0
-        step += 1
-        window.append(loss.item())
-        if bar is not None:
-            bar.update(1)
-        if step % settings.log_every == 0 or step == settings.train_steps:
-            mean = float(np.mean(window))
-            losses.append([step, mean])
-            window = []
-            if log_fn is not None:
-                log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
+    with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
+        while step < settings.train_steps:
+            t0 = time.perf_counter()
+            loss = policy.compute_loss(dataset.sample(settings.batch_size, gen), generator=gen)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            lr_sched.step()
+            ema.step(policy.parameters())
+            t_train += time.perf_counter() - t0
+            step += 1
+            window.append(loss.item())
             if bar is not None:
-                bar.set_postfix(loss=f"{mean:.4f}")
-        if step % settings.checkpoint_every == 0 and step < settings.train_steps:
-            save()
-    if bar is not None:
-        bar.close()
-    save()
+                bar.update(1)
+            if step % settings.log_every == 0 or step == settings.train_steps:
+                mean = float(np.mean(window))
+                losses.append([step, mean])
+                window = []
+                if log_fn is not None:
+                    log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
+                if bar is not None:
+                    bar.set_postfix(loss=f"{mean:.4f}")
+            if (step % settings.checkpoint_every == 0 and step < settings.train_steps) or preemption.pending:
+                save()
+            if preemption.pending:
+                log.info("preempted at step %d: checkpoint saved, handing over to submitit (requeue)", step)
+                preemption.deliver()
+        if bar is not None:
+            bar.close()
+        save()
     ema_policy = copy.deepcopy(policy)
     ema.copy_to(ema_policy.parameters())
     summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,

@@ -36,6 +36,7 @@ import torch
 
 from simeval.errors import UserError, require_whole
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
+from simeval.models.preemption import PreemptionPoint
 
 log = logging.getLogger(__name__)
 
@@ -160,37 +161,41 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
-    while epoch < cfg.epochs and (cap is None or step < cap):
-        batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
-        if not batches:
-            raise UserError("no training windows: every training episode is shorter than the window length "
-                            f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
-        todo = batches[done_in_epoch:]
-        if cap is not None:
-            todo = todo[: cap - step]
-        bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
-                   disable=not progress, leave=False)
-        for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
-            loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
-                                    generator=step_generator(cfg.seed, step))
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
-            opt.step()
-            step += 1
-            done_in_epoch += 1
-            frames += int(batch["mask"].sum())
-            bar.update(1)
-            bar.set_postfix(loss=f"{last['loss']:.1f}")
-            if log_metrics is not None:
-                log_metrics({"train": last, "epoch": epoch}, step)
-            if step % cfg.checkpoint_every == 0:
-                save(epoch, done_in_epoch)
-        bar.close()
-        if done_in_epoch >= len(batches):
-            epoch, done_in_epoch = epoch + 1, 0
-        save(epoch, done_in_epoch)
-    save(epoch, done_in_epoch, finished=True)
+    with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
+        while epoch < cfg.epochs and (cap is None or step < cap):
+            batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
+            if not batches:
+                raise UserError("no training windows: every training episode is shorter than the window length "
+                                f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
+            todo = batches[done_in_epoch:]
+            if cap is not None:
+                todo = todo[: cap - step]
+            bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
+                       disable=not progress, leave=False)
+            for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
+                loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
+                                        generator=step_generator(cfg.seed, step))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
+                opt.step()
+                step += 1
+                done_in_epoch += 1
+                frames += int(batch["mask"].sum())
+                bar.update(1)
+                bar.set_postfix(loss=f"{last['loss']:.1f}")
+                if log_metrics is not None:
+                    log_metrics({"train": last, "epoch": epoch}, step)
+                if step % cfg.checkpoint_every == 0 or preemption.pending:
+                    save(epoch, done_in_epoch)
+                if preemption.pending:
+                    log.info("preempted at step %d: checkpoint saved, handing over to submitit (requeue)", step)
+                    preemption.deliver()
+            bar.close()
+            if done_in_epoch >= len(batches):
+                epoch, done_in_epoch = epoch + 1, 0
+            save(epoch, done_in_epoch)
+        save(epoch, done_in_epoch, finished=True)
     return {"steps": step, "epochs": epoch, "seconds": time.perf_counter() - t0, "frames": frames, "last": last}
 
 

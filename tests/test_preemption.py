@@ -1,0 +1,143 @@
+"""A preempted submitit job (submitit's USR2 while a model trains) checkpoints at the end of the step it is in and
+hands the signal to submitit's handler there (simeval.models.preemption). Here a handler that stands in for
+submitit's records its call and raises SystemExit, as submitit's requeue does; the signal is sent from inside a
+step (the trainers' metric callbacks run in the step), so the tests know which step it came in."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from pathlib import Path
+
+from simeval.episodes.dataset import WindowSpec
+from simeval.episodes.episode import Episode
+from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+from simeval.models.dynamics_diversity import fit_and_evaluate
+from simeval.models.policy.data import PolicyDataset
+from simeval.models.preemption import PreemptionPoint, preemption_signal
+from simeval.models.synthetic import make_group
+from simeval.models.training import TrainConfig
+from simeval.models.world_model import WorldModelConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+REQUEUE_EXIT = 144  # what submitit's local executor exits with to be requeued (any code works here)
+
+
+@pytest.fixture
+def submitit_handler(monkeypatch):
+    """A Python handler on USR2 that records each call and exits like submitit's requeue; SUBMITIT_EXECUTOR set as
+    in a submitit job. The previous handler is put back afterwards."""
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "local")
+    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
+    calls = []
+
+    def requeue(signum, frame):
+        calls.append(signum)
+        raise SystemExit(REQUEUE_EXIT)
+
+    old = signal.signal(signal.SIGUSR2, requeue)
+    old_threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield calls, requeue
+    signal.signal(signal.SIGUSR2, old)
+    torch.set_num_threads(old_threads)
+
+
+def _preempt_at(step_to_signal: int):
+    def log(metrics, step):
+        if step == step_to_signal:
+            os.kill(os.getpid(), signal.SIGUSR2)
+    return log
+
+
+def _fit_world_model(checkpoint_dir, log_metrics=None):
+    cfg = WorldModelConfig(image_size=16, deter=16, hidden=16, stoch=2, classes=4, cnn_depth=4, minres=4,
+                           mlp_layers=1, mlp_units=8)
+    return fit_and_evaluate(make_group("shared", 2, 4, 12, 16), episodes_per_task=4, model_cfg=cfg,
+                            train_cfg=TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=1000),
+                            window=WindowSpec(length=5, stride=2), eval_episodes=(0, 4), heldout_episodes=None,
+                            checkpoint_dir=checkpoint_dir, progress=False, log_metrics=log_metrics, device="cpu")
+
+
+def test_the_world_model_saves_the_step_it_was_preempted_in_then_calls_submitits_handler(tmp_path, submitit_handler):
+    calls, requeue = submitit_handler
+    with pytest.raises(SystemExit) as stop:
+        _fit_world_model(tmp_path / "ck", _preempt_at(3))
+    assert stop.value.code == REQUEUE_EXIT and calls == [signal.SIGUSR2]  # submitit's handler ran, once
+    assert signal.getsignal(signal.SIGUSR2) is requeue  # and is the handler again after the loop
+    [path] = (tmp_path / "ck").glob("world_model-*.pt")
+    ck = torch.load(path, weights_only=False)
+    assert ck["step"] == 3 and not ck["finished"]  # not the last periodic checkpoint (none: every 1000 steps)
+
+    resumed = _fit_world_model(tmp_path / "ck")  # the requeued job: same command, same checkpoint
+    whole = _fit_world_model(tmp_path / "whole")  # never preempted
+    assert resumed["train"]["steps"] == whole["train"]["steps"] > 3
+    assert resumed["eval"]["image_error"] == whole["eval"]["image_error"]  # the same steps were taken
+
+
+def _square_episode(T: int = 16) -> Episode:
+    rgb = np.zeros((T, 32, 32, 3), np.uint8)
+    for t in range(T):
+        rgb[t, 10:18, 2 + t : 8 + t] = (255, 200, 50)
+    ph = np.linspace(0, 1, T, dtype=np.float32)
+    return Episode(pipeline="p", task="t", description="", group="g", seed=0, rgb={"top": rgb},
+                   state=np.stack([ph, ph**2], 1), action=np.stack([np.sin(6 * ph), np.cos(6 * ph)], 1),
+                   reward=np.zeros(T, np.float32), is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1)
+
+
+def _train_policy(ckpt_dir, log_fn=None):
+    model = yaml.safe_load((ROOT / "conf" / "policy" / "tiny.yaml").read_text())["model"]
+    cfg = PolicyConfig.from_mapping({**model, "action_space": "joint"})
+    ds = PolicyDataset([_square_episode()], "joint", ["top"], [32, 32], 8, 2)
+    fresh = DiffusionPolicy(cfg, ds.state_dim, ds.action_dim, ds.stats(), seed=0)
+    return train_policy(fresh, ds, TrainSettings(train_steps=8, batch_size=8, warmup_steps=2, checkpoint_every=100,
+                                                 log_every=1), ckpt_dir, log_fn=log_fn, device="cpu")
+
+
+@pytest.mark.parametrize("at", [3, 8])  # mid-run, and in the last step (the final checkpoint then holds all 8)
+def test_the_policy_saves_the_step_it_was_preempted_in_then_calls_submitits_handler(tmp_path, submitit_handler, at):
+    calls, _ = submitit_handler
+    with pytest.raises(SystemExit) as stop:
+        _train_policy(tmp_path / "ck", _preempt_at(at))
+    assert stop.value.code == REQUEUE_EXIT and calls == [signal.SIGUSR2]
+    assert torch.load(tmp_path / "ck" / "last.ckpt", weights_only=False)["step"] == at
+
+    resumed, summary = _train_policy(tmp_path / "ck")
+    whole, _ = _train_policy(tmp_path / "whole")
+    assert summary["steps"] == 8
+    for k, v in whole.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[k], v, rtol=0, atol=0, msg=k)
+
+
+def test_outside_a_submitit_job_the_handler_runs_at_once(monkeypatch, submitit_handler):
+    """No SUBMITIT_EXECUTOR: the handler is left alone and runs inside the step, as it always did."""
+    calls, requeue = submitit_handler
+    monkeypatch.delenv("SUBMITIT_EXECUTOR")
+    ran_on = []
+    with pytest.raises(SystemExit), PreemptionPoint() as point:
+        os.kill(os.getpid(), signal.SIGUSR2)
+        ran_on.append("after the signal")
+    assert calls == [signal.SIGUSR2] and ran_on == [] and not point.pending
+
+
+def test_a_signal_in_the_loops_last_moment_is_delivered_when_the_block_ends(submitit_handler):
+    calls, requeue = submitit_handler
+    with pytest.raises(SystemExit):
+        with PreemptionPoint() as point:
+            os.kill(os.getpid(), signal.SIGUSR2)
+            assert point.pending and calls == []  # recorded, not yet handled
+    assert calls == [signal.SIGUSR2] and signal.getsignal(signal.SIGUSR2) is requeue
+
+
+def test_the_signal_name_is_read_as_submitit_reads_it(monkeypatch):
+    monkeypatch.setenv("SUBMITIT_PREEMPT_SIGNAL", "USR1")
+    assert preemption_signal() == signal.SIGUSR1
+    monkeypatch.setenv("SUBMITIT_PREEMPT_SIGNAL", "TERM")
+    assert preemption_signal() == signal.SIGTERM
+    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL")
+    assert preemption_signal() == signal.SIGUSR2
