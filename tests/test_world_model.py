@@ -120,6 +120,42 @@ def test_is_first_resets_the_state_mid_window():
     torch.testing.assert_close(full["image_se"][:, 3:], part["image_se"])
 
 
+def test_the_split_posterior_layer_equals_the_layer_on_the_concatenated_input():
+    """observe() applies the posterior MLP's first layer as W_d @ deter + W_e @ embed, with W_e @ embed for the
+    whole window in one matmul (RSSM.split_obs_layer, for speed). Reference: the layer itself on cat(deter, embed),
+    step by step, with the same latent noise; values and the gradients of every parameter and of the embeddings."""
+    m, x = tiny(), batch(t=6)
+    rssm = m.rssm
+    torch.manual_seed(3)
+    embed = torch.randn(2, 6, rssm.obs_out[0].in_features - rssm.cfg.deter, requires_grad=True)
+    x["is_first"][:, 3] = True  # a reset mid-window too
+
+    def reference():
+        g, state, logps = torch.Generator().manual_seed(7), rssm.initial(2), []
+        for i in range(6):
+            first = x["is_first"][:, i].float()[:, None]
+            init = rssm.initial(2)
+            prev = {"deter": state["deter"] * (1 - first) + init["deter"] * first,
+                    "stoch": state["stoch"] * (1 - first[..., None]) + init["stoch"] * first[..., None]}
+            prior = rssm.img_step(prev, x["prev_action"][:, i] * (1 - first), g)
+            logp = rssm._logp(rssm.post_head, rssm.obs_out(torch.cat([prior["deter"], embed[:, i]], -1)))
+            state = {"deter": prior["deter"], "stoch": straight_through_sample(logp, g), "logp": logp}
+            logps.append(logp)
+        return torch.stack(logps, 1)
+
+    def grads(out):
+        rssm.zero_grad(set_to_none=True)
+        embed.grad = None
+        (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+        return [p.grad.clone() for p in rssm.parameters() if p.grad is not None] + [embed.grad.clone()]
+
+    want = reference()
+    got = rssm.observe(embed, x["prev_action"], x["is_first"], generator=torch.Generator().manual_seed(7))[0]["logp"]
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+    for a, b in zip(grads(got), grads(reference()), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
 def test_mask_excludes_padded_steps():
     m, x = tiny(), batch()
     x["mask"][:, 4:] = False

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, device_info, machine, save  # noqa: E402
 
 REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
-STEPS = {"tiny": 20, "cpu": 6, "paper": 2}
+STEPS = {"tiny": 20, "cpu": 10, "paper": 4}
 
 
 def bench_preset(name: str, steps: int, device) -> dict:

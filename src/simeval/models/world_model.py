@@ -266,16 +266,27 @@ class RSSM(nn.Module):
         logp = self._logp(self.prior_head, self.img_out(deter))
         return {"deter": deter, "stoch": straight_through_sample(logp, generator), "logp": logp}
 
-    def obs_step(self, prev: dict, prev_action: torch.Tensor, embed: torch.Tensor, is_first: torch.Tensor,
-                 generator=None) -> tuple[dict, dict]:
-        first = is_first.to(embed.dtype)[:, None]
+    def split_obs_layer(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The posterior MLP's first layer, bias-free and applied to cat(deter, embed), as its two blocks [W_d | W_e].
+        Why: W_e @ embed can then be computed for a whole window in one matmul instead of once per step (the paper
+        preset's W_e is 512 x 32,768, the largest cost of its training), and the weight is split once per window:
+        a slice taken at every step gave each step's backward a zero-filled gradient the size of the weight."""
+        layer = self.obs_out[0]
+        return layer.weight.split([self.cfg.deter, layer.in_features - self.cfg.deter], 1)
+
+    def obs_step(self, prev: dict, prev_action: torch.Tensor, embed_share: torch.Tensor, is_first: torch.Tensor,
+                 deter_weight: torch.Tensor, generator=None) -> tuple[dict, dict]:
+        """One posterior step. `embed_share` is W_e @ embed and `deter_weight` W_d (split_obs_layer): the posterior
+        layer's output is W_d @ deter + W_e @ embed = W @ cat(deter, embed)."""
+        first = is_first.to(embed_share.dtype)[:, None]
         if bool(is_first.any()):
             init = self.initial(len(first))
             prev = {"deter": prev["deter"] * (1 - first) + init["deter"] * first,
                     "stoch": prev["stoch"] * (1 - first[..., None]) + init["stoch"] * first[..., None]}
             prev_action = prev_action * (1 - first)
         prior = self.img_step(prev, prev_action, generator)
-        logp = self._logp(self.post_head, self.obs_out(torch.cat([prior["deter"], embed], -1)))
+        hidden = F.linear(prior["deter"], deter_weight) + embed_share
+        logp = self._logp(self.post_head, self.obs_out[1:](hidden))
         post = {"deter": prior["deter"], "stoch": straight_through_sample(logp, generator), "logp": logp}
         return post, prior
 
@@ -286,8 +297,11 @@ class RSSM(nn.Module):
         if state is None:
             state = self.initial(b)
         posts, priors = [], []
-        for i in range(t):
-            state, prior = self.obs_step(state, prev_action[:, i], embed[:, i], is_first[:, i], generator)
+        deter_weight, embed_weight = self.split_obs_layer()
+        # unbind, not [:, i]: one gradient for the whole window instead of a zero-filled full-size one per step
+        steps = zip(F.linear(embed, embed_weight).unbind(1), prev_action.unbind(1), is_first.unbind(1))
+        for share, action, first in steps:
+            state, prior = self.obs_step(state, action, share, first, deter_weight, generator)
             posts.append(state)
             priors.append(prior)
         stack = lambda seq: {k: torch.stack([s[k] for s in seq], 1) for k in seq[0]}  # noqa: E731
