@@ -82,3 +82,31 @@ def test_group_files_on_a_searchpath_override_count_as_valid_choices(tmp_path):
         "embedding=nope: no conf/embedding/nope.yaml; valid: leaky, minilm"
     # a package on the search path is opaque from here: Hydra decides
     assert config_mistakes(["embedding=nope", "hydra.searchpath=[pkg://somepkg.conf]"], conf) is None
+
+
+def test_an_override_of_a_key_the_config_lacks_is_one_line_naming_the_valid_keys(tmp_path):
+    """Hydra prints 'Could not override ...' as a block and exits 1; the keys listed as valid are the top-level
+    keys of conf/collect.yaml and its defaults' groups (read here from the file, not from the product)."""
+    import yaml
+
+    line = one_line_exit_2(run("collect", "progress=false", cwd=tmp_path))
+    doc = yaml.safe_load((ROOT / "conf" / "collect.yaml").read_text())
+    groups = ["pipeline", "variation", "logger"]  # from its defaults; debug is an overlay (@package _global_)
+    expected = [k for k in doc if k != "defaults"] + groups
+    valid = line.split("valid here: ")[1].split(")")[0].split(", ")
+    assert line.startswith("error: override progress: no such key (") and sorted(valid) == sorted(expected)
+    assert line.endswith("to add a new key, write +progress=false")
+
+
+def test_a_typo_in_a_nested_key_in_a_sweep_names_the_closest_keys(tmp_path):
+    line = one_line_exit_2(run("diversity", "-m", "world_model.train.epoks=3", "episodes=1,2", cwd=tmp_path))
+    assert "override world_model.train.epoks: no such key (did you mean " in line and "epochs" in line.split("?")[0]
+    assert not (tmp_path / "sweep").exists() or not list((tmp_path / "sweep").glob("*/result.json"))
+
+
+def test_hydra_full_error_keeps_hydras_own_report_of_a_composition_error(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "1"}
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "collect.py"), "progress=false",
+                        f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 1 and "Traceback" in r.stderr and "ConfigCompositionException" in r.stderr

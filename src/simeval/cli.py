@@ -231,6 +231,57 @@ def _unparseable(override: str) -> bool:
     return False
 
 
+def composition_error_line(exc: BaseException) -> str:
+    """One line for a config Hydra could not compose: the override of a key the config lacks (typo'd or not
+    there) names the valid keys at that level and the closest one; any other failure is its first line and its
+    cause's first line."""
+    import difflib
+
+    text = [ln for ln in str(exc).strip().splitlines() if ln.strip()]
+    cause = exc.__cause__
+    cause_text = [ln for ln in str(cause or "").strip().splitlines() if ln.strip()]
+    parent = getattr(cause, "parent_node", None)
+    key = getattr(cause, "key", None)
+    if text and text[0].startswith("Could not override") and cause_text and "not in struct" in cause_text[0] \
+            and parent is not None and key is not None:
+        full_key = getattr(cause, "full_key", None) or key
+        valid = [str(k) for k in parent.keys() if k != "hydra"]
+        close = difflib.get_close_matches(str(key), valid, n=2, cutoff=0.6)
+        mean = f"did you mean {' or '.join(close)}? " if close else ""
+        append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
+        return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
+                f"write {append}")
+    head = text[0] if text else type(exc).__name__
+    return f"{head} {cause_text[0]}" if cause_text else head
+
+
+def _one_line_composition_errors() -> None:
+    """Hydra prints a config it could not compose (an override of a key the config lacks, a value of the wrong
+    type) as a block and exits 1, in its `run_and_report`, which `hydra.main` looks up at call time. Wrapped here,
+    a composition error becomes one `error:` line and exit 2 like every other user error; anything else reaches
+    Hydra's own printer unchanged. HYDRA_FULL_ERROR=1 keeps Hydra's traceback."""
+    import hydra._internal.utils as hydra_utils
+    from hydra.errors import ConfigCompositionException
+
+    original = hydra_utils.run_and_report
+    if getattr(original, "simeval_one_line", False):
+        return
+
+    def run_and_report(func: Callable[[], Any]) -> Any:
+        def guarded() -> Any:
+            try:
+                return func()
+            except ConfigCompositionException as e:
+                if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                    raise
+                _fail(composition_error_line(e))  # SystemExit: not an Exception, so Hydra's printer lets it pass
+
+        return original(guarded)
+
+    run_and_report.simeval_one_line = True
+    hydra_utils.run_and_report = run_and_report
+
+
 def launch(main: Callable[[], Any]) -> None:
     """Run an entrypoint's `main` after the argv fixes and checks every entrypoint shares."""
     from simeval.results import register_run_suffix_resolver
@@ -243,4 +294,5 @@ def launch(main: Callable[[], Any]) -> None:
         if mistake:
             _fail(mistake)
     register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders
+    _one_line_composition_errors()
     main()
