@@ -8,23 +8,19 @@ from __future__ import annotations
 import os
 import signal
 
-import numpy as np
 import pytest
 import torch
-import yaml
-from pathlib import Path
 
 from simeval.episodes.dataset import WindowSpec
-from simeval.episodes.episode import Episode
-from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+from simeval.models.diffusion_policy import DiffusionPolicy, TrainSettings, train_policy
 from simeval.models.dynamics_diversity import fit_and_evaluate
 from simeval.models.policy.data import PolicyDataset
 from simeval.models.preemption import PreemptionPoint, preemption_signal
 from simeval.models.synthetic import make_group
 from simeval.models.training import TrainConfig
 from simeval.models.world_model import WorldModelConfig
+from test_device import policy_config, square_episode
 
-ROOT = Path(__file__).resolve().parents[1]
 REQUEUE_EXIT = 144  # what submitit's local executor exits with to be requeued (any code works here)
 
 
@@ -80,21 +76,9 @@ def test_the_world_model_saves_the_step_it_was_preempted_in_then_calls_submitits
     assert resumed["eval"]["image_error"] == whole["eval"]["image_error"]  # the same steps were taken
 
 
-def _square_episode(T: int = 16) -> Episode:
-    rgb = np.zeros((T, 32, 32, 3), np.uint8)
-    for t in range(T):
-        rgb[t, 10:18, 2 + t : 8 + t] = (255, 200, 50)
-    ph = np.linspace(0, 1, T, dtype=np.float32)
-    return Episode(pipeline="p", task="t", description="", group="g", seed=0, rgb={"top": rgb},
-                   state=np.stack([ph, ph**2], 1), action=np.stack([np.sin(6 * ph), np.cos(6 * ph)], 1),
-                   reward=np.zeros(T, np.float32), is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1)
-
-
 def _train_policy(ckpt_dir, log_fn=None):
-    model = yaml.safe_load((ROOT / "conf" / "policy" / "tiny.yaml").read_text())["model"]
-    cfg = PolicyConfig.from_mapping({**model, "action_space": "joint"})
-    ds = PolicyDataset([_square_episode()], "joint", ["top"], [32, 32], 8, 2)
-    fresh = DiffusionPolicy(cfg, ds.state_dim, ds.action_dim, ds.stats(), seed=0)
+    ds = PolicyDataset([square_episode()], "joint", ["top"], [32, 32], 8, 2)
+    fresh = DiffusionPolicy(policy_config(), ds.state_dim, ds.action_dim, ds.stats(), seed=0)
     return train_policy(fresh, ds, TrainSettings(train_steps=8, batch_size=8, warmup_steps=2, checkpoint_every=100,
                                                  log_every=1), ckpt_dir, log_fn=log_fn, device="cpu")
 
