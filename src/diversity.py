@@ -31,7 +31,8 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.device import resolve_device
-    from simeval.models.dynamics_diversity import VIDEO_FPS, data_fingerprint, fit_and_evaluate, store_source
+    from simeval.models.dynamics_diversity import (VIDEO_FPS, data_fingerprint, fit_and_evaluate,
+                                                   how_to_get_episodes, store_source)
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
@@ -59,7 +60,9 @@ def main(cfg: DictConfig) -> None:
             heldout_episodes=heldout_ranks, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
-            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device)
+            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device,
+            how_to_get_more=lambda n: how_to_get_episodes(cfg.store, cfg.pipeline.name, cfg.task_group,
+                                                          cfg.pipeline.get("suite"), n))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {values['eval']['context']} observed "

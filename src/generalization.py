@@ -55,7 +55,7 @@ def main(cfg: DictConfig) -> None:
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=cfg.seed)
         policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics, extra={"config": config},
-                                       progress=True, device=device)
+                                       progress=bool(cfg.progress), device=device)
         values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
                                "windows": len(data)}}
         if cfg.eval.sampler_check and val_eps:
@@ -68,7 +68,7 @@ def main(cfg: DictConfig) -> None:
         plan = {split: pairs for split, pairs in plan.items() if pairs}
         seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
         rows = run_splits(policy, plan, seeds, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json", summary["steps"],
-                          progress=True)
+                          progress=bool(cfg.progress))
         values.update(tasks=rows, splits=ev.summarize(rows))
         if cfg.eval.videos and rows:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,

@@ -110,3 +110,11 @@ def test_hydra_full_error_keeps_hydras_own_report_of_a_composition_error(tmp_pat
                         f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env, capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 1 and "Traceback" in r.stderr and "ConfigCompositionException" in r.stderr
+
+
+def test_a_launcher_that_does_not_exist_is_one_line_naming_the_installed_ones(tmp_path):
+    """hydra/* groups also come from plugins, so config_mistakes leaves them to Hydra; its composition error is
+    then made one line with the options Hydra found (the launcher plugins of requirements.txt among them)."""
+    line = one_line_exit_2(run("diversity", "hydra/launcher=nope", cwd=tmp_path))
+    assert line.startswith("error: In 'hydra/config': Could not find 'hydra/launcher/nope'; valid: ")
+    assert {"basic", "joblib", "submitit_local", "slurm"} <= set(line.split("valid: ")[1].split(", "))

@@ -222,3 +222,42 @@ def test_slurm_partition_and_account_come_from_the_environment_or_the_command_li
     assert "#SBATCH --partition=gpu-long" in script and "#SBATCH --account=robotics" in script
     script, _ = _sbatch_script(tmp_path, monkeypatch, "hydra.launcher.partition=a100", "hydra.launcher.gpus_per_node=0")
     assert "#SBATCH --partition=a100" in script and "#SBATCH --gpus-per-node=0" in script
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="finds the job's process through /proc (Linux)")
+def test_a_killed_submitit_job_ends_the_sweep_with_one_line_naming_its_log_and_a_rerun_resumes(tmp_path):
+    """kill -9 of the job process (what the out-of-memory killer does): submitit raises UncompletedJobError in the
+    launching process; the user gets one line naming the job's log and exit 1, and the same command resumes."""
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+    env.pop("HYDRA_FULL_ERROR", None)
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
+           "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
+           "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", "world_model.train.epochs=400",
+           "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 120
+        while not list((tmp_path / "ck").glob("world_model-*.pt")):
+            assert proc.poll() is None and time.time() < deadline, proc.communicate()[1][-2000:]
+            time.sleep(0.05)
+        [controller] = [d.name for d in (sweep / ".submitit").iterdir() if d.name.isdigit()]
+        [job] = Path(f"/proc/{controller}/task/{controller}/children").read_text().split()
+        os.kill(int(job), signal.SIGKILL)
+        _, err = proc.communicate(timeout=280)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1 and "Traceback" not in err, err[-3000:]
+    [line] = err.strip().splitlines()
+    log = sweep / ".submitit" / controller / f"{controller}_0"
+    assert line == (f"error: a job of the sweep died without a result (killed, out of memory?): job {controller} "
+                    f"(task 0) left no result; its log: {log}_log.err and _log.out. Run the same command again: "
+                    "finished runs are kept and a training resumes from its last checkpoint")
+    again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=280)
+    assert again.returncode == 0, again.stderr[-3000:]
+    logs = "".join(p.read_text() for p in sweep.glob(".submitit/*/*_log.out"))
+    assert re.search(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step [1-9]\d*\)", logs), logs[-3000:]

@@ -239,3 +239,17 @@ def test_killed_run_resumes_from_its_checkpoint_and_matches_an_uninterrupted_run
     a, b = torch.load(whole / "final.pt"), torch.load(killed / "final.pt")
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+
+
+def test_a_checkpoint_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path):
+    """A group sharing a checkpoint folder on a cluster must be able to read what a job wrote (policy checkpoints
+    are written by the same function)."""
+    from simeval.models.training import save_checkpoint
+
+    old = os.umask(0o002)
+    try:
+        path = save_checkpoint(tmp_path / "ck.pt", {"x": torch.zeros(2)})
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o664
+    assert [p.name for p in tmp_path.iterdir()] == ["ck.pt"]  # no temp file left beside it

@@ -99,6 +99,17 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
         assert ev["image_error_per_pixel"] == pytest.approx(ev["image_error"] / (16 * 16 * 3))
 
 
+def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tiny_sim_store, tmp_path):
+    """Following the hint must fill the store the run reads (not the collector's default) with the run's group."""
+    r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
+            "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
+    assert r.stderr.strip() == (
+        "error: task 'stack-two-blocks' has 3 episodes; training on 5 and evaluating on episodes 1-40 needs 40 per "
+        f"task (collect them: python src/collect.py pipeline=gensim task_group=stacking episodes=40 "
+        f"store={tiny_sim_store})")
+
+
 def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tmp_path):
     r = run("pipeline=bbsea", "task_group=table-top", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1

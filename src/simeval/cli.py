@@ -169,6 +169,37 @@ def stop_sweep_on_user_errors(results: Any) -> None:
         sys.exit(USER_ERROR_EXIT)
 
 
+def dead_job_line(exc: BaseException) -> str:
+    """One line for submitit's UncompletedJobError (a job of the sweep died without a result: killed, out of
+    memory, a node lost), naming the job and its log instead of submitit's traceback and the log's tail."""
+    import re
+
+    text = str(exc)
+    first = text.splitlines()[0] if text.strip() else type(exc).__name__
+    m = re.search(r"Job (\S+) \(task: (\d+)\) with path (\S+)_result\.pkl", text)
+    where = f"job {m.group(1)} (task {m.group(2)}) left no result; its log: {m.group(3)}_log.err and _log.out" \
+        if m else first
+    return (f"a job of the sweep died without a result (killed, out of memory?): {where}. Run the same command "
+            "again: finished runs are kept and a training resumes from its last checkpoint")
+
+
+def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
+    """Call `launch` (a submitit launcher's launch); a job that died without a result ends the sweep with one
+    `error:` line and exit 1 (not a user error; the other jobs have finished by then). HYDRA_FULL_ERROR=1 keeps
+    submitit's exception."""
+    try:
+        from submitit.core.utils import UncompletedJobError
+    except ImportError:  # no submitit installed: no submitit launcher either
+        return launch()
+    try:
+        return launch()
+    except UncompletedJobError as e:
+        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            raise
+        _print_error(dead_job_line(e))
+        sys.exit(1)
+
+
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
@@ -252,6 +283,9 @@ def composition_error_line(exc: BaseException) -> str:
         return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
                 f"write {append}")
     head = text[0] if text else type(exc).__name__
+    options = getattr(exc, "options", None)  # MissingConfigException: the group's options (plugins' included)
+    if options:
+        head = f"{head}; valid: {', '.join(sorted(str(o) for o in options))}"
     return f"{head} {cause_text[0]}" if cause_text else head
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -102,13 +102,15 @@ def rank_mask(ranks: np.ndarray, lo: int, hi: int) -> np.ndarray:
     return (ranks >= lo) & (ranks < hi)
 
 
-def require_ranks(tasks: Sequence[str], ranks: np.ndarray, hi: int, what: str) -> None:
-    """A UserError naming the task when a task has fewer than `hi` episodes (the protocol needs all of them)."""
+def require_ranks(tasks: Sequence[str], ranks: np.ndarray, hi: int, what: str,
+                  how_to_get_more: Callable[[int], str] | None = None) -> None:
+    """A UserError naming the task when a task has fewer than `hi` episodes (the protocol needs all of them);
+    `how_to_get_more(hi)` says what to run (e.g. the collect command with the run's pipeline, group and store)."""
     for t in sorted(set(tasks)):
         n = int(sum(1 for x in tasks if x == t))
         if n < hi:
-            raise UserError(f"task '{t}' has {n} episodes; {what} needs {hi} per task (collect more: "
-                            f"src/collect.py episodes={hi})")
+            how = how_to_get_more(hi) if how_to_get_more is not None else f"collect more: src/collect.py episodes={hi}"
+            raise UserError(f"task '{t}' has {n} episodes; {what} needs {hi} per task ({how})")
 
 
 @dataclass

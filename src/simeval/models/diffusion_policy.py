@@ -40,6 +40,7 @@ from torch.nn import functional as F
 from simeval.errors import UserError, require_whole
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.preemption import PreemptionPoint
+from simeval.models.training import save_checkpoint
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
 
 log = logging.getLogger(__name__)
@@ -269,13 +270,6 @@ def make_ema(policy: nn.Module, settings: TrainSettings):
                     use_ema_warmup=True, inv_gamma=1.0, power=settings.ema_power)
 
 
-def _atomic_torch_save(obj, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
 def load_checkpoint(path: str | os.PathLike) -> dict:
     path = Path(path)
     try:
@@ -336,13 +330,14 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
             return
         ema_model = copy.deepcopy(policy)
         ema.copy_to(ema_model.parameters())
-        _atomic_torch_save({"version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
-                            "train": dataclasses.asdict(settings), "state_dim": policy.state_dim,
-                            "action_dim": policy.action_dim, "model": to_cpu(policy.state_dict()),
-                            "ema_model": to_cpu(ema_model.state_dict()), "ema": to_cpu(ema.state_dict()),
-                            "optimizer": to_cpu(optimizer.state_dict()), "lr_scheduler": lr_sched.state_dict(),
-                            "generator": gen.get_state(), "step": step, "losses": losses,
-                            "train_seconds": t_train, "extra": dict(extra or {})}, ckpt_path)
+        # temp file + rename (training.save_checkpoint): a kill never leaves half a checkpoint
+        save_checkpoint(ckpt_path, {
+            "version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
+            "train": dataclasses.asdict(settings), "state_dim": policy.state_dim, "action_dim": policy.action_dim,
+            "model": to_cpu(policy.state_dict()), "ema_model": to_cpu(ema_model.state_dict()),
+            "ema": to_cpu(ema.state_dict()), "optimizer": to_cpu(optimizer.state_dict()),
+            "lr_scheduler": lr_sched.state_dict(), "generator": gen.get_state(), "step": step, "losses": losses,
+            "train_seconds": t_train, "extra": dict(extra or {})})
 
     bar = None
     if progress:

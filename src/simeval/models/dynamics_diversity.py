@@ -42,7 +42,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
                      videos: int = 0, video_dir: str | Path | None = None,
-                     device: str | torch.device | None = "auto") -> dict:
+                     device: str | torch.device | None = "auto",
+                     how_to_get_more: Callable[[int], str] | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -50,7 +51,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
     episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
     `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
-    so a run resumes on another device; `train.device` in the result records the one used."""
+    so a run resumes on another device; `train.device` in the result records the one used. `how_to_get_more(n)`:
+    what a UserError about too few episodes per task tells the user to run (how_to_get_episodes)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
@@ -59,7 +61,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     if k < 1:
         raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
     require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
-                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}")
+                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
     train_mask = rank_mask(ranks, 0, k)
     train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
     stats = train_ds.fit_stats()
@@ -126,6 +128,22 @@ def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, s
     return {task: open_loop_video(model, dataset[first[task]], context, seed=seed) for task in chosen}
 
 
+def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int) -> str:
+    """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
+    reads, not to its own default), or, for a pipeline without a simeval suite, how to import them."""
+    if not suite:
+        return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
+                "store with src/import_data.py")
+    from simeval.sim.spec import SUITES_DIR, load_suite
+
+    groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
+    into = f" store={store}"
+    if group in groups or group == "all":
+        return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"
+    return (f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
+            f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
+
+
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
     (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none)."""
@@ -134,19 +152,7 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     try:
         paths = store_paths_for(store, pipeline, group)
     except UserError as e:
-        if not suite:
-            how = (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into "
-                   "the store with src/import_data.py")
-        else:
-            from simeval.sim.spec import SUITES_DIR, load_suite
-
-            groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
-            into = f" store={store}"  # the collector writes where this run reads, not to its own default
-            how = (f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes=40{into}"
-                   if group in groups or group == "all" else
-                   f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
-                   f"pipeline={pipeline} task_group={groups[0]} episodes=40{into}), or import episodes of yours")
-        raise UserError(f"{e}; {how}") from None
+        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, 40)}") from None
     return StoreSource(paths, camera)
 
 

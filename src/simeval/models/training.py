@@ -37,6 +37,7 @@ import torch
 from simeval.errors import UserError, require_whole
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.preemption import PreemptionPoint
+from simeval.results import umask_file_mode
 
 log = logging.getLogger(__name__)
 
@@ -102,12 +103,14 @@ def step_generator(seed: int, step: int) -> torch.Generator:
 
 
 def save_checkpoint(path: str | os.PathLike, payload: dict) -> Path:
-    """torch.save to a temp file in the same folder, then rename: a kill never leaves half a checkpoint."""
+    """torch.save to a temp file in the same folder, then rename: a kill never leaves half a checkpoint. The file
+    gets the mode a plainly created one would (the umask's)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
     try:
+        os.fchmod(fd, umask_file_mode())  # mkstemp's 0600 would hide checkpoints from a group sharing the folder
+        os.close(fd)
         torch.save(payload, tmp)
         os.replace(tmp, path)
     except BaseException:
