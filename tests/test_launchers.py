@@ -106,26 +106,21 @@ def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_
     assert rec["identity"]["episodes"] == 2 and rec["values"]["train"]["steps"] > 0
 
 
-@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="finds the job's process through /proc (Linux)")
-def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_checkpoint(tmp_path):
-    """What SLURM does to a preempted job, with submitit's local executor: the job's process gets submitit's
-    preemption signal (USR2), submitit requeues the same job (the same overrides, so the same run folder and the
-    same checkpoint key), and the training resumes from the step it was preempted in instead of step 0. (Before
-    simeval.models.preemption, submitit's SystemExit was now and then raised inside a finaliser and dropped: the
-    job trained on, exited 0 and was never requeued.)"""
+def _signal_the_job_of_a_training_sweep(tmp_path: Path, sig: int, epochs: int = 400):
+    """Start a 1-job diversity sweep under submitit_local on a synthetic group, wait for its first checkpoint, send
+    `sig` to the job's process and wait for the sweep: (process, stderr, sweep folder, controller pid, command)."""
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
-    steps = 400  # 4 training windows, batch 8: one step (and one checkpoint) per epoch
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
     env.pop("SUBMITIT_PREEMPT_SIGNAL", None)
+    env.pop("HYDRA_FULL_ERROR", None)
     sweep = tmp_path / "sweep"
-    proc = subprocess.Popen(
-        [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
-         "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
-         "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", f"world_model.train.epochs={steps}",
-         "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"],
-        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cmd = [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
+           "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
+           "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", f"world_model.train.epochs={epochs}",
+           "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 120
         while not list((tmp_path / "ck").glob("world_model-*.pt")):
@@ -134,11 +129,23 @@ def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_
         # the local executor's controller is named by the job folder; the job runs in its one child process
         [controller] = [d.name for d in (sweep / ".submitit").iterdir() if d.name.isdigit()]
         [job] = Path(f"/proc/{controller}/task/{controller}/children").read_text().split()
-        os.kill(int(job), signal.SIGUSR2)
+        os.kill(int(job), sig)
         _, err = proc.communicate(timeout=280)
     finally:
         if proc.poll() is None:
             proc.kill()
+    return proc, err, sweep, controller, (cmd, env)
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="finds the job's process through /proc (Linux)")
+def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_checkpoint(tmp_path):
+    """What SLURM does to a preempted job, with submitit's local executor: the job's process gets submitit's
+    preemption signal (USR2), submitit requeues the same job (the same overrides, so the same run folder and the
+    same checkpoint key), and the training resumes from the step it was preempted in instead of step 0. (Before
+    simeval.models.preemption, submitit's SystemExit was now and then raised inside a finaliser and dropped: the
+    job trained on, exited 0 and was never requeued.)"""
+    steps = 400  # 4 training windows, batch 8: one step (and one checkpoint) per epoch
+    proc, err, sweep, controller, _ = _signal_the_job_of_a_training_sweep(tmp_path, signal.SIGUSR2, steps)
     assert proc.returncode == 0, err[-3000:]
     log = _job_logs(sweep) + "".join(p.read_text() for p in sweep.glob(".submitit/*/*_log.out"))
     assert "this job is preempted" in log and f"Requeued job {controller}" in log
@@ -228,29 +235,7 @@ def test_slurm_partition_and_account_come_from_the_environment_or_the_command_li
 def test_a_killed_submitit_job_ends_the_sweep_with_one_line_naming_its_log_and_a_rerun_resumes(tmp_path):
     """kill -9 of the job process (what the out-of-memory killer does): submitit raises UncompletedJobError in the
     launching process; the user gets one line naming the job's log and exit 1, and the same command resumes."""
-    from simeval.models.synthetic import write_group
-
-    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
-    env.pop("HYDRA_FULL_ERROR", None)
-    sweep = tmp_path / "sweep"
-    cmd = [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
-           "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
-           "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", "world_model.train.epochs=400",
-           "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.time() + 120
-        while not list((tmp_path / "ck").glob("world_model-*.pt")):
-            assert proc.poll() is None and time.time() < deadline, proc.communicate()[1][-2000:]
-            time.sleep(0.05)
-        [controller] = [d.name for d in (sweep / ".submitit").iterdir() if d.name.isdigit()]
-        [job] = Path(f"/proc/{controller}/task/{controller}/children").read_text().split()
-        os.kill(int(job), signal.SIGKILL)
-        _, err = proc.communicate(timeout=280)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, err, sweep, controller, (cmd, env) = _signal_the_job_of_a_training_sweep(tmp_path, signal.SIGKILL)
     assert proc.returncode == 1 and "Traceback" not in err, err[-3000:]
     [line] = err.strip().splitlines()
     log = sweep / ".submitit" / controller / f"{controller}_0"
