@@ -146,6 +146,11 @@ def main(argv: list[str] | None = None) -> None:
     if unknown:
         _fail(f"--stages {','.join(unknown)}: unknown; stages: {','.join(STAGES)}")
     with_suite = [p for p in pipelines if suites[p]]
+    if not with_suite:  # every stage but Figure 3 runs on a suite's episodes: nothing would run
+        have = ", ".join(sorted(p.stem for p in (ROOT / "conf" / "pipeline").glob("*.yaml") if suite_of(p.stem)))
+        _fail(f"--pipelines {args.pipelines}: no simeval suite to collect episodes from (pipeline.suite is null); "
+              f"pipelines with one: {have}. For your own pipeline, import its episodes with src/import_data.py and "
+              "run the entrypoints on them")
     if "table3" in stages and with_suite:  # the suites' own task descriptions: needs no checkout of the pipelines
         runs = out / "table3" / "runs"
         if len(list(runs.glob("*/result.json"))) < 2 * len(with_suite):  # two embedding models per pipeline

@@ -72,3 +72,14 @@ def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
     while any(_alive(k) for k in kids) and time.time() < deadline:
         time.sleep(0.1)
     assert not any(_alive(k) for k in kids), "the stage kept running after paper.py was killed"
+
+
+def test_pipelines_without_a_suite_only_are_one_line_not_a_run_that_does_nothing(tmp_path):
+    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines",
+                        "custom", "--out", str(tmp_path / "out")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert p.stderr.strip().splitlines() == [
+        "error: --pipelines custom: no simeval suite to collect episodes from (pipeline.suite is null); pipelines "
+        "with one: bbsea, gensim, robogen. For your own pipeline, import its episodes with src/import_data.py and "
+        "run the entrypoints on them"]
+    assert not (tmp_path / "out").exists()
