@@ -6,6 +6,7 @@ and what it saw. When Chromium is installed, the page is also rendered headless 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -181,3 +182,20 @@ def test_an_agreement_run_is_summarised_by_its_pooled_r_over_mae():
             {"table": "task_completion", "pipeline": "all", "judge": "LLava-1.5", "r_over_mae": None}]
     assert headline_values({"metric": "agreement", "values": rows}) == [
         ("scene_alignment GPT-4v (all) r/MAE", 0.87), ("task_completion LLava-1.5 (all) r/MAE", None)]
+
+
+def test_a_runs_table_cell_cut_at_six_values_says_so_and_links_the_whole_record(tmp_path):
+    from simeval.report.html import build_html_report
+    from simeval.results import write_result
+
+    write_result(tmp_path / "runs" / "many", metric="collect", version="1",
+                 values={f"task{i}": {"episodes": i} for i in range(9)})
+    write_result(tmp_path / "runs" / "few", metric="collect", version="1", values={"task0": {"episodes": 3}})
+    page = build_html_report(tmp_path / "runs", tmp_path / "site").read_text()
+    rows = [row.split("</tr>")[0] for row in page.split("<tr>")]
+    many = next(row for row in rows if ">many</a>" in row)
+    few = next(row for row in rows if ">few</a>" in row)
+    assert many.count(".episodes: ") == 6 and "task5.episodes: 5" in many and "task6" not in many
+    link = re.search(r"<a href='([^']+)'>many</a>", many).group(1)
+    assert f"<a href='{link}'>… all values</a>" in many and (tmp_path / "site" / link).is_file()
+    assert "all values" not in few

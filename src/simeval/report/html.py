@@ -179,7 +179,10 @@ def _figures_section(figures_dir: Path | None, assets: _Assets) -> str:
 # ------------------------------------------------------------------------------------------------------ runs
 
 
-def headline_values(rec: dict, limit: int = 6) -> list[tuple[str, object]]:
+HEADLINE_VALUES = 6  # numbers per run in the runs table; a cut cell links to the whole record
+
+
+def headline_values(rec: dict, limit: int = HEADLINE_VALUES) -> list[tuple[str, object]]:
     """A few (name, number) pairs that say what a record measured, for the runs table."""
     values = rec.get("values")
     if rec.get("metric") == "quality" and isinstance(values, dict):
@@ -232,7 +235,10 @@ def _runs_section(records: list[dict], names: list[str], assets: _Assets) -> str
                 label = f"{label} · {key} {ident[key]}"
         link = assets.copy(Path(rec["path"]), f"runs/{_slug(name)}", "record.json")
         status = rec.get("status", "ok")
-        values = "<br>".join(f"{_e(k)}: {_e(_fmt(v, 3))}" for k, v in headline_values(rec))
+        shown = headline_values(rec, limit=HEADLINE_VALUES + 1)
+        values = "<br>".join(f"{_e(k)}: {_e(_fmt(v, 3))}" for k, v in shown[:HEADLINE_VALUES])
+        if len(shown) > HEADLINE_VALUES:  # say that the cell is cut, and where the rest is
+            values += f"<br><a href='{_e(link)}'>… all values</a>"
         gallery = (f" · <a href='#run-{_e(_slug(name))}'>gallery</a>" if rec.get("metric") == "quality" else "")
         rows.append(f"<tr><td><a href='{_e(link)}'>{_e(name)}</a>{gallery}</td><td>{_e(rec.get('metric'))}</td>"
                     f"<td class='status-{_e(status)}'>{_e(status)}</td><td>{_e(label)}</td>"
