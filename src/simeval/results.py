@@ -9,13 +9,14 @@ so two runs started in the same second never share a folder or overwrite each ot
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import math
 import os
 import subprocess
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -94,22 +95,31 @@ def _process_umask() -> int:
     return mask
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write via a temp file in the same folder and rename, so a reader never sees half a file."""
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, prefix: str | None = None) -> Iterator[Path]:
+    """A temp file in `path`'s folder, with the mode a plainly created file gets (mkstemp makes 0600 files; a shared
+    store or checkpoint folder needs the mode others' files get). Write it inside the block: it is renamed to `path`
+    when the block ends, and removed when the block raises (a kill never leaves half a file at `path`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix or f".{path.name}.", suffix=".tmp")
     try:
         os.fchmod(fd, umask_file_mode())
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
+        os.close(fd)
+        yield Path(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write via a temp file in the same folder and rename, so a reader never sees half a file."""
+    with atomic_path(path) as tmp, tmp.open("w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    return Path(path)
 
 
 def strict_json_value(obj: Any) -> Any:

@@ -46,7 +46,6 @@ import json
 import logging
 import os
 import re
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,7 +54,7 @@ import numpy as np
 
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.errors import UserError
-from simeval.results import umask_file_mode
+from simeval.results import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -80,11 +79,7 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
 
     ep.validate()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
-    os.fchmod(fd, umask_file_mode())  # mkstemp makes 0600 files; a shared store needs the mode others' files get
-    os.close(fd)
-    try:
+    with atomic_path(path, prefix=f".{path.stem}.") as tmp:  # the umask's mode, renamed into place when complete
         with h5py.File(tmp, "w") as f:
             for cam, frames in ep.rgb.items():
                 f.create_dataset(f"obs/rgb/{cam}", data=frames, chunks=(1, *frames.shape[1:]) if len(frames) else None,
@@ -122,10 +117,6 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
                 "variation_id": variation_id(ep.variation),
             })
             f.attrs["complete"] = True  # written last: a file without it was cut short
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

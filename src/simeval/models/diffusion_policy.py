@@ -370,9 +370,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
                     bar.set_postfix(loss=f"{mean:.4f}")
             if (step % settings.checkpoint_every == 0 and step < settings.train_steps) or preemption.pending:
                 save()
-            if preemption.pending:
-                log.info("preempted at step %d: checkpoint saved, handing over to submitit (requeue)", step)
-                preemption.deliver()
+            preemption.deliver(step)  # only when the signal came: after the checkpoint above
         if bar is not None:
             bar.close()
         save()

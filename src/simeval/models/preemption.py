@@ -20,11 +20,14 @@ signals 120 s before the time limit, conf/hydra/launcher/slurm.yaml); a step of 
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import threading
 from collections.abc import Callable
 from types import FrameType
+
+log = logging.getLogger(__name__)
 
 
 def preemption_signal() -> signal.Signals:
@@ -61,10 +64,13 @@ class PreemptionPoint:
             signal.signal(self._signum, handler)
         return handler
 
-    def deliver(self) -> None:
-        """Run the previous handler for the recorded signal now (it may raise SystemExit: that is its job)."""
+    def deliver(self, step: int | None = None) -> None:
+        """Run the previous handler for the recorded signal now (it may raise SystemExit: that is its job). Call it
+        once the step's checkpoint is saved; `step` is logged."""
         if not self.pending:
             return
+        if step is not None:
+            log.info("preempted at step %d: checkpoint saved, handing over to submitit (requeue)", step)
         self.pending = False
         handler = self._restore()
         if handler is not None:

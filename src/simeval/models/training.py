@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
@@ -37,7 +36,7 @@ import torch
 from simeval.errors import UserError, require_whole
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.preemption import PreemptionPoint
-from simeval.results import umask_file_mode
+from simeval.results import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -103,20 +102,11 @@ def step_generator(seed: int, step: int) -> torch.Generator:
 
 
 def save_checkpoint(path: str | os.PathLike, payload: dict) -> Path:
-    """torch.save to a temp file in the same folder, then rename: a kill never leaves half a checkpoint. The file
-    gets the mode a plainly created one would (the umask's)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, umask_file_mode())  # mkstemp's 0600 would hide checkpoints from a group sharing the folder
-        os.close(fd)
+    """torch.save through simeval.results.atomic_path: a kill never leaves half a checkpoint, and the file gets the
+    umask's mode."""
+    with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return Path(path)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
@@ -191,9 +181,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
                     log_metrics({"train": last, "epoch": epoch}, step)
                 if step % cfg.checkpoint_every == 0 or preemption.pending:
                     save(epoch, done_in_epoch)
-                if preemption.pending:
-                    log.info("preempted at step %d: checkpoint saved, handing over to submitit (requeue)", step)
-                    preemption.deliver()
+                preemption.deliver(step)  # only when the signal came: after the checkpoint above
             bar.close()
             if done_in_epoch >= len(batches):
                 epoch, done_in_epoch = epoch + 1, 0
