@@ -253,3 +253,48 @@ def test_a_checkpoint_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path):
         os.umask(old)
     assert path.stat().st_mode & 0o777 == 0o664
     assert [p.name for p in tmp_path.iterdir()] == ["ck.pt"]  # no temp file left beside it
+
+
+def _train_logged(caplog, train_cfg, checkpoint=None):
+    import logging
+
+    from simeval.episodes.dataset import WindowDataset, WindowSpec
+    from simeval.models.synthetic import make_group
+    from simeval.models.training import train
+
+    src = make_group("diverse", 2, 3, 10, 16, seed=0)
+    ds = WindowDataset(src, WindowSpec(length=6, stride=3))  # no random offset: the same batches every epoch
+    ds.stats = ds.fit_stats()
+    model = WorldModel(preset("tiny"), state_dim=len(ds.stats.state_mean), action_dim=len(ds.stats.action_mean))
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="simeval.models.training"):
+        out = train(model, ds, train_cfg, checkpoint=checkpoint, progress=False, device="cpu")
+    return out, len(ds.windows(0)), [r.getMessage() for r in caplog.records]
+
+
+def test_training_logs_its_planned_steps_and_one_line_per_epoch(caplog, tmp_path):
+    """Without progress bars (progress=false, cluster logs) a run still says how long it will take and its pace."""
+    from simeval.models.training import TrainConfig
+
+    out, n_windows, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3))
+    per_epoch = math.ceil(n_windows / 4)
+    assert out["steps"] == 3 * per_epoch
+    assert f"training: about {3 * per_epoch} steps (3 epochs x ~{per_epoch} batches of 4 windows), from step 0" in lines
+    done = [ln for ln in lines if " done: step " in ln]
+    assert [ln.split(",")[0] for ln in done] == [f"epoch {e}/3 done: step {e * per_epoch}" for e in (1, 2, 3)]
+    assert done[-1].endswith("~0 min left")
+
+    capped, _, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3, max_steps=per_epoch + 1),
+                                     checkpoint=tmp_path / "ck.pt")
+    assert capped["steps"] == per_epoch + 1
+    assert any(ln.startswith(f"training: about {per_epoch + 1} steps") and "capped at" in ln for ln in lines)
+    assert [ln.split(",")[0] for ln in lines if " done: step " in ln] == [f"epoch 1/3 done: step {per_epoch}"]
+
+    # resumed from that checkpoint without the cap: the plan counts from where the run stopped
+    resumed, _, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3),
+                                      checkpoint=tmp_path / "ck.pt")
+    assert resumed["steps"] == 3 * per_epoch
+    assert f"training: about {3 * per_epoch} steps (3 epochs x ~{per_epoch} batches of 4 windows), " \
+           f"from step {per_epoch + 1}" in lines
+    assert [ln.split(",")[0] for ln in lines if " done: step " in ln] == [f"epoch {e}/3 done: step {e * per_epoch}"
+                                                                         for e in (2, 3)]

@@ -154,6 +154,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
+    epoch_start = None  # (clock, step) where the current epoch's timing started
     with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
         while epoch < cfg.epochs and (cap is None or step < cap):
             batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
@@ -163,6 +164,11 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             todo = batches[done_in_epoch:]
             if cap is not None:
                 todo = todo[: cap - step]
+            if epoch_start is None:  # the plan, once: batches vary by a few per epoch with a random window offset
+                epoch_start = (time.perf_counter(), step)
+                planned = _planned_steps(cfg, epoch, done_in_epoch, step, len(batches))
+                log.info("training: about %d steps (%d epochs x ~%d batches of %d windows%s), from step %d", planned,
+                         cfg.epochs, len(batches), cfg.batch_size, f", capped at {cap}" if cap is not None else "", step)
             bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
                        disable=not progress, leave=False)
             for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
@@ -185,9 +191,28 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             bar.close()
             if done_in_epoch >= len(batches):
                 epoch, done_in_epoch = epoch + 1, 0
+                epoch_start = _log_epoch(epoch, cfg, step, last, epoch_start, len(batches))
             save(epoch, done_in_epoch)
         save(epoch, done_in_epoch, finished=True)
     return {"steps": step, "epochs": epoch, "seconds": time.perf_counter() - t0, "frames": frames, "last": last}
+
+
+def _planned_steps(cfg: TrainConfig, epoch: int, done_in_epoch: int, step: int, batches_per_epoch: int) -> int:
+    """Steps a run will have taken when it ends, from `step` with this epoch's batch count for every epoch left."""
+    total = step + (cfg.epochs - epoch) * batches_per_epoch - done_in_epoch
+    return total if cfg.max_steps is None else min(total, cfg.max_steps)
+
+
+def _log_epoch(epoch: int, cfg: TrainConfig, step: int, last: dict, since: tuple[float, int], batches: int):
+    """One line per finished epoch, so a run without progress bars (progress=false, SLURM logs) shows its pace and
+    what is left; returns the next epoch's (clock, step)."""
+    now = time.perf_counter()
+    took = max(step - since[1], 1)
+    pace = (now - since[0]) / took
+    left = max(_planned_steps(cfg, epoch, 0, step, batches) - step, 0)
+    log.info("epoch %d/%d done: step %d, loss %.1f, %.3f s/step, ~%.0f min left", epoch, cfg.epochs, step,
+             last.get("loss", float("nan")), pace, left * pace / 60)
+    return now, step
 
 
 @torch.no_grad()
