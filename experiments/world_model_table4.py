@@ -1,11 +1,13 @@
 """Paper Table 4 from the dynamics_diversity result.json files: eval error at 10/20/40 training episodes per
 pipeline and group, the paper's values beside ours, and a plot of error against episodes (simeval.report.table4).
 
-    python experiments/world_model_table4.py [--root outputs] [--preset cpu] [--episodes 10,20,40]
+    python experiments/world_model_table4.py [--root outputs] [--preset cpu] [--episodes 10,20,40] [--keep CSV]
 Writes outputs/tables/table4.{csv,md,tex} and outputs/figures/table4.{png,pdf}. Our numbers are the posterior image
 error summed over pixels at our resolution (cpu preset: 64x64; the paper's: 128x128), so compare shapes (how the
 error falls with episodes) and per-pixel values, not raw magnitudes. Runs of one cell with several seeds are
 averaged. No dynamics_diversity result.json under --root: one line on stderr, exit status 2.
+`--keep outputs/tables/table4.csv` extends an earlier table: its cells that the runs under --root lack are kept
+(how the committed table gathers groups run on different machines, whose result.json files are not all here).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="the figure (.png; a .pdf is written beside it)")
     ap.add_argument("--episodes", default="10,20,40",
                     help="our training-episode counts shown beside the paper's 10/20/40 (quick profile: 1,2,4)")
+    ap.add_argument("--keep", default=None, metavar="CSV",
+                    help="an earlier table's CSV whose cells the runs under --root lack are kept (runs made elsewhere)")
     a = ap.parse_args(argv)
     from simeval.errors import UserError
     from simeval.report import table4
@@ -37,13 +41,16 @@ def main(argv: list[str] | None = None) -> None:
             episodes = [int(x) for x in a.episodes.split(",")]
         except ValueError:
             raise UserError(f"--episodes {a.episodes}: expected 3 whole numbers separated by commas, e.g. 10,20,40")
+        kept = table4.read_rows(a.keep) if a.keep else None
         records = read_results(a.root, metric=table4.METRIC)
-        if not records:
+        if not records and kept is None:
             raise UserError(f"no {table4.METRIC} result.json under {a.root}: run the world models first "
                             "(make table4, or src/diversity.py), or give --root the folder that holds them")
         rows = table4.build(records, episodes=episodes, preset=a.preset)
+        if kept is not None:
+            rows = table4.merge([r for r in kept if not a.preset or r["preset"] in ("", a.preset)], rows)
         presets = sorted({str(r["identity"].get("preset")) for r in records})
-        if a.preset and a.preset not in presets:
+        if a.preset and a.preset not in presets and kept is None:
             raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
                             f"presets: {', '.join(presets)})")
         unused = table4.unused_episodes(records, episodes)

@@ -139,3 +139,61 @@ def test_the_sweep_runs_on_imported_ravens_demos(tmp_path):
         assert res["identity"]["task_group"] == "stacking" and res["identity"]["camera"] == "color_0"
         # 3 imported episodes of 11 rows, evaluated on ranks 1-3: every frame of every episode counts once
         assert ev["frames"] == 33 and 0 < ev["image_error"] < 16 * 16 * 3
+
+
+def _record(pipeline: str, group: str, episodes: int, error: float) -> dict:
+    return {"metric": "dynamics_diversity", "status": "ok",
+            "identity": {"pipeline": pipeline, "task_group": group, "episodes": episodes, "preset": "cpu"},
+            "values": {"eval": {"image_error": error, "image_error_per_pixel": error / 12288}}}
+
+
+def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp_path):
+    """--keep: the committed table gathers groups run on different machines; each cell comes from exactly one side."""
+    from simeval.errors import UserError
+    from simeval.report import table4
+
+    earlier = table4.build([_record("gensim", "stacking", k, e) for k, e in ((10, 47.195245993035456), (20, 35.5),
+                                                                            (40, 27.2))]
+                           + [_record("bbsea", "table", 10, 152.8)])
+    table4.write(earlier, tmp_path / "earlier")
+    kept = table4.read_rows(tmp_path / "earlier.csv")
+    assert kept == earlier  # every number survives the CSV exactly (47.195245993035456 included)
+
+    fresh = table4.build([_record("bbsea", "table", 20, 102.4), _record("bbsea", "table", 40, 77.2),
+                          _record("gensim", "piles", 10, 70.1)])
+    rows = {(r["pipeline"], r["group"]): r for r in table4.merge(kept, fresh)}
+    stacking, table, piles = rows[("gensim", "stacking")], rows[("bbsea", "table")], rows[("gensim", "piles")]
+    assert [stacking[f"ours_{k}"] for k in (10, 20, 40)] == [47.195245993035456, 35.5, 27.2]  # only in the kept one
+    assert [table[f"ours_{k}"] for k in (10, 20, 40)] == [152.8, 102.4, 77.2]  # 10 kept, 20 and 40 new
+    assert [table[f"runs_{k}"] for k in (10, 20, 40)] == [1, 1, 1]
+    assert [piles[f"ours_{k}"] for k in (10, 20, 40)] == [70.1, None, None]
+    assert (stacking["preset"], piles["preset"]) == ("cpu", "cpu")  # the paper-only rows of those groups are gone
+    assert rows[("gensim", "assembling")]["preset"] == "" and rows[("gensim", "assembling")]["paper_10"] == 105.4
+    assert len(rows) == len(table4.merge(kept, fresh))  # one row per group: nothing doubled
+
+    # a new run of a cell the earlier table has: the new number wins
+    newer = table4.merge(kept, table4.build([_record("bbsea", "table", 10, 150.0)]))
+    assert next(r for r in newer if r["group"] == "table")["ours_10"] == 150.0
+
+    quick = table4.build([_record("bbsea", "table", 1, 300.0)], episodes=(1, 2, 4))
+    with pytest.raises(UserError, match="column 10 holds runs on 10 episodes per task, the new one on 1"):
+        table4.merge(kept, quick)
+    (tmp_path / "other.csv").write_text("group,error\nstacking,1\n")
+    with pytest.raises(UserError, match="other.csv: not a Table 4 CSV .* no column pipeline"):
+        table4.read_rows(tmp_path / "other.csv")
+
+
+def test_keep_of_a_missing_file_is_one_line(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--root", str(tmp_path),
+                        "--keep", str(tmp_path / "nope.csv")], env=ENV, capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "nope.csv: cannot read it" in r.stderr
+    # with no runs under --root, the kept table alone is written again (its figure redrawn)
+    from simeval.report import table4
+
+    table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "earlier")
+    r = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--root", str(tmp_path),
+                        "--keep", str(tmp_path / "earlier.csv"), "--out", str(tmp_path / "again"), "--figure",
+                        str(tmp_path / "again.png")], env=ENV, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "again.csv").read_text() == (tmp_path / "earlier.csv").read_text()

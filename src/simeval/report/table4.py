@@ -71,6 +71,74 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
     return rows
 
 
+def _cell_columns(k: int) -> list[str]:
+    return [f"paper_{k}", f"episodes_{k}", f"ours_{k}", f"ours_{k}_per_pixel", f"runs_{k}"]
+
+
+def read_rows(path: str | Path) -> list[dict]:
+    """The rows of a table `write` made, from its CSV, numbers parsed (for `merge`)."""
+    import csv
+
+    path = Path(path)
+    try:
+        with path.open(newline="") as f:
+            raw = list(csv.DictReader(f))
+    except OSError as e:
+        raise UserError(f"{path}: cannot read it ({e.strerror or e})") from e
+    need = ["pipeline", "group", "preset"] + [c for k in EPISODES for c in _cell_columns(k)]
+    missing = [c for c in need if raw and c not in raw[0]]
+    if not raw or missing:
+        raise UserError(f"{path}: not a Table 4 CSV (written by experiments/world_model_table4.py): "
+                        + (f"no column {missing[0]}" if raw else "no rows"))
+
+    def number(v: str, kind=float):
+        return None if v == "" else kind(v)
+
+    rows = []
+    for i, r in enumerate(raw, start=2):
+        try:
+            row = {"pipeline": r["pipeline"], "group": r["group"], "preset": r["preset"]}
+            for k in EPISODES:
+                row[f"paper_{k}"] = number(r[f"paper_{k}"])
+                row[f"episodes_{k}"] = number(r[f"episodes_{k}"], int)
+                row[f"ours_{k}"] = number(r[f"ours_{k}"])
+                row[f"ours_{k}_per_pixel"] = number(r[f"ours_{k}_per_pixel"])
+                row[f"runs_{k}"] = number(r[f"runs_{k}"], int)
+        except ValueError as e:
+            raise UserError(f"{path}, line {i}: {e}") from e
+        rows.append(row)
+    return rows
+
+
+def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
+    """`fresh` rows (from result.json files) with every cell they have no run for taken from `kept` (an earlier
+    table's rows, read_rows): a table extended with runs made on another machine, whose result.json files are not
+    here. A cell is (pipeline, group, preset, column); a paper-only row is dropped once its group has ours."""
+    def key(r):
+        return r["pipeline"], r["group"], r["preset"]
+
+    merged = {key(r): dict(r) for r in fresh}
+    for old in kept:
+        if not old["preset"]:
+            continue  # a paper-only row: the paper's values come from paper_values, not from the file
+        if key(old) not in merged:
+            merged[key(old)] = dict(old)
+            continue
+        row = merged[key(old)]
+        for k in EPISODES:
+            if row[f"episodes_{k}"] != old[f"episodes_{k}"]:
+                raise UserError(f"{old['pipeline']}/{old['group']}: the kept table's column {k} holds runs on "
+                                f"{old[f'episodes_{k}']} episodes per task, the new one on {row[f'episodes_{k}']}; "
+                                "build both with the same --episodes")
+            if not row[f"runs_{k}"]:
+                for c in _cell_columns(k)[2:]:
+                    row[c] = old[c]
+    ours = {(p, suite_group(p, g)) for (p, g, pr) in merged if pr}
+    rows = [r for r in merged.values() if r["preset"] or (r["pipeline"], suite_group(r["pipeline"], r["group"]))
+            not in ours]
+    return sorted(rows, key=lambda r: (_order(r["pipeline"]), r["group"], r["preset"]))
+
+
 def unused_episodes(records: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) -> list[int]:
     """The training-episode counts of ok runs that a table with columns `episodes` leaves out (say so to the
     user: the quick profile's 1/2/4-episode runs beside the cpu preset's 10/20/40 ones give two tables)."""
