@@ -52,3 +52,35 @@ def test_a_group_named_as_in_the_paper_lands_in_the_suite_row():
     s["identity"].update(pipeline="bbsea", task_group="table")
     with pytest.raises(UserError, match="task_group"):
         build([r, s])
+
+
+def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_path):
+    """--keep: the committed table gathers groups run on different machines; a row comes from exactly one side."""
+    from simeval.models.policy.table5 import merge, read_rows
+
+    placement = rec("p", 0, 50)
+    placement["identity"]["task_group"] = "placement"
+    earlier = build([placement, rec("a", 2, 10)])
+    write(earlier, tmp_path / "earlier")
+    kept = read_rows(tmp_path / "earlier.csv")
+    assert kept == earlier  # counts, rates and Wilson intervals come back exactly
+
+    drawer = rec("d", 5, 30)
+    drawer["identity"].update(pipeline="bbsea", task_group="drawer")
+    newer_piles = rec("n", 7, 20)
+    rows = merge(kept, build([drawer, newer_piles]))
+    cells = {(r["pipeline"], r["group"]): r for r in rows}
+    assert (cells[("gensim", "placement")]["eval"]["k"], cells[("gensim", "placement")]["eval"]["n"]) == (0, 50)
+    assert cells[("gensim", "piles")]["eval"]["k"] == 7  # the new run wins over the kept 2/10
+    assert cells[("bbsea", "drawer")]["eval"]["k"] == 5 and cells[("gensim", "stacking")]["runs"] == 0
+    assert len(rows) == len(cells) == 8  # one row per paper group, in the paper's order
+    assert [r["group"] for r in rows][:4] == ["stacking", "placement", "piles", "assembling"]
+
+    (tmp_path / "bad.csv").write_text((tmp_path / "earlier.csv").read_text().replace("(0/50)", "(none)"))
+    with pytest.raises(UserError, match="bad.csv, line 3: eval cell .* has no \\(successes/rollouts\\)"):
+        read_rows(tmp_path / "bad.csv")
+    (tmp_path / "t4.csv").write_text("pipeline,group,preset\n")
+    with pytest.raises(UserError, match="t4.csv: not a Table 5 CSV"):
+        read_rows(tmp_path / "t4.csv")
+    with pytest.raises(UserError, match="nope.csv: cannot read it"):
+        read_rows(tmp_path / "nope.csv")

@@ -7,12 +7,15 @@ writes table5.{csv,md,tex} and table5.{png,pdf}. Ours: success rate of the `eval
 group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
 paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
-No generalization result.json under --runs: one line on stderr, exit status 2.
+No generalization result.json under --runs: one line on stderr, exit status 2. `--keep outputs/tables/table5.csv`
+extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table gathers
+groups run on different machines, whose result.json files are not all here).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -70,9 +73,60 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
                "policy": preset, "runs": len(cell["runs"]) if cell else 0}
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
-            row[split] = {"k": k, "n": n, "rate": k / n, "ci": wilson_interval(k, n)} if n else None
+            row[split] = _split(k, n) if n else None
         rows.append(row)
     return rows
+
+
+HEAD = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: train", "Ours: held-out", "Policy", "Runs"]
+_COUNTS = re.compile(r"\((\d+)/(\d+)\)$")
+
+
+def _split(k: int, n: int) -> dict:
+    return {"k": k, "n": n, "rate": k / n, "ci": wilson_interval(k, n)}
+
+
+def read_rows(path: str | Path) -> list[dict]:
+    """The rows of a table `write` made, from its CSV: each split's successes/rollouts are read back (the rate and
+    interval recomputed from them), for `merge`."""
+    import csv
+
+    path = Path(path)
+    try:
+        with path.open(newline="") as f:
+            raw = list(csv.reader(f))
+    except OSError as e:
+        raise UserError(f"{path}: cannot read it ({e.strerror or e})") from e
+    if not raw or raw[0] != HEAD:
+        raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.models.policy.table5): its header "
+                        f"should be {','.join(HEAD)}")
+    rows = []
+    for line, cells in enumerate(raw[1:], start=2):
+        pipeline, group, paper, *splits, policy, runs = cells
+        row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
+               "policy": None if policy == "-" else policy, "runs": int(runs)}
+        for split, text in zip(SPLITS, splits):
+            m = _COUNTS.search(text)
+            if text != "-" and m is None:
+                raise UserError(f"{path}, line {line}: {split} cell {text!r} has no (successes/rollouts)")
+            row[split] = _split(int(m[1]), int(m[2])) if m else None
+        rows.append(row)
+    return rows
+
+
+def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
+    """`fresh` rows (from result.json files) and the rows of `kept` (an earlier table's, read_rows) for every
+    (pipeline, group, policy) the fresh ones have no run of: a table extended with runs made on another machine,
+    whose result.json files are not here. A not-run row is dropped where its group has a run; the paper's order."""
+    rows = {(r["pipeline"], r["group"], r["policy"]): r for r in fresh}
+    for old in kept:
+        key = (old["pipeline"], old["group"], old["policy"])
+        if old["runs"] and not (key in rows and rows[key]["runs"]):
+            rows[key] = old
+    ran = {k[:2] for k, r in rows.items() if r["runs"]}
+    order = [*PAPER, *sorted({k[:2] for k in rows} - set(PAPER))]
+    return sorted((r for k, r in rows.items() if r["runs"] or k[:2] not in ran),
+                  key=lambda r: (order.index((r["pipeline"], r["group"])), str(r["policy"])))
 
 
 def _fmt(v) -> str:
@@ -81,12 +135,11 @@ def _fmt(v) -> str:
 
 def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
     """`<out>.csv`, `<out>.md` and `<out>.tex` (booktabs): {suffix: path}."""
-    head = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: train", "Ours: held-out", "Policy", "Runs"]
     table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}",
               *(_fmt(r[s]) for s in SPLITS), r["policy"] or "-", str(r["runs"])] for r in rows]
     notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:]]
-    paths = write_table(out, head, table, notes=notes, label="tab:table5",
+    paths = write_table(out, HEAD, table, notes=notes, label="tab:table5",
                         caption="Diffusion Policy trained per task group: success rate on the group's tasks under "
                                 "variations (eval), on the training distribution (train) and on held-out tasks.")
     return {p.suffix.lstrip("."): p for p in paths}
@@ -154,13 +207,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
     ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
     ap.add_argument("--policy", default=None, help="only runs of this policy preset (tiny, cpu, paper)")
+    ap.add_argument("--keep", default=None, metavar="CSV",
+                    help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made elsewhere)")
     args = ap.parse_args(argv)
     try:
+        kept = read_rows(args.keep) if args.keep else None
         records = read_results(args.runs, metric=METRIC)
-        if not records:
+        if not records and kept is None:
             raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
                             "src/generalization.py), or give --runs the folder that holds them")
-        rows = build(records, policy=args.policy)
+        rows = build(records, policy=args.policy if records else None)
+        if kept is not None:
+            rows = merge([r for r in kept if args.policy in (None, r["policy"]) or not r["runs"]], rows)
         written = write(rows, args.out)
         figures = plot(rows, args.figure)
     except UserError as e:
