@@ -84,3 +84,26 @@ def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_
         read_rows(tmp_path / "t4.csv")
     with pytest.raises(UserError, match="nope.csv: cannot read it"):
         read_rows(tmp_path / "nope.csv")
+
+
+def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
+    from simeval.models.policy.table5 import read_rows
+    from simeval.report import table4
+
+    write(build([rec("a", 2, 10)]), tmp_path / "t5")
+    text = (tmp_path / "t5.csv").read_text().splitlines()
+    (tmp_path / "cut.csv").write_text("\n".join(text[:3] + [text[3][:20]]) + "\n")
+    with pytest.raises(UserError, match="cut.csv, line 4: .* cells, expected 8"):
+        read_rows(tmp_path / "cut.csv")
+    (tmp_path / "binary.csv").write_bytes(b"\xff\xfe\x00garbage")
+    for reader in (read_rows, table4.read_rows):
+        with pytest.raises(UserError, match="binary.csv: "):
+            reader(tmp_path / "binary.csv")
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(UserError, match="empty.csv: not a Table 4 CSV"):
+        table4.read_rows(tmp_path / "empty.csv")
+    table4.write(table4.build([]), tmp_path / "t4")
+    lines = (tmp_path / "t4.csv").read_text().splitlines()
+    (tmp_path / "t4cut.csv").write_text("\n".join(lines[:2] + [lines[2][:15]]) + "\n")
+    with pytest.raises(UserError, match="t4cut.csv, line 3: KeyError"):
+        table4.read_rows(tmp_path / "t4cut.csv")

@@ -23,7 +23,7 @@ from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE4 as PAPER
 from simeval.report.paper_values import TABLE4_EPISODES as EPISODES
 from simeval.report.paper_values import TABLE4_PIXELS as PAPER_PIXELS
-from simeval.report.tables import to_csv, to_latex, to_markdown
+from simeval.report.tables import read_csv, to_csv, to_latex, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
@@ -77,14 +77,8 @@ def _cell_columns(k: int) -> list[str]:
 
 def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV, numbers parsed (for `merge`)."""
-    import csv
-
-    path = Path(path)
-    try:
-        with path.open(newline="") as f:
-            raw = list(csv.DictReader(f))
-    except OSError as e:
-        raise UserError(f"{path}: cannot read it ({e.strerror or e})") from e
+    lines = read_csv(path)
+    raw = [dict(zip(lines[0], cells)) for cells in lines[1:]] if lines else []
     need = ["pipeline", "group", "preset"] + [c for k in EPISODES for c in _cell_columns(k)]
     missing = [c for c in need if raw and c not in raw[0]]
     if not raw or missing:
@@ -104,8 +98,8 @@ def read_rows(path: str | Path) -> list[dict]:
                 row[f"ours_{k}"] = number(r[f"ours_{k}"])
                 row[f"ours_{k}_per_pixel"] = number(r[f"ours_{k}_per_pixel"])
                 row[f"runs_{k}"] = number(r[f"runs_{k}"], int)
-        except ValueError as e:
-            raise UserError(f"{path}, line {i}: {e}") from e
+        except (ValueError, KeyError) as e:  # a number that is not one, or a line cut short
+            raise UserError(f"{path}, line {i}: {type(e).__name__}: {e}") from e
         rows.append(row)
     return rows
 

@@ -10,6 +10,19 @@ from pathlib import Path
 from simeval.results import atomic_write_text
 
 
+def read_csv(path: str | Path) -> list[list[str]]:
+    """The lines of a CSV file as lists of strings; an unreadable file is a UserError naming it (tables read back
+    with --keep)."""
+    from simeval.errors import UserError
+
+    path = Path(path)
+    try:
+        with path.open(newline="") as f:
+            return list(csv.reader(f))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise UserError(f"{path}: cannot read it ({getattr(e, 'strerror', None) or e})") from e
+
+
 def to_markdown(header: list[str], rows: list[list[str]], notes: list[str] | None = None) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]

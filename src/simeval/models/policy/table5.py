@@ -24,7 +24,7 @@ from simeval.metrics.intervals import wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import write_table
+from simeval.report.tables import read_csv, write_table
 from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
@@ -89,22 +89,20 @@ def _split(k: int, n: int) -> dict:
 def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV: each split's successes/rollouts are read back (the rate and
     interval recomputed from them), for `merge`."""
-    import csv
-
-    path = Path(path)
-    try:
-        with path.open(newline="") as f:
-            raw = list(csv.reader(f))
-    except OSError as e:
-        raise UserError(f"{path}: cannot read it ({e.strerror or e})") from e
+    raw = read_csv(path)
     if not raw or raw[0] != HEAD:
         raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.models.policy.table5): its header "
                         f"should be {','.join(HEAD)}")
     rows = []
     for line, cells in enumerate(raw[1:], start=2):
+        if len(cells) != len(HEAD):
+            raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(HEAD)}")
         pipeline, group, paper, *splits, policy, runs = cells
-        row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
-               "policy": None if policy == "-" else policy, "runs": int(runs)}
+        try:
+            row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
+                   "policy": None if policy == "-" else policy, "runs": int(runs)}
+        except ValueError as e:
+            raise UserError(f"{path}, line {line}: {e}") from e
         for split, text in zip(SPLITS, splits):
             m = _COUNTS.search(text)
             if text != "-" and m is None:
