@@ -6,8 +6,9 @@ Writes outputs/tables/table4.{csv,md,tex} and outputs/figures/table4.{png,pdf}. 
 error summed over pixels at our resolution (cpu preset: 64x64; the paper's: 128x128), so compare shapes (how the
 error falls with episodes) and per-pixel values, not raw magnitudes. Runs of one cell with several seeds are
 averaged. No dynamics_diversity result.json under --root: one line on stderr, exit status 2.
-`--keep outputs/tables/table4.csv` extends an earlier table: its cells that the runs under --root lack are kept
-(how the committed table gathers groups run on different machines, whose result.json files are not all here).
+`--keep outputs/tables/table4.csv` (repeatable) extends an earlier table: its cells that the runs under --root lack
+are kept (how the committed table gathers groups run on different machines, whose result.json files are not all
+here); the runs under --root still have to exist, and a cell they have replaces the kept one.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ sys.path.insert(0, str(ROOT / "src"))
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description="Paper Table 4 (world-model eval error at 10/20/40 training episodes per "
+                                             "task group) from dynamics_diversity result.json files, with a figure.")
     ap.add_argument("--root", default=str(ROOT / "outputs"), help="folder searched for result.json files")
     ap.add_argument("--preset", default=None, help="only runs of this world_model preset")
     ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "table4"), help="tables, without suffix")
@@ -29,8 +31,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="the figure (.png; a .pdf is written beside it)")
     ap.add_argument("--episodes", default="10,20,40",
                     help="our training-episode counts shown beside the paper's 10/20/40 (quick profile: 1,2,4)")
-    ap.add_argument("--keep", default=None, metavar="CSV",
-                    help="an earlier table's CSV whose cells the runs under --root lack are kept (runs made elsewhere)")
+    ap.add_argument("--keep", action="append", default=[], metavar="CSV",
+                    help="an earlier table's CSV whose cells the runs under --root lack are kept (runs made on another "
+                         "machine); repeatable, the first file that has a cell gives it")
     a = ap.parse_args(argv)
     from simeval.errors import UserError
     from simeval.report import table4
@@ -41,18 +44,19 @@ def main(argv: list[str] | None = None) -> None:
             episodes = [int(x) for x in a.episodes.split(",")]
         except ValueError:
             raise UserError(f"--episodes {a.episodes}: expected 3 whole numbers separated by commas, e.g. 10,20,40")
-        kept = table4.read_rows(a.keep) if a.keep else None
+        kept = [table4.read_rows(path) for path in a.keep]  # read first: a bad file fails before any work
         records = read_results(a.root, metric=table4.METRIC)
-        if not records and kept is None:
+        if not records:  # with --keep too: a mistyped --root must not pass for "nothing new"
             raise UserError(f"no {table4.METRIC} result.json under {a.root}: run the world models first "
                             "(make table4, or src/diversity.py), or give --root the folder that holds them")
-        rows = table4.build(records, episodes=episodes, preset=a.preset)
-        if kept is not None:
-            rows = table4.merge([r for r in kept if not a.preset or r["preset"] in ("", a.preset)], rows)
         presets = sorted({str(r["identity"].get("preset")) for r in records})
-        if a.preset and a.preset not in presets and kept is None:
+        if a.preset and a.preset not in presets:
             raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
                             f"presets: {', '.join(presets)})")
+        rows = table4.build(records, episodes=episodes, preset=a.preset)
+        for rows_of_file in kept:
+            rows = table4.merge([r for r in rows_of_file if not a.preset or r["preset"] in ("", a.preset)], rows,
+                                episodes)
         unused = table4.unused_episodes(records, episodes)
         written = table4.write(rows, a.out, episodes, unused)
         figures = table4.plot(rows, a.figure)

@@ -79,6 +79,9 @@ def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_
     (tmp_path / "bad.csv").write_text((tmp_path / "earlier.csv").read_text().replace("(0/50)", "(none)"))
     with pytest.raises(UserError, match="bad.csv, line 3: eval cell .* has no \\(successes/rollouts\\)"):
         read_rows(tmp_path / "bad.csv")
+    (tmp_path / "more.csv").write_text((tmp_path / "earlier.csv").read_text().replace("(0/50)", "(60/50)"))
+    with pytest.raises(UserError, match="more.csv, line 3: eval cell .* successes <= rollouts"):
+        read_rows(tmp_path / "more.csv")
     (tmp_path / "t4.csv").write_text("pipeline,group,preset\n")
     with pytest.raises(UserError, match="t4.csv: not a Table 5 CSV"):
         read_rows(tmp_path / "t4.csv")
@@ -105,5 +108,5 @@ def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
     table4.write(table4.build([]), tmp_path / "t4")
     lines = (tmp_path / "t4.csv").read_text().splitlines()
     (tmp_path / "t4cut.csv").write_text("\n".join(lines[:2] + [lines[2][:15]]) + "\n")
-    with pytest.raises(UserError, match="t4cut.csv, line 3: KeyError"):
+    with pytest.raises(UserError, match="t4cut.csv, line 3: .* cells, expected 18"):
         table4.read_rows(tmp_path / "t4cut.csv")

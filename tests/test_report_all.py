@@ -113,4 +113,4 @@ def test_table4_says_in_the_file_which_runs_it_leaves_out():
     _, body, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[1, 2, 4])
     assert body and all("—" in cell for row in body for cell in row[3:6])  # no run at 10/20/40: paper / —
     assert ("Runs trained on 1/2/4 episodes per task exist but are not in this table (its columns are 10/20/40): "
-            "build one for them with --episodes 1 2 4") in notes
+            "build one for them with --episodes 1,2,4") in notes  # the form --episodes parses

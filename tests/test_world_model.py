@@ -282,13 +282,14 @@ def test_training_logs_its_planned_steps_and_one_line_per_epoch(caplog, tmp_path
     assert f"training: about {3 * per_epoch} steps (3 epochs x ~{per_epoch} batches of 4 windows), from step 0" in lines
     done = [ln for ln in lines if " done: step " in ln]
     assert [ln.split(",")[0] for ln in done] == [f"epoch {e}/3 done: step {e * per_epoch}" for e in (1, 2, 3)]
-    assert done[-1].endswith("~0 min left")
+    assert done[-1].endswith("~0 s left")
 
     capped, _, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3, max_steps=per_epoch + 1),
                                      checkpoint=tmp_path / "ck.pt")
     assert capped["steps"] == per_epoch + 1
     assert any(ln.startswith(f"training: about {per_epoch + 1} steps") and "capped at" in ln for ln in lines)
     assert [ln.split(",")[0] for ln in lines if " done: step " in ln] == [f"epoch 1/3 done: step {per_epoch}"]
+    assert lines[-1] == f"stopped at the step cap: step {per_epoch + 1} (max_steps), in epoch 2/3, after 1 of its batches"
 
     # resumed from that checkpoint without the cap: the plan counts from where the run stopped
     resumed, _, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3),

@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from simeval.errors import UserError
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "0"}
 
@@ -176,24 +178,45 @@ def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp
     assert next(r for r in newer if r["group"] == "table")["ours_10"] == 150.0
 
     quick = table4.build([_record("bbsea", "table", 1, 300.0)], episodes=(1, 2, 4))
-    with pytest.raises(UserError, match="column 10 holds runs on 10 episodes per task, the new one on 1"):
-        table4.merge(kept, quick)
+    with pytest.raises(UserError, match="column 10 holds runs on 10 episodes per task, this table's on 1"):
+        table4.merge(kept, quick, episodes=(1, 2, 4))
     (tmp_path / "other.csv").write_text("group,error\nstacking,1\n")
-    with pytest.raises(UserError, match="other.csv: not a Table 4 CSV .* no column pipeline"):
+    with pytest.raises(UserError, match="other.csv: not a Table 4 CSV .* header should be pipeline,group,preset"):
         table4.read_rows(tmp_path / "other.csv")
 
 
-def test_keep_of_a_missing_file_is_one_line(tmp_path):
-    r = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--root", str(tmp_path),
-                        "--keep", str(tmp_path / "nope.csv")], env=ENV, capture_output=True, text=True)
+def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
+    def table(*args):
+        return subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--out",
+                               str(tmp_path / "t4"), "--figure", str(tmp_path / "t4.png"), *args], env=ENV,
+                              capture_output=True, text=True)
+
+    r = table("--root", str(tmp_path), "--keep", str(tmp_path / "nope.csv"))
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "nope.csv: cannot read it" in r.stderr
-    # with no runs under --root, the kept table alone is written again (its figure redrawn)
+    # a mistyped --root beside --keep is an error, not the kept table written again as if nothing were new
     from simeval.report import table4
 
     table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "earlier")
-    r = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--root", str(tmp_path),
-                        "--keep", str(tmp_path / "earlier.csv"), "--out", str(tmp_path / "again"), "--figure",
-                        str(tmp_path / "again.png")], env=ENV, capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    assert (tmp_path / "again.csv").read_text() == (tmp_path / "earlier.csv").read_text()
+    r = table("--root", str(tmp_path / "typo"), "--keep", str(tmp_path / "earlier.csv"))
+    assert r.returncode == 2 and "no dynamics_diversity result.json under" in r.stderr
+    assert not (tmp_path / "t4.csv").exists()
+    # a blank line at the end and a byte-order mark (a spreadsheet's save) are read as the table
+    text = (tmp_path / "earlier.csv").read_text()
+    (tmp_path / "edited.csv").write_text("\ufeff" + text + "\n\n", encoding="utf-8")
+    assert table4.read_rows(tmp_path / "edited.csv") == table4.read_rows(tmp_path / "earlier.csv")
+    lines = text.splitlines()
+    (tmp_path / "extra.csv").write_text("\n".join([lines[0], lines[1] + ",7", *lines[2:]]) + "\n")
+    with pytest.raises(UserError, match="extra.csv, line 2: 19 cells, expected 18"):
+        table4.read_rows(tmp_path / "extra.csv")
+
+
+def test_kept_rows_must_have_runs_on_this_tables_episodes(tmp_path):
+    """A 10/20/40 table kept under --episodes 1,2,4 would put 10-episode numbers in a column labelled 1."""
+    from simeval.report import table4
+
+    kept = table4.build([_record("gensim", "stacking", 10, 47.2)])
+    fresh = table4.build([_record("bbsea", "table", 1, 300.0)], episodes=(1, 2, 4))
+    with pytest.raises(UserError, match="gensim/stacking: the kept table's column 10 holds runs on 10 episodes per "
+                                        "task, this table's on 1"):
+        table4.merge(kept, fresh, episodes=(1, 2, 4))

@@ -154,7 +154,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
-    epoch_start = None  # (clock, step) where the current epoch's timing started
+    started = None  # (clock, step) where this process started training: the pace is measured from there
     with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
         while epoch < cfg.epochs and (cap is None or step < cap):
             batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
@@ -164,8 +164,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             todo = batches[done_in_epoch:]
             if cap is not None:
                 todo = todo[: cap - step]
-            if epoch_start is None:  # the plan, once: batches vary by a few per epoch with a random window offset
-                epoch_start = (time.perf_counter(), step)
+            if started is None:  # the plan, once: batches vary by a few per epoch with a random window offset
+                started = (time.perf_counter(), step)
                 planned = _planned_steps(cfg, epoch, done_in_epoch, step, len(batches))
                 log.info("training: about %d steps (%d epochs x ~%d batches of %d windows%s), from step %d", planned,
                          cfg.epochs, len(batches), cfg.batch_size, f", capped at {cap}" if cap is not None else "", step)
@@ -191,8 +191,12 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             bar.close()
             if done_in_epoch >= len(batches):
                 epoch, done_in_epoch = epoch + 1, 0
-                epoch_start = _log_epoch(epoch, cfg, step, last, epoch_start, len(batches))
+                _log_epoch(epoch, cfg, step, last, started, len(batches))
             save(epoch, done_in_epoch)
+        if cap is not None and step >= cap and epoch < cfg.epochs:
+            where = (f"in epoch {epoch + 1}/{cfg.epochs}, after {done_in_epoch} of its batches" if done_in_epoch
+                     else f"after epoch {epoch}/{cfg.epochs}")
+            log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
         save(epoch, done_in_epoch, finished=True)
     return {"steps": step, "epochs": epoch, "seconds": time.perf_counter() - t0, "frames": frames, "last": last}
 
@@ -203,16 +207,18 @@ def _planned_steps(cfg: TrainConfig, epoch: int, done_in_epoch: int, step: int, 
     return total if cfg.max_steps is None else min(total, cfg.max_steps)
 
 
-def _log_epoch(epoch: int, cfg: TrainConfig, step: int, last: dict, since: tuple[float, int], batches: int):
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
+def _log_epoch(epoch: int, cfg: TrainConfig, step: int, last: dict, since: tuple[float, int], batches: int) -> None:
     """One line per finished epoch, so a run without progress bars (progress=false, SLURM logs) shows its pace and
-    what is left; returns the next epoch's (clock, step)."""
-    now = time.perf_counter()
-    took = max(step - since[1], 1)
-    pace = (now - since[0]) / took
+    what is left. The pace is that of every step since `since` (clock, step), where this process started training:
+    steadier than the last epoch's on a shared machine."""
+    pace = (time.perf_counter() - since[0]) / max(step - since[1], 1)
     left = max(_planned_steps(cfg, epoch, 0, step, batches) - step, 0)
-    log.info("epoch %d/%d done: step %d, loss %.1f, %.3f s/step, ~%.0f min left", epoch, cfg.epochs, step,
-             last.get("loss", float("nan")), pace, left * pace / 60)
-    return now, step
+    log.info("epoch %d/%d done: step %d, loss %.1f, %.3f s/step, ~%s left", epoch, cfg.epochs, step,
+             last.get("loss", float("nan")), pace, _duration(left * pace))
 
 
 @torch.no_grad()

@@ -77,13 +77,15 @@ def _cell_columns(k: int) -> list[str]:
 
 def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV, numbers parsed (for `merge`)."""
-    lines = read_csv(path)
-    raw = [dict(zip(lines[0], cells)) for cells in lines[1:]] if lines else []
+    lines = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
     need = ["pipeline", "group", "preset"] + [c for k in EPISODES for c in _cell_columns(k)]
-    missing = [c for c in need if raw and c not in raw[0]]
-    if not raw or missing:
+    if len(lines) < 2 or lines[0] != need:
         raise UserError(f"{path}: not a Table 4 CSV (written by experiments/world_model_table4.py): "
-                        + (f"no column {missing[0]}" if raw else "no rows"))
+                        + ("no rows" if len(lines) < 2 else f"its header should be {','.join(need[:4])},..."))
+    for i, cells in enumerate(lines[1:], start=2):
+        if len(cells) != len(need):
+            raise UserError(f"{path}, line {i}: {len(cells)} cells, expected {len(need)}")
+    raw = [dict(zip(need, cells)) for cells in lines[1:]]
 
     def number(v: str, kind=float):
         return None if v == "" else kind(v)
@@ -98,16 +100,17 @@ def read_rows(path: str | Path) -> list[dict]:
                 row[f"ours_{k}"] = number(r[f"ours_{k}"])
                 row[f"ours_{k}_per_pixel"] = number(r[f"ours_{k}_per_pixel"])
                 row[f"runs_{k}"] = number(r[f"runs_{k}"], int)
-        except (ValueError, KeyError) as e:  # a number that is not one, or a line cut short
-            raise UserError(f"{path}, line {i}: {type(e).__name__}: {e}") from e
+        except ValueError as e:
+            raise UserError(f"{path}, line {i}: {e}") from e
         rows.append(row)
     return rows
 
 
-def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
-    """`fresh` rows (from result.json files) with every cell they have no run for taken from `kept` (an earlier
-    table's rows, read_rows): a table extended with runs made on another machine, whose result.json files are not
-    here. A cell is (pipeline, group, preset, column); a paper-only row is dropped once its group has ours."""
+def merge(kept: list[dict], fresh: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES) -> list[dict]:
+    """`fresh` rows (from result.json files, built with these `episodes`) with every cell they have no run for taken
+    from `kept` (an earlier table's rows, read_rows): a table extended with runs made on another machine, whose
+    result.json files are not here. A cell is (pipeline, group, preset, column); a paper-only row is dropped once
+    its group has ours. Kept rows must have our runs on the same `episodes` in each column."""
     def key(r):
         return r["pipeline"], r["group"], r["preset"]
 
@@ -115,15 +118,16 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
     for old in kept:
         if not old["preset"]:
             continue  # a paper-only row: the paper's values come from paper_values, not from the file
+        for k, ours_k in zip(EPISODES, episodes):
+            if old[f"episodes_{k}"] != int(ours_k):
+                raise UserError(f"{old['pipeline']}/{old['group']}: the kept table's column {k} holds runs on "
+                                f"{old[f'episodes_{k}']} episodes per task, this table's on {ours_k} (--episodes "
+                                f"{','.join(map(str, episodes))}): build both with the same --episodes")
         if key(old) not in merged:
             merged[key(old)] = dict(old)
             continue
         row = merged[key(old)]
         for k in EPISODES:
-            if row[f"episodes_{k}"] != old[f"episodes_{k}"]:
-                raise UserError(f"{old['pipeline']}/{old['group']}: the kept table's column {k} holds runs on "
-                                f"{old[f'episodes_{k}']} episodes per task, the new one on {row[f'episodes_{k}']}; "
-                                "build both with the same --episodes")
             if not row[f"runs_{k}"]:
                 for c in _cell_columns(k)[2:]:
                     row[c] = old[c]
@@ -160,7 +164,7 @@ def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES,
     if unused:  # in the table itself, not only on the console: a reader of the file sees why a cell is '—'
         notes.append(f"Runs trained on {'/'.join(map(str, unused))} episodes per task exist but are not in this "
                      f"table (its columns are {'/'.join(map(str, episodes))}): build one for them with "
-                     f"--episodes {' '.join(map(str, unused[:3]))}")
+                     f"--episodes {','.join(map(str, unused[:3]))}")
     return header, body, notes
 
 

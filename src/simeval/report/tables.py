@@ -17,7 +17,7 @@ def read_csv(path: str | Path) -> list[list[str]]:
 
     path = Path(path)
     try:
-        with path.open(newline="") as f:
+        with path.open(newline="", encoding="utf-8-sig") as f:  # -sig: a byte-order mark (spreadsheets) is dropped
             return list(csv.reader(f))
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise UserError(f"{path}: cannot read it ({getattr(e, 'strerror', None) or e})") from e

@@ -8,8 +8,9 @@ group's tasks under variations) with its Wilson 95% interval, and the train/held
 runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
 paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
 No generalization result.json under --runs: one line on stderr, exit status 2. `--keep outputs/tables/table5.csv`
-extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table gathers
-groups run on different machines, whose result.json files are not all here).
+(repeatable) extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table
+gathers groups run on different machines, whose result.json files are not all here); the runs under --runs still
+have to exist, and a cell they have replaces the kept row.
 """
 
 from __future__ import annotations
@@ -95,6 +96,8 @@ def read_rows(path: str | Path) -> list[dict]:
                         f"should be {','.join(HEAD)}")
     rows = []
     for line, cells in enumerate(raw[1:], start=2):
+        if not cells:
+            continue  # a blank line (an editor's trailing newline)
         if len(cells) != len(HEAD):
             raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(HEAD)}")
         pipeline, group, paper, *splits, policy, runs = cells
@@ -105,8 +108,9 @@ def read_rows(path: str | Path) -> list[dict]:
             raise UserError(f"{path}, line {line}: {e}") from e
         for split, text in zip(SPLITS, splits):
             m = _COUNTS.search(text)
-            if text != "-" and m is None:
-                raise UserError(f"{path}, line {line}: {split} cell {text!r} has no (successes/rollouts)")
+            if text != "-" and (m is None or int(m[1]) > int(m[2])):
+                raise UserError(f"{path}, line {line}: {split} cell {text!r} has no (successes/rollouts) with "
+                                "successes <= rollouts")
             row[split] = _split(int(m[1]), int(m[2])) if m else None
         rows.append(row)
     return rows
@@ -204,19 +208,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--runs", default="outputs", help="folder searched for result.json files")
     ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
     ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
-    ap.add_argument("--policy", default=None, help="only runs of this policy preset (tiny, cpu, paper)")
-    ap.add_argument("--keep", default=None, metavar="CSV",
-                    help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made elsewhere)")
+    ap.add_argument("--policy", default=None, help="only runs of this policy preset (conf/policy: tiny, cpu, "
+                                                   "official, authors_gensim)")
+    ap.add_argument("--keep", action="append", default=[], metavar="CSV",
+                    help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made on another "
+                         "machine); repeatable, the first file that has a row gives it")
     args = ap.parse_args(argv)
     try:
-        kept = read_rows(args.keep) if args.keep else None
+        kept = [read_rows(path) for path in args.keep]  # read first: a bad file fails before any work
         records = read_results(args.runs, metric=METRIC)
-        if not records and kept is None:
+        if not records:  # with --keep too: a mistyped --runs must not pass for "nothing new"
             raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
                             "src/generalization.py), or give --runs the folder that holds them")
-        rows = build(records, policy=args.policy if records else None)
-        if kept is not None:
-            rows = merge([r for r in kept if args.policy in (None, r["policy"]) or not r["runs"]], rows)
+        rows = build(records, policy=args.policy)
+        for rows_of_file in kept:
+            rows = merge([r for r in rows_of_file if args.policy in (None, r["policy"]) or not r["runs"]], rows)
         written = write(rows, args.out)
         figures = plot(rows, args.figure)
     except UserError as e:
