@@ -80,8 +80,8 @@ table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Polic
 	  $(PY) src/generalization.py pipeline=$$p task_group=$$g $$h || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
-report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
-	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY))
+report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset; KEEP=outputs/tables/table5.csv: extend the committed table instead of replacing it): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
+	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP))
 
 # Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
 # (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job). Imported episodes: run
@@ -94,8 +94,8 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
-report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}) from result.json files only
-	$(PY) experiments/world_model_table4.py
+report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)
+	$(PY) experiments/world_model_table4.py $(if $(KEEP),--keep $(KEEP))
 
 world-model-control: setup ## synthetic control for dynamics diversity: outputs/figures/world_model_control.png
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
