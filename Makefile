@@ -66,6 +66,7 @@ collect: setup ## collect 40 oracle episodes per task of every suite into output
 
 bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/text_diversity_bench.py
+	$(PY) experiments/benchmarks/agreement_bench.py
 	$(PY) experiments/benchmarks/judge_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py
 	$(PY) experiments/benchmarks/collect_bench.py --suite bbsea

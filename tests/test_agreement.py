@@ -3,7 +3,6 @@
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -44,16 +43,13 @@ def test_constant_column_is_undefined_not_zero_or_crash():
     assert s["pearson"] is None and s["pearson_ci"] is None and s["mae_ci"] is not None
 
 
-def test_bootstrap_intervals_are_fast_and_track_the_sampling_spread():
-    """2000 resamples at n = 100 took 9 s for Kendall alone with the hand-written O(n^2) loop per resample; with
-    scipy and count-matrix resampling the whole summary takes a fraction of a second. Figure 3 runs one per table
-    and judge."""
+def test_bootstrap_intervals_track_the_sampling_spread():
+    """(Their speed is measured by experiments/benchmarks/agreement_bench.py, not here: a timed assertion fails on a
+    loaded machine.)"""
     rng = np.random.default_rng(0)
     h = rng.normal(size=100)
     m = h + rng.normal(size=100)
-    start = time.perf_counter()
     s = agreement_summary(h, m, n_boot=2000)
-    assert time.perf_counter() - start < 3.0
     # the Pearson interval is close to the Fisher-z interval for bivariate normal data (width ~ 2*1.96*(1-r^2)/sqrt(n))
     z = np.arctanh(s["pearson"])
     fisher = np.tanh([z - 1.96 / np.sqrt(97), z + 1.96 / np.sqrt(97)])
