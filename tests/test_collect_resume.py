@@ -79,7 +79,10 @@ def test_a_worker_killed_alone_ends_the_run_with_one_line_and_the_run_resumes(tm
     while not (workers := _workers(proc.pid)) and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
     assert workers, "no worker appeared"
-    time.sleep(0.5)  # let it start an episode (each takes seconds at 64x64)
+    # into its first episode: CPU time, not a wall-clock sleep, which a loaded machine can spend before the worker
+    # runs at all. A worker announces its episode at once and then records for seconds of CPU at 64x64.
+    while _cpu_seconds(workers[0]) < 0.3 and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
     os.kill(workers[0], signal.SIGKILL)  # what the out-of-memory killer does
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 1, err[-2000:]
@@ -91,6 +94,12 @@ def test_a_worker_killed_alone_ends_the_run_with_one_line_and_the_run_resumes(tm
     out, err = res.communicate(timeout=300)
     assert res.returncode == 0, err[-2000:]
     assert len(EpisodeStore(tmp_path / "store").paths("gensim", "build-bridge")) == 4
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (/proc/<pid>/stat fields 14 and 15, after the command's parentheses)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _last_error(err: str) -> str:
