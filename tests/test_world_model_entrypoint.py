@@ -220,3 +220,14 @@ def test_kept_rows_must_have_runs_on_this_tables_episodes(tmp_path):
     with pytest.raises(UserError, match="gensim/stacking: the kept table's column 10 holds runs on 10 episodes per "
                                         "task, this table's on 1"):
         table4.merge(kept, fresh, episodes=(1, 2, 4))
+
+
+def test_a_kept_cell_that_is_not_a_number_names_its_line_and_column(tmp_path):
+    from simeval.report import table4
+
+    table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "t4")
+    text = (tmp_path / "t4.csv").read_text().replace("47.2", "abc")
+    (tmp_path / "bad.csv").write_text(text)
+    line = next(i for i, ln in enumerate(text.splitlines(), start=1) if "abc" in ln)
+    with pytest.raises(UserError, match=f"bad.csv, line {line}, column ours_10: 'abc' is not a number"):
+        table4.read_rows(tmp_path / "bad.csv")

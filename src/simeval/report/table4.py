@@ -82,26 +82,17 @@ def read_rows(path: str | Path) -> list[dict]:
     if len(lines) < 2 or lines[0] != need:
         raise UserError(f"{path}: not a Table 4 CSV (written by experiments/world_model_table4.py): "
                         + ("no rows" if len(lines) < 2 else f"its header should be {','.join(need[:4])},..."))
+    whole = {c for c in need if c.startswith(("episodes_", "runs_"))}
+    rows = []
     for i, cells in enumerate(lines[1:], start=2):
         if len(cells) != len(need):
             raise UserError(f"{path}, line {i}: {len(cells)} cells, expected {len(need)}")
-    raw = [dict(zip(need, cells)) for cells in lines[1:]]
-
-    def number(v: str, kind=float):
-        return None if v == "" else kind(v)
-
-    rows = []
-    for i, r in enumerate(raw, start=2):
-        try:
-            row = {"pipeline": r["pipeline"], "group": r["group"], "preset": r["preset"]}
-            for k in EPISODES:
-                row[f"paper_{k}"] = number(r[f"paper_{k}"])
-                row[f"episodes_{k}"] = number(r[f"episodes_{k}"], int)
-                row[f"ours_{k}"] = number(r[f"ours_{k}"])
-                row[f"ours_{k}_per_pixel"] = number(r[f"ours_{k}_per_pixel"])
-                row[f"runs_{k}"] = number(r[f"runs_{k}"], int)
-        except ValueError as e:
-            raise UserError(f"{path}, line {i}: {e}") from e
+        row = dict(zip(need[:3], cells[:3]))
+        for c, v in zip(need[3:], cells[3:]):
+            try:
+                row[c] = None if v == "" else (int if c in whole else float)(v)
+            except ValueError:
+                raise UserError(f"{path}, line {i}, column {c}: {v!r} is not a number") from None
         rows.append(row)
     return rows
 
