@@ -6,7 +6,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_folder, require_whole
 
 log = logging.getLogger("diversity")
 
@@ -31,7 +31,7 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.device import resolve_device
-    from simeval.models.dynamics_diversity import (VIDEO_FPS, data_fingerprint, fit_and_evaluate,
+    from simeval.models.dynamics_diversity import (VIDEO_FPS, check_eval_context, data_fingerprint, fit_and_evaluate,
                                                    how_to_get_episodes, store_source)
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
@@ -40,6 +40,8 @@ def main(cfg: DictConfig) -> None:
     for key, low in {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
                      "eval.batch_size": 1}.items():
         require_whole(key, OmegaConf.select(cfg, key), low=low)  # before any data is read or model trained
+    if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
+        require_folder("checkpoint_dir", cfg.checkpoint_dir)
     eval_ranks = _ranks(cfg.eval_episodes, "eval_episodes")
     heldout_ranks = _ranks(cfg.heldout_episodes, "heldout_episodes")
     torch.set_num_threads(cfg.threads)
@@ -48,7 +50,9 @@ def main(cfg: DictConfig) -> None:
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
     window = WindowSpec(**wm["window"])
-    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"))
+    check_eval_context(int(cfg.eval.context), window)
+    needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # held-out episodes are optional
+    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"), needed)
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
                     preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),

@@ -8,7 +8,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_folder, require_whole
 
 log = logging.getLogger("generalization")
 VERSION = "1.0"
@@ -47,6 +47,14 @@ def main(cfg: DictConfig) -> None:
     model = OmegaConf.to_container(cfg.policy.model, resolve=True)
     pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
     settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
+    override = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
+    plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
+            for split in cfg.eval.splits}  # split names and variation keys are checked here, before training
+    for split in [s for s, pairs in plan.items() if not pairs]:
+        log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
+                 else "no task of the group has an eval variation" if split == "eval" else "no trained task")
+    plan = {split: pairs for split, pairs in plan.items() if pairs}
+    require_folder("checkpoint_dir", cfg.checkpoint_dir)
     train_eps, val_eps, metas = episodes_for(EpisodeStore(cfg.store), cfg.pipeline.name, trained,
                                              cfg.episodes_per_task, cfg.val_episodes_per_task, pcfg.cameras)
     data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
@@ -62,10 +70,6 @@ def main(cfg: DictConfig) -> None:
             val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
             values["sampler_check"] = ev.sampler_action_error(policy, val, {
                 "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
-        override = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
-        plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
-                for split in cfg.eval.splits}
-        plan = {split: pairs for split, pairs in plan.items() if pairs}
         seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
         rows = run_splits(policy, plan, seeds, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json", summary["steps"],
                           progress=bool(cfg.progress))

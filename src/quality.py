@@ -12,6 +12,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import require_folder, require_whole
 
 log = logging.getLogger("quality")
 RUN_FAILED_EXIT = 1
@@ -25,6 +26,9 @@ def main(cfg: DictConfig) -> None:
     from simeval.quality import run_quality
     from simeval.results import hydra_run_info
 
+    for key, low in {"repeats": 1, "max_reasks": 0, "seed": 0}.items():  # checked for every judge, oracle included
+        require_whole(key, OmegaConf.select(cfg, key), low=low)
+    require_folder("cache_dir", cfg.cache_dir)
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     judge = {}
     if cfg.judge.kind != "oracle":

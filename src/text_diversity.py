@@ -7,6 +7,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError, require_folder
 
 log = logging.getLogger("text_diversity")
 
@@ -23,6 +24,9 @@ def main(cfg: DictConfig) -> None:
     from simeval.report.text_diversity import tasks_fingerprint
     from simeval.tasks import SourceNotConfigured, load_tasks
 
+    if cfg.on_missing_source not in ("error", "record"):
+        raise UserError(f"on_missing_source={cfg.on_missing_source!r}: expected error or record")
+    require_folder("cache_dir", cfg.cache_dir)
     run = hydra_run_info()
     config = OmegaConf.to_container(cfg, resolve=True)
     backend = config["embedding"]["backend"]

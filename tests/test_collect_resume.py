@@ -114,8 +114,8 @@ def _last_error(err: str) -> str:
 
 @pytest.mark.parametrize("arg,expected", [
     ("seed_offset=-5", "error: seed_offset must be a whole number >= 0, got -5"),
-    ("store={afile}", "error: store={afile} is a file, not a folder; give a folder for the episode store"),
-    ("store=/proc/nope", "error: store=/proc/nope: cannot create the episode store there ("),
+    ("store={afile}", "error: store={afile}: is a file, not a folder; give a folder (it is created if missing)"),
+    ("store=/proc/nope", "error: store=/proc/nope: cannot create the folder ("),
     ("task_group=piles", "error: tasks=['build-bridge'] and task_group=piles were both given; tasks= selects by "
                          "name and task_group= by group: give only one"),
 ])

@@ -38,8 +38,11 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["episodes=1.5"], "episodes must be a whole number >= 1, got 1.5"),
     (["threads=0"], "threads must be a whole number >= 1, got 0"),
     (["eval_episodes=[1,2,3]"], "eval_episodes=[1, 2, 3]: expected [first, last] episode numbers"),
+    (["eval.context=100"], "eval.context=100: expected 1 <= context < window length (20)"),
+    (["checkpoint_dir=a_file"], "checkpoint_dir=a_file: is a file, not a folder"),
 ])
 def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):
+    (tmp_path / "a_file").write_text("")
     # the store does not exist: an error about the store would mean the value was checked too late
     assert expected in one_line_exit_2(run("diversity", *args, cwd=tmp_path))
 
@@ -51,8 +54,12 @@ def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, 
     (["eval.max_steps=0"], "eval.max_steps must be a whole number >= 1, got 0"),
     (["policy=nope"], "policy=nope: no conf/policy/nope.yaml; valid: authors_gensim, cpu, official, tiny"),
     (["eval.variation={robot: {home_noise: 0.2}"], "override 'eval.variation={robot: {home_noise: 0.2}'"),
+    (["eval.variation={robot: {home_nois: 0.2}}"], "variation.robot: unknown knob(s) ['home_nois']"),
+    (["eval.splits=[train,tst]"], "split 'tst' is not one of train, eval, heldout"),
+    (["checkpoint_dir=a_file"], "checkpoint_dir=a_file: is a file, not a folder"),
 ])
 def test_generalization_names_the_bad_value_before_training(args, expected, tmp_path):
+    (tmp_path / "a_file").write_text("")
     assert expected in one_line_exit_2(run("generalization", *args, cwd=tmp_path))
 
 
@@ -118,3 +125,49 @@ def test_a_launcher_that_does_not_exist_is_one_line_naming_the_installed_ones(tm
     line = one_line_exit_2(run("diversity", "hydra/launcher=nope", cwd=tmp_path))
     assert line.startswith("error: In 'hydra/config': Could not find 'hydra/launcher/nope'; valid: ")
     assert {"basic", "joblib", "submitit_local", "slurm"} <= set(line.split("valid: ")[1].split(", "))
+
+
+def run_plain(entrypoint: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run([sys.executable, str(ROOT / "src" / f"{entrypoint}.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("entrypoint, args, expected", [
+    # the oracle judge uses neither metric nor repeats, but a typo in either is still named (it exited 0 before)
+    ("quality", ["judge=oracle", "metric=foo"], "metric='foo': expected scene_alignment, task_completion or all"),
+    ("quality", ["judge=oracle", "repeats=abc"], "repeats must be a whole number >= 1, got 'abc'"),
+    ("quality", ["judge=oracle", "cache_dir=a_file"], "cache_dir=a_file: is a file, not a folder"),
+    ("text_diversity", ["pipeline.source=suite", "on_missing_source=foo"],
+     "on_missing_source='foo': expected error or record"),
+    ("text_diversity", ["pipeline.source=suite", "cache_dir=a_file/sub"],
+     "cache_dir=a_file/sub: cannot create the folder"),
+    ("text_diversity", ["pipeline.source=suite", "hydra.run.dir=a_file"],
+     "a_file: File exists; a folder is needed there"),
+])
+def test_quality_and_text_diversity_name_bad_values_and_paths(entrypoint, args, expected, tmp_path):
+    (tmp_path / "a_file").write_text("")
+    run_dir = [] if any(a.startswith("hydra.run.dir") for a in args) else [f"hydra.run.dir={tmp_path / 'run'}"]
+    store = [f"episodes.store={tmp_path / 'no-store'}"] if entrypoint == "quality" else []
+    assert expected in one_line_exit_2(run_plain(entrypoint, *args, *store, *run_dir, cwd=tmp_path))
+
+
+def test_a_comma_list_without_m_and_a_group_of_another_command_say_what_to_do(tmp_path):
+    line = one_line_exit_2(run("diversity", "episodes=2,3", cwd=tmp_path))
+    assert "Ambiguous value for argument 'episodes=2,3'; to sweep over the values add -m" in line
+    line = one_line_exit_2(run("generalization", "world_model=cpu", cwd=tmp_path))
+    assert line.endswith("No match in the defaults list. (this command's config groups: pipeline, policy, logger, "
+                         "debug)")
+
+
+def test_help_into_a_closed_pipe_ends_quietly(tmp_path):
+    """`src/x.py --help | head -1`: the reader may be gone before the help is written (here it is closed before the
+    process starts writing, so the write always fails); Python's BrokenPipeError traceback is not shown."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    proc = subprocess.Popen([sys.executable, str(ROOT / "src" / "diversity.py"), "--help"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=120)
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
+    assert proc.returncode == 1

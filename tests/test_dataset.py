@@ -131,6 +131,32 @@ def test_store_windows_match_the_stored_rows(tmp_path):
             np.testing.assert_array_equal(a[k], b[k])
 
 
+def test_an_episode_whose_data_is_damaged_behind_a_readable_header_is_named_with_its_remedy(tmp_path):
+    """Bytes of an image chunk overwritten, the header intact (read_meta and so collect.py still pass it): a read
+    of that episode names the file and what to do, as a user error, instead of h5py's bare OSError."""
+    import h5py
+
+    from simeval.episodes.dataset import StoreSource
+    from simeval.episodes.episode import EpisodeFormatError
+    from simeval.episodes.store import read_meta
+    from simeval.models.synthetic import write_group
+
+    paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=9, size=16)
+    with h5py.File(paths[1], "r") as f:
+        chunk = f["obs/rgb/front"].id.get_chunk_info(0)
+    with open(paths[1], "r+b") as f:
+        f.seek(chunk.byte_offset)
+        f.write(b"\xff" * chunk.size)
+    read_meta(paths[1])  # the header still reads
+    src = StoreSource(paths, "front")
+    np.testing.assert_array_equal(src.read(0, 0, 3)["state"], src.read_full(0, "state")[:3])  # the intact one
+    for read in (lambda: src.read(1, 0, 3), lambda: src.read_full(1, "image")):
+        with pytest.raises(EpisodeFormatError) as err:
+            read()
+        assert str(paths[1]) in str(err.value) and "delete it and re-run" in str(err.value)
+        assert isinstance(err.value, UserError)
+
+
 def test_windows_of_collected_episodes_pair_row_t_action_t_and_row_t1_as_the_simulator_does(tiny_sim_store):
     """On real episodes (src/collect.py, format 2): every window of two rows is (o_t, a_t, o_{t+1}), and feeding the
     stored a_t to make_env(..., action_space="joint") from reset reproduces the o_{t+1} the dataset returns, state
@@ -160,3 +186,16 @@ def test_windows_of_collected_episodes_pair_row_t_action_t_and_row_t1_as_the_sim
     finally:
         env.close()
         src.close()
+
+
+def test_a_truncated_episode_is_named_with_the_collect_command_for_the_episodes_this_run_needs(tmp_path):
+    from simeval.models.dynamics_diversity import store_source
+    from simeval.models.synthetic import write_group
+
+    paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=5, size=8)
+    paths[0].write_bytes(paths[0].read_bytes()[:500])
+    with pytest.raises(UserError) as err:
+        store_source(tmp_path, "synthetic", "diverse", "front", "gensim", episodes_needed=45)
+    text = str(err.value)
+    assert text.startswith(f"{paths[0]}: not a readable HDF5 episode") and "collecting again moves it aside" in text
+    assert "episodes=45" in text

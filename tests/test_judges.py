@@ -173,9 +173,12 @@ def test_replay_answers_from_cache_and_names_a_miss(openai_server, tmp_path):
     recs = run_judge(_items(2), _provider(openai_server), cache, Ledger(Prices()),
                      JudgeSettings(repeats=2, replay=True, progress=False))
     assert len(recs) == 4 and len(openai_server.requests) == n
-    with pytest.raises(ReplayMiss, match="item 't2'"):
+    with pytest.raises(ReplayMiss, match="item 't2'") as miss:
         run_judge(_items(3), _provider(openai_server), cache, Ledger(Prices()),
                   JudgeSettings(repeats=2, replay=True, concurrency=1, progress=False))
+    # the endpoint is part of the key: a replay without the live run's base_url misses, and the message says so
+    assert f"endpoint {_provider(openai_server).endpoint}," in str(miss.value)
+    assert "part of the cache key" in str(miss.value)
 
 
 def test_bundles_with_errors_and_video(tmp_path):

@@ -130,9 +130,11 @@ def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_s
 
     out = tmp_path / "run"
     p = run("debug=tiny", f"store={tiny_sim_store}", "task_group=stacking", "tasks=[stack-two-blocks]",
-            f"checkpoint_dir={tmp_path / 'ckpt'}", "eval.splits=[train,eval]",
+            f"checkpoint_dir={tmp_path / 'ckpt'}", "eval.splits=[train,eval,heldout]",
             "eval.variation={robot: {home_noise: 0.1}}", f"hydra.run.dir={out}")
     assert p.returncode == 0, p.stderr[-2000:]
+    # one task: nothing is held out, and the run says so instead of leaving the split out silently
+    assert "split heldout: nothing to roll out (no held-out task), skipped" in p.stdout + p.stderr
     rec = json.loads((out / "result.json").read_text())
     ident, v = rec["identity"], rec["values"]
     assert ident["tasks"] == ["stack-two-blocks"]
@@ -149,6 +151,7 @@ def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_s
         assert 0.0 <= ep["progress"] <= 1.0 and isinstance(ep["success"], bool)
         s = row["success"]
         assert s["n"] == 1 and s["k"] == int(ep["success"]) and 0 <= s["ci"][0] <= s["rate"] <= s["ci"][1] <= 1
+    assert sorted(v["splits"]) == ["eval", "train"]
     for split in ("train", "eval"):
         s = v["splits"][split]["success"]
         assert s["n"] == 1 and 0 <= s["ci"][0] < s["ci"][1] <= 1 and 0 <= v["splits"][split]["mean_progress"] <= 1

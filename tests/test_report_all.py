@@ -114,3 +114,14 @@ def test_table4_says_in_the_file_which_runs_it_leaves_out():
     assert body and all("—" in cell for row in body for cell in row[3:6])  # no run at 10/20/40: paper / —
     assert ("Runs trained on 1/2/4 episodes per task exist but are not in this table (its columns are 10/20/40): "
             "build one for them with --episodes 1,2,4") in notes  # the form --episodes parses
+
+
+def test_table4_suggests_three_counts_even_when_fewer_runs_are_left_out():
+    """A table has one count per paper column: runs at 2 and 3 episodes are suggested with one of the shown counts
+    (the builder refuses two), and five are cut to the three smallest."""
+    from simeval.report import table4
+
+    _, _, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[3, 2])
+    assert notes[-1].endswith("build one for them with --episodes 2,3,10")
+    _, _, notes = table4.display(table4.build([], episodes=(1, 2, 4)), (1, 2, 4), unused=[40, 5, 80, 10, 20])
+    assert notes[-1].endswith("--episodes 5,10,20")

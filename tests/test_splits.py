@@ -82,6 +82,11 @@ def test_each_split_rolls_out_its_own_tasks_and_knobs(tmp_path):
     assert group_and_heldout(suite, "g1", heldout=["a"])[1] == ["a"]
     with pytest.raises(SpecError, match="must be some but not all"):
         group_and_heldout(suite, "g1", heldout=["a", "b", "c"])
+    # a name that is no task is named as such, against the tasks chosen with `tasks=` when there are some
+    with pytest.raises(SpecError, match=r"heldout_tasks=\['a', 'nope'\]: \['nope'\] not in task_group=g1 \("):
+        group_and_heldout(suite, "g1", heldout=["a", "nope"])
+    with pytest.raises(SpecError, match=r"\['c'\] not in tasks=\['a', 'b'\] of task_group=g1"):
+        group_and_heldout(suite, "g1", tasks=["a", "b"], heldout=["c"])
 
 
 def test_every_gensim_task_varies_at_eval_and_every_group_holds_one_out():

@@ -209,7 +209,7 @@ RESUME_SCRIPT = textwrap.dedent("""
                          train_cfg=T.TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=2),
                          window=WindowSpec(length=5, stride=2), eval_episodes=(0, 4), heldout_episodes=None,
                          checkpoint_dir=sys.argv[1], progress=False)
-    print("STEPS", v["train"]["steps"], "ERR", repr(v["eval"]["image_error"]))
+    print("STEPS", v["train"]["steps"], "FRAMES", v["train"]["frames"], "ERR", repr(v["eval"]["image_error"]))
     model, _ = load_model(v["checkpoint"])
     torch.save(model.state_dict(), sys.argv[1] + "/final.pt")
 """)
@@ -235,7 +235,8 @@ def test_killed_run_resumes_from_its_checkpoint_and_matches_an_uninterrupted_run
     assert 0 < ck["step"] and not ck["finished"]  # killed part-way, a checkpoint on disk
     again = subprocess.run([sys.executable, str(script), str(killed), "0"], env=env, capture_output=True, text=True,
                            check=True)
-    assert again.stdout.split("ERR")[1] == ref.split("ERR")[1]  # the same evaluation number
+    # the same evaluation number, and the frames trained on count the whole run, not the part after the resume
+    assert again.stdout.split("FRAMES")[1] == ref.split("FRAMES")[1]
     a, b = torch.load(whole / "final.pt"), torch.load(killed / "final.pt")
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)

@@ -262,7 +262,19 @@ def _unparseable(override: str) -> bool:
     return False
 
 
-def composition_error_line(exc: BaseException) -> str:
+def defaults_groups(config: Path) -> list[str]:
+    """The config groups a primary config's defaults list chooses from (hydra/* and optional overlays left out)."""
+    import yaml
+
+    try:
+        entries = (yaml.safe_load(config.read_text()) or {}).get("defaults") or []
+    except (OSError, yaml.YAMLError):
+        return []
+    names = [next(iter(e)) for e in entries if isinstance(e, dict) and e]
+    return [n for n in names if not n.startswith(("hydra", "optional ", "override "))]
+
+
+def composition_error_line(exc: BaseException, config_name: str | None = None, conf_dir: Path = CONF_DIR) -> str:
     """One line for a config Hydra could not compose: the override of a key the config lacks (typo'd or not
     there) names the valid keys at that level and the closest one; any other failure is its first line and its
     cause's first line."""
@@ -283,6 +295,12 @@ def composition_error_line(exc: BaseException) -> str:
         return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
                 f"write {append}")
     head = text[0] if text else type(exc).__name__
+    if head.startswith("Ambiguous value for argument"):  # Hydra's numbered advice is on the lines this drops
+        head += "; to sweep over the values add -m (a run per value), for a list write key=[a,b]"
+    if head.startswith("Could not override") and "No match in the defaults list" in head and config_name:
+        groups = defaults_groups(conf_dir / f"{config_name}.yaml")
+        if groups:
+            head += f" (this command's config groups: {', '.join(groups)})"
     options = getattr(exc, "options", None)  # MissingConfigException: the group's options (plugins' included)
     if options:
         head = f"{head}; valid: {', '.join(sorted(str(o) for o in options))}"
@@ -308,7 +326,13 @@ def _one_line_composition_errors() -> None:
             except ConfigCompositionException as e:
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":
                     raise
-                _fail(composition_error_line(e))  # SystemExit: not an Exception, so Hydra's printer lets it pass
+                # SystemExit: not an Exception, so Hydra's printer lets it pass
+                _fail(composition_error_line(e, Path(sys.argv[0]).stem))
+            except (FileExistsError, NotADirectoryError) as e:  # e.g. hydra.run.dir naming a file: Hydra makes
+                if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the run folder before any simeval code runs
+                    raise
+                _fail(f"{e.filename}: {e.strerror}; a folder is needed there (hydra.run.dir, hydra.sweep.dir or a "
+                      f"*_dir setting names a file?)")
 
         return original(guarded)
 
@@ -329,4 +353,9 @@ def launch(main: Callable[[], Any]) -> None:
             _fail(mistake)
     register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders
     _one_line_composition_errors()
-    main()
+    try:
+        main()
+    except BrokenPipeError:  # stdout closed early (`--help | head`): end quietly, as a Unix filter does
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush would raise once more
+        sys.exit(1)

@@ -31,7 +31,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from simeval.episodes.store import EpisodeStore, read_meta, read_recording
-from simeval.errors import UserError
+from simeval.errors import UserError, require_folder
 from simeval.sim.action_spaces import EE_DELTA_KIND, EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
@@ -159,14 +159,7 @@ def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
 
 def _prepare_store(root: Path) -> None:
     """Make the store's folder, or stop with one line naming `store` (a file, a place that cannot hold one)."""
-    if root.exists() and not root.is_dir():
-        raise UserError(f"store={root} is a file, not a folder; give a folder for the episode store")
-    try:
-        root.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"store={root}: cannot create the episode store there ({e.strerror or e})") from None
-    if not os.access(root, os.W_OK | os.X_OK):
-        raise UserError(f"store={root}: no permission to write episodes there")
+    require_folder("store", root)
 
 
 def _check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:

@@ -19,3 +19,23 @@ def require_whole(key: str, value: object, low: int = 1) -> None:
     as readily as ints, and a comparison with them fails far from the key that caused it."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")
+
+
+def require_folder(key: str, path: object) -> None:
+    """Create the folder a config key names, or raise a UserError naming the key: a path that is a file (or lies
+    under one) or cannot be written would otherwise surface as an OSError traceback once a run first writes there,
+    which for a checkpoint folder is after the first training steps."""
+    import os
+    from pathlib import Path
+
+    if path is None or str(path).strip() == "":
+        raise UserError(f"{key} is not set; give a folder (it is created if missing)")
+    folder = Path(str(path)).expanduser()
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{key}={path}: is a file, not a folder; give a folder (it is created if missing)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{key}={path}: cannot create the folder ({e.strerror or e})") from e
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UserError(f"{key}={path}: the folder is not writable")

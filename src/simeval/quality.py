@@ -282,6 +282,13 @@ def summarize(records: list[ScoreRecord]) -> dict[str, dict[str, dict]]:
     return out
 
 
+def check_metric_and_mode(metric: str, mode: str) -> None:
+    if metric not in (*METRICS, "all"):
+        raise UserError(f"metric={metric!r}: expected scene_alignment, task_completion or all")
+    if mode not in ("vlm", "caption"):
+        raise UserError(f"scene_alignment_mode={mode!r}: expected vlm or caption")
+
+
 def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provider, templates: dict,
                      cache, ledger, settings, captioner=None, caption_settings=None, n_frames: int = 8,
                      dry: bool = False) -> dict:
@@ -290,10 +297,7 @@ def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provi
     skipped is in errors: its images are read, nothing is sent)."""
     from simeval.judges.runner import dry_run, run_judge
 
-    if metric not in (*METRICS, "all"):
-        raise UserError(f"metric={metric!r}: expected scene_alignment, task_completion or all")
-    if mode not in ("vlm", "caption"):
-        raise UserError(f"scene_alignment_mode={mode!r}: expected vlm or caption")
+    check_metric_and_mode(metric, mode)
     wanted = METRICS if metric == "all" else (metric,)
     items, errors, captions, records, plan = [], {}, None, [], {}
     if "scene_alignment" in wanted and mode == "caption":
@@ -461,6 +465,7 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
         raise UserError(f"judge kind {judge!r}: expected model or oracle")
     if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 2:
         raise UserError(f"n_frames must be a whole number >= 2 (first and last frame at least), got {n_frames!r}")
+    check_metric_and_mode(metric, mode)  # the oracle judge ignores both, but a typo in either is still a mistake
     out_dir = Path(out_dir)
     bundles, errors = _tasks_and_errors(judge, bundles_dir, episodes, out_dir)
     names = [b.name for b in bundles] + [k for k in errors if k not in {b.name for b in bundles}]

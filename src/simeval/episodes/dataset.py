@@ -29,14 +29,16 @@ Episodes of different action-space kinds (or dimensions) are refused: a model's 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from simeval.episodes.episode import EpisodeFormatError
 from simeval.errors import UserError, require_whole
 
 
@@ -212,13 +214,27 @@ class StoreSource:
         return f
 
     def read(self, e: int, lo: int, hi: int) -> dict[str, np.ndarray]:
-        f = self._file(e)
-        return {"image": f[f"obs/rgb/{self.camera}"][lo:hi], "state": f["obs/state"][lo:hi],
-                "action": f["action"][lo:hi]}
+        with self._damage_named(e):
+            f = self._file(e)
+            return {"image": f[f"obs/rgb/{self.camera}"][lo:hi], "state": f["obs/state"][lo:hi],
+                    "action": f["action"][lo:hi]}
 
     def read_full(self, e: int, key: str) -> np.ndarray:
-        f = self._file(e)
-        return f[{"state": "obs/state", "action": "action", "image": f"obs/rgb/{self.camera}"}[key]][()]
+        with self._damage_named(e):
+            f = self._file(e)
+            return f[{"state": "obs/state", "action": "action", "image": f"obs/rgb/{self.camera}"}[key]][()]
+
+    @contextlib.contextmanager
+    def _damage_named(self, e: int) -> Iterator[None]:
+        """A file whose header reads (read_meta passed) but whose data does not: h5py's OSError names neither the
+        file nor the remedy, and it may come after a whole training (an episode used only for evaluation)."""
+        try:
+            yield
+        except (KeyError, OSError) as err:
+            raise EpisodeFormatError(
+                f"{self.infos[e].path}: damaged episode ({type(err).__name__}: {err}); delete it and re-run the "
+                "src/collect.py (or src/import_data.py) command that made it, which makes missing episodes again; "
+                "then this command again (a finished training is kept in its checkpoint)") from err
 
     def preload(self) -> ArraySource:
         """Everything in memory (images included): for small stores, reads become copies."""
@@ -246,7 +262,8 @@ def store_paths_for(store_root: str | os.PathLike, pipeline: str, group: str, va
     metas = [m for m in store.index(pipeline, group) if m.get("variation_id", "") == variation_id]
     if not metas:
         groups = sorted({m["group"] for m in store.index(pipeline)}) if store.root.is_dir() else []
-        hint = f"its groups there: {groups}" if groups else "none of this pipeline there"
+        hint = (f"its groups there: {groups}" if groups else "none of this pipeline there" if store.root.is_dir()
+                else "the folder does not exist")
         raise UserError(f"no episodes of pipeline '{pipeline}' group '{group}' in store {store.root} ({hint})")
     return [Path(m["path"]) for m in metas]
 

@@ -170,8 +170,10 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
                 reply, latency, cached, retries = hit.reply, hit.latency_s, True, []
             elif settings.replay:
                 raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
-                                 f"repeat {repeat} ask {ask} (model {provider.model}, template "
-                                 f"{item.template.sha256[:12]}); run once with a live judge first")
+                                 f"repeat {repeat} ask {ask} (endpoint {getattr(provider, 'endpoint', '') or '-'}, "
+                                 f"model {provider.model}, template {item.template.sha256[:12]}: all three are part "
+                                 "of the cache key, so give the live run's judge.provider.base_url and model); run "
+                                 "once with a live judge first")
             else:
                 estimate = _estimate(ledger, provider, item, system, user)
                 try:

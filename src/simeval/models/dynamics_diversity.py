@@ -36,6 +36,11 @@ def data_fingerprint(infos) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
+def check_eval_context(context: int | None, window: WindowSpec) -> None:
+    if context is not None and not 1 <= int(context) < window.length:
+        raise UserError(f"eval.context={context}: expected 1 <= context < window length ({window.length})")
+
+
 def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
                      window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
                      heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
@@ -62,6 +67,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
     require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
                                                            f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
+    check_eval_context(eval_context, window)  # before training, not after it
     train_mask = rank_mask(ranks, 0, k)
     train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
     stats = train_ds.fit_stats()
@@ -144,15 +150,23 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
             f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
 
 
-def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None):
+def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+                 episodes_needed: int = 40):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
-    (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none)."""
+    (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
+    `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
+    makes it anew."""
     from simeval.episodes.dataset import StoreSource, store_paths_for
+    from simeval.episodes.episode import EpisodeFormatError
 
     try:
         paths = store_paths_for(store, pipeline, group)
+    except EpisodeFormatError as e:
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed)
+        raise UserError(f"{e}; collecting again moves it aside and makes it anew: {how.removeprefix('collect them: ')}"
+                        ) from None
     except UserError as e:
-        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, 40)}") from None
+        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, episodes_needed)}") from None
     return StoreSource(paths, camera)
 
 

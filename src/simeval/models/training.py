@@ -124,15 +124,17 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
           log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
           device: str | torch.device | None = "auto") -> dict:
     """Train in place on `device` (the model is moved there); return {steps, epochs, seconds, frames, last:
-    metrics}. With `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device)
-    matches, and save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint
-    (the config that made it)."""
+    metrics}, where seconds and frames count the whole training, the parts before a resume included. With
+    `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device) matches, and
+    save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint (the config
+    that made it)."""
     from tqdm.auto import tqdm
 
     device = resolve_device(device)
     model.to(device)  # before Adam is made: its state is created beside the parameters
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
     epoch, done_in_epoch, step = 0, 0, 0
+    frames_before, seconds_before = 0, 0.0  # what earlier processes trained, so a resumed run reports the whole run
     meta = dict(meta or {})
     if checkpoint is not None and Path(checkpoint).is_file():
         ck = load_checkpoint(checkpoint)
@@ -143,13 +145,16 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
         model.load_state_dict(ck["model"])  # copies the checkpoint's CPU tensors into the parameters on `device`
         opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
         epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
+        frames_before, seconds_before = int(ck.get("frames", 0)), float(ck.get("seconds", 0.0))
         log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
 
     def save(e: int, b: int, finished: bool = False) -> None:
         if checkpoint is not None:
             save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": to_cpu(model.state_dict()),
                                          "optimizer": to_cpu(opt.state_dict()), "epoch": e, "batches_done": b,
-                                         "step": step, "meta": meta, "finished": finished})
+                                         "step": step, "meta": meta, "finished": finished,
+                                         "frames": frames_before + frames,
+                                         "seconds": seconds_before + time.perf_counter() - t0})
 
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
@@ -198,7 +203,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
                      else f"after epoch {epoch}/{cfg.epochs}")
             log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
         save(epoch, done_in_epoch, finished=True)
-    return {"steps": step, "epochs": epoch, "seconds": time.perf_counter() - t0, "frames": frames, "last": last}
+    return {"steps": step, "epochs": epoch, "seconds": seconds_before + time.perf_counter() - t0,
+            "frames": frames_before + frames, "last": last}
 
 
 def _planned_steps(cfg: TrainConfig, epoch: int, done_in_epoch: int, step: int, batches_per_epoch: int) -> int:

@@ -29,7 +29,7 @@ def build_text_diversity_report(runs_dir: str | Path, out_dir: str | Path, *, id
     if not any(r["status"] == "ok" for r in tidy):
         # every pipeline's task source was missing (e.g. a fresh clone without the authors' files): writing would
         # replace a table of numbers with one of dashes
-        missing = "; ".join(sorted({f"{r['pipeline']}: {r['note']}" for r in tidy if r.get("note")}))[:400]
+        missing = "; ".join(sorted({f"{r['pipeline']}: {r['note']}" for r in tidy if r.get("note")}))
         raise UserError(f"no {metric} run under {runs_dir} found any task descriptions, so nothing was written "
                         f"({missing or 'no values'}); configure the task sources (README, Table 3)")
     columns = list(columns)

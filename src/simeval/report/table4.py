@@ -139,6 +139,14 @@ def _fmt(v, digits: int = 1) -> str:
     return "—" if v is None else f"{v:.{digits}f}"
 
 
+def suggested_columns(unused: list[int] | tuple[int, ...], episodes: list[int] | tuple[int, ...]) -> list[int]:
+    """Counts for a table that shows the unused runs: a table has one count per paper column, so fewer unused
+    counts than columns are filled up with the shown ones (whose runs exist), more are cut to the smallest."""
+    counts = sorted({int(k) for k in unused})[:len(EPISODES)]
+    counts += [int(k) for k in episodes if int(k) not in counts][:len(EPISODES) - len(counts)]
+    return sorted(counts)
+
+
 def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES,
             unused: list[int] | tuple[int, ...] = ()) -> tuple[list[str], list[list[str]], list[str]]:
     """(header, body, notes) of the Markdown and LaTeX tables: 'paper / ours' per column, ours per pixel."""
@@ -155,7 +163,7 @@ def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES,
     if unused:  # in the table itself, not only on the console: a reader of the file sees why a cell is '—'
         notes.append(f"Runs trained on {'/'.join(map(str, unused))} episodes per task exist but are not in this "
                      f"table (its columns are {'/'.join(map(str, episodes))}): build one for them with "
-                     f"--episodes {','.join(map(str, unused[:3]))}")
+                     f"--episodes {','.join(map(str, suggested_columns(unused, episodes)))}")
     return header, body, notes
 
 

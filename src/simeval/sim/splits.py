@@ -101,6 +101,10 @@ def group_and_heldout(suite_dir: str | os.PathLike, task_group: str, tasks: list
         specs = [s for s in specs if s.name in names]
     group = [s.name for s in specs]
     held = heldout_of(specs, load_heldout(suite_dir, suite)) if heldout is None else list(heldout)
-    if set(held) - set(group) or set(held) == set(group):
-        raise SpecError(f"heldout_tasks={held}: must be some but not all of task_group={task_group} ({group})")
+    where = f"tasks={group} of task_group={task_group}" if tasks else f"task_group={task_group} ({group})"
+    stray = sorted(set(held) - set(group))
+    if stray:
+        raise SpecError(f"heldout_tasks={held}: {stray} not in {where}")
+    if set(held) == set(group):
+        raise SpecError(f"heldout_tasks={held}: must be some but not all of {where}: nothing would be left to train on")
     return specs, held
