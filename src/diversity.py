@@ -27,6 +27,7 @@ def _ranks(value, key: str) -> tuple[int, int] | None:
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     import torch
+    from hydra.core.hydra_config import HydraConfig
     from hydra.utils import instantiate
 
     from simeval.episodes.dataset import WindowSpec
@@ -52,7 +53,10 @@ def main(cfg: DictConfig) -> None:
     window = WindowSpec(**wm["window"])
     check_eval_context(int(cfg.eval.context), window)
     needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # held-out episodes are optional
-    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"), needed)
+    overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
+    debug = f" debug={overlay}" if overlay != "none" else ""
+    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"), needed,
+                          debug)
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
                     preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),
@@ -66,7 +70,7 @@ def main(cfg: DictConfig) -> None:
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
             videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device,
             how_to_get_more=lambda n: how_to_get_episodes(cfg.store, cfg.pipeline.name, cfg.task_group,
-                                                          cfg.pipeline.get("suite"), n))
+                                                          cfg.pipeline.get("suite"), n, debug))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {values['eval']['context']} observed "

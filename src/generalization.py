@@ -40,8 +40,11 @@ def main(cfg: DictConfig) -> None:
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
+    def names(value):  # `key=a` is a string: one name, not its characters
+        return None if value is None else [value] if isinstance(value, str) else list(value)
+
     specs, heldout = group_and_heldout(SUITES_DIR / cfg.pipeline.suite, cfg.task_group, cfg.tasks,
-                                       None if cfg.heldout_tasks is None else list(cfg.heldout_tasks))
+                                       names(cfg.heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     model = OmegaConf.to_container(cfg.policy.model, resolve=True)
@@ -49,7 +52,7 @@ def main(cfg: DictConfig) -> None:
     settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
     override = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
     plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
-            for split in cfg.eval.splits}  # split names and variation keys are checked here, before training
+            for split in names(cfg.eval.splits)}  # split names and variation keys are checked here, before training
     for split in [s for s, pairs in plan.items() if not pairs]:
         log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
                  else "no task of the group has an eval variation" if split == "eval" else "no trained task")

@@ -52,10 +52,12 @@ def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, 
     (["eval.seeds=abc"], "eval.seeds must be a whole number >= 1, got 'abc'"),
     (["episodes_per_task=abc"], "episodes_per_task must be a whole number >= 1, got 'abc'"),
     (["eval.max_steps=0"], "eval.max_steps must be a whole number >= 1, got 0"),
-    (["policy=nope"], "policy=nope: no conf/policy/nope.yaml; valid: authors_gensim, cpu, official, tiny"),
+    (["policy=nope"], "policy=nope: no conf/policy/nope.yaml; valid: authors_gensim, authors_gensim_cpu, cpu, official, tiny"),
     (["eval.variation={robot: {home_noise: 0.2}"], "override 'eval.variation={robot: {home_noise: 0.2}'"),
     (["eval.variation={robot: {home_nois: 0.2}}"], "variation.robot: unknown knob(s) ['home_nois']"),
-    (["eval.splits=[train,tst]"], "split 'tst' is not one of train, eval, heldout"),
+    (["eval.splits=[train,tst]"], "eval.splits: split 'tst' is not one of train, eval, heldout"),
+    (["eval.splits=tst"], "eval.splits: split 'tst' is not one of"),  # one name, not the letters t, s, t
+    (["heldout_tasks=nope"], "heldout_tasks=['nope']: ['nope'] not in task_group=stacking"),
     (["checkpoint_dir=a_file"], "checkpoint_dir=a_file: is a file, not a folder"),
 ])
 def test_generalization_names_the_bad_value_before_training(args, expected, tmp_path):

@@ -199,3 +199,23 @@ def test_a_truncated_episode_is_named_with_the_collect_command_for_the_episodes_
     text = str(err.value)
     assert text.startswith(f"{paths[0]}: not a readable HDF5 episode") and "collecting again moves it aside" in text
     assert "episodes=45" in text
+
+
+def test_a_damaged_dataset_header_is_found_when_the_source_opens_before_any_training(tmp_path):
+    """The object header of obs/state overwritten (the header attributes still read, as a partly overwritten file
+    leaves them): StoreSource names the file when it is made, not when a training or evaluation reaches it."""
+    import h5py
+
+    from simeval.episodes.dataset import StoreSource
+    from simeval.episodes.episode import EpisodeFormatError
+    from simeval.models.synthetic import write_group
+
+    paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=9, size=16)
+    with h5py.File(paths[1], "r") as f:
+        header = h5py.h5o.get_info(f["obs/state"].id).addr
+    with open(paths[1], "r+b") as f:
+        f.seek(header)
+        f.write(b"\xa5" * 64)
+    with pytest.raises(EpisodeFormatError, match=f"{paths[1]}: damaged episode .*delete it and re-run"):
+        StoreSource(paths, "front")
+    StoreSource(paths[:1], "front").close()  # the intact one opens

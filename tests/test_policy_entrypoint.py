@@ -179,3 +179,19 @@ def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside
     train, val, metas = episodes_for(store, "gensim", [task], 2, 1, ["top"])
     assert [e.seed for e in train] == [0, 1] and [e.seed for e in val] == [2]
     assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 1)]
+
+
+def test_authors_gensim_cpu_is_the_authors_abstraction_at_cpu_sizes():
+    """The preset edits only sizes and budget: the action abstraction (pick/place, horizon 2, one observation, one
+    executed action, unit quaternions) is authors_gensim's, read from that file, not copied."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        authors = OmegaConf.to_container(compose("generalization", ["policy=authors_gensim"]).policy)
+        cpu = OmegaConf.to_container(compose("generalization", ["policy=authors_gensim_cpu"]).policy)
+    assert cpu["name"] == "authors_gensim_cpu"
+    changed = {k for k in authors["model"] if authors["model"][k] != cpu["model"][k]}
+    assert changed == {"encoder_width", "down_dims", "inference_scheduler", "num_inference_steps"}
+    assert cpu["model"]["action_space"] == "pick_place" and cpu["model"]["horizon"] == 2
+    assert cpu["model"]["down_dims"] == [128, 256] and cpu["train"]["train_steps"] == 5000

@@ -202,6 +202,20 @@ class StoreSource:
                                           extra={"variation_id": m.get("variation_id", "")}))
         self._files: dict[int, object] = {}
         self._pid = os.getpid()
+        for e in range(len(self.infos)):  # before any training: a damaged index would otherwise surface mid-run
+            self._check_structure(e)
+        self.close()
+
+    def _check_structure(self, e: int) -> None:
+        """Read the object headers and chunk indexes of what this source reads (metadata, not pixels): damage
+        there, the usual result of a partly overwritten file, is named now instead of after a training. Damage
+        inside compressed chunk data is found when it is read (see _damage_named)."""
+        with self._damage_named(e):
+            f = self._file(e)
+            for key in (f"obs/rgb/{self.camera}", "obs/state", "action"):
+                d = f[key]
+                if d.chunks is not None:
+                    d.id.get_num_chunks()
 
     def _file(self, e: int):
         import h5py

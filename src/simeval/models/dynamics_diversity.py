@@ -134,16 +134,18 @@ def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, s
     return {task: open_loop_video(model, dataset[first[task]], context, seed=seed) for task in chosen}
 
 
-def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int) -> str:
+def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int,
+                        extra: str = "") -> str:
     """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
-    reads, not to its own default), or, for a pipeline without a simeval suite, how to import them."""
+    reads, not to its own default), or, for a pipeline without a simeval suite, how to import them. `extra`:
+    overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match)."""
     if not suite:
         return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
                 "store with src/import_data.py")
     from simeval.sim.spec import SUITES_DIR, load_suite
 
     groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
-    into = f" store={store}"
+    into = f" store={store}{extra}"
     if group in groups or group == "all":
         return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"
     return (f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
@@ -151,7 +153,7 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
-                 episodes_needed: int = 40):
+                 episodes_needed: int = 40, collect_extra: str = ""):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
     (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
     `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
@@ -162,11 +164,12 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     try:
         paths = store_paths_for(store, pipeline, group)
     except EpisodeFormatError as e:
-        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed)
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra)
         raise UserError(f"{e}; collecting again moves it aside and makes it anew: {how.removeprefix('collect them: ')}"
                         ) from None
     except UserError as e:
-        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, episodes_needed)}") from None
+        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra)}"
+                        ) from None
     return StoreSource(paths, camera)
 
 

@@ -71,7 +71,7 @@ def split_tasks(specs: list[TaskSpec], split: str, heldout: list[str], *,
     `eval_override`, checked against the task, for every task), and leaves out a task that has none, since rolling
     it out unvaried would count the training distribution as a variation. heldout covers the held-out tasks."""
     if split not in SPLITS:
-        raise SpecError(f"split '{split}' is not one of {', '.join(SPLITS)}")
+        raise SpecError(f"eval.splits: split '{split}' is not one of {', '.join(SPLITS)}")
     if split == "heldout":
         return [(s, {}) for s in specs if s.name in heldout]
     trained = [s for s in specs if s.name not in heldout]

@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
     ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
     ap.add_argument("--policy", default=None, help="only runs of this policy preset (conf/policy: tiny, cpu, "
-                                                   "official, authors_gensim)")
+                                                   "official, authors_gensim, authors_gensim_cpu)")
     ap.add_argument("--keep", action="append", default=[], metavar="CSV",
                     help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made on another "
                          "machine); repeatable, the first file that has a row gives it")
