@@ -41,6 +41,8 @@ def main(cfg: DictConfig) -> None:
     for key, low in {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
                      "eval.batch_size": 1}.items():
         require_whole(key, OmegaConf.select(cfg, key), low=low)  # before any data is read or model trained
+    if not isinstance(cfg.compile, bool):
+        raise UserError(f"compile={cfg.compile!r}: expected true or false")
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     eval_ranks = _ranks(cfg.eval_episodes, "eval_episodes")
@@ -68,7 +70,7 @@ def main(cfg: DictConfig) -> None:
             heldout_episodes=heldout_ranks, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
-            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device,
+            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device, compile=cfg.compile,
             how_to_get_more=lambda n: how_to_get_episodes(cfg.store, cfg.pipeline.name, cfg.task_group,
                                                           cfg.pipeline.get("suite"), n, debug))
         for task, video in values["videos"].items():

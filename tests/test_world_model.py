@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 import yaml
 
 from simeval.models.world_model import (WorldModel, WorldModelConfig, categorical_kl, straight_through_sample, symlog,
@@ -154,6 +155,69 @@ def test_the_split_posterior_layer_equals_the_layer_on_the_concatenated_input():
     torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
     for a, b in zip(grads(got), grads(reference()), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_one_draw_per_window_gives_the_uniforms_of_one_draw_per_sample():
+    """RSSM.uniforms draws a window's latent noise in one torch.rand call (one host-to-device copy on a GPU). The
+    reference: one torch.rand call per sample, in the order the steps consume them (prior, then posterior)."""
+    rssm = tiny().rssm
+    for t, draws, b in ((6, 2, 2), (40, 2, 8), (3, 1, 5)):
+        g = torch.Generator().manual_seed(11)
+        one_call = rssm.uniforms(t, draws, b, g)
+        g = torch.Generator().manual_seed(11)
+        shape = (b, rssm.cfg.stoch, rssm.cfg.classes)
+        per_sample = torch.stack([torch.stack([torch.rand(shape, generator=g) for _ in range(draws)])
+                                  for _ in range(t)])
+        assert torch.equal(one_call, per_sample)
+
+
+def test_observe_samples_what_step_by_step_draws_sample_bit_for_bit():
+    """observe() (noise drawn per window, resets read once) against obs_step called step by step with the generator
+    (noise drawn per sample, the reset asked of each step's tensor), a mid-window reset included: the same samples,
+    log-probabilities and states exactly, and so the same loss as the code before the window-wise draws."""
+    m, x = tiny(), batch(t=7)
+    x["is_first"][0, 4] = True
+    rssm = m.rssm
+    embed = m.embed(m._images(x), x["state"])
+    got = rssm.observe(embed, x["prev_action"], x["is_first"], generator=torch.Generator().manual_seed(5))[0]
+    g, state, posts = torch.Generator().manual_seed(5), rssm.initial(2), []
+    deter_weight, embed_weight = rssm.split_obs_layer()
+    shares = F.linear(embed, embed_weight)  # as observe() computes them (a per-step matmul rounds otherwise)
+    for i in range(7):
+        state, _ = rssm.obs_step(state, x["prev_action"][:, i], shares[:, i], x["is_first"][:, i], deter_weight,
+                                 generator=g)
+        posts.append(state)
+    for k in ("stoch", "logp", "deter"):
+        assert torch.equal(got[k], torch.stack([p[k] for p in posts], 1)), k
+
+
+def test_compiled_steps_train_to_the_eager_numbers_in_the_same_checkpoint(tmp_path):
+    """compile=True (WorldModel.compile_steps, torch.compile) against eager training of the same run: the compiler
+    really ran (dynamo captured frames), the evaluation agrees to float32 rounding, and the checkpoint is the same
+    file (compiling is not part of its key) with the model's own state_dict keys, so either kind of run resumes it."""
+    from torch._dynamo.utils import counters
+
+    from simeval.episodes.dataset import WindowSpec
+    from simeval.models.dynamics_diversity import fit_and_evaluate
+    from simeval.models.synthetic import make_group
+    from simeval.models.training import TrainConfig
+
+    def fit(compile_steps: bool, folder):
+        return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), episodes_per_task=2,
+                                model_cfg=preset("tiny"), train_cfg=TrainConfig(epochs=2, batch_size=4, lr=1e-3),
+                                window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
+                                checkpoint_dir=folder, progress=False, device="cpu", compile=compile_steps)
+
+    counters.clear()
+    compiled = fit(True, tmp_path / "compiled")
+    assert counters["frames"]["ok"] > 0 and compiled["train"]["compile"] is True
+    eager = fit(False, tmp_path / "eager")
+    assert eager["train"]["compile"] is False
+    assert compiled["eval"]["image_error"] == pytest.approx(eager["eval"]["image_error"], rel=1e-4)
+    assert compiled["eval"]["open_loop_image_error"] == pytest.approx(eager["eval"]["open_loop_image_error"], rel=1e-4)
+    assert Path(compiled["checkpoint"]).name == Path(eager["checkpoint"]).name
+    saved = torch.load(compiled["checkpoint"], weights_only=False)["model"]
+    assert sorted(saved) == sorted(tiny().state_dict())
 
 
 def test_mask_excludes_padded_steps():

@@ -71,6 +71,23 @@ def test_sweep_end_to_end_writes_results_and_table(tmp_path):
     assert (tmp_path / "t4.png").stat().st_size > 0
 
 
+def test_a_joblib_sweep_reads_windows_in_a_loader_worker(tmp_path):
+    """hydra/launcher=joblib runs each job in a loky process, whose default start method is loky's: a DataLoader
+    worker (world_model.train.num_workers=1, the paper preset's setting) could not start there ('Process' object
+    has no attribute 'env'). The loader names its start method."""
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
+    r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]",
+            "heldout_episodes=null", "world_model.train.num_workers=1", "progress=false", "videos=0",
+            f"checkpoint_dir={tmp_path}/ck", f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2", "-m", "episodes=1,2", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
+    assert sorted(rec["identity"]["episodes"] for rec in recs) == [1, 2]
+    assert all(rec["values"]["train"]["steps"] > 0 for rec in recs)
+
+
 def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
     """src/diversity.py on real episodes of simeval's simulator (3 of stack-two-blocks, src/collect.py debug=tiny):
     training on the first 2 and 3, evaluating on all 3, finite numbers under the right identity."""
@@ -102,14 +119,20 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
 
 
 def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tiny_sim_store, tmp_path):
-    """Following the hint must fill the store the run reads (not the collector's default) with the run's group."""
+    """Following the hint must fill the store the run reads (not the collector's default) with the run's group,
+    recorded as the run's debug overlay records (debug=tiny: 32x32 frames; without it collect records 64x64)."""
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
             "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
     assert r.stderr.strip() == (
         "error: task 'stack-two-blocks' has 3 episodes; training on 5 and evaluating on episodes 1-40 needs 40 per "
         f"task (collect them: python src/collect.py pipeline=gensim task_group=stacking episodes=40 "
-        f"store={tiny_sim_store})")
+        f"store={tiny_sim_store} debug=tiny)")
+
+
+def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
+    r = run("debug=tiny", "compile=fast", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip() == "error: compile='fast': expected true or false", r.stderr[-2000:]
 
 
 def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tmp_path):

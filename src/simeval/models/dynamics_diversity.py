@@ -47,7 +47,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
                      videos: int = 0, video_dir: str | Path | None = None,
-                     device: str | torch.device | None = "auto",
+                     device: str | torch.device | None = "auto", compile: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
@@ -56,7 +56,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
     episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
     `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
-    so a run resumes on another device; `train.device` in the result records the one used. `how_to_get_more(n)`:
+    so a run resumes on another device; `train.device` in the result records the one used. `compile`: compile the
+    model's steps (WorldModel.compile_steps; for a GPU), likewise not part of the key. `how_to_get_more(n)`:
     what a UserError about too few episodes per task tells the user to run (how_to_get_episodes)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     infos = source.infos
@@ -84,7 +85,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
         checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
     summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                    progress=progress, device=device)
+                    progress=progress, device=device, compile=compile)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
@@ -111,7 +112,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
                        "frames": summary["frames"], "episodes": int(train_mask.sum()),
                        "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"],
-                       "device": str(device)}
+                       "device": str(device), "compile": bool(compile)}
     values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
                        "action_space": train_ds.action_space.get("kind")}
     values["tasks"] = sorted(counts)

@@ -10,6 +10,8 @@ its last checkpoint takes the same steps as one never interrupted (on the same m
 Device (`device`: auto, cpu, cuda, cuda:N; simeval.models.device): the model, Adam's state and each batch live
 there; the random draws come from the CPU generators above and are moved, so they do not depend on the device.
 Checkpoints hold CPU tensors and not the device: a run started on a GPU resumes on a CPU machine and vice versa.
+`compile` (WorldModel.compile_steps) is, like the device, how a run computes and not what: it is not part of a
+checkpoint either.
 
 Evaluation (`evaluate`): the model observes each evaluation window with posterior samples from a generator seeded
 with `seed` and reports, averaged over all valid evaluation frames:
@@ -86,9 +88,16 @@ def _loader(dataset, batches: list[list[tuple[int, int]]], num_workers: int, pin
 
     if num_workers == 0:  # no worker processes: read in the training thread
         return (collate([dataset[i] for i in b]) for b in batches)
-    # pin_memory (for a GPU): batches in page-locked memory, whose non_blocking copy can overlap with computation
+    # pin_memory (for a GPU): batches in page-locked memory, whose non_blocking copy can overlap with computation.
+    # The start method is named: inside a hydra/launcher=joblib job the default one is loky's, whose Process the
+    # DataLoader cannot start (AttributeError: 'Process' object has no attribute 'env'); fork is what it is
+    # elsewhere on Linux, and the HDF5-backed dataset is not picklable for spawn.
+    import multiprocessing as mp
+
+    context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     return DataLoader(dataset, batch_sampler=batches, num_workers=num_workers, collate_fn=collate,
-                      persistent_workers=False, prefetch_factor=4, pin_memory=pin_memory)
+                      persistent_workers=False, prefetch_factor=4, pin_memory=pin_memory,
+                      multiprocessing_context=context)
 
 
 def epoch_batches(windows: np.ndarray, batch_size: int, seed: int, epoch: int) -> list[list[tuple[int, int]]]:
@@ -122,8 +131,9 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
 
 def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None = None, meta: dict | None = None,
           log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
-          device: str | torch.device | None = "auto") -> dict:
-    """Train in place on `device` (the model is moved there); return {steps, epochs, seconds, frames, last:
+          device: str | torch.device | None = "auto", compile: bool = False) -> dict:
+    """Train in place on `device` (the model is moved there; with `compile`, its steps are compiled: see
+    WorldModel.compile_steps); return {steps, epochs, seconds, frames, last:
     metrics}, where seconds and frames count the whole training, the parts before a resume included. With
     `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device) matches, and
     save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint (the config
@@ -132,6 +142,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
 
     device = resolve_device(device)
     model.to(device)  # before Adam is made: its state is created beside the parameters
+    if compile:
+        model.compile_steps()
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
     epoch, done_in_epoch, step = 0, 0, 0
     frames_before, seconds_before = 0, 0.0  # what earlier processes trained, so a resumed run reports the whole run

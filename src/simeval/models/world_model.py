@@ -110,11 +110,13 @@ def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
     return torch.log(probs)
 
 
-def straight_through_sample(logp: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+def straight_through_sample(logp: torch.Tensor, generator: torch.Generator | None = None,
+                            uniform: torch.Tensor | None = None) -> torch.Tensor:
     """A one-hot sample of Cat(exp(logp)) (Gumbel-max, so a seeded generator reproduces it) whose gradient is that
     of the probabilities. `generator`: a CPU one; the uniforms are drawn on the CPU and moved to logp's device, so a
-    seed gives the same samples on every device."""
-    u = torch.rand(logp.shape, generator=generator, dtype=logp.dtype).to(logp.device)
+    seed gives the same samples on every device. `uniform`: those uniforms (logp's shape, on its device), drawn
+    beforehand (RSSM.observe draws a whole window's at once: one host-to-device copy instead of one per step)."""
+    u = torch.rand(logp.shape, generator=generator, dtype=logp.dtype).to(logp.device) if uniform is None else uniform
     gumbel = -torch.log((-torch.log(u.clamp_min(1e-20))).clamp_min(1e-20))
     one_hot = F.one_hot(torch.argmax(logp + gumbel, -1), logp.shape[-1]).to(logp.dtype)
     probs = logp.exp()
@@ -259,12 +261,13 @@ class RSSM(nn.Module):
         mode = F.one_hot(logp.argmax(-1), self.cfg.classes).to(logp.dtype)
         return {"deter": deter, "stoch": mode + logp.exp() - logp.exp().detach(), "logp": logp}
 
-    def img_step(self, prev: dict, prev_action: torch.Tensor, generator=None) -> dict[str, torch.Tensor]:
+    def img_step(self, prev: dict, prev_action: torch.Tensor, generator=None,
+                 uniform: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         prev_action = prev_action / prev_action.abs().clamp_min(1.0).detach()
         x = self.img_in(torch.cat([rearrange(prev["stoch"], "b s k -> b (s k)"), prev_action], -1))
         deter = self.cell(x, prev["deter"])
         logp = self._logp(self.prior_head, self.img_out(deter))
-        return {"deter": deter, "stoch": straight_through_sample(logp, generator), "logp": logp}
+        return {"deter": deter, "stoch": straight_through_sample(logp, generator, uniform), "logp": logp}
 
     def split_obs_layer(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The posterior MLP's first layer, bias-free and applied to cat(deter, embed), as its two blocks [W_d | W_e].
@@ -274,34 +277,52 @@ class RSSM(nn.Module):
         layer = self.obs_out[0]
         return layer.weight.split([self.cfg.deter, layer.in_features - self.cfg.deter], 1)
 
+    def uniforms(self, steps: int, draws: int, batch: int, generator=None, device=None) -> torch.Tensor:
+        """(steps, draws, B, stoch, classes) uniforms for the latent samples of `steps` steps of `draws` samples each,
+        drawn on the CPU in one call and moved to `device` in one copy. One call of torch.rand over the whole shape
+        gives the same numbers as one call per sample in that order (tests/test_world_model.py checks it), so a
+        window samples what step-by-step draws would; on a GPU a copy per step would wait for the queued work
+        each time (a pageable host-to-device copy synchronises the stream)."""
+        shape = (steps, draws, batch, self.cfg.stoch, self.cfg.classes)
+        return torch.rand(shape, generator=generator).to(device)
+
     def obs_step(self, prev: dict, prev_action: torch.Tensor, embed_share: torch.Tensor, is_first: torch.Tensor,
-                 deter_weight: torch.Tensor, generator=None) -> tuple[dict, dict]:
+                 deter_weight: torch.Tensor, generator=None, uniform: torch.Tensor | None = None,
+                 reset: bool | None = None) -> tuple[dict, dict]:
         """One posterior step. `embed_share` is W_e @ embed and `deter_weight` W_d (split_obs_layer): the posterior
-        layer's output is W_d @ deter + W_e @ embed = W @ cat(deter, embed)."""
+        layer's output is W_d @ deter + W_e @ embed = W @ cat(deter, embed). `uniform`: (2, B, S, K) uniforms for
+        the prior's and then the posterior's sample (else drawn from `generator`). `reset`: whether any row of
+        `is_first` is set, when the caller knows it without asking the device (else asked here, which on a GPU
+        waits for the queued work)."""
         first = is_first.to(embed_share.dtype)[:, None]
-        if bool(is_first.any()):
+        if bool(is_first.any()) if reset is None else reset:
             init = self.initial(len(first))
             prev = {"deter": prev["deter"] * (1 - first) + init["deter"] * first,
                     "stoch": prev["stoch"] * (1 - first[..., None]) + init["stoch"] * first[..., None]}
             prev_action = prev_action * (1 - first)
-        prior = self.img_step(prev, prev_action, generator)
+        prior = self.img_step(prev, prev_action, generator, None if uniform is None else uniform[0])
         hidden = F.linear(prior["deter"], deter_weight) + embed_share
         logp = self._logp(self.post_head, self.obs_out[1:](hidden))
-        post = {"deter": prior["deter"], "stoch": straight_through_sample(logp, generator), "logp": logp}
+        post = {"deter": prior["deter"], "stoch": straight_through_sample(logp, generator,
+                                                                          None if uniform is None else uniform[1]),
+                "logp": logp}
         return post, prior
 
     def observe(self, embed: torch.Tensor, prev_action: torch.Tensor, is_first: torch.Tensor, state=None,
                 generator=None) -> tuple[dict, dict]:
-        """Posterior and prior states over a window: each a dict of (B, T, ...)."""
+        """Posterior and prior states over a window: each a dict of (B, T, ...). The window's latent noise is drawn
+        at once and its resets read from the device once, so a GPU runs the window without waiting on the host."""
         b, t = embed.shape[:2]
         if state is None:
             state = self.initial(b)
         posts, priors = [], []
         deter_weight, embed_weight = self.split_obs_layer()
+        noise = self.uniforms(t, 2, b, generator, embed.device)
+        resets = is_first.any(0).tolist()
         # unbind, not [:, i]: one gradient for the whole window instead of a zero-filled full-size one per step
-        steps = zip(F.linear(embed, embed_weight).unbind(1), prev_action.unbind(1), is_first.unbind(1))
-        for share, action, first in steps:
-            state, prior = self.obs_step(state, action, share, first, deter_weight, generator)
+        steps = zip(F.linear(embed, embed_weight).unbind(1), prev_action.unbind(1), is_first.unbind(1), noise, resets)
+        for share, action, first, uniform, reset in steps:
+            state, prior = self.obs_step(state, action, share, first, deter_weight, uniform=uniform, reset=reset)
             posts.append(state)
             priors.append(prior)
         stack = lambda seq: {k: torch.stack([s[k] for s in seq], 1) for k in seq[0]}  # noqa: E731
@@ -310,8 +331,9 @@ class RSSM(nn.Module):
     def imagine(self, prev_action: torch.Tensor, state: dict, generator=None) -> dict:
         """Prior states for (B, K, A) actions from a (B, ...) state, no observations."""
         out = []
+        noise = self.uniforms(prev_action.shape[1], 1, prev_action.shape[0], generator, prev_action.device)
         for i in range(prev_action.shape[1]):
-            state = self.img_step(state, prev_action[:, i], generator)
+            state = self.img_step(state, prev_action[:, i], uniform=noise[i, 0])
             out.append(state)
         return {k: torch.stack([s[k] for s in out], 1) for k in out[0]}
 
@@ -338,6 +360,19 @@ class WorldModel(nn.Module):
             uniform_init(out)
         if self.state_decoder is not None:
             uniform_init(self.state_decoder[-1])
+
+    def compile_steps(self) -> None:
+        """torch.compile, in place, what a training step runs many times: the image encoder and decoder and the
+        RSSM's per-step functions (img_step, obs_step), whose dozens of small kernels per step the compiler fuses.
+        Why: on a GPU a step at batch 8 is bound by launching kernels from Python, not by the GPU (the kernels of a
+        `paper` step take ~13% of its wall time on an H100; experiments/benchmarks/world_model_gpu.py). The
+        parameters and state_dict keys are unchanged (nn.Module.compile), so checkpoints are the same either way;
+        numbers differ from eager ones at float32 rounding, as they do between devices. The first steps wait for the
+        compiler (~40 s on an H100 host), and a batch of another size compiles once more (shapes then turn dynamic)."""
+        self.encoder.compile()
+        self.image_decoder.compile()
+        self.rssm.img_step = torch.compile(self.rssm.img_step)
+        self.rssm.obs_step = torch.compile(self.rssm.obs_step)
 
     def n_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
@@ -378,9 +413,9 @@ class WorldModel(nn.Module):
         per_step = (c.image_scale * e["image_se"] + c.state_scale * e["state_se"]
                     + c.dyn_scale * e["kl_dyn"].clamp_min(c.free_nats) + c.rep_scale * e["kl_rep"].clamp_min(c.free_nats))
         loss = (per_step * mask).sum() / n
-        metrics = {k: float((v.detach() * mask).sum() / n) for k, v in e.items()}
-        metrics["loss"] = float(loss.detach())
-        return loss, metrics
+        names = [*e, "loss"]  # one copy to the host for all of them: on a GPU each float() would wait for the device
+        values = torch.stack([*((v.detach() * mask).sum() / n for v in e.values()), loss.detach()]).tolist()
+        return loss, dict(zip(names, values))
 
     def _open_loop(self, image: torch.Tensor, batch: dict, context: int, generator=None) -> tuple[dict, dict]:
         """Posterior states of the first `context` steps and the prior states imagined after them from the actions

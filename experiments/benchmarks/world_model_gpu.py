@@ -1,0 +1,174 @@
+"""World-model training steps on a GPU: the variants side by side in one process, with where the time goes.
+
+    python experiments/benchmarks/world_model_gpu.py [--presets cpu paper] [--window 40] [--baseline FILE]
+Writes outputs/bench/world_model_gpu.json (GPU timings are only comparable on the same card: the JSON names it).
+
+Variants (each from the same initial weights, on the same random batch; the first loss of each is recorded, so a
+variant that computes something else shows):
+  eager      the training step as simeval runs it (device=cuda)
+  compile    the same with torch.compile on the encoder, the decoder and the RSSM's per-step functions; the
+             compilation's seconds are recorded apart from the step time
+  bf16       eager under torch.autocast(bfloat16): what mixed precision would give (simeval trains in float32)
+  baseline   with --baseline FILE: the WorldModel class of another version of simeval/models/world_model.py
+             (e.g. `git show <rev>:src/simeval/models/world_model.py > /tmp/wm_before.py`), for a before/after
+Where the time goes (eager): torch.profiler sums the GPU kernels' time of one step; a step whose kernels take a
+fraction of its wall time is bound by launching them from Python (the RSSM's steps are sequential, batch 8).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import ROOT, device_info, machine, save  # noqa: E402
+
+
+def load_baseline(path: str):
+    spec = importlib.util.spec_from_file_location("world_model_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def make_batch(image_size: int, b: int, t: int, device):
+    import torch
+
+    g = torch.Generator().manual_seed(0)
+    is_first = torch.zeros(b, t, dtype=torch.bool)
+    is_first[:, 0] = True
+    batch = {"image": torch.randint(0, 256, (b, t, image_size, image_size, 3), generator=g, dtype=torch.uint8),
+             "state": torch.randn(b, t, 7, generator=g), "prev_action": torch.randn(b, t, 7, generator=g),
+             "is_first": is_first, "mask": torch.ones(b, t, dtype=torch.bool)}
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def time_variant(model_cls, cfg, batch, steps: int, device, variant: str) -> dict:
+    import torch
+
+    torch.manual_seed(0)
+    model = model_cls(cfg, state_dim=7, action_dim=7).to(device)
+    compile_s = None
+    if variant == "compile":
+        model.encoder = torch.compile(model.encoder, dynamic=False)
+        model.image_decoder = torch.compile(model.image_decoder, dynamic=False)
+        model.rssm.img_step = torch.compile(model.rssm.img_step, dynamic=False)
+        model.rssm.obs_step = torch.compile(model.rssm.obs_step, dynamic=False)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=variant == "bf16")
+
+    def step(i: int) -> float:
+        with autocast:
+            loss, metrics = model.loss(batch, generator=torch.Generator().manual_seed(i))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1000.0)
+        opt.step()
+        torch.cuda.synchronize()
+        return metrics["loss"]
+
+    t0 = time.perf_counter()
+    first_loss = step(0)
+    for i in range(1, 3):  # warm-up: cuDNN's algorithm search, the compiler's second graph (is_first differs)
+        step(i)
+    warmup_s = time.perf_counter() - t0
+    if variant == "compile":
+        compile_s = round(warmup_s, 1)
+    times = []
+    for i in range(steps):
+        t1 = time.perf_counter()
+        step(100 + i)
+        times.append(time.perf_counter() - t1)
+    times.sort()
+    out = {"step_s_median": round(times[len(times) // 2], 4), "step_s_min": round(times[0], 4),
+           "steps_timed": steps, "first_loss": round(first_loss, 3),
+           "peak_memory_gib": round(torch.cuda.max_memory_allocated(device) / 2**30, 2)}
+    if compile_s is not None:
+        out["warmup_with_compile_s"] = compile_s
+    torch.cuda.reset_peak_memory_stats(device)
+    return out
+
+
+def kernel_time(model_cls, cfg, batch, device) -> dict:
+    """GPU kernel time of one eager step (torch.profiler) against its wall time."""
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    torch.manual_seed(0)
+    model = model_cls(cfg, state_dim=7, action_dim=7).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+    def step():
+        loss, _ = model.loss(batch, generator=torch.Generator().manual_seed(0))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1000.0)
+        opt.step()
+        torch.cuda.synchronize()
+
+    for _ in range(2):
+        step()
+    with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+        t0 = time.perf_counter()
+        step()
+        wall = time.perf_counter() - t0
+    kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
+    busy = sum(e.time_range.elapsed_us() for e in kernels) / 1e6
+    return {"wall_s_profiled": round(wall, 4), "kernels": len(kernels), "kernel_s": round(busy, 4),
+            "kernel_fraction": round(busy / wall, 3)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", nargs="+", default=["cpu", "paper"])
+    ap.add_argument("--window", type=int, nargs="+", default=None,
+                    help="window lengths to time (default: each preset's own)")
+    ap.add_argument("--variants", nargs="+", default=["eager", "compile", "bf16"])
+    ap.add_argument("--baseline", default=None, help="another world_model.py to time beside (variant 'baseline')")
+    ap.add_argument("--steps", type=int, default=10)
+    a = ap.parse_args()
+    import torch
+    import yaml
+
+    from simeval.models.world_model import WorldModel, WorldModelConfig
+
+    if not torch.cuda.is_available():
+        ap.error("needs a GPU (torch sees none); experiments/benchmarks/world_model_bench.py times the CPU")
+    device = torch.device("cuda")
+    variants = (["baseline"] if a.baseline else []) + a.variants
+    baseline = load_baseline(a.baseline) if a.baseline else None
+    result = {"benchmark": "world_model_gpu", "machine": machine(), **device_info(device), "presets": {}}
+    for name in a.presets:
+        wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{name}.yaml").read_text())
+        for length in a.window or [wm["window"]["length"]]:
+            key = f"{name}/window{length}"
+            b = wm["train"]["batch_size"]
+            cfg = WorldModelConfig.from_dict(wm["model"])
+            batch = make_batch(cfg.image_size, b, length, device)
+            row = {"batch": b, "window": length, "image_size": cfg.image_size}
+            for v in variants:
+                cls = baseline.WorldModel if v == "baseline" else WorldModel
+                c = baseline.WorldModelConfig.from_dict(wm["model"]) if v == "baseline" else cfg
+                try:
+                    row[v] = time_variant(cls, c, batch, a.steps, device, v)
+                    row[v]["frames_per_s"] = round(b * length / row[v]["step_s_median"], 1)
+                except Exception as e:  # noqa: BLE001 - a variant that fails on this stack is a finding, not a stop
+                    row[v] = {"error": f"{type(e).__name__}: {str(e)[:300]}"}
+                print(key, v, row[v], flush=True)
+            row["eager_profile"] = kernel_time(WorldModel, cfg, batch, device)
+            print(key, "profile", row["eager_profile"], flush=True)
+            result["presets"][key] = row
+            save("world_model_gpu", result)  # after each preset: a run stopped at its time limit keeps the rest
+    print(f"\n{'preset/window':<20}" + "".join(f"{v:>12}" for v in variants))
+    for key, row in result["presets"].items():
+        print(f"{key:<20}" + "".join(f"{row[v].get('step_s_median', float('nan')):>12.4f}" for v in variants))
+
+
+if __name__ == "__main__":
+    main()
