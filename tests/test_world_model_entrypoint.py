@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -133,6 +134,38 @@ def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tin
 def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
     r = run("debug=tiny", "compile=fast", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.strip() == "error: compile='fast': expected true or false", r.stderr[-2000:]
+
+
+def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tasks():
+    """Hand-made episodes: task a's training episodes have 30 and 41 rows, b's 25 and 28, c's 50 of which only the
+    20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window."""
+    from simeval.episodes.dataset import EpisodeInfo, WindowSpec
+    from simeval.models.dynamics_diversity import check_every_task_has_windows
+
+    rows = [("a", 30), ("a", 41), ("b", 25), ("b", 28), ("c", 20), ("c", 50)]
+    infos = [EpisodeInfo(task=t, seed=i, group="g", n_rows=n, action_space={}) for i, (t, n) in enumerate(rows)]
+    train = np.array([True, True, True, True, True, False])
+    with pytest.raises(UserError) as e:
+        check_every_task_has_windows(infos, train, WindowSpec(length=40))
+    assert str(e.value) == (
+        "world_model.window.length=40: 2 of 3 tasks have no training episode that long, so the model would never see "
+        "them (longest rows: b (28), c (20)); use world_model.window.length=20 or world_model.window.pad_end=true")
+    check_every_task_has_windows(infos, train, WindowSpec(length=20))  # every task has a 20-row episode
+    check_every_task_has_windows(infos, train, WindowSpec(length=40, pad_end=True))  # padded windows reach them
+
+
+def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
+    common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]",
+              "heldout_episodes=null", "progress=false", "checkpoint_dir=null", "episodes=1")
+    r = run(*common, "world_model.model.image_size=32", f"hydra.run.dir={tmp_path / 'up'}", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
+    assert r.stderr.startswith("error: the episodes' frames are 16x16, smaller than the model's "
+                               "world_model.model.image_size=32: they would be upsampled")
+    r = run(*common, "world_model.model.image_size=8", f"hydra.run.dir={tmp_path / 'down'}", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]  # downsampled, as the cpu preset does with a 128x128 store
 
 
 def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tmp_path):

@@ -6,8 +6,8 @@ Writes outputs/bench/world_model_gpu.json (GPU timings are only comparable on th
 Variants (each from the same initial weights, on the same random batch; the first loss of each is recorded, so a
 variant that computes something else shows):
   eager      the training step as simeval runs it (device=cuda)
-  compile    the same with torch.compile on the encoder, the decoder and the RSSM's per-step functions; the
-             compilation's seconds are recorded apart from the step time
+  compile    the same with compile=true (WorldModel.compile_steps: torch.compile of the encoder, the decoder and
+             the RSSM's per-step functions); the warm-up's seconds, compilation included, are recorded apart
   bf16       eager under torch.autocast(bfloat16): what mixed precision would give (simeval trains in float32)
   baseline   with --baseline FILE: the WorldModel class of another version of simeval/models/world_model.py
              (e.g. `git show <rev>:src/simeval/models/world_model.py > /tmp/wm_before.py`), for a before/after
@@ -56,10 +56,7 @@ def time_variant(model_cls, cfg, batch, steps: int, device, variant: str) -> dic
     model = model_cls(cfg, state_dim=7, action_dim=7).to(device)
     compile_s = None
     if variant == "compile":
-        model.encoder = torch.compile(model.encoder, dynamic=False)
-        model.image_decoder = torch.compile(model.image_decoder, dynamic=False)
-        model.rssm.img_step = torch.compile(model.rssm.img_step, dynamic=False)
-        model.rssm.obs_step = torch.compile(model.rssm.obs_step, dynamic=False)
+        model.compile_steps()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=variant == "bf16")
 

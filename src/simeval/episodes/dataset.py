@@ -176,6 +176,10 @@ class ArraySource:
             if set(n.values()) != {info.n_rows}:
                 raise UserError(f"{info.task} seed {info.seed}: expected {info.n_rows} rows in every array, got {n}")
 
+    def frame_size(self, e: int) -> tuple[int, int]:
+        """(H, W) of episode e's frames."""
+        return tuple(self.arrays[e]["image"].shape[1:3])
+
     def read(self, e: int, lo: int, hi: int) -> dict[str, np.ndarray]:
         a = self.arrays[e]
         return {"image": a["image"][lo:hi], "state": a["state"][lo:hi], "action": a["action"][lo:hi]}
@@ -201,6 +205,7 @@ class StoreSource:
                                           n_rows=int(m["n_steps"]), action_space=m["action_space"], path=str(p),
                                           extra={"variation_id": m.get("variation_id", "")}))
         self._files: dict[int, object] = {}
+        self._frame_sizes: dict[int, tuple[int, int]] = {}
         self._pid = os.getpid()
         for e in range(len(self.infos)):  # before any training: a damaged index would otherwise surface mid-run
             self._check_structure(e)
@@ -216,6 +221,11 @@ class StoreSource:
                 d = f[key]
                 if d.chunks is not None:
                     d.id.get_num_chunks()
+            self._frame_sizes[e] = tuple(f[f"obs/rgb/{self.camera}"].shape[1:3])
+
+    def frame_size(self, e: int) -> tuple[int, int]:
+        """(H, W) of episode e's frames of this source's camera (read from the file's header when it was opened)."""
+        return self._frame_sizes[e]
 
     def _file(self, e: int):
         import h5py

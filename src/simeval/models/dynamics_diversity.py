@@ -41,6 +41,39 @@ def check_eval_context(context: int | None, window: WindowSpec) -> None:
         raise UserError(f"eval.context={context}: expected 1 <= context < window length ({window.length})")
 
 
+def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSpec) -> None:
+    """A UserError naming the tasks whose training episodes are all shorter than the window (without pad_end): the
+    model would never train on them, yet their episodes are evaluated (padded), so their error would be that of a
+    model that never saw the task. Our RoboGen-style episodes (22-77 rows) meet this with the `paper` preset's
+    windows of 40; the authors' DreamerV3 fork instead ran a window on into the next episode, which ours never do."""
+    if window.pad_end:
+        return
+    longest: dict[str, int] = {}
+    for info, used in zip(infos, train_mask):
+        if used:
+            longest[info.task] = max(longest.get(info.task, 0), int(info.n_rows))
+    short = {t: n for t, n in sorted(longest.items()) if n < window.length}
+    if short:
+        listed = ", ".join(f"{t} ({n})" for t, n in short.items())
+        raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
+                        f"training episode that long, so the model would never see them (longest rows: {listed}); "
+                        f"use world_model.window.length={min(short.values())} or world_model.window.pad_end=true")
+
+
+def check_frames_not_upsampled(source, image_size: int) -> None:
+    """A UserError when the episodes' frames are smaller than the model's: the dataset would upsample them, and an
+    image error measured on blurred frames is not the error at `image_size` (e.g. the `paper` preset's 128x128 on a
+    store recorded at the default 64x64). Larger frames are downsampled, as the `cpu` preset does with a 128x128 store."""
+    sizes = {source.frame_size(e) for e in range(len(source.infos))}
+    small = sorted(s for s in sizes if min(s) < image_size)
+    if small:
+        h, w = small[0]
+        raise UserError(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model.image_size="
+                        f"{image_size}: they would be upsampled; record episodes at that size (src/collect.py "
+                        f"'record.image_size=[{image_size},{image_size}]' store=<another folder>) or use a preset "
+                        f"of {h}x{w} or less")
+
+
 def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
                      window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
                      heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
@@ -70,6 +103,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                                                            f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
     check_eval_context(eval_context, window)  # before training, not after it
     train_mask = rank_mask(ranks, 0, k)
+    check_every_task_has_windows(infos, train_mask, window)
+    check_frames_not_upsampled(source, model_cfg.image_size)
     train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
     stats = train_ds.fit_stats()
     train_ds.stats = stats
