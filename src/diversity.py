@@ -5,8 +5,8 @@ import logging
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError, require_folder, require_whole
+from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.errors import UserError, require_folder
 
 log = logging.getLogger("diversity")
 
@@ -38,9 +38,8 @@ def main(cfg: DictConfig) -> None:
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
 
-    for key, low in {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
-                     "eval.batch_size": 1}.items():
-        require_whole(key, OmegaConf.select(cfg, key), low=low)  # before any data is read or model trained
+    require_whole_keys(cfg, {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
+                             "eval.batch_size": 1})
     if not isinstance(cfg.compile, bool):
         raise UserError(f"compile={cfg.compile!r}: expected true or false")
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)

@@ -7,8 +7,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError, require_folder, require_whole
+from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.errors import UserError, require_folder
 
 log = logging.getLogger("generalization")
 VERSION = "1.0"
@@ -30,11 +30,9 @@ def main(cfg: DictConfig) -> None:
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import group_and_heldout, split_tasks
 
-    optional = {"torch_threads": 1, "eval.max_steps": 1}
-    for key, low in {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
-                     "eval.seed_offset": 0, **optional}.items():  # checked before training, not after it
-        if key not in optional or OmegaConf.select(cfg, key) is not None:
-            require_whole(key, OmegaConf.select(cfg, key), low=low)
+    require_whole_keys(cfg, {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
+                             "eval.seed_offset": 0, "torch_threads": 1, "eval.max_steps": 1},
+                       optional=("torch_threads", "eval.max_steps"))
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read

@@ -11,11 +11,10 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import require_folder, require_whole
+from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.errors import require_folder
 
 log = logging.getLogger("quality")
-RUN_FAILED_EXIT = 1
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="quality")
@@ -26,24 +25,21 @@ def main(cfg: DictConfig) -> None:
     from simeval.quality import run_quality
     from simeval.results import hydra_run_info
 
-    for key, low in {"repeats": 1, "max_reasks": 0, "seed": 0}.items():  # checked for every judge, oracle included
-        require_whole(key, OmegaConf.select(cfg, key), low=low)
+    require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included
     require_folder("cache_dir", cfg.cache_dir)
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     judge = {}
     if cfg.judge.kind != "oracle":
-        from simeval.judges.cache import JudgeCache
-        from simeval.judges.ledger import Ledger, Prices
-        from simeval.judges.prompts import load_template
-        from simeval.judges.runner import JudgeSettings
+        from simeval.judges import cache, ledger, prompts, runner
 
-        judge = dict(provider=instantiate(cfg.judge.provider), ledger=Ledger(Prices(**cfg.judge.prices), cfg.budget_usd),
-                     templates={k: load_template(v) for k, v in cfg.prompts.items()},
-                     cache=JudgeCache(Path(cfg.cache_dir) / "judge_calls.sqlite"),
-                     settings=JudgeSettings(cfg.repeats, cfg.max_reasks, cfg.judge.concurrency,
-                                            cfg.judge.rate_limit_per_min, cfg.judge.replay))
+        judge = dict(provider=instantiate(cfg.judge.provider),
+                     ledger=ledger.Ledger(ledger.Prices(**cfg.judge.prices), cfg.budget_usd),
+                     templates={k: prompts.load_template(v) for k, v in cfg.prompts.items()},
+                     cache=cache.JudgeCache(Path(cfg.cache_dir) / "judge_calls.sqlite"),
+                     settings=runner.JudgeSettings(cfg.repeats, cfg.max_reasks, cfg.judge.concurrency,
+                                                   cfg.judge.rate_limit_per_min, cfg.judge.replay))
         if cfg.captioner.kind != "none":  # the captioner captions each view once; every judge repeat reuses it
-            judge |= dict(captioner=instantiate(cfg.captioner.provider), caption_settings=JudgeSettings(
+            judge |= dict(captioner=instantiate(cfg.captioner.provider), caption_settings=runner.JudgeSettings(
                 1, cfg.max_reasks, cfg.captioner.concurrency, cfg.captioner.rate_limit_per_min, cfg.judge.replay))
     meta = dict(config=config, choices=run["choices"], seed=cfg.seed, overrides=run["overrides"], label=cfg.label)
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
@@ -57,7 +53,7 @@ def main(cfg: DictConfig) -> None:
     log.info(out.summary)
     if out.status == "failed":
         print(f"error: {out.error}", file=sys.stderr)
-        sys.exit(RUN_FAILED_EXIT)
+        sys.exit(1)  # the run ran and every task failed (module docstring)
 
 
 if __name__ == "__main__":

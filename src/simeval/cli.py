@@ -62,6 +62,19 @@ def _fail(message: str) -> None:
     sys.exit(USER_ERROR_EXIT)
 
 
+def require_whole_keys(cfg: Any, lows: dict[str, int], optional: tuple[str, ...] = ()) -> None:
+    """require_whole(key, value, low) for each dotted key of a config, where an entrypoint checks its numbers before
+    any data is read or a model trained; a key in `optional` may also be null."""
+    from omegaconf import OmegaConf
+
+    from simeval.errors import require_whole
+
+    for key, low in lows.items():
+        value = OmegaConf.select(cfg, key)
+        if key not in optional or value is not None:
+            require_whole(key, value, low=low)
+
+
 def refuse_secrets_on_command_line(argv: list[str]) -> None:
     """Stop before Hydra writes the overrides to `.hydra/`: a key typed as a value would be stored in clear."""
     for key, why in key_shaped_overrides(argv[1:]):
