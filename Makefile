@@ -107,8 +107,8 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w $(lastword $(WM_RECORD)) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
-report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)
-	$(PY) experiments/world_model_table4.py $(if $(KEEP),--keep $(KEEP))
+report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)
+	$(PY) experiments/world_model_table4.py $(if $(filter paper,$(WM_PRESET)),--preset paper --out outputs/tables/table4_paper --figure outputs/figures/table4_paper.png) $(if $(KEEP),--keep $(KEEP))
 
 world-model-control: setup ## synthetic control for dynamics diversity: outputs/figures/world_model_control.png
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1

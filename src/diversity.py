@@ -41,7 +41,7 @@ def main(cfg: DictConfig) -> None:
     require_whole_keys(cfg, {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
                              "eval.batch_size": 1})
     if not isinstance(cfg.compile, bool):
-        raise UserError(f"compile={cfg.compile!r}: expected true or false")
+        raise UserError(f"compile={'null' if cfg.compile is None else repr(cfg.compile)}: expected true or false")
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     eval_ranks = _ranks(cfg.eval_episodes, "eval_episodes")

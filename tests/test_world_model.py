@@ -218,6 +218,13 @@ def test_compiled_steps_train_to_the_eager_numbers_in_the_same_checkpoint(tmp_pa
     assert Path(compiled["checkpoint"]).name == Path(eager["checkpoint"]).name
     saved = torch.load(compiled["checkpoint"], weights_only=False)["model"]
     assert sorted(saved) == sorted(tiny().state_dict())
+    # an eager process finds the compiled training finished: its result says how the training ran, not this process
+    again = fit(False, tmp_path / "compiled")
+    steps = compiled["train"]["steps"]
+    assert again["train"]["compile"] is False and again["train"]["steps"] == steps
+    assert again["train"]["segments"] == compiled["train"]["segments"] == [
+        {"steps": [0, steps], "device": "cpu", "compile": True}]
+    assert again["eval"]["image_error"] == pytest.approx(compiled["eval"]["image_error"], rel=1e-5)
 
 
 def test_mask_excludes_padded_steps():

@@ -138,7 +138,8 @@ def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
 
 def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tasks():
     """Hand-made episodes: task a's training episodes have 30 and 41 rows, b's 25 and 28, c's 50 of which only the
-    20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window."""
+    20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window; the
+    windows' starts (offset, pad_start, a random offset per epoch) count as window_starts places them."""
     from simeval.episodes.dataset import EpisodeInfo, WindowSpec
     from simeval.models.dynamics_diversity import check_every_task_has_windows
 
@@ -148,10 +149,17 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
     with pytest.raises(UserError) as e:
         check_every_task_has_windows(infos, train, WindowSpec(length=40))
     assert str(e.value) == (
-        "world_model.window.length=40: 2 of 3 tasks have no training episode that long, so the model would never see "
-        "them (longest rows: b (28), c (20)); use world_model.window.length=20 or world_model.window.pad_end=true")
+        "world_model.window.length=40: 2 of 3 tasks have no training episode that holds a window, so the model would "
+        "never see them (longest rows: b (28), c (20)); use world_model.window.length=20 or "
+        "world_model.window.pad_end=true")
     check_every_task_has_windows(infos, train, WindowSpec(length=20))  # every task has a 20-row episode
     check_every_task_has_windows(infos, train, WindowSpec(length=40, pad_end=True))  # padded windows reach them
+    # windows may begin 20 rows before row 0: [-20, 20) fits c's 20 rows
+    check_every_task_has_windows(infos, train, WindowSpec(length=40, stride=10, pad_start=20))
+    # a fixed first start at row 1 leaves c's 20 rows no window of 20; with a random offset, offset 0 fits it
+    with pytest.raises(UserError, match=r"1 of 3 tasks .* \(longest rows: c \(20\)\); use world_model.window.length=19 "):
+        check_every_task_has_windows(infos, train, WindowSpec(length=20, stride=4, offset=1))
+    check_every_task_has_windows(infos, train, WindowSpec(length=20, stride=4, offset=1, random_offset=True))
 
 
 def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
@@ -166,6 +174,23 @@ def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
                                "world_model.model.image_size=32: they would be upsampled")
     r = run(*common, "world_model.model.image_size=8", f"hydra.run.dir={tmp_path / 'down'}", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]  # downsampled, as the cpu preset does with a 128x128 store
+
+
+def test_a_compiler_that_cannot_build_is_one_line_saying_to_run_without_compile(tmp_path):
+    """compile=true where inductor finds no working C++ compiler (CXX names none; an empty compile cache, so
+    nothing is reused): one line and exit 2 instead of inductor's traceback after the first step."""
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
+    env = {**ENV, "CXX": str(tmp_path / "no-such-g++"), "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "inductor")}
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "debug=tiny", "pipeline=gensim",
+                        "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]", "heldout_episodes=null",
+                        "progress=false", "checkpoint_dir=null", "episodes=1", "compile=true",
+                        f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
+    assert r.stderr.startswith("error: compile=true: torch.compile could not build the model's steps (")
+    assert r.stderr.rstrip().endswith("); run with compile=false")
 
 
 def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tmp_path):
@@ -203,6 +228,25 @@ def _record(pipeline: str, group: str, episodes: int, error: float) -> dict:
     return {"metric": "dynamics_diversity", "status": "ok",
             "identity": {"pipeline": pipeline, "task_group": group, "episodes": episodes, "preset": "cpu"},
             "values": {"eval": {"image_error": error, "image_error_per_pixel": error / 12288}}}
+
+
+def test_a_table_row_refuses_runs_of_different_settings_under_one_preset():
+    """Seeds of one setting are averaged; runs whose windows differ (or any other world-model setting or the camera)
+    are not, though they share a preset name: one line naming the row and the setting."""
+    from simeval.report import table4
+
+    def rec(episodes, error, length, seed=0):
+        r = _record("robogen", "ground", episodes, error)
+        r["identity"].update(seed=seed, camera="front", settings={"world_model": {"window": {"length": length}}})
+        return r
+
+    rows = table4.build([rec(10, 200.0, 20), rec(10, 100.0, 20, seed=1), rec(20, 80.0, 20)])
+    assert rows[[r["group"] for r in rows].index("ground")]["ours_10"] == 150.0  # two seeds of one setting
+    with pytest.raises(UserError) as e:
+        table4.build([rec(10, 200.0, 40), rec(20, 80.0, 20)])
+    assert str(e.value) == ("robogen/ground (preset cpu): its runs differ in world_model.window.length "
+                            "(world_model.window.length: 20, 40); a row holds runs of one setting: give --root a "
+                            "folder with one setting's runs")
 
 
 def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp_path):

@@ -1,7 +1,8 @@
 """World-model training throughput per preset (step time, frames/s) and window reading (samples/s).
 
     python experiments/benchmarks/world_model_bench.py [--presets tiny cpu paper] [--threads 2] [--device auto]
-Writes outputs/bench/world_model.json. Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s
+                                                       [--compile]
+Writes outputs/bench/world_model.json (with --compile: world_model_compile.json, each preset eager and compiled). Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s
 per training step at 128x128 (the `paper` settings) and 0.24 s at the `cpu` settings (numbers given in issue 10;
 not re-measured here; the speed-up is only comparable with device cpu). The machine's load average is recorded: on
 a shared machine, steps slow down with it. `--device` (auto, cpu, cuda, cuda:N) is where the training steps run,
@@ -26,7 +27,7 @@ REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
 STEPS = {"tiny": 20, "cpu": 10, "paper": 4}
 
 
-def bench_preset(name: str, steps: int, device) -> dict:
+def bench_preset(name: str, steps: int, device, compile_steps: bool = False) -> dict:
     import torch
     import yaml
 
@@ -38,6 +39,8 @@ def bench_preset(name: str, steps: int, device) -> dict:
     b, t = wm["train"]["batch_size"], wm["window"]["length"]
     torch.manual_seed(0)
     model = WorldModel(cfg, state_dim=7, action_dim=7).to(device)  # joint_pos+suction: 6 joints + suction, in and out
+    if compile_steps:
+        model.compile_steps()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     g = torch.Generator().manual_seed(0)
     is_first = torch.zeros(b, t, dtype=torch.bool)
@@ -57,7 +60,10 @@ def bench_preset(name: str, steps: int, device) -> dict:
         opt.step()
         sync()
 
-    step()  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(3 if compile_steps else 1):  # warm-up (the compiler's: the first step, and the next shapes)
+        step()
+    warmup_s = time.perf_counter() - t0
     times = []
     for _ in range(steps):
         t0 = time.perf_counter()
@@ -66,7 +72,7 @@ def bench_preset(name: str, steps: int, device) -> dict:
     step_s = sorted(times)[len(times) // 2]
     out = {"parameters": model.n_parameters(), "image_size": cfg.image_size, "batch": b, "window": t,
            "steps_timed": steps, "step_s_median": round(step_s, 4), "step_s_min": round(min(times), 4),
-           "frames_per_s": round(b * t / step_s, 1)}
+           "frames_per_s": round(b * t / step_s, 1), "compile": compile_steps, "warmup_s": round(warmup_s, 1)}
     if name in REFERENCE_STEP_S:
         out["reference_step_s"] = REFERENCE_STEP_S[name]
         out["speedup_vs_reference"] = round(REFERENCE_STEP_S[name] / step_s, 2)
@@ -111,6 +117,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-reading", action="store_true")
     ap.add_argument("--device", default="auto", help="auto (cuda if available, else cpu) | cpu | cuda | cuda:N")
+    ap.add_argument("--compile", action="store_true",
+                    help="time each preset eager and with compile=true, side by side (writes world_model_compile.json)")
     a = ap.parse_args()
     import torch
 
@@ -125,15 +133,17 @@ def main() -> None:
     result = {"benchmark": "world_model", "machine": machine(), "threads": a.threads, **device_info(device),
               "load_average_before": os.getloadavg(), "presets": {}}
     for name in a.presets:
-        result["presets"][name] = bench_preset(name, STEPS.get(name, 5), device)
-        print(name, result["presets"][name], flush=True)
-    if not a.no_reading:
+        for compiled in ([False, True] if a.compile else [False]):
+            key = f"{name}+compile" if compiled else name
+            result["presets"][key] = bench_preset(name, STEPS.get(name, 5), device, compiled)
+            print(key, result["presets"][key], flush=True)
+    if not a.no_reading and not a.compile:
         try:
             result["reading"] = bench_reading()
         except Exception as e:  # noqa: BLE001 - the store format may not support it yet; say so in the result
             result["reading"] = {"error": f"{type(e).__name__}: {e}"}
     result["load_average_after"] = os.getloadavg()
-    save("world_model", result)
+    save("world_model_compile" if a.compile else "world_model", result)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks
+from simeval.episodes.dataset import (WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks,
+                                      window_starts)
 from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
@@ -42,36 +43,43 @@ def check_eval_context(context: int | None, window: WindowSpec) -> None:
 
 
 def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSpec) -> None:
-    """A UserError naming the tasks whose training episodes are all shorter than the window (without pad_end): the
-    model would never train on them, yet their episodes are evaluated (padded), so their error would be that of a
-    model that never saw the task. Our RoboGen-style episodes (22-77 rows) meet this with the `paper` preset's
-    windows of 40; the authors' DreamerV3 fork instead ran a window on into the next episode, which ours never do."""
-    if window.pad_end:
-        return
+    """A UserError naming the tasks none of whose training episodes holds a window (for any of the epochs' offsets,
+    with the window's pad_start and pad_end): the model would never train on them, yet their episodes are evaluated
+    (padded), so their error would be that of a model that never saw the task. Our RoboGen-style episodes (22-77
+    rows) meet this with the `paper` preset's windows of 40; the authors' DreamerV3 fork instead ran a window on
+    into the next episode, which ours never do. The length suggested is the longest with which every task has one."""
+    offsets = range(window.stride) if window.random_offset else [window.offset]
+    has_window = lambda n: any(len(window_starts(n, window, off)) for off in offsets)  # noqa: E731
     longest: dict[str, int] = {}
+    trained: set[str] = set()
     for info, used in zip(infos, train_mask):
         if used:
             longest[info.task] = max(longest.get(info.task, 0), int(info.n_rows))
-    short = {t: n for t, n in sorted(longest.items()) if n < window.length}
+            if has_window(int(info.n_rows)):
+                trained.add(info.task)
+    short = {t: n for t, n in sorted(longest.items()) if t not in trained}
     if short:
+        first_start = (0 if window.random_offset else window.offset) - window.pad_start  # a window [s, s + L) fits if
+        fits = max(1, min(short.values()) - first_start)                                # s + L <= rows
         listed = ", ".join(f"{t} ({n})" for t, n in short.items())
         raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
-                        f"training episode that long, so the model would never see them (longest rows: {listed}); "
-                        f"use world_model.window.length={min(short.values())} or world_model.window.pad_end=true")
+                        f"training episode that holds a window, so the model would never see them (longest rows: "
+                        f"{listed}); use world_model.window.length={fits} or world_model.window.pad_end=true")
 
 
 def check_frames_not_upsampled(source, image_size: int) -> None:
     """A UserError when the episodes' frames are smaller than the model's: the dataset would upsample them, and an
     image error measured on blurred frames is not the error at `image_size` (e.g. the `paper` preset's 128x128 on a
-    store recorded at the default 64x64). Larger frames are downsampled, as the `cpu` preset does with a 128x128 store."""
+    store recorded at the default 64x64). Larger frames are downsampled, as the `cpu` preset does with a 128x128
+    store."""
     sizes = {source.frame_size(e) for e in range(len(source.infos))}
     small = sorted(s for s in sizes if min(s) < image_size)
     if small:
         h, w = small[0]
         raise UserError(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model.image_size="
-                        f"{image_size}: they would be upsampled; record episodes at that size (src/collect.py "
-                        f"'record.image_size=[{image_size},{image_size}]' store=<another folder>) or use a preset "
-                        f"of {h}x{w} or less")
+                        f"{image_size}: they would be upsampled; record the episodes at that size in a store of their "
+                        f"own (src/collect.py ... 'record.image_size=[{image_size},{image_size}]' store=DIR, then "
+                        f"store=DIR here), or set world_model.model.image_size to {min(h, w)} or less")
 
 
 def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
@@ -89,7 +97,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
     episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
     `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
-    so a run resumes on another device; `train.device` in the result records the one used. `compile`: compile the
+    so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
+    `train.segments` how each part of the training ran (simeval.models.training.train). `compile`: compile the
     model's steps (WorldModel.compile_steps; for a GPU), likewise not part of the key. `how_to_get_more(n)`:
     what a UserError about too few episodes per task tells the user to run (how_to_get_episodes)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
@@ -119,22 +128,26 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     if checkpoint_dir is not None:
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
         checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
-    summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                    progress=progress, device=device, compile=compile)
+    with WorldModel.compile_failures_named(compile):
+        summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
+                        progress=progress, device=device, compile=compile)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
         ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
         if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
             raise UserError("evaluation episodes have another action space than the training ones")
-        out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
+        with WorldModel.compile_failures_named(compile):  # its new shapes are compiled too
+            out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context,
+                           progress=progress)
         out["episodes"] = [lo + 1, hi]
         return out, ds
 
     main_eval, eval_ds = run_eval(*eval_episodes)
     values = {"eval": main_eval, "heldout": None, "videos": {}}
     if videos > 0 and video_dir is not None:
-        clips = prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
+        with WorldModel.compile_failures_named(compile):
+            clips = prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
         values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                             for task, frames in clips.items()}
     counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
@@ -147,7 +160,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
                        "frames": summary["frames"], "episodes": int(train_mask.sum()),
                        "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"],
-                       "device": str(device), "compile": bool(compile)}
+                       "device": str(device), "compile": bool(compile), "segments": summary["segments"]}
     values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
                        "action_space": train_ds.action_space.get("kind")}
     values["tasks"] = sorted(counts)

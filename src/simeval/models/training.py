@@ -133,8 +133,10 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
           log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
           device: str | torch.device | None = "auto", compile: bool = False) -> dict:
     """Train in place on `device` (the model is moved there; with `compile`, its steps are compiled: see
-    WorldModel.compile_steps); return {steps, epochs, seconds, frames, last:
-    metrics}, where seconds and frames count the whole training, the parts before a resume included. With
+    WorldModel.compile_steps); return {steps, epochs, seconds, frames, segments, last:
+    metrics}, where seconds and frames count the whole training, the parts before a resume included, and segments
+    says how each part was trained: [{steps: [first, end), device, compile}] (device and compile None for a part
+    written before checkpoints recorded them). With
     `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device) matches, and
     save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint (the config
     that made it)."""
@@ -147,6 +149,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
     epoch, done_in_epoch, step = 0, 0, 0
     frames_before, seconds_before = 0, 0.0  # what earlier processes trained, so a resumed run reports the whole run
+    segments: list[dict] = []  # how earlier processes trained: [{steps: [first, end), device, compile}]
     meta = dict(meta or {})
     if checkpoint is not None and Path(checkpoint).is_file():
         ck = load_checkpoint(checkpoint)
@@ -158,7 +161,14 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
         opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
         epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
         frames_before, seconds_before = int(ck.get("frames", 0)), float(ck.get("seconds", 0.0))
+        segments = list(ck.get("segments") or ([{"steps": [0, step], "device": None, "compile": None}] if step else []))
         log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
+
+    first_step = step
+
+    def trained_by() -> list[dict]:
+        here = {"steps": [first_step, step], "device": str(device), "compile": bool(compile)}
+        return segments + ([here] if step > first_step else [])
 
     def save(e: int, b: int, finished: bool = False) -> None:
         if checkpoint is not None:
@@ -166,7 +176,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
                                          "optimizer": to_cpu(opt.state_dict()), "epoch": e, "batches_done": b,
                                          "step": step, "meta": meta, "finished": finished,
                                          "frames": frames_before + frames,
-                                         "seconds": seconds_before + time.perf_counter() - t0})
+                                         "seconds": seconds_before + time.perf_counter() - t0,
+                                         "segments": trained_by()})
 
     model.train()
     t0, frames, last = time.perf_counter(), 0, {}
@@ -216,6 +227,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
         save(epoch, done_in_epoch, finished=True)
     return {"steps": step, "epochs": epoch, "seconds": seconds_before + time.perf_counter() - t0,
+            "segments": trained_by(),
             "frames": frames_before + frames, "last": last}
 
 

@@ -27,7 +27,9 @@ produces it from the store, whose row t holds o_t and the action a_t taken after
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
@@ -373,6 +375,22 @@ class WorldModel(nn.Module):
         self.image_decoder.compile()
         self.rssm.img_step = torch.compile(self.rssm.img_step)
         self.rssm.obs_step = torch.compile(self.rssm.obs_step)
+
+    @staticmethod
+    @contextlib.contextmanager
+    def compile_failures_named(enabled: bool = True) -> Iterator[None]:
+        """A failure of torch.compile's dynamo or inductor inside the block (no working C++ compiler, an unsupported
+        operation on this torch) becomes a UserError saying to run without compile, instead of a long traceback
+        after the first step; other errors pass as they are."""
+        try:
+            yield
+        except Exception as e:  # noqa: BLE001 - only the compiler's own errors are translated, the rest re-raised
+            where = type(e).__module__
+            if not enabled or not where.startswith(("torch._dynamo", "torch._inductor")):
+                raise
+            first = (str(e).strip().splitlines() or [""])[0][:200]
+            raise UserError(f"compile=true: torch.compile could not build the model's steps ({type(e).__name__}: "
+                            f"{first}); run with compile=false") from e
 
     def n_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

@@ -33,6 +33,31 @@ def _order(pipeline: str) -> int:
     return list(PAPER).index(pipeline) if pipeline in PAPER else len(PAPER)
 
 
+def _flat(d, prefix: str = "") -> dict:
+    if not isinstance(d, dict):
+        return {prefix: d}
+    out: dict = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def _one_setting(row_key: tuple, recs: list[dict]) -> None:
+    """A UserError when the runs of one table row differ in their settings (world model, window, evaluation) or
+    camera: a row averages seeds of one setting and compares its episode counts, so runs made with, say, windows of
+    40 and of 20 under one preset name must not meet in it."""
+    flats = [_flat({"settings": r["identity"]["settings"], "camera": r["identity"].get("camera")})
+             for r in recs if "settings" in r["identity"]]
+    keys = sorted({k for f in flats for k in f if len({repr(g.get(k)) for g in flats}) > 1})
+    if keys:
+        p, g, pr = row_key
+        seen = sorted({repr(f.get(keys[0])) for f in flats})
+        named = [k.removeprefix("settings.") for k in keys]
+        raise UserError(f"{p}/{g} (preset {pr}): its runs differ in {', '.join(named)} ({named[0]}: "
+                        f"{', '.join(seen)}); a row holds runs of one setting: give --root a folder with one "
+                        "setting's runs")
+
+
 def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISODES, preset: str | None = None
           ) -> list[dict]:
     """Rows of Table 4 (see the module docstring); `episodes`: our training-episode counts, one per paper column
@@ -58,6 +83,7 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
         if pr is None and (p, g) in ours_pg:
             continue
         row = {"pipeline": p, "group": g, "preset": pr or ""}
+        _one_setting((p, g, pr), [r for k in episodes for r in cells.get((p, g, k, pr), [])])
         for k, ours_k in zip(EPISODES, episodes):
             row[f"paper_{k}"] = PAPER.get(p, {}).get(suite_group(p, g), {}).get(k)
             row[f"episodes_{k}"] = ours_k
