@@ -140,7 +140,7 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
     """Hand-made episodes: task a's training episodes have 30 and 41 rows, b's 25 and 28, c's 50 of which only the
     20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window; the
     windows' starts (offset, pad_start, a random offset per epoch) count as window_starts places them."""
-    from simeval.episodes.dataset import EpisodeInfo, WindowSpec
+    from simeval.episodes.dataset import EpisodeInfo, WindowSpec, epoch_offset
     from simeval.models.dynamics_diversity import check_every_task_has_windows
 
     rows = [("a", 30), ("a", 41), ("b", 25), ("b", 28), ("c", 20), ("c", 50)]
@@ -156,10 +156,16 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
     check_every_task_has_windows(infos, train, WindowSpec(length=40, pad_end=True))  # padded windows reach them
     # windows may begin 20 rows before row 0: [-20, 20) fits c's 20 rows
     check_every_task_has_windows(infos, train, WindowSpec(length=40, stride=10, pad_start=20))
-    # a fixed first start at row 1 leaves c's 20 rows no window of 20; with a random offset, offset 0 fits it
+    # a fixed first start at row 1 leaves c's 20 rows no window of 20
     with pytest.raises(UserError, match=r"1 of 3 tasks .* \(longest rows: c \(20\)\); use world_model.window.length=19 "):
         check_every_task_has_windows(infos, train, WindowSpec(length=20, stride=4, offset=1))
-    check_every_task_has_windows(infos, train, WindowSpec(length=20, stride=4, offset=1, random_offset=True))
+    # with a random offset, the offsets the epochs draw count: seed 0 draws 3 and 2 for 2 epochs, seed 1 draws 0
+    random = WindowSpec(length=20, stride=4, random_offset=True)
+    assert [epoch_offset(random, 0, e) for e in range(2)] == [3, 2] and epoch_offset(random, 1, 0) == 0
+    with pytest.raises(UserError, match=r"\(longest rows: c \(20\)\); use world_model.window.length=18 "):
+        check_every_task_has_windows(infos, train, random, seed=0, epochs=2)
+    check_every_task_has_windows(infos, train, WindowSpec(length=18, stride=4, random_offset=True), seed=0, epochs=2)
+    check_every_task_has_windows(infos, train, random, seed=1, epochs=1)
 
 
 def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):

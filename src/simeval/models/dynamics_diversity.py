@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.episodes.dataset import (WindowDataset, WindowSpec, episode_ranks, rank_mask, require_ranks,
-                                      window_starts)
+from simeval.episodes.dataset import (WindowDataset, WindowSpec, epoch_offset, episode_ranks, rank_mask,
+                                      require_ranks, window_starts)
 from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
@@ -42,13 +42,15 @@ def check_eval_context(context: int | None, window: WindowSpec) -> None:
         raise UserError(f"eval.context={context}: expected 1 <= context < window length ({window.length})")
 
 
-def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSpec) -> None:
-    """A UserError naming the tasks none of whose training episodes holds a window (for any of the epochs' offsets,
-    with the window's pad_start and pad_end): the model would never train on them, yet their episodes are evaluated
-    (padded), so their error would be that of a model that never saw the task. Our RoboGen-style episodes (22-77
-    rows) meet this with the `paper` preset's windows of 40; the authors' DreamerV3 fork instead ran a window on
-    into the next episode, which ours never do. The length suggested is the longest with which every task has one."""
-    offsets = range(window.stride) if window.random_offset else [window.offset]
+def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSpec, seed: int = 0,
+                                 epochs: int = 1) -> None:
+    """A UserError naming the tasks none of whose training episodes holds a window in any epoch (at the offsets
+    the epochs draw from `seed` with random_offset, else at the window's offset; with its pad_start and pad_end):
+    the model would never train on them, yet their episodes are evaluated (padded), so their error would be that of
+    a model that never saw the task. Our RoboGen-style episodes (22-77 rows) meet this with the `paper` preset's
+    windows of 40; the authors' DreamerV3 fork instead ran a window on into the next episode, which ours never do.
+    The length suggested is the longest with which every task has a window at those offsets."""
+    offsets = sorted({epoch_offset(window, seed, e) for e in range(max(1, epochs))})
     has_window = lambda n: any(len(window_starts(n, window, off)) for off in offsets)  # noqa: E731
     longest: dict[str, int] = {}
     trained: set[str] = set()
@@ -59,8 +61,7 @@ def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSp
                 trained.add(info.task)
     short = {t: n for t, n in sorted(longest.items()) if t not in trained}
     if short:
-        first_start = (0 if window.random_offset else window.offset) - window.pad_start  # a window [s, s + L) fits if
-        fits = max(1, min(short.values()) - first_start)                                # s + L <= rows
+        fits = max(1, min(short.values()) - (offsets[0] - window.pad_start))  # a window [s, s + L) needs s + L <= rows
         listed = ", ".join(f"{t} ({n})" for t, n in short.items())
         raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
                         f"training episode that holds a window, so the model would never see them (longest rows: "
@@ -79,7 +80,8 @@ def check_frames_not_upsampled(source, image_size: int) -> None:
         raise UserError(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model.image_size="
                         f"{image_size}: they would be upsampled; record the episodes at that size in a store of their "
                         f"own (src/collect.py ... 'record.image_size=[{image_size},{image_size}]' store=DIR, then "
-                        f"store=DIR here), or set world_model.model.image_size to {min(h, w)} or less")
+                        f"store=DIR here), or set world_model.model.image_size to at most {min(h, w)} (minres "
+                        f"times a power of two)")
 
 
 def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
@@ -112,7 +114,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                                                            f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
     check_eval_context(eval_context, window)  # before training, not after it
     train_mask = rank_mask(ranks, 0, k)
-    check_every_task_has_windows(infos, train_mask, window)
+    check_every_task_has_windows(infos, train_mask, window, train_cfg.seed, train_cfg.epochs)
     check_frames_not_upsampled(source, model_cfg.image_size)
     train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
     stats = train_ds.fit_stats()
