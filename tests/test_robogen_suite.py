@@ -113,6 +113,7 @@ def test_ee_delta_env_passes_gymnasiums_checker_and_clips_its_steps():
     from gymnasium.utils.env_checker import check_env
 
     env = make_env("open-laptop", image_size=(16, 16), cameras=("front",))  # the task's native action space
+    env.action_space.seed(0)  # the checker's random actions: the same every run
     assert env.mode == "ee_delta" and env.action_info["kind"] == EE_DELTA_KIND and env.action_space.shape == (7,)
     with warnings.catch_warnings():
         warnings.simplefilter("error")

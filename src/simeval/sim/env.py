@@ -68,14 +68,15 @@ from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, EE_POSE_H
                                        ee_delta_action_space, ee_pose_action_space, joint_action_space,
                                        pick_place_action_space)
 from simeval.sim.articulated import set_joint_fraction
-from simeval.sim.robot import JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
+from simeval.sim.robot import JOINT_LIMIT_MARGIN, JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
 from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
                              scene_seed, task_seed)
 from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
 
-# state bounds: the joint limits (with a margin for the solver's overshoot), |velocity| <= 100 rad/s, flags in [0, 1]
-STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
-STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
+# state bounds: the joint limits with a margin (JOINT_LIMIT_MARGIN, simeval.sim.robot), |velocity| <= 100 rad/s
+# (PyBullet's default maximum joint velocity), flags in [0, 1]
+STATE_LOW = np.array([x - JOINT_LIMIT_MARGIN for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
+STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
 ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_delta": EE_DELTA_KIND,
                  "ee_pose": EE_POSE_KIND}
 ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place", "ee_delta"), "panda": ("ee_pose",)}

@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from simeval.sim.robot import JOINT_LIMIT_MARGIN
 from simeval.sim.world import TABLE_Z, World
 
 PANDA_URDF = "franka_panda/panda.urdf"
@@ -52,8 +53,10 @@ RAMP = 0.75  # share of a control step over which the joint targets move to the 
 DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: grasp axis pointing down, yaw 0 (fingers closing along world y)
 STATE_NAMES = (*(f"q{i}" for i in range(1, 8)), *(f"dq{i}" for i in range(1, 8)), "gripper_opening",
                "gripper_closed")
-STATE_LOW = np.array([x - 0.1 for x in JOINT_LOWER] + [-100.0] * 7 + [0.0, 0.0], np.float32)
-STATE_HIGH = np.array([x + 0.1 for x in JOINT_UPPER] + [100.0] * 7 + [0.1, 1.0], np.float32)
+# as simeval.sim.env's bounds (the joint-limit margin, velocities); the finger opening (the two finger joints' sum) dips
+# a little below 0 when the fingers close on nothing (-0.0007 m seen)
+STATE_LOW = np.array([x - JOINT_LIMIT_MARGIN for x in JOINT_LOWER] + [-100.0] * 7 + [-0.005, 0.0], np.float32)
+STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 7 + [0.1, 1.0], np.float32)
 
 
 def render_urdf(mesh: str = "collision") -> str:

@@ -37,6 +37,11 @@ SAFE_Z = 0.16  # tool-tip height for moves across the workspace
 # joint limits of pybullet_data's xarm6_robot_white.urdf (rad), the bounds of the joint action space
 JOINT_LOWER = (-6.28318530718, -2.059, -3.927, -6.28318530718, -1.69297, -6.28318530718)
 JOINT_UPPER = (6.28318530718, 2.0944, 0.19198, 6.28318530718, 3.14159265359, 6.28318530718)
+# How far past its limits a joint is observed (the observation spaces' bounds, simeval.sim.env and .panda): PyBullet's
+# joint limits are soft, and seeded random actions drive joints past them by up to 0.19 rad (xArm6, joint targets)
+# and 0.12 rad (Panda, ee_pose targets; tests/test_env.py samples such steps). The 0.1 used before let gymnasium's
+# checker fail now and then on an observation outside the space.
+JOINT_LIMIT_MARGIN = 0.3
 JOINT_ACTION_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "suction")
 STATE_NAMES = (*(f"q{i}" for i in range(1, 7)), *(f"dq{i}" for i in range(1, 7)), "suction", "holding")
 
