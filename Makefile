@@ -98,13 +98,14 @@ report-table5: setup ## rebuild Table 5 + figure from result.json files only (PO
 WM_PRESET ?= cpu
 comma := ,
 # the paper preset's 128x128 episodes go to a store of their own, beside the default 64x64 one
-WM_RECORD := $(if $(filter paper,$(WM_PRESET)),'record.image_size=[128$(comma)128]' store=outputs/episodes_128,store=outputs/episodes)
+WM_STORE := $(if $(filter paper,$(WM_PRESET)),outputs/episodes_128,outputs/episodes)
+WM_RECORD := $(if $(filter paper,$(WM_PRESET)),'record.image_size=[128$(comma)128]')
 .PHONY: table4 report-table4 world-model-control
 table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error at 10/20/40 per CELLS group, table + plot
 	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; w=; \
 	  [ "$(WM_PRESET)" = paper ] && [ $$p != gensim ] && w=world_model.window.length=20; \
-	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=40 $(WM_RECORD) && \
-	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w $(lastword $(WM_RECORD)) -m episodes=10,20,40 || exit 1; done
+	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=40 $(WM_RECORD) store=$(WM_STORE) && \
+	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w store=$(WM_STORE) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)

@@ -2,11 +2,12 @@
 
     python experiments/benchmarks/world_model_bench.py [--presets tiny cpu paper] [--threads 2] [--device auto]
                                                        [--compile]
-Writes outputs/bench/world_model.json (with --compile: world_model_compile.json, each preset eager and compiled). Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s
-per training step at 128x128 (the `paper` settings) and 0.24 s at the `cpu` settings (numbers given in issue 10;
-not re-measured here; the speed-up is only comparable with device cpu). The machine's load average is recorded: on
-a shared machine, steps slow down with it. `--device` (auto, cpu, cuda, cuda:N) is where the training steps run,
-recorded in the JSON; window reading is CPU work either way.
+Writes outputs/bench/world_model.json (with --compile: world_model_compile.json, each preset eager and compiled).
+Reference: the authors' PyTorch DreamerV3 fork on a 2-core machine, 5.65 s per training step at 128x128 (the
+`paper` settings) and 0.24 s at the `cpu` settings (numbers given in issue 10; not re-measured here; the speed-up
+is only comparable with device cpu). The machine's load average is recorded: on a shared machine, steps slow down
+with it. `--device` (auto, cpu, cuda, cuda:N) is where the training steps run, recorded in the JSON; window reading
+is CPU work either way.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import ROOT, device_info, machine, save  # noqa: E402
+from common import ROOT, device_info, machine, save, world_model_batch  # noqa: E402
 
 REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
 STEPS = {"tiny": 20, "cpu": 10, "paper": 4}
@@ -31,7 +32,6 @@ def bench_preset(name: str, steps: int, device, compile_steps: bool = False) -> 
     import torch
     import yaml
 
-    from simeval.models.device import to_device
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
     wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{name}.yaml").read_text())
@@ -42,13 +42,8 @@ def bench_preset(name: str, steps: int, device, compile_steps: bool = False) -> 
     if compile_steps:
         model.compile_steps()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    g = torch.Generator().manual_seed(0)
-    is_first = torch.zeros(b, t, dtype=torch.bool)
-    is_first[:, 0] = True
-    batch = {"image": torch.randint(0, 256, (b, t, cfg.image_size, cfg.image_size, 3), generator=g, dtype=torch.uint8),
-             "state": torch.randn(b, t, 7, generator=g), "prev_action": torch.randn(b, t, 7, generator=g),
-             "is_first": is_first, "mask": torch.ones(b, t, dtype=torch.bool)}
-    batch = to_device(batch, device)  # on the device once: the step is timed, not the copy
+    g = torch.Generator().manual_seed(0)  # the latent samples
+    batch = world_model_batch(cfg.image_size, b, t, device)
     # CUDA calls return before the GPU is done: wait for it, or the clock stops early
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 

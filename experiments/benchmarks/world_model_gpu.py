@@ -26,7 +26,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import ROOT, device_info, machine, save  # noqa: E402
+from common import ROOT, device_info, machine, save, world_model_batch  # noqa: E402
 
 
 def load_baseline(path: str):
@@ -35,18 +35,6 @@ def load_baseline(path: str):
     sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
-
-
-def make_batch(image_size: int, b: int, t: int, device):
-    import torch
-
-    g = torch.Generator().manual_seed(0)
-    is_first = torch.zeros(b, t, dtype=torch.bool)
-    is_first[:, 0] = True
-    batch = {"image": torch.randint(0, 256, (b, t, image_size, image_size, 3), generator=g, dtype=torch.uint8),
-             "state": torch.randn(b, t, 7, generator=g), "prev_action": torch.randn(b, t, 7, generator=g),
-             "is_first": is_first, "mask": torch.ones(b, t, dtype=torch.bool)}
-    return {k: v.to(device) for k, v in batch.items()}
 
 
 def time_variant(model_cls, cfg, batch, steps: int, device, variant: str) -> dict:
@@ -147,7 +135,7 @@ def main() -> None:
             key = f"{name}/window{length}"
             b = wm["train"]["batch_size"]
             cfg = WorldModelConfig.from_dict(wm["model"])
-            batch = make_batch(cfg.image_size, b, length, device)
+            batch = world_model_batch(cfg.image_size, b, length, device)
             row = {"batch": b, "window": length, "image_size": cfg.image_size}
             for v in variants:
                 cls = baseline.WorldModel if v == "baseline" else WorldModel

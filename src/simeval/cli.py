@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 from simeval.secrets import key_shaped_overrides
 
 MULTIRUN_FLAGS = ("-m", "--multirun")
@@ -66,8 +66,6 @@ def require_whole_keys(cfg: Any, lows: dict[str, int], optional: tuple[str, ...]
     """require_whole(key, value, low) for each dotted key of a config, where an entrypoint checks its numbers before
     any data is read or a model trained; a key in `optional` may also be null."""
     from omegaconf import OmegaConf
-
-    from simeval.errors import require_whole
 
     for key, low in lows.items():
         value = OmegaConf.select(cfg, key)

@@ -130,35 +130,31 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     if checkpoint_dir is not None:
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
         checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
-    with WorldModel.compile_failures_named(compile):
-        summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                        progress=progress, device=device, compile=compile)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
         ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
         if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
             raise UserError("evaluation episodes have another action space than the training ones")
-        with WorldModel.compile_failures_named(compile):  # its new shapes are compiled too
-            out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context,
-                           progress=progress)
+        out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
         out["episodes"] = [lo + 1, hi]
         return out, ds
 
-    main_eval, eval_ds = run_eval(*eval_episodes)
-    values = {"eval": main_eval, "heldout": None, "videos": {}}
-    if videos > 0 and video_dir is not None:
-        with WorldModel.compile_failures_named(compile):
-            clips = prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
-        values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
-                            for task, frames in clips.items()}
     counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
-    if heldout_episodes is not None:
-        if min(counts.values()) >= heldout_episodes[1]:
+    with WorldModel.compile_failures_named(compile):  # training, and the evaluations' new shapes compiled too
+        summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
+                        progress=progress, device=device, compile=compile)
+        main_eval, eval_ds = run_eval(*eval_episodes)
+        values = {"eval": main_eval, "heldout": None, "videos": {}}
+        clips = (prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
+                 if videos > 0 and video_dir is not None else {})
+        if heldout_episodes is not None and min(counts.values()) >= heldout_episodes[1]:
             values["heldout"] = run_eval(*heldout_episodes)[0]
-        else:
+        elif heldout_episodes is not None:
             log.info("no held-out evaluation: needs %d episodes per task, the fewest is %d", heldout_episodes[1],
                      min(counts.values()))
+    values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
+                        for task, frames in clips.items()}
     values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
                        "frames": summary["frames"], "episodes": int(train_mask.sum()),
                        "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"],
