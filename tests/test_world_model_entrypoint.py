@@ -157,12 +157,14 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
     # windows may begin 20 rows before row 0: [-20, 20) fits c's 20 rows
     check_every_task_has_windows(infos, train, WindowSpec(length=40, stride=10, pad_start=20))
     # a fixed first start at row 1 leaves c's 20 rows no window of 20
-    with pytest.raises(UserError, match=r"1 of 3 tasks .* \(longest rows: c \(20\)\); use world_model.window.length=19 "):
+    with pytest.raises(UserError, match=r"1 of 3 tasks .* \(longest rows: c \(20\); the windows start 1 row in at the "
+                                        r"earliest\); use world_model.window.length=19 "):
         check_every_task_has_windows(infos, train, WindowSpec(length=20, stride=4, offset=1))
     # with a random offset, the offsets the epochs draw count: seed 0 draws 3 and 2 for 2 epochs, seed 1 draws 0
     random = WindowSpec(length=20, stride=4, random_offset=True)
     assert [epoch_offset(random, 0, e) for e in range(2)] == [3, 2] and epoch_offset(random, 1, 0) == 0
-    with pytest.raises(UserError, match=r"\(longest rows: c \(20\)\); use world_model.window.length=18 "):
+    with pytest.raises(UserError, match=r"\(longest rows: c \(20\); the windows start 2 rows in at the earliest\); "
+                                        r"use world_model.window.length=18 "):
         check_every_task_has_windows(infos, train, random, seed=0, epochs=2)
     check_every_task_has_windows(infos, train, WindowSpec(length=18, stride=4, random_offset=True), seed=0, epochs=2)
     check_every_task_has_windows(infos, train, random, seed=1, epochs=1)

@@ -61,11 +61,13 @@ def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSp
                 trained.add(info.task)
     short = {t: n for t, n in sorted(longest.items()) if t not in trained}
     if short:
-        fits = max(1, min(short.values()) - (offsets[0] - window.pad_start))  # a window [s, s + L) needs s + L <= rows
+        fits = max(1, min(short.values()) - (offsets[0] - window.pad_start))  # [s, s + L) needs s + L <= rows
         listed = ", ".join(f"{t} ({n})" for t, n in short.items())
+        start = offsets[0] - window.pad_start
+        where = f"; the windows start {start} row{'s' * (start != 1)} in at the earliest" if start > 0 else ""
         raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
                         f"training episode that holds a window, so the model would never see them (longest rows: "
-                        f"{listed}); use world_model.window.length={fits} or world_model.window.pad_end=true")
+                        f"{listed}{where}); use world_model.window.length={fits} or world_model.window.pad_end=true")
 
 
 def check_frames_not_upsampled(source, image_size: int) -> None:
