@@ -180,9 +180,15 @@ class ArraySource:
         """(H, W) of episode e's frames."""
         return tuple(self.arrays[e]["image"].shape[1:3])
 
-    def read(self, e: int, lo: int, hi: int) -> dict[str, np.ndarray]:
+    def read(self, e: int, lo: int, hi: int, robot_mask: bool = False) -> dict[str, np.ndarray]:
         a = self.arrays[e]
-        return {"image": a["image"][lo:hi], "state": a["state"][lo:hi], "action": a["action"][lo:hi]}
+        out = {"image": a["image"][lo:hi], "state": a["state"][lo:hi], "action": a["action"][lo:hi]}
+        if robot_mask and self.has_robot_masks():
+            out["robot_mask"] = a["robot_mask"][lo:hi]
+        return out
+
+    def has_robot_masks(self) -> bool:
+        return bool(self.arrays) and all("robot_mask" in a for a in self.arrays)
 
     def read_full(self, e: int, key: str) -> np.ndarray:
         return self.arrays[e][key]
@@ -206,9 +212,11 @@ class StoreSource:
                                           extra={"variation_id": m.get("variation_id", "")}))
         self._files: dict[int, object] = {}
         self._frame_sizes: dict[int, tuple[int, int]] = {}
+        self._with_mask: list[bool] = []
         self._pid = os.getpid()
         for e in range(len(self.infos)):  # before any training: a damaged index would otherwise surface mid-run
             self._check_structure(e)
+        self._masks = bool(self._with_mask) and all(self._with_mask)
         self.close()
 
     def _check_structure(self, e: int) -> None:
@@ -222,6 +230,7 @@ class StoreSource:
                 if d.chunks is not None:
                     d.id.get_num_chunks()
             self._frame_sizes[e] = tuple(f[f"obs/rgb/{self.camera}"].shape[1:3])
+            self._with_mask.append(f"obs/robot_mask/{self.camera}" in f)
 
     def frame_size(self, e: int) -> tuple[int, int]:
         """(H, W) of episode e's frames of this source's camera (read from the file's header when it was opened)."""
@@ -237,11 +246,19 @@ class StoreSource:
             f = self._files[e] = h5py.File(self.infos[e].path, "r")
         return f
 
-    def read(self, e: int, lo: int, hi: int) -> dict[str, np.ndarray]:
+    def read(self, e: int, lo: int, hi: int, robot_mask: bool = False) -> dict[str, np.ndarray]:
         with self._damage_named(e):
             f = self._file(e)
-            return {"image": f[f"obs/rgb/{self.camera}"][lo:hi], "state": f["obs/state"][lo:hi],
-                    "action": f["action"][lo:hi]}
+            out = {"image": f[f"obs/rgb/{self.camera}"][lo:hi], "state": f["obs/state"][lo:hi],
+                   "action": f["action"][lo:hi]}
+            if robot_mask and self._masks:
+                out["robot_mask"] = f[f"obs/robot_mask/{self.camera}"][lo:hi].astype(bool)
+            return out
+
+    def has_robot_masks(self) -> bool:
+        """Whether every episode has robot masks of this source's camera (recorded at collection; the windows
+        carry them only then, so one model's evaluation never mixes masked and unmasked episodes)."""
+        return self._masks
 
     def read_full(self, e: int, key: str) -> np.ndarray:
         with self._damage_named(e):
@@ -298,8 +315,10 @@ class WindowDataset:
     DataLoader's batch_sampler can hand them straight to workers (the dataset itself holds no epoch state)."""
 
     def __init__(self, source, spec: WindowSpec, episodes: np.ndarray | None = None, stats: NormStats | None = None,
-                 image_size: int | None = None, seed: int = 0) -> None:
+                 image_size: int | None = None, seed: int = 0, robot_masks: bool = False) -> None:
         self.source, self.spec, self.stats, self.seed = source, spec, stats, seed
+        # windows carry `robot_mask` (L, H, W) only when asked and every episode has masks (evaluation, not training)
+        self.robot_masks = bool(robot_masks) and source.has_robot_masks()
         self.image_size = image_size
         self.episodes = np.ones(len(source.infos), bool) if episodes is None else np.asarray(episodes, bool)
         self.action_space = check_one_action_space([i for i, k in zip(source.infos, self.episodes) if k])
@@ -323,7 +342,7 @@ class WindowDataset:
         n, L = self.n_rows[e], self.spec.length
         lo, hi = max(s, 0), min(s + L, n)
         plo = max(lo - 1, 0)  # one more action row before: prev_action
-        raw = self.source.read(e, plo, hi)
+        raw = self.source.read(e, plo, hi, robot_mask=self.robot_masks)
         k = lo - plo  # 1 when the row before lo was read
         image = raw["image"][k:]
         if self.image_size is not None and image.shape[1] != self.image_size:
@@ -338,6 +357,7 @@ class WindowDataset:
             prev[0] = 0.0  # no action led to the reset observation
         act = action[k:]
         a, b = lo - s, lo - s + (hi - lo)  # where the real rows sit in the window
+        robot = raw.get("robot_mask")
         out = {
             "image": np.zeros((L, *image.shape[1:]), np.uint8),
             "state": np.zeros((L, state.shape[1]), np.float32),
@@ -351,6 +371,12 @@ class WindowDataset:
         out["image"][a:b], out["state"][a:b], out["action"][a:b], out["prev_action"][a:b] = image, state, act, prev
         out["mask"][a:b] = True
         out["is_first"][a:b] = out["row"][a:b] == 0
+        if robot is not None:
+            robot = robot[k:]
+            if self.image_size is not None and robot.shape[1] != self.image_size:
+                robot = resize_masks(robot, self.image_size)
+            out["robot_mask"] = np.zeros((L, *robot.shape[1:]), bool)
+            out["robot_mask"][a:b] = robot
         return out
 
 
@@ -362,6 +388,17 @@ def resize_frames(frames: np.ndarray, size: int) -> np.ndarray:
     x = torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float()
     y = F.interpolate(x, size=(size, size), mode="bilinear", antialias=True, align_corners=False)
     return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
+
+
+def resize_masks(masks: np.ndarray, size: int) -> np.ndarray:
+    """(n, H, W) bool -> (n, size, size) bool: a pixel of the smaller mask is set when any part of the area it
+    covers is set (area interpolation > 0), so shrinking never drops a robot pixel into the object-focused error."""
+    import torch
+    import torch.nn.functional as F
+
+    x = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
+    mode = "area" if size <= masks.shape[1] else "nearest"
+    return (F.interpolate(x, size=(size, size), mode=mode)[:, 0] > 0).numpy()
 
 
 def infos_to_json(infos: Sequence[EpisodeInfo]) -> str:

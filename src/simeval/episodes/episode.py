@@ -47,6 +47,7 @@ class Episode:
     depth: dict[str, np.ndarray] | None = None  # camera -> (T+1, H, W) float32 metres (optional)
     object_poses: np.ndarray | None = None  # (T+1, N, 7) (optional)
     language: list[str] | None = None  # (T+1,) per-step language goals (optional)
+    robot_mask: dict[str, np.ndarray] | None = None  # camera -> (T+1, H, W) bool: the robot's pixels (optional)
 
     @property
     def n_steps(self) -> int:
@@ -64,6 +65,7 @@ class Episode:
         if self.progress is not None:
             arrays["progress"] = self.progress
         arrays.update({f"depth/{k}": v for k, v in (self.depth or {}).items()})
+        arrays.update({f"robot_mask/{k}": v for k, v in (self.robot_mask or {}).items()})
         if self.object_poses is not None:
             arrays["object_poses"] = self.object_poses
         if self.language is not None:

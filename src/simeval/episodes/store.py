@@ -16,6 +16,8 @@ transitions for a world model are (row t, action t, row t + 1) for t < T, and a 
 Per step (T + 1 rows; datasets under the file root):
   obs/rgb/<camera>   uint8  (T+1, H, W, 3)   each recorded camera, chunked per frame, gzip
   obs/depth/<camera> float32 (T+1, H, W)     depth in metres, when the source has it (optional)
+  obs/robot_mask/<camera> bool (T+1, H, W)   the pixels showing the robot (arm, gripper, tool), from the same
+                                             render as the frame (simeval's suites; optional: imported data has none)
   obs/state          float32 (T+1, D)        proprioception, names in attrs state_names (D may be 0)
   obs/object_poses   float32 (T+1, N, 7)     object positions + xyzw quaternions, when the source has them
   obs/language       str (T+1,)              per-step language goal, when the source has one (optional)
@@ -90,6 +92,9 @@ def write_episode(path: str | os.PathLike, ep: Episode, compression: str | None 
             for cam, d in (ep.depth or {}).items():
                 f.create_dataset(f"obs/depth/{cam}", data=np.asarray(d, np.float32),
                                  chunks=(1, *np.shape(d)[1:]) if len(d) else None, compression=compression)
+            for cam, m in (ep.robot_mask or {}).items():
+                f.create_dataset(f"obs/robot_mask/{cam}", data=np.asarray(m, bool),
+                                 chunks=(1, *np.shape(m)[1:]) if len(m) else None, compression=compression)
             if ep.object_poses is not None:
                 f.create_dataset("obs/object_poses", data=np.asarray(ep.object_poses, np.float32))
             if ep.language is not None:
@@ -188,6 +193,7 @@ def read_episode(path: str | os.PathLike, cameras: list[str] | None = None) -> E
                 state_names=json.loads(a["state_names"]), variation=json.loads(a["variation"]),
                 depth={c: f[f"obs/depth/{c}"][()] for c in cams if f"obs/depth/{c}" in f} or None,
                 object_poses=f["obs/object_poses"][()] if "obs/object_poses" in f else None,
+                robot_mask={c: f[f"obs/robot_mask/{c}"][()] for c in cams if f"obs/robot_mask/{c}" in f} or None,
                 language=[x.decode() if isinstance(x, bytes) else str(x) for x in f["obs/language"][()]]
                 if "obs/language" in f else None)
     except (KeyError, OSError) as e:

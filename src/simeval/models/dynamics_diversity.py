@@ -11,14 +11,15 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from simeval.episodes.dataset import (WindowDataset, WindowSpec, epoch_offset, episode_ranks, rank_mask,
+from simeval.episodes.dataset import (WindowDataset, WindowSpec, build_index, epoch_offset, episode_ranks, rank_mask,
                                       require_ranks, window_starts)
 from simeval.errors import UserError
 from simeval.media import write_video
@@ -93,7 +94,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
                      videos: int = 0, video_dir: str | Path | None = None,
                      device: str | torch.device | None = "auto", compile: bool = False,
-                     how_to_get_more: Callable[[int], str] | None = None) -> dict:
+                     how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
+                     steps: int | None = None, horizon: int | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -104,34 +106,31 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
     `train.segments` how each part of the training ran (simeval.models.training.train). `compile`: compile the
     model's steps (WorldModel.compile_steps; for a GPU), likewise not part of the key. `how_to_get_more(n)`:
-    what a UserError about too few episodes per task tells the user to run (how_to_get_episodes)."""
+    what a UserError about too few episodes per task tells the user to run (how_to_get_episodes).
+
+    `protocol`: "paper" (the paper's Table 4 quantity: the posterior reconstruction averaged over `eval_episodes`,
+    which include the training episodes; the budget is `train_cfg`'s epochs, so it grows with the episodes) or
+    "heldout" (what simeval's own readings rest on, see PROTOCOLS): `eval_episodes` must lie past every training
+    episode (the default (40, 50): episodes 41-50), every episode count trains for the same `steps` gradient steps,
+    and `values["prediction"]` holds one-step and `horizon`-step open-loop prediction errors after `eval_context`
+    observed frames, with the last-frame and per-task-mean-image baselines, skill scores, object-focused errors
+    (robot pixels excluded where the episodes carry robot masks) and per-episode sums for intervals
+    (simeval.models.prediction). `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
-    infos = source.infos
-    tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
-    ranks = episode_ranks(tasks, seeds)
-    k = int(episodes_per_task)
-    if k < 1:
-        raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
-    require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
-                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
-    check_eval_context(eval_context, window)  # before training, not after it
-    train_mask = rank_mask(ranks, 0, k)
-    check_every_task_has_windows(infos, train_mask, window, train_cfg.seed, train_cfg.epochs)
-    check_frames_not_upsampled(source, model_cfg.image_size)
-    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
-    stats = train_ds.fit_stats()
-    train_ds.stats = stats
-    state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
-    torch.manual_seed(train_cfg.seed)
-    model = WorldModel(model_cfg, state_dim, action_dim)
-    meta = {"version": VERSION, "model": model_cfg.to_dict(), "train": asdict(train_cfg), "window": asdict(window),
-            "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
-            "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
-            "action_space": train_ds.action_space}
-    checkpoint = None
-    if checkpoint_dir is not None:
-        key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
-        checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
+    if protocol not in PROTOCOLS:
+        raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+    if protocol == "heldout":
+        return _fit_and_evaluate_heldout(
+            source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
+            eval_episodes=eval_episodes, steps=steps, horizon=horizon, eval_seed=eval_seed, eval_context=eval_context,
+            eval_batch_size=eval_batch_size, checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
+            progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
+            how_to_get_more=how_to_get_more)
+    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
+                     checkpoint_dir, how_to_get_more)
+    infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
+    train_mask, train_ds, stats, model, meta, checkpoint = (setup.train_mask, setup.train_ds, setup.stats,
+                                                            setup.model, setup.meta, setup.checkpoint)
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
@@ -157,15 +156,148 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      min(counts.values()))
     values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                         for task, frames in clips.items()}
-    values["train"] = {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
-                       "frames": summary["frames"], "episodes": int(train_mask.sum()),
-                       "windows_per_epoch": int(len(train_ds.windows(0))), "last": summary["last"],
-                       "device": str(device), "compile": bool(compile), "segments": summary["segments"]}
-    values["model"] = {"parameters": model.n_parameters(), "state_dim": state_dim, "action_dim": action_dim,
-                       "action_space": train_ds.action_space.get("kind")}
+    values["train"] = setup.train_summary(summary, device, compile)
+    values["model"] = setup.model_summary()
     values["tasks"] = sorted(counts)
     values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
     return values
+
+
+PROTOCOLS = {
+    "paper": "the paper's Table 4: posterior reconstruction on episodes 1-40 (the training episodes among them), "
+             "10 epochs (the budget grows with the episodes)",
+    "heldout": "simeval's readings: prediction of held-out episodes (41-50) from actions, the same gradient steps "
+               "for every episode count, beside last-frame and mean-image baselines",
+}
+
+
+def budget_epochs(train_ds: WindowDataset, window: WindowSpec, batch_size: int, steps: int) -> int:
+    """Epochs enough for `steps` gradient steps however the epochs' random offsets cut the windows: steps divided
+    by the fewest batches any offset gives, rounded up (training stops at `steps` through max_steps)."""
+    fewest = min(len(build_index(train_ds.n_rows, window, train_ds.episodes, off)) for off in range(window.stride))
+    if fewest == 0:
+        return 1  # no window at some offset: the window check names the tasks
+    return int(math.ceil(steps / math.ceil(fewest / batch_size)))
+
+
+def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
+                              train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
+                              steps: int | None, horizon: int | None, eval_seed: int, eval_context: int | None,
+                              eval_batch_size: int, checkpoint_dir, log_metrics, progress: bool, videos: int,
+                              video_dir, device, compile: bool, how_to_get_more) -> dict:
+    """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
+    from simeval.models.prediction import evaluate_prediction, task_mean_images
+
+    k = int(episodes_per_task)
+    lo, hi = eval_episodes
+    if lo < k:
+        raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
+                        f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, e.g. "
+                        f"eval_episodes=[{k + 1},{k + 10}]")
+    if steps is None or isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
+                        "whole number of gradient steps >= 1")
+    context = 5 if eval_context is None else int(eval_context)
+    if horizon is None or isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+        raise UserError(f"protocol.horizon={horizon!r}: expected a whole number >= 1 (frames imagined after "
+                        f"eval.context={context} observed ones)")
+    if context < 1:
+        raise UserError(f"eval.context={context}: expected a whole number >= 1")
+    # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
+    probe = WindowDataset(source, window, rank_mask(episode_ranks([i.task for i in source.infos],
+                                                                  [i.seed for i in source.infos]), 0, k),
+                          seed=train_cfg.seed)
+    train_cfg = replace(train_cfg, epochs=budget_epochs(probe, window, train_cfg.batch_size, steps), max_steps=steps)
+    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, how_to_get_more,
+                     protocol="heldout")
+    eval_spec = WindowSpec(length=context + horizon, stride=context + horizon, pad_end=True)
+    eval_ds = WindowDataset(source, eval_spec, rank_mask(setup.ranks, lo, hi), stats=setup.stats,
+                            image_size=model_cfg.image_size, robot_masks=True)
+    if eval_ds.action_space.get("kind") != setup.train_ds.action_space.get("kind"):
+        raise UserError("evaluation episodes have another action space than the training ones")
+    if np.any(setup.train_mask & eval_ds.episodes):  # the ranks above make this impossible; a guard on the plumbing
+        raise RuntimeError("an evaluated episode is among the training episodes")
+    means = task_mean_images(source, setup.train_mask, model_cfg.image_size)
+    with WorldModel.compile_failures_named(compile):
+        summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
+                        log_metrics=log_metrics, progress=progress, device=device, compile=compile)
+        prediction = evaluate_prediction(setup.model, eval_ds, means, context, seed=eval_seed,
+                                         batch_size=eval_batch_size, progress=progress)
+        clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
+                 if videos > 0 and video_dir is not None else {})
+    prediction["episodes"] = [lo + 1, hi]
+    values = {"protocol": {"name": "heldout", "steps": steps, "trained_on": [1, k], "evaluated_on": [lo + 1, hi],
+                           "context": context, "horizon": horizon},
+              "prediction": prediction,
+              "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
+                         for task, frames in clips.items()},
+              "train": setup.train_summary(summary, device, compile), "model": setup.model_summary(),
+              "tasks": sorted(set(setup.tasks)),
+              "checkpoint": str(setup.checkpoint) if setup.checkpoint is not None else None}
+    return values
+
+
+@dataclass
+class _Setup:
+    """What both protocols build before training: the ranks, the training windows and statistics, the model and
+    its checkpoint (keyed by config + training data)."""
+
+    k: int
+    tasks: list[str]
+    ranks: np.ndarray
+    train_mask: np.ndarray
+    train_ds: WindowDataset
+    stats: object
+    model: WorldModel
+    meta: dict
+    checkpoint: Path | None
+
+    def model_summary(self) -> dict:
+        return {"parameters": self.model.n_parameters(), "state_dim": self.model.state_dim,
+                "action_dim": self.model.action_dim, "action_space": self.train_ds.action_space.get("kind")}
+
+    def train_summary(self, summary: dict, device, compile: bool) -> dict:
+        return {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
+                "frames": summary["frames"], "episodes": int(self.train_mask.sum()),
+                "windows_per_epoch": int(len(self.train_ds.windows(0))), "last": summary["last"],
+                "device": str(device), "compile": bool(compile), "segments": summary["segments"]}
+
+
+def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
+             eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
+             protocol: str = "paper") -> _Setup:
+    """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
+    checkpoint key is the config + training data, and `protocol` for any protocol but the paper's (so the paper's
+    checkpoints keep their names)."""
+    infos = source.infos
+    tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
+    ranks = episode_ranks(tasks, seeds)
+    k = int(episodes_per_task)
+    if k < 1:
+        raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
+    require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
+                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
+    check_eval_context(eval_context, window)  # before training, not after it
+    train_mask = rank_mask(ranks, 0, k)
+    check_every_task_has_windows(infos, train_mask, window, train_cfg.seed, train_cfg.epochs)
+    check_frames_not_upsampled(source, model_cfg.image_size)
+    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
+    stats = train_ds.fit_stats()
+    train_ds.stats = stats
+    state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
+    torch.manual_seed(train_cfg.seed)
+    model = WorldModel(model_cfg, state_dim, action_dim)
+    meta = {"version": VERSION, "model": model_cfg.to_dict(), "train": asdict(train_cfg), "window": asdict(window),
+            "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
+            "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
+            "action_space": train_ds.action_space}
+    if protocol != "paper":
+        meta["protocol"] = protocol
+    checkpoint = None
+    if checkpoint_dir is not None:
+        key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+        checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
+    return _Setup(k, tasks, ranks, train_mask, train_ds, stats, model, meta, checkpoint)
 
 
 def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, seed: int = 0,

@@ -14,6 +14,14 @@ action does is the task's dynamics:
 A "diverse" group of k tasks takes the first k dynamics in DYNAMICS order, a "shared" group k times `move`. A
 dynamics-diversity metric must give the diverse group the larger error at few episodes and the larger drop as
 episodes grow (experiments/world_model_control.py; tests/test_world_model_control.py).
+
+Dynamics only (`make_physics_group`): the visuals are identical across tasks and groups (one colour, one size, the
+same background: only the position of the square shows), and only the physics differs. State (4,): x, y, vx, vy.
+The action a (2,) is a push: per control step
+    v <- (1 - friction) v + gain R(turn) a        (mass: 1 / gain; push response: the push direction turned)
+    p <- p + v; at a wall of [0.15, 0.85]^2 the square is reflected and that velocity component becomes -e v
+                                                  (e: restitution)
+A "shared" group gives every task PHYSICS[0]; a "varied" group gives task i PHYSICS[i].
 """
 
 from __future__ import annotations
@@ -120,3 +128,59 @@ def write_group(store_root, kind: str, n_tasks: int, episodes: int, n_actions: i
                      action_space=dict(ACTION_SPACE), state_names=["x", "y", "side", "brightness"], source="synthetic")
         paths.append(store.write(ep))
     return paths
+
+
+# (gain, friction, restitution, turn in degrees): PHYSICS[0] is the shared group's; each other differs in 2-4 knobs
+PHYSICS = ((0.030, 0.20, 0.5, 0.0), (0.060, 0.05, 0.9, 0.0), (0.015, 0.45, 0.1, 0.0), (0.030, 0.20, 0.5, 90.0),
+           (0.045, 0.10, 0.8, -120.0), (0.025, 0.30, 0.2, 180.0))
+PHYSICS_COLOR = np.array([230, 60, 60], np.float32)
+PHYSICS_SIDE = 0.22
+
+
+def physics_step(params: tuple[float, float, float, float], s: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """One control step of the dynamics-only control (see the module docstring): (4,) state -> (4,) state."""
+    gain, friction, restitution, turn = params
+    c, d = np.cos(np.radians(turn)), np.sin(np.radians(turn))
+    v = (1 - friction) * s[2:] + gain * np.array([c * a[0] - d * a[1], d * a[0] + c * a[1]])
+    p = s[:2] + v
+    for i in range(2):
+        for wall in (0.15, 0.85):
+            if (p[i] - wall) * (1 if wall > 0.5 else -1) > 0:
+                p[i], v[i] = 2 * wall - p[i], -restitution * v[i]
+    return np.array([*p, *v], np.float32)
+
+
+def physics_episode(params, seed: int, n_actions: int, size: int) -> dict[str, np.ndarray]:
+    """One dynamics-only episode (same conventions as `episode`); the square's look never depends on `params`."""
+    rng = np.random.default_rng(seed)
+    s = np.array([*rng.uniform(0.3, 0.7, 2), 0.0, 0.0], np.float32)
+    a = rng.uniform(-1, 1, 2)
+    states, actions = [s], []
+    for _ in range(n_actions):
+        a = np.clip(0.7 * a + 0.5 * rng.normal(size=2), -1, 1)
+        actions.append(a.astype(np.float32))
+        s = physics_step(params, s, a)
+        states.append(s)
+    actions.append(actions[-1])
+    st = np.stack(states)
+    look = np.stack([st[:, 0], st[:, 1], np.full(len(st), PHYSICS_SIDE), np.ones(len(st))], 1).astype(np.float32)
+    return {"image": _render(look, PHYSICS_COLOR, size), "state": st, "action": np.stack(actions)}
+
+
+def make_physics_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int,
+                       seed: int = 0) -> ArraySource:
+    """A dynamics-only group: kind "shared" (every task PHYSICS[0]) or "varied" (task i PHYSICS[i]). Task i has the
+    same episode seeds (initial positions and pushes) in both kinds, so the groups differ in physics alone."""
+    if kind not in ("shared", "varied"):
+        raise ValueError(f"kind={kind!r}: expected shared or varied")
+    if not 1 <= n_tasks <= len(PHYSICS):
+        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(PHYSICS)}")
+    infos, arrays = [], []
+    for t in range(n_tasks):
+        params = PHYSICS[0] if kind == "shared" else PHYSICS[t]
+        for e in range(episodes):
+            ep_seed = int(np.random.default_rng([seed, t, e, 1]).integers(2**31))
+            arrays.append(physics_episode(params, ep_seed, n_actions, size))
+            infos.append(EpisodeInfo(task=f"physics-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
+                                     action_space=ACTION_SPACE))
+    return ArraySource(infos, arrays)

@@ -118,7 +118,7 @@ class SimEnv(_gym().Env):
                  image_size: Sequence[int] = (64, 64), cameras: Sequence[str] = ("top", "front"),
                  control_hz: float | None = None, max_steps: int | None = None, record_low_level: bool = False,
                  scene_view_size: Sequence[int] | None = None, render_mode: str | None = None,
-                 park_at_end: bool = True) -> None:
+                 park_at_end: bool = True, robot_masks: bool = False) -> None:
         from gymnasium import spaces
 
         self.spec_task = find_task(task)
@@ -145,6 +145,7 @@ class SimEnv(_gym().Env):
         self.scene_view_size = tuple(scene_view_size) if scene_view_size else None
         self.render_mode = render_mode
         self.park_at_end = bool(park_at_end)
+        self.robot_masks = bool(robot_masks)  # observations add "robot_mask" (for recorders; not in observation_space)
         # joint: a generous bound on an oracle episode (~150-300 control steps per primitive)
         # ee_pose: a primitive takes 20-40 control steps at 4 Hz
         per = {"joint": 400, "pick_place": 1, "ee_delta": EE_STEPS_PER_PRIMITIVE, "ee_pose": 60}[action_space]
@@ -246,8 +247,14 @@ class SimEnv(_gym().Env):
     # --- helpers ---------------------------------------------------------------------------------------------
     def observe(self) -> dict:
         """The observation of the current state (what reset and step return)."""
-        return {"rgb": {c: self.world.render(OBS_CAMERAS[c], self.image_size) for c in self.cameras},
-                "state": self.arm.state()}
+        if not self.robot_masks:
+            return {"rgb": {c: self.world.render(OBS_CAMERAS[c], self.image_size) for c in self.cameras},
+                    "state": self.arm.state()}
+        rgb, robot = {}, {}
+        for c in self.cameras:  # one render per camera gives the image and which body each pixel shows
+            rgb[c], bodies = self.world.render_with_bodies(OBS_CAMERAS[c], self.image_size)
+            robot[c] = np.isin(bodies, self.arm.body_ids)
+        return {"rgb": rgb, "state": self.arm.state(), "robot_mask": robot}
 
     def _info(self) -> dict:
         progress, success = task_progress(self.world, self.inst)

@@ -90,6 +90,12 @@ def down_quat(yaw: float) -> np.ndarray:
 
 
 class Panda:
+
+    @property
+    def body_ids(self) -> tuple[int, ...]:
+        """The bodies that are the robot in a segmentation image: the arm, its hand and fingers are one body."""
+        return (self.body,)
+
     def __init__(self, world: World, home_noise: float = 0.0, rng: np.random.Generator | None = None,
                  render_mesh: str | None = None) -> None:
         self.w, c = world, world.c

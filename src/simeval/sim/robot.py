@@ -97,6 +97,11 @@ class Arm:
         self.suction_cmd = False  # the suction command in force (applied by the next low-level step)
         self.on_step = None  # callable(action (7,) float32) after every low-level step (set by the environment)
 
+    @property
+    def body_ids(self) -> tuple[int, ...]:
+        """The bodies that are the robot in a segmentation image: the arm and its tool (suction cup or spatula)."""
+        return (self.body, self.tool)
+
     def _make_tool(self) -> int:
         c = self.w.c
         if self.kind == "suction":

@@ -31,6 +31,7 @@ class RecordSettings:
     scene_view_size: tuple[int, int] = (128, 128)
     control_hz: float = 30.0  # every control step is one stored transition; for a coarser rate lower this
     noise_std: float = 0.002  # ee_delta tasks: the controller's action noise (m per step per axis); oracle tasks ignore it
+    robot_masks: bool = True  # record each camera's robot pixels beside its frames (obs/robot_mask/<camera>)
 
     def __post_init__(self) -> None:
         # configs give lists; the settings travel to worker processes and into keys, so keep them immutable.
@@ -87,7 +88,8 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
     if spec.action_space == "ee_pose":
         return run_plan_episode(spec, seed, settings, pipeline, variation, final_frame_size)
     env = SimEnv(spec, "pick_place", variation, settings.image_size, settings.cameras,
-                 control_hz=settings.control_hz, record_low_level=True, scene_view_size=settings.scene_view_size)
+                 control_hz=settings.control_hz, record_low_level=True, scene_view_size=settings.scene_view_size,
+                 robot_masks=settings.robot_masks)
     try:
         obs, info = env.reset(seed=seed)
         views = info.pop("scene_views")
@@ -129,7 +131,7 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         control_hz=settings.control_hz, source="simeval-suite", final_view=final_view,
         action_space=joint_action_space(settings.control_hz),
         high_level_space=pick_place_action_space(settings.control_hz), state_names=list(STATE_NAMES),
-        variation=variation, object_poses=np.stack(poses).astype(np.float32),
+        variation=variation, object_poses=np.stack(poses).astype(np.float32), robot_mask=robot_masks(rows, settings.cameras),
         extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
                            for o in inst.objects}})
 
@@ -147,7 +149,8 @@ def run_controller_episode(spec: TaskSpec, seed: int, settings: RecordSettings, 
     from simeval.sim.controllers import ArticulationController
 
     env = SimEnv(spec, "ee_delta", variation, settings.image_size, settings.cameras,
-                 control_hz=settings.control_hz, scene_view_size=settings.scene_view_size)
+                 control_hz=settings.control_hz, scene_view_size=settings.scene_view_size,
+                 robot_masks=settings.robot_masks)
     try:
         obs, info = env.reset(seed=seed)
         views = info.pop("scene_views")
@@ -189,6 +192,13 @@ def run_controller_episode(spec: TaskSpec, seed: int, settings: RecordSettings, 
                "joint_fractions": {"initial": inst.joints, "final": joints_final}})
 
 
+def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
+    """camera -> (T + 1, H, W) bool from observations made with robot_masks (None when they carry none)."""
+    if not rows or "robot_mask" not in rows[0]:
+        return None
+    return {c: np.stack([o["robot_mask"][c] for o in rows]) for c in cameras}
+
+
 def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, rows: list, actions: list,
                        progress: list, poses: list, *, success: bool, views, final_view, control_hz: float,
                        action_space: dict, state_names, variation: dict, extra: dict) -> Episode:
@@ -204,7 +214,7 @@ def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, 
         is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
         scene_views=views, control_hz=control_hz, source="simeval-suite", final_view=final_view,
         action_space=action_space, state_names=list(state_names),
-        variation=variation, object_poses=np.stack(poses).astype(np.float32),
+        variation=variation, object_poses=np.stack(poses).astype(np.float32), robot_mask=robot_masks(rows, cameras),
         extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
                            for o in inst.objects}, **extra})
 
@@ -225,7 +235,7 @@ def run_plan_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeli
     from simeval.sim.primitives import PlanPolicy
 
     env = SimEnv(spec, "ee_pose", variation, settings.image_size, settings.cameras,
-                 scene_view_size=settings.scene_view_size)
+                 scene_view_size=settings.scene_view_size, robot_masks=settings.robot_masks)
     try:
         obs, info = env.reset(seed=seed)
         views = info.pop("scene_views")

@@ -142,6 +142,20 @@ class World:
                                                  lightDirection=LIGHT_DIRECTION)
         return np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[..., :3]
 
+    def render_with_bodies(self, cam: Camera, size: tuple[int, int],
+                           shadows: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """`render` and the body id seen at each pixel (H, W) int64 (-1: nothing) from the same call: the image is
+        the one `render` gives (the renderer draws it the same way with or without the segmentation buffer;
+        tests/test_sim.py compares them), and each id belongs to exactly the pixel drawn."""
+        h, w = size
+        shadows = self.shadows if shadows is None else shadows
+        view = self.c.computeViewMatrix(cam.eye, cam.target, cam.up)
+        proj = self.c.computeProjectionMatrixFOV(cam.fov, w / h, 0.01, 5.0)
+        _, _, rgba, _, seg = self.c.getCameraImage(w, h, view, proj, renderer=self.p.ER_TINY_RENDERER,
+                                                   shadow=int(shadows), lightDirection=LIGHT_DIRECTION)
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[..., :3]
+        return rgb, np.asarray(seg, dtype=np.int64).reshape(h, w)
+
     def segmentation(self, cam: Camera, size: tuple[int, int]) -> np.ndarray:
         """Body id seen at each pixel (H, W) (-1: nothing), e.g. to measure how much of a view the arm covers."""
         h, w = size

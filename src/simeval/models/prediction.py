@@ -1,0 +1,201 @@
+"""Held-out prediction error of a world model, beside trivial baselines on the same frames (the `heldout` protocol
+of dynamics diversity; simeval.models.dynamics_diversity).
+
+Shapes: a batch of B evaluation windows of L = context + horizon rows (simeval.episodes.dataset), images o (B, L, H,
+W, 3) in [0, 1], optional robot masks m (B, L, H, W) (True where the robot, its gripper or tool is seen). D is the
+image decoder, se(x, y) the squared error summed over the 3 channels (per pixel, (H, W)).
+
+    one step        for every window step t >= 1 whose rows t - 1 and t are real (t is never a reset inside a
+                    window: windows never cross episodes):
+                        model  se(D(prior_t), o_t)   the prior at t is the RSSM step from the posterior at t - 1 and
+                                                     the action a_{t-1} alone: o_t is predicted before it is seen
+                        last   se(o_{t-1}, o_t)      copy the last observed frame
+                        mean   se(mu_task, o_t)      the per-task mean of the training episodes' frames
+                    reference frame r = t - 1
+    open loop       observe rows 0..c-1 (c = context), imagine rows c..L-1 from the actions alone; for every real row
+                    c + j (j < horizon) while row c - 1 is real:
+                        model  se(D(imagined_{c+j}), o_{c+j});  last  se(o_{c-1}, o_{c+j});  mean  se(mu_task, o_{c+j})
+                    reference frame r = c - 1
+    reconstruction  se(D(posterior_t), o_t) for every real row: the paper's Table 4 quantity (o_t is observed, so it
+                    measures an autoencoder as much as dynamics); mean as its baseline (copying o_t would be exact)
+
+Full frame: the sum over all H x W pixels (units of the paper's "eval error": a sum over H x W x 3). Object-focused:
+the sum over the pixels where the robot is seen neither in the target frame nor in the reference frame (nor, for
+the reconstruction, in the target), divided by the number of such pixels times 3 (a mean per kept pixel and
+channel), so frames where the arm covers more of the view count no more. Without robot masks the object-focused
+numbers are the full frame's (per pixel) and `robot_mask` in the summary is False.
+
+Aggregates are ratios of sums over frames: error = sum se / frames; skill vs a baseline = 1 - error_model /
+error_baseline (> 0: better than the baseline; < 0: worse than a constant image or a copy). Per episode the sums are
+kept (`per_episode`), so intervals can resample held-out episodes and training seeds (simeval.metrics.resample).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from simeval.models.device import module_device, to_cpu, to_device
+
+KINDS = ("one_step", "open_loop", "reconstruction")
+PREDICTORS = {"one_step": ("model", "last", "mean"), "open_loop": ("model", "last", "mean"),
+              "reconstruction": ("model", "mean")}
+# per (kind, predictor): se over the full frame, se over kept (object) pixels; per kind: frames, kept pixels
+SUM_KEYS = tuple(f"{k}/{p}/{part}" for k in KINDS for p in PREDICTORS[k] for part in ("full", "object")) + tuple(
+    f"{k}/{n}" for k in KINDS for n in ("frames", "kept_pixels"))
+
+
+def _se(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    return (x - y).pow(2).sum(-1)  # (..., H, W)
+
+
+def _add(out: dict, kind: str, predictor: str, se: torch.Tensor, valid: torch.Tensor, keep: torch.Tensor) -> None:
+    """se (B, T, H, W), valid (B, T) bool, keep (B, T, H, W) float: per-window sums (B,) into out."""
+    v = valid.to(se.dtype)
+    out[f"{kind}/{predictor}/full"] = (se.sum((-2, -1)) * v).sum(1)
+    out[f"{kind}/{predictor}/object"] = ((se * keep).sum((-2, -1)) * v).sum(1)
+
+
+def _count(out: dict, kind: str, valid: torch.Tensor, keep: torch.Tensor) -> None:
+    v = valid.to(keep.dtype)
+    out[f"{kind}/frames"] = v.sum(1)
+    out[f"{kind}/kept_pixels"] = (keep.sum((-2, -1)) * v).sum(1)
+
+
+@torch.no_grad()
+def window_sums(model, batch: dict, context: int, task_means: torch.Tensor, generator=None) -> dict[str, torch.Tensor]:
+    """Per-window sums (B,) of every SUM_KEYS entry for one batch of evaluation windows (see the module docstring).
+    `batch`: the dataset's arrays as tensors on the model's device (image uint8, state, prev_action, is_first, mask,
+    optional robot_mask), plus `task` (B,) long indexing `task_means` (n_tasks, H, W, 3) in [0, 1]. The generator
+    draws the posterior samples of the whole window first, then those of the open-loop context and imagination."""
+    image = model._images(batch)  # (B, L, H, W, 3)
+    B, L = image.shape[:2]
+    mask = batch["mask"].bool()
+    robot = batch.get("robot_mask")
+    free = torch.ones(image.shape[:-1], dtype=image.dtype, device=image.device) if robot is None else \
+        (~robot.bool()).to(image.dtype)  # (B, L, H, W): 1 where no robot is seen
+    mean = task_means[batch["task"]][:, None]  # (B, 1, H, W, 3)
+
+    post, prior = model.rssm.observe(model.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
+                                     generator=generator)
+    out: dict[str, torch.Tensor] = {}
+    # reconstruction: every real row
+    _add(out, "reconstruction", "model", _se(model.image_decoder(model.rssm.features(post)), image), mask, free)
+    _add(out, "reconstruction", "mean", _se(mean, image), mask, free)
+    _count(out, "reconstruction", mask, free)
+    # one step: rows 1..L-1 whose previous row is real (and that are not a reset)
+    target, prev = image[:, 1:], image[:, :-1]
+    valid = mask[:, 1:] & mask[:, :-1] & ~batch["is_first"][:, 1:].bool()
+    keep = free[:, 1:] * free[:, :-1]
+    _add(out, "one_step", "model", _se(model.image_decoder(model.rssm.features(prior))[:, 1:], target), valid, keep)
+    _add(out, "one_step", "last", _se(prev, target), valid, keep)
+    _add(out, "one_step", "mean", _se(mean, target), valid, keep)
+    _count(out, "one_step", valid, keep)
+    # open loop: rows c..L-1 imagined after observing rows 0..c-1
+    _, imagined = model._open_loop(image, batch, context, generator)
+    target, ref = image[:, context:], image[:, context - 1 : context]
+    valid = mask[:, context:] & mask[:, context - 1 : context]
+    keep = free[:, context:] * free[:, context - 1 : context]
+    model_se = _se(model.image_decoder(model.rssm.features(imagined)), target)
+    _add(out, "open_loop", "model", model_se, valid, keep)
+    _add(out, "open_loop", "last", _se(ref, target), valid, keep)
+    _add(out, "open_loop", "mean", _se(mean, target), valid, keep)
+    _count(out, "open_loop", valid, keep)
+    out["open_loop/model/by_step"] = (model_se.sum((-2, -1)) * valid).sum(0)  # (horizon,): summed over windows
+    out["open_loop/last/by_step"] = (_se(ref, target).sum((-2, -1)) * valid).sum(0)
+    out["open_loop/frames_by_step"] = valid.to(image.dtype).sum(0)
+    return out
+
+
+def task_mean_images(source, episodes: np.ndarray, image_size: int) -> dict[str, np.ndarray]:
+    """{task: (H, W, 3) float32 in [0, 1]}: the mean of every frame of the task's episodes where `episodes` is True
+    (the training episodes), at the model's resolution (frames resized as the dataset resizes them)."""
+    from simeval.episodes.dataset import resize_frames
+
+    sums: dict[str, np.ndarray] = {}
+    counts: dict[str, int] = {}
+    for e in np.flatnonzero(episodes):
+        frames = source.read_full(int(e), "image")
+        if frames.shape[1] != image_size:
+            frames = resize_frames(frames, image_size)
+        task = source.infos[int(e)].task
+        sums[task] = sums.get(task, 0.0) + frames.astype(np.float64).sum(0)
+        counts[task] = counts.get(task, 0) + len(frames)
+    return {t: (sums[t] / counts[t] / 255.0).astype(np.float32) for t in sorted(sums)}
+
+
+def summarise(sums: dict[str, float], image_size: int) -> dict:
+    """Errors and skill scores from summed SUM_KEYS (see the module docstring); None where no frame counts."""
+    pixels = image_size * image_size
+    out: dict = {}
+    for kind in KINDS:
+        n, kept = sums[f"{kind}/frames"], sums[f"{kind}/kept_pixels"]
+        block: dict = {"frames": int(n)}
+        for p in PREDICTORS[kind]:
+            full = sums[f"{kind}/{p}/full"] / n if n else None
+            block[p] = {"error": full, "error_per_pixel": full / (pixels * 3) if n else None,
+                        "object_error_per_pixel": sums[f"{kind}/{p}/object"] / (kept * 3) if kept else None}
+        for base in PREDICTORS[kind][1:]:
+            m, b = block["model"], block[base]
+            block[f"skill_vs_{base}"] = (1 - m["error"] / b["error"]) if n and b["error"] else None
+            block[f"object_skill_vs_{base}"] = (1 - m["object_error_per_pixel"] / b["object_error_per_pixel"]
+                                                if kept and b["object_error_per_pixel"] else None)
+        out[kind] = block
+    return out
+
+
+@torch.no_grad()
+def evaluate_prediction(model, dataset, task_means: dict[str, np.ndarray], context: int, seed: int = 0,
+                        batch_size: int = 16, progress: bool = False) -> dict:
+    """Every window of `dataset` (its windows(0): the held-out episodes, windows of context + horizon rows):
+    {summary (summarise over everything), per_task, per_episode: [{task, seed, episode, sums}], by_step:
+    {model, last} open-loop error per imagined step, robot_mask: whether the episodes had robot masks,
+    context, horizon, seed}. Seeded: the same seed gives the same numbers."""
+    from tqdm.auto import tqdm
+
+    from simeval.models.training import _loader, to_torch
+
+    model.eval()
+    device = module_device(model)
+    infos = dataset.source.infos
+    tasks = sorted(task_means)
+    means = torch.as_tensor(np.stack([task_means[t] for t in tasks])).to(device)
+    index = {t: i for i, t in enumerate(tasks)}
+    windows = dataset.windows(0)
+    L = dataset.spec.length
+    gen = torch.Generator().manual_seed(int(seed))
+    per_episode: dict[int, dict[str, float]] = {}
+    by_step = {"model": np.zeros(L - context), "last": np.zeros(L - context), "frames": np.zeros(L - context)}
+    has_masks = None
+    batches = [[(int(e), int(s)) for e, s in windows[i : i + batch_size]] for i in range(0, len(windows), batch_size)]
+    for batch in tqdm(_loader(dataset, batches, 0), total=len(batches), desc="eval", disable=not progress,
+                      leave=False):
+        has_masks = "robot_mask" in batch if has_masks is None else has_masks
+        b = to_torch(batch)
+        episodes = b["episode"][:, 0].tolist()
+        b["task"] = torch.tensor([index[infos[e].task] for e in episodes])
+        s = to_cpu(window_sums(model, to_device(b, device, non_blocking=True), context, means, generator=gen))
+        for j, e in enumerate(episodes):
+            acc = per_episode.setdefault(e, dict.fromkeys(SUM_KEYS, 0.0))
+            for k in SUM_KEYS:
+                acc[k] += float(s[k][j])
+        by_step["model"] += s["open_loop/model/by_step"].numpy()
+        by_step["last"] += s["open_loop/last/by_step"].numpy()
+        by_step["frames"] += s["open_loop/frames_by_step"].numpy()
+    model.train()
+    size = int(model.cfg.image_size)
+    total = {k: sum(acc[k] for acc in per_episode.values()) for k in SUM_KEYS}
+    by_task: dict[str, dict[str, float]] = {}
+    for e, acc in per_episode.items():
+        t = by_task.setdefault(infos[e].task, dict.fromkeys(SUM_KEYS, 0.0))
+        for k in SUM_KEYS:
+            t[k] += acc[k]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        curve = {p: [float(x) if np.isfinite(x) else None for x in by_step[p] / by_step["frames"]]
+                 for p in ("model", "last")}
+    return {"summary": summarise(total, size), "per_task": {t: summarise(v, size) for t, v in sorted(by_task.items())},
+            "per_episode": [{"task": infos[e].task, "seed": int(infos[e].seed), "sums": {k: round(v, 4) for k, v in
+                                                                                       acc.items()}}
+                            for e, acc in sorted(per_episode.items())],
+            "by_step": curve, "robot_mask": bool(has_masks), "context": int(context), "horizon": L - context,
+            "windows": int(len(windows)), "seed": int(seed), "image_size": size}

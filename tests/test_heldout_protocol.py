@@ -1,0 +1,227 @@
+"""The `heldout` protocol of dynamics diversity (simeval.models.dynamics_diversity, simeval.models.prediction) at tiny
+sizes: no training read touches an evaluated episode, every episode count trains the same steps, the baselines are
+scored on the frames the model is scored on (recomputed here from the raw episode arrays, not through the dataset),
+the robot mask removes exactly the robot's pixels (the pixels that change when the robot is made invisible), and the
+intervals of simeval.metrics.resample have the bootstrap variance computed by hand."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+import simeval.models.dynamics_diversity as dd
+from simeval.episodes.dataset import ArraySource, EpisodeInfo, WindowSpec
+from simeval.errors import UserError
+from simeval.metrics import resample
+from simeval.models.synthetic import make_physics_group
+from simeval.models.training import TrainConfig
+from simeval.models.world_model import WorldModelConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = yaml.safe_load((ROOT / "conf" / "world_model" / "tiny.yaml").read_text())
+torch.set_num_threads(1)
+
+
+def run(source, k: int, eval_episodes=(8, 12), steps: int = 12, context: int = 3, horizon: int = 5, **kw) -> dict:
+    return dd.fit_and_evaluate(source, episodes_per_task=k, model_cfg=WorldModelConfig.from_dict(TINY["model"]),
+                               train_cfg=TrainConfig.from_dict({**TINY["train"], "seed": 0}),
+                               window=WindowSpec(**TINY["window"]), eval_episodes=eval_episodes, protocol="heldout",
+                               steps=steps, horizon=horizon, eval_context=context, progress=False, **kw)
+
+
+class RecordingSource(ArraySource):
+    """An ArraySource that notes which episodes each phase reads (`phase` is set by the test around training)."""
+
+    def __init__(self, src: ArraySource) -> None:
+        super().__init__(src.infos, src.arrays)
+        self.phase, self.reads = "setup", []
+
+    def read(self, e, lo, hi, robot_mask=False):
+        self.reads.append((self.phase, int(e)))
+        return super().read(e, lo, hi, robot_mask)
+
+    def read_full(self, e, key):
+        self.reads.append((self.phase, int(e)))
+        return super().read_full(e, key)
+
+
+def test_no_training_read_touches_an_evaluated_episode(monkeypatch):
+    source = RecordingSource(make_physics_group("varied", 3, 12, 20, 16))
+    real_train = dd.train
+
+    def train(*args, **kwargs):
+        source.phase = "train"
+        try:
+            return real_train(*args, **kwargs)
+        finally:
+            source.phase = "eval"
+
+    monkeypatch.setattr(dd, "train", train)
+    values = run(source, k=4)
+    seeds = np.array([i.seed for i in source.infos])  # rank = seed here: make_physics_group numbers them 0..11
+    trained = {e for phase, e in source.reads if phase in ("setup", "train")}
+    evaluated = {e for phase, e in source.reads if phase == "eval"}
+    assert trained and max(seeds[list(trained)]) < 4  # statistics, mean images and windows: episodes 1-4 only
+    assert {int(seeds[e]) for e in evaluated} == set(range(8, 12))  # episodes 9-12, every one of them
+    assert sorted({r["seed"] for r in values["prediction"]["per_episode"]}) == list(range(8, 12))
+    assert values["protocol"]["trained_on"] == [1, 4] and values["protocol"]["evaluated_on"] == [9, 12]
+
+
+def test_every_episode_count_trains_the_same_steps_and_overlap_is_refused():
+    source = make_physics_group("shared", 2, 12, 20, 16)
+    assert run(source, k=2)["train"]["steps"] == run(source, k=6)["train"]["steps"] == 12
+    with pytest.raises(UserError, match="would train on evaluated episodes"):
+        run(source, k=10)
+    with pytest.raises(UserError, match="protocol.steps"):
+        run(source, k=2, steps=None)
+
+
+def _by_hand(source: ArraySource, k: int, lo: int, hi: int, context: int, horizon: int, masked: bool) -> dict:
+    """Baseline sums from the raw arrays: windows of context + horizon rows from row 0 of each evaluated episode."""
+    L = context + horizon
+    means = {}
+    for t in sorted({i.task for i in source.infos}):
+        frames = [a["image"] for i, a in zip(source.infos, source.arrays) if i.task == t and i.seed < k]
+        means[t] = np.concatenate(frames).astype(np.float64).mean(0) / 255
+    out = {key: 0.0 for key in ("last1", "mean1", "n1", "lastk", "meank", "nk")}
+    for info, a in zip(source.infos, source.arrays):
+        if not lo <= info.seed < hi:
+            continue
+        o = a["image"].astype(np.float64) / 255
+        free = ~a["robot_mask"] if masked else np.ones(o.shape[:3], bool)
+        n = len(o)
+        for s in range(0, n, L):
+            for t in range(s + 1, min(s + L, n)):  # one step: o_t from o_{t-1}
+                keep = free[t] & free[t - 1]
+                out["last1"] += ((o[t] - o[t - 1]) ** 2).sum(-1)[keep].sum()
+                out["mean1"] += ((o[t] - means[info.task]) ** 2).sum(-1)[keep].sum()
+                out["n1"] += keep.sum() if masked else 1
+            if s + context - 1 < n:
+                ref = s + context - 1
+                for t in range(s + context, min(s + L, n)):  # open loop: o_t against the last observed frame
+                    keep = free[t] & free[ref]
+                    out["lastk"] += ((o[t] - o[ref]) ** 2).sum(-1)[keep].sum()
+                    out["meank"] += ((o[t] - means[info.task]) ** 2).sum(-1)[keep].sum()
+                    out["nk"] += keep.sum() if masked else 1
+    return out
+
+
+def test_baselines_are_scored_on_the_models_frames_computed_by_hand():
+    source = make_physics_group("varied", 2, 12, 22, 16)  # 23 rows: windows of 8 leave a short last one
+    p = run(source, k=4, context=3, horizon=5)["prediction"]["summary"]
+    ref = _by_hand(source, 4, 8, 12, 3, 5, masked=False)
+    one, ol = p["one_step"], p["open_loop"]
+    assert one["frames"] == ref["n1"] and ol["frames"] == ref["nk"]
+    np.testing.assert_allclose(one["last"]["error"], ref["last1"] / ref["n1"], rtol=1e-5)
+    np.testing.assert_allclose(one["mean"]["error"], ref["mean1"] / ref["n1"], rtol=1e-5)
+    np.testing.assert_allclose(ol["last"]["error"], ref["lastk"] / ref["nk"], rtol=1e-5)
+    np.testing.assert_allclose(ol["mean"]["error"], ref["meank"] / ref["nk"], rtol=1e-5)
+    np.testing.assert_allclose(one["skill_vs_last"], 1 - one["model"]["error"] / one["last"]["error"])
+    assert p["reconstruction"]["frames"] == 4 * 2 * 23  # every held-out row
+
+
+def _with_flickering_robot(source: ArraySource, seed: int = 0) -> ArraySource:
+    """The same episodes with a 'robot': a band of rows whose pixels are random noise every frame, masked."""
+    rng = np.random.default_rng(seed)
+    arrays = []
+    for a in source.arrays:
+        image, mask = a["image"].copy(), np.zeros(a["image"].shape[:3], bool)
+        mask[:, :4] = True
+        image[:, :4] = rng.integers(0, 256, image[:, :4].shape, dtype=np.uint8)
+        arrays.append({**a, "image": image, "robot_mask": mask})
+    return ArraySource(source.infos, arrays)
+
+
+def test_object_error_excludes_the_masked_pixels():
+    plain = make_physics_group("shared", 2, 12, 22, 16)
+    source = _with_flickering_robot(plain)
+    values = run(source, k=4)
+    pred = values["prediction"]
+    assert pred["robot_mask"] is True
+    ref = _by_hand(source, 4, 8, 12, 3, 5, masked=True)
+    one = pred["summary"]["one_step"]
+    np.testing.assert_allclose(one["last"]["object_error_per_pixel"], ref["last1"] / (3 * ref["n1"]), rtol=1e-5)
+    np.testing.assert_allclose(pred["summary"]["open_loop"]["mean"]["object_error_per_pixel"],
+                               ref["meank"] / (3 * ref["nk"]), rtol=1e-5)
+    # the noise band dominates the full-frame baseline error and is absent from the object-focused one
+    unmasked = _by_hand(plain, 4, 8, 12, 3, 5, masked=False)
+    assert one["last"]["error"] > 5 * unmasked["last1"] / unmasked["n1"]
+    assert one["last"]["object_error_per_pixel"] < 2 * unmasked["last1"] / unmasked["n1"] / (3 * 16 * 16) + 1e-9
+    without = run(plain, k=4)["prediction"]
+    assert without["robot_mask"] is False  # no masks: the object-focused numbers are the full frame's, and say so
+    s = without["summary"]["one_step"]["last"]
+    np.testing.assert_allclose(s["object_error_per_pixel"], s["error_per_pixel"], rtol=1e-9)
+
+
+@pytest.mark.parametrize("task", ["stack-two-blocks", "bbsea-press-button"])
+def test_robot_mask_is_exactly_the_pixels_the_robot_covers(task):
+    """The recorded mask against an independent measurement: render the same state with every visual shape of the
+    robot's bodies made transparent; the pixels that change are the robot's."""
+    from simeval.sim.env import SimEnv
+    from simeval.sim.world import OBS_CAMERAS
+
+    env = SimEnv(task, robot_masks=True)
+    try:
+        obs, _ = env.reset(seed=3)
+        c = env.world.c
+        for b in env.arm.body_ids:
+            for link in range(-1, c.getNumJoints(b)):
+                c.changeVisualShape(b, link, rgbaColor=[0, 0, 0, 0])
+        seen = 0
+        for cam in env.cameras:
+            changed = np.any(env.world.render(OBS_CAMERAS[cam], env.image_size) != obs["rgb"][cam], -1)
+            seen = max(seen, int(changed.sum()))
+            np.testing.assert_array_equal(obs["robot_mask"][cam], changed)
+        assert seen > 100  # the robot is in view
+    finally:
+        env.close()
+    plain = SimEnv(task)  # without masks the observation is what it was, the same frames
+    try:
+        o2, _ = plain.reset(seed=3)
+        assert set(o2) == {"rgb", "state"}
+        for cam in plain.cameras:
+            np.testing.assert_array_equal(o2["rgb"][cam], obs["rgb"][cam])
+    finally:
+        plain.close()
+
+
+def test_collected_episodes_store_robot_masks(tmp_path):
+    from simeval.episodes.store import read_episode
+    from simeval.sim.rollout import RecordSettings, run_episode
+    from simeval.sim.env import find_task
+
+    ep = run_episode(find_task("stack-two-blocks"), 0, RecordSettings(cameras=("front",), image_size=(32, 32)))
+    assert set(ep.robot_mask) == {"front"} and ep.robot_mask["front"].shape == (ep.n_steps, 32, 32)
+    assert ep.robot_mask["front"].any(axis=(1, 2)).mean() > 0.5  # the arm is seen in most frames
+    from simeval.episodes.store import write_episode
+
+    back = read_episode(write_episode(tmp_path / "e.h5", ep))
+    np.testing.assert_array_equal(back.robot_mask["front"], ep.robot_mask["front"])
+
+
+def test_bootstrap_variance_of_a_mean_matches_the_formula():
+    """With one seed and one frame per episode the statistic is the mean, whose bootstrap variance is
+    sum_h (n_h / n)^2 * popvar_h / n_h when episodes are resampled within strata h (here 2 tasks of 30 and 50)."""
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(0, 1, 30), rng.normal(5, 3, 50)])[None]
+    strata = np.array([0] * 30 + [1] * 50)
+    reps = resample.replicates(x, np.ones_like(x), resample.draws(1, strata, n_boot=6000, seed=1))
+    want = sum((len(g) / 80) ** 2 * g.var() / len(g) for g in (x[0, :30], x[0, 30:]))
+    assert abs(reps.var() / want - 1) < 0.08
+    np.testing.assert_allclose(reps.mean(), x.mean(), atol=3 * np.sqrt(want / 6000) + 1e-9)
+    np.testing.assert_allclose(resample.ratio(x, np.full_like(x, 2.0)), x.mean() / 2)
+
+
+def test_bootstrap_over_seeds_widens_with_the_spread_between_seeds():
+    """Three seeds whose errors differ by a constant offset: the seed level adds the variance of the seed means
+    ((R - 1) / R^2 * sum of squared deviations ... i.e. popvar / R), the episode level nothing (identical episodes)."""
+    offsets = np.array([0.0, 1.0, 5.0])
+    x = np.ones((3, 40)) + offsets[:, None]
+    reps = resample.replicates(x, np.ones_like(x), resample.draws(3, np.zeros(40), n_boot=6000, seed=2))
+    assert abs(reps.var() / (offsets.var() / 3) - 1) < 0.08
+    out = resample.ratio_interval(x, np.ones_like(x), np.zeros(40), n_boot=2000)
+    assert out["interval"][0] <= out["value"] <= out["interval"][1]
