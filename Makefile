@@ -105,7 +105,7 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; w=; \
 	  [ "$(WM_PRESET)" = paper ] && [ $$p != gensim ] && w=world_model.window.length=20; \
 	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=40 $(WM_RECORD) store=$(WM_STORE) && \
-	  $(PY) src/diversity.py pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w store=$(WM_STORE) -m episodes=10,20,40 || exit 1; done
+	  $(PY) src/diversity.py protocol=paper pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w store=$(WM_STORE) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)

@@ -6,6 +6,9 @@ Writes outputs/tables/table4.{csv,md,tex} and outputs/figures/table4.{png,pdf}. 
 error summed over pixels at our resolution (cpu preset: 64x64; the paper's: 128x128), so compare shapes (how the
 error falls with episodes) and per-pixel values, not raw magnitudes. Runs of one cell with several seeds are
 averaged. No dynamics_diversity result.json under --root: one line on stderr, exit status 2.
+`--protocol heldout` tabulates the protocol=heldout runs instead (simeval.report.table4_heldout: held-out prediction
+error with baselines, skill and intervals over seeds and episodes) into outputs/tables/table4_heldout.{csv,md} and
+outputs/figures/table4_heldout.png; it does not replace those files when git tracks them unless --overwrite.
 `--keep outputs/tables/table4.csv` (repeatable) extends an earlier table: its cells that the runs under --root lack
 are kept (how the committed table gathers groups run on different machines, whose result.json files are not all
 here); the runs under --root still have to exist, and a cell they have replaces the kept one.
@@ -34,7 +37,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--keep", action="append", default=[], metavar="CSV",
                     help="an earlier table's CSV whose cells the runs under --root lack are kept (runs made on another "
                          "machine); repeatable, the first file that has a cell gives it")
+    ap.add_argument("--protocol", choices=["paper", "heldout"], default="paper",
+                    help="which runs: the paper's (Table 4 as published) or simeval's held-out prediction protocol")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="--protocol heldout: replace the committed outputs/tables/table4_heldout.* (default: refuse)")
     a = ap.parse_args(argv)
+    if a.protocol == "heldout":
+        return heldout(a)
     from simeval.errors import UserError
     from simeval.report import table4
     from simeval.results import read_results
@@ -68,6 +77,37 @@ def main(argv: list[str] | None = None) -> None:
         print(f"note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
               f"(--episodes {a.episodes} chose its columns)")
     print("wrote", ", ".join(str(p) for p in [*written.values(), *figures]))
+
+
+def heldout(a) -> None:
+    import subprocess
+
+    from simeval.errors import UserError
+    from simeval.report import table4_heldout
+    from simeval.results import read_results
+
+    stem = Path(ROOT / "outputs" / "tables" / "table4_heldout") if a.out.endswith("table4") else Path(a.out)
+    figure = Path(a.figure).with_name("table4_heldout.png") if a.figure.endswith("table4.png") else Path(a.figure)
+    try:
+        records = [r for r in read_results(a.root, metric=table4_heldout.METRIC)
+                   if (r.get("identity") or {}).get("protocol") == "heldout"]
+        if not records:
+            raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {a.root}: run "
+                            "src/diversity.py (protocol=heldout is its default) first, or give --root their folder")
+        targets = [stem.with_suffix(".csv"), stem.with_suffix(".md"), figure]
+        tracked = [p for p in targets if p.exists() and subprocess.run(
+            ["git", "ls-files", "--error-unmatch", str(p)], cwd=ROOT, capture_output=True).returncode == 0]
+        if tracked and not a.overwrite:
+            raise UserError(f"{tracked[0]} is a committed result; write elsewhere with --out DIR/NAME --figure "
+                            "DIR/NAME.png, or replace it with --overwrite")
+        rows = table4_heldout.build(records)
+        written = table4_heldout.write(rows, stem)
+        table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
+    except UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print(written["md"].read_text())
+    print("wrote", ", ".join(str(p) for p in [*written.values(), figure]))
 
 
 if __name__ == "__main__":

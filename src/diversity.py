@@ -33,7 +33,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.device import resolve_device
     from simeval.models.dynamics_diversity import (VIDEO_FPS, check_eval_context, data_fingerprint, fit_and_evaluate,
-                                                   how_to_get_episodes, store_source)
+                                                   headline, how_to_get_episodes, store_source, summary_line)
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
@@ -53,7 +53,8 @@ def main(cfg: DictConfig) -> None:
     train_cfg = TrainConfig.from_dict({**wm["train"], "seed": int(cfg.seed)})
     window = WindowSpec(**wm["window"])
     check_eval_context(int(cfg.eval.context), window)
-    needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # held-out episodes are optional
+    protocol = cfg.protocol.name
+    needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # protocol=paper's held-out episodes are optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
     debug = f" debug={overlay}" if overlay != "none" else ""
     source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"), needed,
@@ -62,11 +63,14 @@ def main(cfg: DictConfig) -> None:
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
                     preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),
                     settings={"world_model": wm, "eval": config["eval"], "eval_episodes": config["eval_episodes"]})
+    if protocol != "paper":  # the paper protocol's identity is what it was, so earlier runs still match theirs
+        identity.update(protocol=protocol, steps=cfg.protocol.steps)
+        identity["settings"]["protocol"] = config["protocol"]
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
         values = fit_and_evaluate(
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=eval_ranks,
-            heldout_episodes=heldout_ranks, eval_seed=int(cfg.eval.seed),
+            eval_episodes=eval_ranks, protocol=protocol, steps=cfg.protocol.steps, horizon=cfg.protocol.horizon,
+            heldout_episodes=heldout_ranks if protocol == "paper" else None, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
             videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device, compile=cfg.compile,
@@ -74,16 +78,14 @@ def main(cfg: DictConfig) -> None:
                                                           cfg.pipeline.get("suite"), n, debug))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
-                f"{task}: ground truth | reconstruction | open loop after {values['eval']['context']} observed "
+                f"{task}: ground truth | reconstruction | open loop after {int(cfg.eval.context)} observed "
                 "frames (red separators: imagined)"))
         path = write_result(run["output_dir"], metric="dynamics_diversity", version=VERSION, values=values,
                             config=config, choices=run["choices"], seed=int(cfg.seed), identity=identity,
                             overrides=run["overrides"])
-        logger.log_metrics({"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}})
-    e = values["eval"]
-    log.info("%s/%s episodes=%d [%s, %s]: eval error %.2f (%.5f per pixel), state %.3f, KL %.2f, open-loop %.2f",
-             cfg.pipeline.name, cfg.task_group, cfg.episodes, wm["name"], device, e["image_error"],
-             e["image_error_per_pixel"], e["state_error"], e["kl_dyn"], e["open_loop_image_error"])
+        logger.log_metrics(headline(values))
+    log.info("%s/%s episodes=%d [%s, %s, protocol=%s]: %s", cfg.pipeline.name, cfg.task_group, cfg.episodes,
+             wm["name"], device, protocol, summary_line(values))
     log.info("wrote %s", path)
 
 

@@ -68,7 +68,7 @@ def world_model_runs(tmp_path_factory) -> Path:
     for kind in ("shared", "diverse"):
         write_group(root / "store", kind, n_tasks=2, episodes=4, n_actions=12, size=16, pipeline="gensim")
     _run_entrypoint("diversity", "debug=tiny", "pipeline=gensim", f"store={root / 'store'}",
-                    f"checkpoint_dir={root / 'ck'}", "progress=false", "threads=1", "eval_episodes=[1,4]",
+                    f"checkpoint_dir={root / 'ck'}", "progress=false", "threads=1", "protocol=paper", "eval_episodes=[1,4]",
                     "heldout_episodes=null", f"hydra.sweep.dir={root / 'runs' / 'table4'}", "-m",
                     "task_group=shared,diverse", "episodes=1,2,3", cwd=root)
     return root / "runs"

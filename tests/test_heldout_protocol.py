@@ -225,3 +225,47 @@ def test_bootstrap_over_seeds_widens_with_the_spread_between_seeds():
     assert abs(reps.var() / (offsets.var() / 3) - 1) < 0.08
     out = resample.ratio_interval(x, np.ones_like(x), np.zeros(40), n_boot=2000)
     assert out["interval"][0] <= out["value"] <= out["interval"][1]
+
+
+def _diversity(*args: str, cwd: Path):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "0"}
+    return subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
+    """The default protocol from the command line: a 2/4-episode sweep over 2 seeds evaluated on episodes 5-6,
+    result.json carrying the prediction numbers and the protocol in its identity, then the table of the runs."""
+    import json
+    import subprocess
+    import sys
+
+    from simeval.models.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16, pipeline="gensim")
+    common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[5,6]",
+              "progress=false", "videos=0", "threads=1", f"checkpoint_dir={tmp_path}/ck")
+    r = _diversity(*common, f"hydra.sweep.dir={tmp_path / 'sweep'}", "-m", "episodes=2,4", "seed=0,1", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
+    assert len(recs) == 4
+    for rec in recs:
+        assert rec["identity"]["protocol"] == "heldout" and rec["identity"]["steps"] == 40
+        assert rec["values"]["train"]["steps"] == 40 and "eval" not in rec["values"]
+        assert rec["values"]["protocol"]["evaluated_on"] == [5, 6]
+        assert {e["seed"] for e in rec["values"]["prediction"]["per_episode"]} == {4, 5}  # ranks 5-6 (seeds 4, 5)
+    assert "skill" in r.stdout  # the log line of each run names its skill scores
+    out = tmp_path / "table4_heldout"
+    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
+                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--figure", str(tmp_path / "t.png")],
+                       capture_output=True, text=True, timeout=300)
+    assert t.returncode == 0, t.stderr
+    md = out.with_suffix(".md").read_text()
+    assert "gensim | diverse | tiny (40) | 2 | 2 |" in md and (tmp_path / "t.png").stat().st_size > 10_000
+    # episodes that would be trained on and evaluated: one line, exit 2, before any training
+    r = _diversity(*common, "episodes=5", cwd=tmp_path)
+    assert r.returncode == 2 and "would train on evaluated episodes" in r.stderr and "Traceback" not in r.stderr

@@ -97,7 +97,7 @@ def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
-    res = _diversity_sweep(tmp_path, "task_group=diverse", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
+    res = _diversity_sweep(tmp_path, "task_group=diverse", "protocol=paper", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
                            "-m", "episodes=0,2")
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
     assert res.stderr.splitlines() == ["error: episodes must be a whole number >= 1, got 0"]
@@ -118,7 +118,7 @@ def _signal_the_job_of_a_training_sweep(tmp_path: Path, sig: int, epochs: int = 
     sweep = tmp_path / "sweep"
     cmd = [sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim", "debug=tiny", "threads=1",
            "progress=false", f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}", "task_group=diverse",
-           "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", f"world_model.train.epochs={epochs}",
+           "protocol=paper", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", f"world_model.train.epochs={epochs}",
            "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}", "-m", "episodes=2"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

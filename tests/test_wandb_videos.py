@@ -39,7 +39,7 @@ def test_diversity_logs_open_loop_prediction_videos(wandb_env, tmp_path):
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=SIZE, pipeline="gensim")
     res = _run("diversity.py", "debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path / 'store'}",
-               f"checkpoint_dir={tmp_path / 'ck'}", "progress=false", "episodes=2", "eval_episodes=[1,3]",
+               f"checkpoint_dir={tmp_path / 'ck'}", "progress=false", "episodes=2", "protocol=paper", "eval_episodes=[1,3]",
                "heldout_episodes=null", "threads=1", f"hydra.run.dir={tmp_path / 'run'}", env=wandb_env, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     run = tmp_path / "run"

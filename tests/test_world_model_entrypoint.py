@@ -79,7 +79,7 @@ def test_a_joblib_sweep_reads_windows_in_a_loader_worker(tmp_path):
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
-    r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]",
+    r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "protocol=paper", "eval_episodes=[1,2]",
             "heldout_episodes=null", "world_model.train.num_workers=1", "progress=false", "videos=0",
             f"checkpoint_dir={tmp_path}/ck", f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra/launcher=joblib",
             "hydra.launcher.n_jobs=2", "-m", "episodes=1,2", cwd=tmp_path)
@@ -98,7 +98,7 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
 
     rows = sum(read_meta(p)["n_steps"] for p in (tiny_sim_store / "gensim" / "stack-two-blocks").glob("episode_*.h5"))
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}",
-            f"checkpoint_dir={tmp_path}/ck", "progress=false", "eval_episodes=[1,3]", "heldout_episodes=null",
+            f"checkpoint_dir={tmp_path}/ck", "progress=false", "protocol=paper", "eval_episodes=[1,3]", "heldout_episodes=null",
             "hydra.sweep.dir=" + str(tmp_path / "sweep"), "-m", "episodes=2,3", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
@@ -174,7 +174,7 @@ def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
     from simeval.models.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
-    common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]",
+    common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "protocol=paper", "eval_episodes=[1,2]",
               "heldout_episodes=null", "progress=false", "checkpoint_dir=null", "episodes=1")
     r = run(*common, "world_model.model.image_size=32", f"hydra.run.dir={tmp_path / 'up'}", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
@@ -192,7 +192,7 @@ def test_a_compiler_that_cannot_build_is_one_line_saying_to_run_without_compile(
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
     env = {**ENV, "CXX": str(tmp_path / "no-such-g++"), "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "inductor")}
     r = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "debug=tiny", "pipeline=gensim",
-                        "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[1,2]", "heldout_episodes=null",
+                        "task_group=diverse", f"store={tmp_path}/store", "protocol=paper", "eval_episodes=[1,2]", "heldout_episodes=null",
                         "progress=false", "checkpoint_dir=null", "episodes=1", "compile=true",
                         f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env, capture_output=True, text=True,
                        timeout=600)
@@ -220,7 +220,7 @@ def test_the_sweep_runs_on_imported_ravens_demos(tmp_path):
                          text=True, timeout=600)
     assert imp.returncode == 0, imp.stderr[-2000:]
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", "camera=color_0", f"store={tmp_path}/store",
-            f"checkpoint_dir={tmp_path}/ck", "progress=false", "videos=0", "eval_episodes=[1,3]",
+            f"checkpoint_dir={tmp_path}/ck", "progress=false", "videos=0", "protocol=paper", "eval_episodes=[1,3]",
             "heldout_episodes=null", f"hydra.sweep.dir={tmp_path}/sweep", "-m", "episodes=1,2", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     results = [json.loads((tmp_path / "sweep" / str(i) / "result.json").read_text()) for i in (0, 1)]

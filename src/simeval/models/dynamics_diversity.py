@@ -363,3 +363,34 @@ def load_model(checkpoint: str | Path, device: str | torch.device | None = "auto
     model = WorldModel(WorldModelConfig.from_dict(meta["model"]), meta["state_dim"], meta["action_dim"])
     model.load_state_dict(ck["model"])
     return model.to(device), meta
+
+
+def headline(values: dict) -> dict:
+    """The numbers a logger shows for a run: the paper protocol's eval floats, or the heldout protocol's errors and
+    skill scores (one step, open loop, reconstruction)."""
+    if "prediction" not in values:
+        return {"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}}
+    out = {}
+    for kind, block in values["prediction"]["summary"].items():
+        for name, v in block.items():
+            if isinstance(v, dict):  # a predictor: model, last, mean
+                out.update({f"{kind}/{name}_{k}": x for k, x in v.items() if isinstance(x, float)})
+            elif isinstance(v, float):  # a skill score
+                out[f"{kind}/{name}"] = v
+    return {"heldout": out}
+
+
+def summary_line(values: dict) -> str:
+    """One log line of a run's result (both protocols)."""
+    if "prediction" not in values:
+        e = values["eval"]
+        return (f"eval error {e['image_error']:.2f} ({e['image_error_per_pixel']:.5f} per pixel), state "
+                f"{e['state_error']:.3f}, KL {e['kl_dyn']:.2f}, open-loop {e['open_loop_image_error']:.2f}")
+    p = values["prediction"]["summary"]
+    f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
+    ol, one = p["open_loop"], p["one_step"]
+    return (f"held-out episodes {values['protocol']['evaluated_on']}: open-loop error {f(ol['model']['error'])} (last "
+            f"frame {f(ol['last']['error'])}, mean image {f(ol['mean']['error'])}; skill {f(ol['skill_vs_last'])} / "
+            f"{f(ol['skill_vs_mean'])}), one-step {f(one['model']['error'])} (skill vs last frame "
+            f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}"
+            + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame"))

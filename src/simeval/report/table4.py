@@ -5,6 +5,7 @@ numbers of episodes per task, per pipeline and group, the paper's values (simeva
     write(rows, "outputs/tables/table4", episodes=(10, 20, 40))   # table4.csv (numbers), .md, .tex
     plot(rows, "outputs/figures/table4.png")                      # and table4.pdf beside it
 
+Only runs of protocol=paper count here (simeval.report.table4_heldout tabulates protocol=heldout runs).
 One row per (pipeline, group, world-model preset) that has runs at one of the chosen episode counts, plus a
 paper-only row for every paper cell that has none. `ours_<k>` is the mean eval image error (summed over pixels at
 the preset's resolution) of the runs trained on the k-th of `episodes` (several seeds of one cell are averaged;
@@ -71,6 +72,8 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
     for rec in records:
         ident = rec.get("identity") or {}
         if rec.get("metric") != METRIC or rec.get("status") != "ok" or (preset and ident.get("preset") != preset):
+            continue
+        if ident.get("protocol", "paper") != "paper":  # protocol=heldout runs: simeval.report.table4_heldout
             continue
         if int(ident["episodes"]) not in episodes:  # see unused_episodes
             continue
@@ -158,7 +161,8 @@ def unused_episodes(records: list[dict], episodes: tuple[int, ...] | list[int] =
     """The training-episode counts of ok runs that a table with columns `episodes` leaves out (say so to the
     user: the quick profile's 1/2/4-episode runs beside the cpu preset's 10/20/40 ones give two tables)."""
     return sorted({int((r.get("identity") or {})["episodes"]) for r in records
-                   if r.get("metric") == METRIC and r.get("status") == "ok"} - {int(k) for k in episodes})
+                   if r.get("metric") == METRIC and r.get("status") == "ok"
+                   and (r.get("identity") or {}).get("protocol", "paper") == "paper"} - {int(k) for k in episodes})
 
 
 def _fmt(v, digits: int = 1) -> str:

@@ -1,0 +1,156 @@
+"""Validity controls of the heldout dynamics-diversity protocol, on data whose answer is known, at the `cpu` preset.
+
+    python experiments/dynamics_controls.py dynamics            # physics shared vs varied, identical visuals
+    python experiments/dynamics_controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
+
+Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
+protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
+held-out episodes 41-50. A run's numbers are saved as soon as it ends (outputs/controls/<control>/runs/*.json) and
+its model is checkpointed, so a killed control resumes where it stopped. Then:
+    outputs/tables/control_<control>.{json,md}   per condition and count the errors, skills, intervals (seeds x
+                                                 held-out episodes) and the verdicts below
+    outputs/figures/control_<control>.png        open-loop error (with baselines) and skill against episodes
+
+The dynamics control passes when the varied group's open-loop error at the fewest episodes is higher than the
+shared group's with a 95% interval of the difference above zero, and its fall from the fewest to the most episodes
+is larger (interval of the difference of falls above zero). A failed control is reported as it is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CONDITIONS = {"dynamics": ("shared", "varied")}
+
+
+def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int) -> dict:
+    from simeval.models.synthetic import make_physics_group
+
+    if control == "dynamics":
+        return {kind: make_physics_group(kind, n_tasks, episodes, n_actions, size, seed=data_seed)
+                for kind in CONDITIONS[control]}
+    raise SystemExit(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
+
+
+def run_all(args) -> list[dict]:
+    import torch
+    import yaml
+
+    from simeval.episodes.dataset import WindowSpec
+    from simeval.models.dynamics_diversity import fit_and_evaluate
+    from simeval.models.training import TrainConfig
+    from simeval.models.world_model import WorldModelConfig
+
+    torch.set_num_threads(args.threads)
+    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{args.preset}.yaml").read_text())
+    model_cfg = WorldModelConfig.from_dict(wm["model"])
+    runs_dir = args.out / "controls" / args.control / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    data = sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1], args.data_seed)
+    records = []
+    for seed in args.seeds:
+        for condition, source in data.items():
+            for k in args.episodes:
+                path = runs_dir / f"{condition}_k{k}_s{seed}.json"
+                if path.exists():
+                    records.append(json.loads(path.read_text()))
+                    continue
+                t0 = time.perf_counter()
+                values = fit_and_evaluate(
+                    source, episodes_per_task=k, model_cfg=model_cfg,
+                    train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
+                    eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
+                    horizon=args.horizon, eval_context=args.context, eval_seed=seed, progress=False,
+                    checkpoint_dir=args.out / "checkpoints" / "controls")
+                record = {"metric": "dynamics_diversity", "status": "ok", "path": str(path),
+                          "identity": {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
+                                       "preset": args.preset, "seed": seed, "protocol": "heldout",
+                                       "steps": args.steps},
+                          "values": {key: values[key] for key in ("protocol", "prediction", "train", "model")},
+                          "data": {"tasks": args.tasks, "actions": args.actions, "data_seed": args.data_seed}}
+                record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
+                path.write_text(json.dumps(record, indent=1))
+                records.append(record)
+                ol = values["prediction"]["summary"]["open_loop"]
+                print(f"{condition} k={k} seed={seed}: open-loop {ol['model']['error']:.2f} (last frame "
+                      f"{ol['last']['error']:.2f}, mean image {ol['mean']['error']:.2f}) in "
+                      f"{time.perf_counter() - t0:.0f} s", flush=True)
+    return records
+
+
+def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 2000) -> dict:
+    """Differences between the two conditions (second minus first) with intervals from independent resamples of
+    each condition's seeds and held-out episodes: at the fewest episodes, and of the falls to the most."""
+    from simeval.metrics import resample
+    from simeval.report.table4_heldout import cell_replicates, sum_arrays
+
+    counts = sorted({int(r["identity"]["episodes"]) for r in records})
+    lo, hi = counts[0], counts[-1]
+    reps, points = {}, {}
+    for i, cond in enumerate(conditions):
+        for k in (lo, hi):
+            recs = sorted((r for r in records if r["identity"]["task_group"] == cond and
+                           int(r["identity"]["episodes"]) == k), key=lambda r: r["identity"]["seed"])
+            sums, tasks = sum_arrays(recs)
+            draws = resample.draws(len(recs), tasks, n_boot, seed=1 + i)  # independent between conditions
+            points[cond, k], reps[cond, k] = cell_replicates(sums, draws)
+    out = {}
+    a, b = conditions
+    for metric in ("open_loop", "object", "one_step", "reconstruction", "skill_last"):
+        diff = reps[b, lo][metric] - reps[a, lo][metric]
+        fall_b = reps[b, lo][metric] - reps[b, hi][metric]
+        fall_a = reps[a, lo][metric] - reps[a, hi][metric]
+        out[metric] = {
+            f"{b}_minus_{a}_at_{lo}": points[b, lo][metric] - points[a, lo][metric],
+            f"{b}_minus_{a}_at_{lo}_interval": resample.percentile(diff),
+            f"fall_{lo}_to_{hi}": {c: points[c, lo][metric] - points[c, hi][metric] for c in conditions},
+            f"fall_difference": (points[b, lo][metric] - points[b, hi][metric])
+            - (points[a, lo][metric] - points[a, hi][metric]),
+            "fall_difference_interval": resample.percentile(fall_b - fall_a)}
+    ol = out["open_loop"]
+    out["passes"] = {"higher_at_fewest": ol[f"{b}_minus_{a}_at_{lo}_interval"][0] > 0,
+                     "larger_fall": ol["fall_difference_interval"][0] > 0}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("control", choices=sorted(CONDITIONS))
+    ap.add_argument("--preset", default="cpu", help="world_model preset (conf/world_model/<name>.yaml)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    ap.add_argument("--episodes", type=int, nargs="+", default=[10, 20, 40], help="training episodes per task")
+    ap.add_argument("--heldout", type=int, nargs=2, default=[41, 50], help="held-out episodes (1-based, inclusive)")
+    ap.add_argument("--steps", type=int, default=2000, help="gradient steps for every run")
+    ap.add_argument("--context", type=int, default=5)
+    ap.add_argument("--horizon", type=int, default=15)
+    ap.add_argument("--tasks", type=int, default=4)
+    ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")
+    ap.add_argument("--data-seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs")
+    args = ap.parse_args(argv)
+    if max(args.episodes) >= args.heldout[0]:
+        raise SystemExit(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
+                         f"{args.heldout[0]}; use --heldout past it")
+    from simeval.report.table4_heldout import build, plot, write
+
+    records = run_all(args)
+    rows = build(records)
+    result = {"control": args.control, "preset": args.preset, "steps": args.steps, "seeds": args.seeds,
+              "episodes": args.episodes, "heldout": args.heldout, "tasks": args.tasks, "actions": args.actions,
+              "verdict": verdicts(records, CONDITIONS[args.control]), "rows": rows}
+    stem = args.out / "tables" / f"control_{args.control}"
+    write(rows, stem)
+    (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    plot(rows, args.out / "figures" / f"control_{args.control}.png",
+         f"{args.control} control ({args.preset}, {args.steps} steps, seeds {args.seeds}): "
+         f"passes {result['verdict']['passes']}")
+    print(json.dumps(result["verdict"], indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
