@@ -20,12 +20,10 @@ def main(cfg: DictConfig) -> None:
     import torch
     from hydra.utils import instantiate
 
-    from simeval.episodes.store import EpisodeStore
     from simeval.models.device import resolve_device
-    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
     from simeval.models.policy import evaluate as ev
-    from simeval.models.policy.data import PolicyDataset
-    from simeval.models.policy.experiment import checkpoint_key, episodes_for, resolve_action_space, run_splits
+    from simeval.models.policy.experiment import resolve_action_space, run_splits
+    from simeval.models.policy.random_baseline import RandomActions
     from simeval.results import hydra_run_info, write_result
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import group_and_heldout, split_tasks
@@ -46,8 +44,7 @@ def main(cfg: DictConfig) -> None:
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     model = OmegaConf.to_container(cfg.policy.model, resolve=True)
-    pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
-    settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
+    chance = cfg.policy.name == "random"  # the chance baseline: uniform random actions, nothing trained
     override = OmegaConf.to_container(cfg.eval.variation, resolve=True) if cfg.eval.variation else None
     plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
             for split in names(cfg.eval.splits)}  # split names and variation keys are checked here, before training
@@ -56,26 +53,21 @@ def main(cfg: DictConfig) -> None:
                  else "no task of the group has an eval variation" if split == "eval" else "no trained task")
     plan = {split: pairs for split, pairs in plan.items() if pairs}
     require_folder("checkpoint_dir", cfg.checkpoint_dir)
-    train_eps, val_eps, metas = episodes_for(EpisodeStore(cfg.store), cfg.pipeline.name, trained,
-                                             cfg.episodes_per_task, cfg.val_episodes_per_task, pcfg.cameras)
-    data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
-    ckpt_dir = f"{cfg.checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), cfg.seed)}"
     run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
     with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
-        fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=cfg.seed)
-        policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics, extra={"config": config},
-                                       progress=bool(cfg.progress), device=device)
-        values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
-                               "windows": len(data)}}
-        if cfg.eval.sampler_check and val_eps:
-            val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
-            values["sampler_check"] = ev.sampler_action_error(policy, val, {
-                "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
+        if chance:
+            policy = RandomActions(resolve_action_space(model["action_space"], specs), model["cameras"],
+                                   model["image_size"])
+            ckpt_dir, summary, values = f"{cfg.checkpoint_dir}/random", {"steps": 0}, {"training": None}
+            settings_id = {"model": {**model, "action_space": policy.cfg.action_space}}
+        else:
+            policy, ckpt_dir, summary, values, settings_id = _train(cfg, model, specs, trained, logger, device,
+                                                                    config)
         seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
         rows = run_splits(policy, plan, seeds, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json", summary["steps"],
                           progress=bool(cfg.progress))
         values.update(tasks=rows, splits=ev.summarize(rows))
-        if cfg.eval.videos and rows:
+        if cfg.eval.videos and rows and not chance:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
                                                         cfg.eval.video_camera, run["output_dir"])
             for which, video in values["videos"].items():
@@ -85,7 +77,7 @@ def main(cfg: DictConfig) -> None:
         identity = {"pipeline": cfg.pipeline.name, "task_group": cfg.task_group, "tasks": group, "policy": cfg.policy.name,
                     "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task,
                     "variations": {t: v for t, v in plan.get("eval", [])},
-                    "eval_seeds": cfg.eval.seeds, "settings": {"model": vars(pcfg), "train": vars(settings)}}
+                    "eval_seeds": cfg.eval.seeds, "settings": settings_id}
         path = write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
                      choices=run["choices"], config=config, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
@@ -94,6 +86,33 @@ def main(cfg: DictConfig) -> None:
         log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", s, sr["k"], sr["n"], sr["rate"],
                  *sr["ci"], v["mean_progress"])
     log.info("wrote %s", path)
+
+
+def _train(cfg, model: dict, specs, trained: list[str], logger, device, config: dict):
+    """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
+    (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
+    from simeval.episodes.store import EpisodeStore
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.data import PolicyDataset
+    from simeval.models.policy.experiment import checkpoint_key, episodes_for, resolve_action_space
+
+    pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
+    settings = TrainSettings(**OmegaConf.to_container(cfg.policy.train, resolve=True), seed=cfg.seed)
+    train_eps, val_eps, metas = episodes_for(EpisodeStore(cfg.store), cfg.pipeline.name, trained,
+                                             cfg.episodes_per_task, cfg.val_episodes_per_task, pcfg.cameras)
+    data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    ckpt_dir = f"{cfg.checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), cfg.seed)}"
+    fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=cfg.seed)
+    policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics, extra={"config": config},
+                                   progress=bool(cfg.progress), device=device)
+    values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
+                           "windows": len(data)}}
+    if cfg.eval.sampler_check and val_eps:
+        val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+        values["sampler_check"] = ev.sampler_action_error(policy, val, {
+            "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
+    return policy, ckpt_dir, summary, values, {"model": vars(pcfg), "train": vars(settings)}
 
 
 if __name__ == "__main__":

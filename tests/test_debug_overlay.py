@@ -29,7 +29,8 @@ SHRINKS = {
                   "world_model.model.cnn_depth": (16, 8), "world_model.model.mlp_layers": (2, 1),
                   "world_model.model.mlp_units": (128, 32), "world_model.train.epochs": (10, 2),
                   "world_model.train.lr": (1e-4, 1e-3), "world_model.train.checkpoint_every": (200, 5),
-                  "world_model.window.length": (20, 8), "world_model.window.stride": (10, 4)},
+                  "world_model.window.length": (20, 8), "world_model.window.stride": (10, 4),
+                  "protocol.steps": (1000, 40), "protocol.horizon": (10, 4)},
     # generalization: the tiny policy (conf/policy/tiny.yaml), 2 episodes per task, 1 rollout of 40 steps
     "generalization": {"episodes_per_task": (40, 2), "val_episodes_per_task": (2, 1), "torch_threads": (None, 1),
                        "eval.seeds": (10, 1), "eval.max_steps": (None, 40), "policy.name": ("cpu", "tiny"),

@@ -7,6 +7,11 @@
         for 0 successes out of n: 0/20 gives [0, 0.161], which is what a table of small success rates needs.
         n = 0 returns (0.0, 1.0): nothing observed, every rate possible.
     success_summary(successes) -> {"k", "n", "rate", "ci"} for a list of booleans.
+    task_bootstrap_interval(k, n) -> (low, high): the group's pooled rate sum(k) / sum(n) over T tasks (k, n: (T,)
+        successes and rollouts per task), its interval the percentile bootstrap over tasks (T tasks drawn with
+        replacement, each with all its rollouts: a cluster bootstrap). Rollouts of one task are not independent of
+        each other (one easy task can hold every success), which the Wilson interval of the pooled counts assumes;
+        resampling whole tasks is what a group-level interval must do. None for fewer than 2 tasks.
 """
 
 from __future__ import annotations
@@ -38,3 +43,16 @@ def success_summary(successes: Iterable[bool], level: float = 0.95) -> dict:
     s = [bool(x) for x in successes]
     k, n = sum(s), len(s)
     return {"k": k, "n": n, "rate": k / n if n else None, "ci": list(wilson_interval(k, n, level))}
+
+
+def task_bootstrap_interval(k, n, level: float = 0.95, n_boot: int = 4000, seed: int = 0) -> tuple[float, float] | None:
+    import numpy as np
+
+    k, n = np.asarray(k, float), np.asarray(n, float)
+    if len(k) < 2 or n.sum() == 0:
+        return None
+    idx = np.random.default_rng(seed).integers(0, len(k), (n_boot, len(k)))
+    num, den = k[idx].sum(1), n[idx].sum(1)
+    rates = num[den > 0] / den[den > 0]
+    alpha = (1 - level) / 2
+    return float(np.quantile(rates, alpha)), float(np.quantile(rates, 1 - alpha))

@@ -95,7 +95,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      videos: int = 0, video_dir: str | Path | None = None,
                      device: str | torch.device | None = "auto", compile: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
-                     steps: int | None = None, horizon: int | None = None) -> dict:
+                     steps: int | None = None, horizon: int | None = None, lr: float | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -112,7 +112,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     which include the training episodes; the budget is `train_cfg`'s epochs, so it grows with the episodes) or
     "heldout" (what simeval's own readings rest on, see PROTOCOLS): `eval_episodes` must lie past every training
     episode (the default (40, 50): episodes 41-50), every episode count trains for the same `steps` gradient steps,
-    and `values["prediction"]` holds one-step and `horizon`-step open-loop prediction errors after `eval_context`
+    with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
+    `horizon`-step open-loop prediction errors after `eval_context`
     observed frames, with the last-frame and per-task-mean-image baselines, skill scores, object-focused errors
     (robot pixels excluded where the episodes carry robot masks) and per-episode sums for intervals
     (simeval.models.prediction). `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
@@ -122,7 +123,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     if protocol == "heldout":
         return _fit_and_evaluate_heldout(
             source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=eval_episodes, steps=steps, horizon=horizon, eval_seed=eval_seed, eval_context=eval_context,
+            eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, eval_seed=eval_seed,
+            eval_context=eval_context,
             eval_batch_size=eval_batch_size, checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
             how_to_get_more=how_to_get_more)
@@ -182,7 +184,8 @@ def budget_epochs(train_ds: WindowDataset, window: WindowSpec, batch_size: int, 
 
 def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
                               train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
-                              steps: int | None, horizon: int | None, eval_seed: int, eval_context: int | None,
+                              steps: int | None, horizon: int | None, lr: float | None, eval_seed: int,
+                              eval_context: int | None,
                               eval_batch_size: int, checkpoint_dir, log_metrics, progress: bool, videos: int,
                               video_dir, device, compile: bool, how_to_get_more) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
@@ -207,7 +210,10 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
     probe = WindowDataset(source, window, rank_mask(episode_ranks([i.task for i in source.infos],
                                                                   [i.seed for i in source.infos]), 0, k),
                           seed=train_cfg.seed)
-    train_cfg = replace(train_cfg, epochs=budget_epochs(probe, window, train_cfg.batch_size, steps), max_steps=steps)
+    if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
+        raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
+    train_cfg = replace(train_cfg, epochs=budget_epochs(probe, window, train_cfg.batch_size, steps), max_steps=steps,
+                        lr=train_cfg.lr if lr is None else float(lr))
     setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, how_to_get_more,
                      protocol="heldout")
     eval_spec = WindowSpec(length=context + horizon, stride=context + horizon, pad_end=True)
@@ -226,8 +232,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
                  if videos > 0 and video_dir is not None else {})
     prediction["episodes"] = [lo + 1, hi]
-    values = {"protocol": {"name": "heldout", "steps": steps, "trained_on": [1, k], "evaluated_on": [lo + 1, hi],
-                           "context": context, "horizon": horizon},
+    values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "trained_on": [1, k],
+                           "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},

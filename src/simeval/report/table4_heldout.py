@@ -3,15 +3,15 @@ model's prediction errors on held-out episodes beside the baselines, with 95% in
 held-out episodes (simeval.metrics.resample), from dynamics_diversity result.json records of protocol=heldout.
 
 Per cell (the runs of one count: one per training seed, all evaluated on the same held-out episodes), from the
-per-episode sums of simeval.models.prediction, with x[r, e] summed squared errors and n[r, e] frames:
-    open_loop           sum x_model / sum n           (the primary number: frames imagined from actions)
-    open_loop_last      sum x_last / sum n            (copy the last observed frame)
-    open_loop_mean      sum x_mean / sum n            (the task's mean training image)
-    skill_last          1 - open_loop / open_loop_last;  skill_mean  1 - open_loop / open_loop_mean
-    object              the open-loop error per kept (non-robot) pixel and channel; object_skill_last likewise
-    one_step, one_step_skill_last, reconstruction (the paper's quantity, here on held-out frames)
-and per row the fall from the first to the last count (`drop`, open_loop_<first> - open_loop_<last>) on paired
-resamples (the same seeds' indices and held-out episodes for both counts).
+per-episode sums of simeval.models.prediction, with x[r, e] summed squared errors and n[r, e] frames, for each kind
+of prediction K (one_step: the primary number, o_t predicted from o_{<t} and the actions; open_loop: frames imagined
+from the actions after the context; reconstruction: the paper's quantity, here on held-out frames):
+    K                   sum x_model / sum n
+    K_last, K_mean      the baselines on the same frames: copy the last observed frame; the task's mean training image
+    K_skill_last        1 - K / K_last;  K_skill_mean  1 - K / K_mean   (< 0: worse than the baseline)
+    K_object, K_object_last, K_object_skill_last   the same per kept (non-robot) pixel and channel
+and per row the fall from the first to the last count of one_step and open_loop (`drop_K`) on paired resamples
+(the same seeds' indices and held-out episodes for both counts).
 
     rows = build(read_results(root, "dynamics_diversity"))
     write(rows, "outputs/tables/table4_heldout")      # .csv (every number), .md
@@ -30,20 +30,19 @@ from simeval.report.tables import to_csv, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
+PRIMARY = "one_step"
+BASELINES = {"one_step": ("last", "mean"), "open_loop": ("last", "mean"), "reconstruction": ("mean",)}
 # name -> (numerator sum key, denominator sum key, scale of the denominator)
-RATIOS = {
-    "open_loop": ("open_loop/model/full", "open_loop/frames", 1),
-    "open_loop_last": ("open_loop/last/full", "open_loop/frames", 1),
-    "open_loop_mean": ("open_loop/mean/full", "open_loop/frames", 1),
-    "object": ("open_loop/model/object", "open_loop/kept_pixels", 3),
-    "object_last": ("open_loop/last/object", "open_loop/kept_pixels", 3),
-    "one_step": ("one_step/model/full", "one_step/frames", 1),
-    "one_step_last": ("one_step/last/full", "one_step/frames", 1),
-    "reconstruction": ("reconstruction/model/full", "reconstruction/frames", 1),
-}
-SKILLS = {"skill_last": ("open_loop", "open_loop_last"), "skill_mean": ("open_loop", "open_loop_mean"),
-          "object_skill_last": ("object", "object_last"), "one_step_skill_last": ("one_step", "one_step_last")}
-SHOWN = ("open_loop", "skill_last", "skill_mean", "object", "reconstruction")
+RATIOS = {}
+SKILLS = {}  # name -> (model ratio, baseline ratio)
+for _kind, _bases in BASELINES.items():
+    for _who in ("model", *_bases):
+        _suffix = "" if _who == "model" else f"_{_who}"
+        RATIOS[f"{_kind}{_suffix}"] = (f"{_kind}/{_who}/full", f"{_kind}/frames", 1)
+        RATIOS[f"{_kind}_object{_suffix}"] = (f"{_kind}/{_who}/object", f"{_kind}/kept_pixels", 3)
+    for _base in _bases:
+        SKILLS[f"{_kind}_skill_{_base}"] = (_kind, f"{_kind}_{_base}")
+        SKILLS[f"{_kind}_object_skill_{_base}"] = (f"{_kind}_object", f"{_kind}_object_{_base}")
 
 
 def sum_arrays(recs: list[dict]) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -110,9 +109,10 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
-            drop = reps_by_k[lo]["open_loop"] - reps_by_k[hi]["open_loop"]
-            row["drop"] = row[f"open_loop_{lo}"] - row[f"open_loop_{hi}"]
-            row["drop_lo"], row["drop_hi"] = resample.percentile(drop)
+            for kind in ("one_step", "open_loop"):
+                row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
+                row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
+                    reps_by_k[lo][kind] - reps_by_k[hi][kind])
         rows.append(row)
     return rows
 
@@ -125,22 +125,25 @@ def _ci(row: dict, name: str, digits: int) -> str:
 
 
 def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """A compact Markdown view: per count the open-loop error, its skill against both baselines, the
-    object-focused error (masked) and the reconstruction, each with its 95% interval."""
-    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "open-loop error",
-              "skill vs last frame", "skill vs mean image", "object-focused (x1e-3/pixel)", "reconstruction",
-              "drop first->last"]
+    """A compact Markdown view: per count the one-step error (the primary number) with its skill against both
+    baselines and its object-focused error, the open-loop error with its skill against the last frame, and the
+    reconstruction, each with its 95% interval."""
+    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "one-step error", "skill vs last frame",
+              "skill vs mean image", "object-focused (x1e-3/pixel)", "open-loop error", "open-loop skill vs last",
+              "reconstruction", "one-step fall first->last"]
     body = []
     for r in rows:
         for i, k in enumerate(int(c) for c in r["counts"].split("/")):
             obj = "—"
-            if r.get(f"object_{k}") is not None and np.isfinite(r[f"object_{k}"]):
-                scaled = {f"object_{k}{s}": r[f"object_{k}{s}"] * 1e3 for s in ("", "_lo", "_hi")}
-                obj = _ci(scaled, f"object_{k}", 2) + ("" if r[f"robot_mask_{k}"] else " (no masks: full frame)")
+            if r.get(f"one_step_object_{k}") is not None and np.isfinite(r[f"one_step_object_{k}"]):
+                scaled = {f"o{s}": r[f"one_step_object_{k}{s}"] * 1e3 for s in ("", "_lo", "_hi")}
+                obj = _ci(scaled, "o", 2) + ("" if r[f"robot_mask_{k}"] else " (no masks: full frame)")
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
                          f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]),
-                         _ci(r, f"open_loop_{k}", 1), _ci(r, f"skill_last_{k}", 2), _ci(r, f"skill_mean_{k}", 2),
-                         obj, _ci(r, f"reconstruction_{k}", 1), _ci(r, "drop", 1) if i == 0 else ""])
+                         _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
+                         _ci(r, f"one_step_skill_mean_{k}", 2), obj, _ci(r, f"open_loop_{k}", 1),
+                         _ci(r, f"open_loop_skill_last_{k}", 2), _ci(r, f"reconstruction_{k}", 1),
+                         _ci(r, "drop_one_step", 1) if i == 0 else ""])
     return header, body
 
 
@@ -172,19 +175,21 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     colors = [f"C{i}" for i in range(10)]
     for r, color in zip(rows, colors):
         ks = [int(c) for c in r["counts"].split("/")]
-        for ax, name in ((ax1, "open_loop"), (ax2, "skill_last")):
+        for ax, name, style in ((ax1, "one_step", "o-"), (ax2, "one_step_skill_last", "o-"),
+                                (ax2, "open_loop_skill_last", "s:")):
             v = np.array([r[f"{name}_{k}"] for k in ks])
             err = np.array([[v[i] - r[f"{name}_{k}_lo"], r[f"{name}_{k}_hi"] - v[i]] for i, k in enumerate(ks)]).T
             err = np.maximum(err, 0)  # a percentile interval of a ratio may sit beside its point estimate
-            ax.errorbar(ks, v, yerr=err, fmt="o-", color=color, capsize=3, label=f"{r['pipeline']}/{r['group']}")
-        ax1.plot(ks, [r[f"open_loop_last_{k}"] for k in ks], ":", color=color, label=f"{r['group']}: last frame")
-        ax1.plot(ks, [r[f"open_loop_mean_{k}"] for k in ks], "--", color=color, alpha=0.6,
+            label = f"{r['pipeline']}/{r['group']}" + (" (open loop)" if name.startswith("open") else "")
+            ax.errorbar(ks, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
+        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":", color=color, label=f"{r['group']}: last frame")
+        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--", color=color, alpha=0.6,
                  label=f"{r['group']}: mean image")
-    ax1.set(xlabel="training episodes per task", ylabel="open-loop error (sum over pixels per frame)",
-            title="held-out prediction error (95% CI)", xscale="log")
+    ax1.set(xlabel="training episodes per task", ylabel="one-step error (sum over pixels per frame)",
+            title="held-out one-step prediction error (95% CI)", xscale="log")
     ax2.axhline(0, color="0.5", lw=0.8)
     ax2.set(xlabel="training episodes per task", ylabel="skill vs last frame (1 - model / baseline)",
-            title="skill against copying the last frame", xscale="log")
+            title="skill against copying the last frame (one step; dotted: open loop)", xscale="log")
     for ax in (ax1, ax2):
         ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
         ax.set_xticks(ks, [str(k) for k in ks])

@@ -44,7 +44,9 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
     cfg = policy.cfg
     cams = list(dict.fromkeys([*cfg.cameras, *([video_camera] if video_camera else [])]))
     env = _make_env(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
-    runner = RecedingHorizonRunner(policy, scheduler=scheduler, steps=steps)
+    # a trained policy acts through receding-horizon chunks; a baseline (random_baseline.RandomActions) brings its own
+    runner = policy.runner(env) if hasattr(policy, "runner") else RecedingHorizonRunner(policy, scheduler=scheduler,
+                                                                                         steps=steps)
     episodes, videos = [], {}
     try:
         for seed in seeds:
