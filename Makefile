@@ -111,8 +111,25 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)
 	$(PY) experiments/world_model_table4.py $(if $(filter paper,$(WM_PRESET)),--preset paper --out outputs/tables/table4_paper --figure outputs/figures/table4_paper.png) $(if $(KEEP),--keep $(KEEP))
 
-world-model-control: setup ## synthetic control for dynamics diversity: outputs/figures/world_model_control.png
+world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
+
+# simeval's own readings: protocol=heldout (held-out episodes 41-50, the same steps for every count, prediction error
+# beside baselines), 3 training seeds per cell; the controls it was validated on (resumable: a killed run resumes)
+SEEDS ?= 0,1,2
+.PHONY: table4-heldout report-table4-heldout controls
+table4-heldout: setup ## Table 4 under protocol=heldout: collect 50 episodes/task, 10/20/40 x SEEDS per CELLS group, outputs/tables/table4_heldout.* (OVERWRITE=1 replaces the committed one)
+	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; \
+	  $(PY) src/collect.py pipeline=$$p task_group=$$g episodes=50 && \
+	  $(PY) src/diversity.py pipeline=$$p task_group=$$g progress=false -m episodes=10,20,40 seed=$(SEEDS) || exit 1; done
+	$(MAKE) --no-print-directory report-table4-heldout
+
+report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
+	$(PY) experiments/world_model_table4.py --protocol heldout $(if $(OVERWRITE),--overwrite)
+
+controls: setup ## the heldout protocol's validity controls at the cpu preset (outputs/tables/control_*, outputs/figures/control_*.png)
+	$(PY) experiments/dynamics_controls.py dynamics --episodes 10 40
+	$(PY) experiments/dynamics_controls.py visual --episodes 10
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.

@@ -2,6 +2,7 @@
 
     python experiments/dynamics_controls.py dynamics            # physics shared vs varied, identical visuals
     python experiments/dynamics_controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
+    python experiments/dynamics_controls.py visual --episodes 10   # identical physics, the robot's look varied
 
 Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
@@ -15,7 +16,10 @@ The budget (steps, learning rate), context and horizon default to the protocol's
 The dynamics control passes when the varied group's one-step error (the protocol's primary number) at the fewest
 episodes is higher than the shared group's with a 95% interval of the difference above zero, and its fall from the
 fewest to the most episodes is larger (interval of the difference of falls above zero). A failed control is
-reported as it is. `--conditions` runs some conditions only (two processes can share the runs; the last one to
+reported as it is. The visual control passes when the full-frame one-step error of the varied-looks group is
+higher than the shared group's (95% interval of the difference above zero) while the object-focused error (robot
+pixels excluded) moves less than a quarter as much, relative to the shared group's (the ratio is reported).
+`--conditions` runs some conditions only (two processes can share the runs; the last one to
 finish, or any later call, builds the table from every run saved).
 """
 
@@ -27,15 +31,15 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-CONDITIONS = {"dynamics": ("shared", "varied")}
+CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied")}
 
 
 def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int) -> dict:
-    from simeval.models.synthetic import make_physics_group
+    from simeval.models.synthetic import make_physics_group, make_visual_group
 
-    if control == "dynamics":
-        return {kind: make_physics_group(kind, n_tasks, episodes, n_actions, size, seed=data_seed)
-                for kind in CONDITIONS[control]}
+    make = {"dynamics": make_physics_group, "visual": make_visual_group}.get(control)
+    if make is not None:
+        return {kind: make(kind, n_tasks, episodes, n_actions, size, seed=data_seed) for kind in CONDITIONS[control]}
     raise SystemExit(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
 
 
@@ -115,6 +119,10 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     primary = out["one_step"]  # table4_heldout.PRIMARY, chosen before any control was run
     out["passes"] = {"higher_at_fewest": primary[f"{b}_minus_{a}_at_{lo}_interval"][0] > 0,
                      "larger_fall": primary["fall_difference_interval"][0] > 0}
+    # how far each error moves from the first condition to the second, relative to the first (the visual control)
+    rel = {m: (points[b, lo][m] - points[a, lo][m]) / points[a, lo][m] for m in ("one_step", "one_step_object")}
+    out["relative_change_at_fewest"] = {**rel, "object_over_full": abs(rel["one_step_object"]) /
+                                        max(abs(rel["one_step"]), 1e-12)}
     return out
 
 
@@ -162,6 +170,12 @@ def main(argv: list[str] | None = None) -> None:
     plot(rows, args.out / "figures" / f"control_{args.control}.png",
          f"{args.control} control ({args.preset}, {args.steps} steps, seeds {args.seeds}): "
          f"passes {result['verdict']['passes']}")
+    if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
+        v = result["verdict"]
+        full_moves = v["one_step"][f"varied_minus_shared_at_{min(args.episodes)}_interval"][0] > 0
+        v["passes"] = {"full_frame_moves": full_moves,
+                       "object_moves_under_a_quarter": v["relative_change_at_fewest"]["object_over_full"] < 0.25}
+        (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
     print(json.dumps(result["verdict"], indent=1, default=float))
 
 

@@ -80,17 +80,23 @@ def episode(dyn: str, color: np.ndarray, seed: int, n_actions: int, size: int) -
     """One episode in the store's convention: n_actions + 1 rows, row t's action produced row t + 1; the last
     row's action is padding (a copy of the one before)."""
     rng = np.random.default_rng(seed)
-    s = np.array([*rng.uniform(0.25, 0.75, 2), 0.45, 1.0], np.float32)
+    st, actions = _random_walk(lambda s, a: _step(dyn, s, a), np.array([*rng.uniform(0.25, 0.75, 2), 0.45, 1.0],
+                                                                      np.float32), rng, n_actions)
+    return {"image": _render(st, color, size), "state": st, "action": actions}
+
+
+def _random_walk(step, s: np.ndarray, rng: np.random.Generator, n_actions: int) -> tuple[np.ndarray, np.ndarray]:
+    """States (n_actions + 1, D) and actions (n_actions + 1, 2) of a smooth random walk of actions in [-1, 1]^2
+    driving `step(state, action)`; the last action is padding (a copy of the one before)."""
     a = rng.uniform(-1, 1, 2)
     states, actions = [s], []
     for _ in range(n_actions):
         a = np.clip(0.7 * a + 0.5 * rng.normal(size=2), -1, 1)
         actions.append(a.astype(np.float32))
-        s = _step(dyn, s, a)
+        s = step(s, a)
         states.append(s)
     actions.append(actions[-1])
-    st = np.stack(states)
-    return {"image": _render(st, color, size), "state": st, "action": np.stack(actions)}
+    return np.stack(states), np.stack(actions)
 
 
 def make_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int, seed: int = 0) -> ArraySource:
@@ -153,18 +159,10 @@ def physics_step(params: tuple[float, float, float, float], s: np.ndarray, a: np
 def physics_episode(params, seed: int, n_actions: int, size: int) -> dict[str, np.ndarray]:
     """One dynamics-only episode (same conventions as `episode`); the square's look never depends on `params`."""
     rng = np.random.default_rng(seed)
-    s = np.array([*rng.uniform(0.3, 0.7, 2), 0.0, 0.0], np.float32)
-    a = rng.uniform(-1, 1, 2)
-    states, actions = [s], []
-    for _ in range(n_actions):
-        a = np.clip(0.7 * a + 0.5 * rng.normal(size=2), -1, 1)
-        actions.append(a.astype(np.float32))
-        s = physics_step(params, s, a)
-        states.append(s)
-    actions.append(actions[-1])
-    st = np.stack(states)
+    st, actions = _random_walk(lambda s, a: physics_step(params, s, a),
+                               np.array([*rng.uniform(0.3, 0.7, 2), 0.0, 0.0], np.float32), rng, n_actions)
     look = np.stack([st[:, 0], st[:, 1], np.full(len(st), PHYSICS_SIDE), np.ones(len(st))], 1).astype(np.float32)
-    return {"image": _render(look, PHYSICS_COLOR, size), "state": st, "action": np.stack(actions)}
+    return {"image": _render(look, PHYSICS_COLOR, size), "state": st, "action": actions}
 
 
 def make_physics_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int,
@@ -182,5 +180,70 @@ def make_physics_group(kind: str, n_tasks: int, episodes: int, n_actions: int, s
             ep_seed = int(np.random.default_rng([seed, t, e, 1]).integers(2**31))
             arrays.append(physics_episode(params, ep_seed, n_actions, size))
             infos.append(EpisodeInfo(task=f"physics-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
+                                     action_space=ACTION_SPACE))
+    return ArraySource(infos, arrays)
+
+
+# Visual only (`make_visual_group`): the dynamics-only square with PHYSICS[0] in every task, and an "arm": a bar from
+# the top edge down to the point the action commands, (0.5, 0.5) + 0.35 a, drawn over the square (as a robot
+# occludes what it pushes) and masked as the robot. A "shared" group draws every task's arm alike; a "varied"
+# group gives task i the arm look ARM_LOOKS[i] (colour and texture). Physics and objects are identical: only the
+# robot's appearance differs, which an object-focused error (robot pixels excluded) must not see.
+ARM_LOOKS = (((70, 70, 80), "solid"), ((240, 240, 90), "stripes"), ((60, 200, 240), "checker"),
+             ((250, 150, 40), "columns"), ((200, 80, 220), "stripes"), ((120, 240, 120), "checker"))
+ARM_WIDTH = 0.12
+
+
+def _texture(kind: str, size: int) -> np.ndarray:
+    """(size, size) brightness factors of an arm texture."""
+    r, c = np.indices((size, size))
+    if kind == "solid":
+        return np.ones((size, size), np.float32)
+    if kind == "stripes":
+        return np.where((r // 2) % 2 == 0, 1.0, 0.45).astype(np.float32)
+    if kind == "columns":
+        return np.where((c // 2) % 2 == 0, 1.0, 0.45).astype(np.float32)
+    if kind == "checker":
+        return np.where(((r // 3) + (c // 3)) % 2 == 0, 1.0, 0.4).astype(np.float32)
+    raise ValueError(f"unknown texture {kind!r}")
+
+
+def draw_arm(frames: np.ndarray, tips: np.ndarray, look) -> tuple[np.ndarray, np.ndarray]:
+    """Draw the arm over (n, H, W, 3) frames for (n, 2) tips (x, y in [0, 1]); returns (frames, robot masks (n, H,
+    W) bool: every pixel the bar covers at all)."""
+    n, size = len(frames), frames.shape[1]
+    grid = (np.arange(size, dtype=np.float32) + 0.5) / size
+    x, y = tips[:, 0][:, None], tips[:, 1][:, None]
+    lo, hi = grid[None] - 0.5 / size, grid[None] + 0.5 / size
+    cover_x = np.clip(np.minimum(hi, x + ARM_WIDTH / 2) - np.maximum(lo, x - ARM_WIDTH / 2), 0, 1 / size) * size
+    cover_y = np.clip(np.minimum(hi, y) - np.maximum(lo, 0.0), 0, 1 / size) * size
+    alpha = cover_y[:, :, None] * cover_x[:, None, :]  # (n, H, W)
+    color, texture = np.asarray(look[0], np.float32), _texture(look[1], size)
+    arm = color[None, None, None] * texture[None, :, :, None]
+    out = frames.astype(np.float32) * (1 - alpha[..., None]) + arm * alpha[..., None]
+    return np.clip(np.round(out), 0, 255).astype(np.uint8), alpha > 0
+
+
+def make_visual_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int,
+                      seed: int = 0) -> ArraySource:
+    """A visual-only group (see ARM_LOOKS): kind "shared" (every task's arm ARM_LOOKS[0]) or "varied" (task i's
+    ARM_LOOKS[i]); the same physics, square and episode seeds in both kinds. Episodes carry `robot_mask`."""
+    if kind not in ("shared", "varied"):
+        raise ValueError(f"kind={kind!r}: expected shared or varied")
+    if not 1 <= n_tasks <= len(ARM_LOOKS):
+        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(ARM_LOOKS)}")
+    infos, arrays = [], []
+    for t in range(n_tasks):
+        look = ARM_LOOKS[0] if kind == "shared" else ARM_LOOKS[t]
+        for e in range(episodes):
+            ep_seed = int(np.random.default_rng([seed, t, e, 1]).integers(2**31))
+            ep = physics_episode(PHYSICS[0], ep_seed, n_actions, size)
+            a = ep["action"]
+            # row t shows the arm where the action that produced it pointed (row 0: where the first action points)
+            commanded = np.concatenate([a[:1], a[:-1]])
+            tips = np.clip(0.5 + 0.35 * commanded, 0.05, 0.95)
+            ep["image"], ep["robot_mask"] = draw_arm(ep["image"], tips, look)
+            arrays.append(ep)
+            infos.append(EpisodeInfo(task=f"visual-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
                                      action_space=ACTION_SPACE))
     return ArraySource(infos, arrays)

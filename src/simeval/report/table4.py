@@ -43,7 +43,7 @@ def _flat(d, prefix: str = "") -> dict:
     return out
 
 
-def _one_setting(row_key: tuple, recs: list[dict]) -> None:
+def one_setting(row_key: tuple, recs: list[dict]) -> None:
     """A UserError when the runs of one table row differ in their settings (world model, window, evaluation) or
     camera: a row averages seeds of one setting and compares its episode counts, so runs made with, say, windows of
     40 and of 20 under one preset name must not meet in it."""
@@ -86,7 +86,7 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
         if pr is None and (p, g) in ours_pg:
             continue
         row = {"pipeline": p, "group": g, "preset": pr or ""}
-        _one_setting((p, g, pr), [r for k in episodes for r in cells.get((p, g, k, pr), [])])
+        one_setting((p, g, pr), [r for k in episodes for r in cells.get((p, g, k, pr), [])])
         for k, ours_k in zip(EPISODES, episodes):
             row[f"paper_{k}"] = PAPER.get(p, {}).get(suite_group(p, g), {}).get(k)
             row[f"episodes_{k}"] = ours_k

@@ -26,6 +26,7 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.metrics import resample
+from simeval.report.table4 import one_setting
 from simeval.report.tables import to_csv, to_markdown
 from simeval.results import atomic_write_text
 
@@ -92,6 +93,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
     rows = []
     for (p, g, pr, steps), by_k in sorted(cells.items(), key=lambda kv: tuple(map(str, kv[0]))):
         counts = sorted(by_k)
+        one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
         row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
         reps_by_k = {}
         for k in counts:

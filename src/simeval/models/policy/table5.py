@@ -35,6 +35,14 @@ PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (va
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
 
+def _cell(rec: dict, policy: str | None) -> tuple | None:
+    """(pipeline, the paper's group, policy preset) of a run, or None when `policy` names another preset."""
+    ident = rec["identity"]
+    if policy is not None and ident.get("policy") != policy:
+        return None
+    return ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy")
+
+
 def build(records: list[dict], policy: str | None = None) -> list[dict]:
     """One row per paper cell and policy preset (then per other group run): {pipeline, group, paper, policy, runs,
     eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
@@ -43,11 +51,10 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
     are a UserError: pooling them would mix two experiments."""
     cells: dict = {}
     for rec in records:
-        ident = rec["identity"]
-        if policy is not None and ident.get("policy") != policy:
+        key = _cell(rec, policy)
+        if key is None:
             continue
-        key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy"))
-        base = {k: v for k, v in ident.items() if k != "seed"}
+        base = {k: v for k, v in rec["identity"].items() if k != "seed"}
         if key in cells and cells[key]["identity"] != base:
             diff = identity_difference(cells[key]["identity"], base)
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
@@ -162,10 +169,9 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
     progress, runs}."""
     cells: dict = {}
     for rec in records:
-        ident = rec["identity"]
-        if policy is not None and ident.get("policy") != policy:
+        key = _cell(rec, policy)
+        if key is None:
             continue
-        key = (ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy"))
         cell = cells.setdefault(key, {"runs": 0, "tasks": {}})
         cell["runs"] += 1
         for t in rec["values"].get("tasks", []):
