@@ -34,7 +34,10 @@ def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(t
     assert r.stderr.count("\n") == 1 and "custom" in r.stderr and "no simeval suite" in r.stderr
     assert "src/import_data.py" in r.stderr
     r = run("pipeline=bbsea", "task_group=drawer", f"store={tmp_path}/store", cwd=tmp_path)
-    # the hint names this run's store, so following it fills the store the run reads
+    # the hint names this run's store, so following it fills the store the run reads; protocol=heldout (the
+    # default) evaluates episodes 41-50, so it asks for 50 per task, protocol=paper for 40
+    assert r.returncode == 2 and f"src/collect.py pipeline=bbsea task_group=drawer episodes=50 store={tmp_path}/store" in r.stderr
+    r = run("pipeline=bbsea", "task_group=drawer", f"store={tmp_path}/store", "protocol=paper", cwd=tmp_path)
     assert r.returncode == 2 and f"src/collect.py pipeline=bbsea task_group=drawer episodes=40 store={tmp_path}/store" in r.stderr
     r = run("pipeline=gensim", "task_group=stacking", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and "src/collect.py pipeline=gensim task_group=stacking" in r.stderr
@@ -45,7 +48,7 @@ def test_sweep_end_to_end_writes_results_and_table(tmp_path):
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=41, n_actions=10, size=16, pipeline="gensim")
     r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store",
-            f"checkpoint_dir={tmp_path}/ck", "logger=csv", "progress=false", "heldout_episodes=[41,41]",
+            f"checkpoint_dir={tmp_path}/ck", "logger=csv", "progress=false", "protocol=paper", "heldout_episodes=[41,41]",
             "hydra.sweep.dir=" + str(tmp_path / "sweep"), "-m", "episodes=10,40", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
@@ -60,7 +63,7 @@ def test_sweep_end_to_end_writes_results_and_table(tmp_path):
     assert (tmp_path / "sweep" / "0" / "metrics.csv").read_text().startswith("step,key,value")
     # the same command again: training is found finished in the checkpoint, the evaluation is the same number
     again = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store",
-                f"checkpoint_dir={tmp_path}/ck", "progress=false", "heldout_episodes=[41,41]", "episodes=10",
+                f"checkpoint_dir={tmp_path}/ck", "progress=false", "protocol=paper", "heldout_episodes=[41,41]", "episodes=10",
                 "hydra.run.dir=" + str(tmp_path / "again"), cwd=tmp_path)
     assert again.returncode == 0, again.stderr[-2000:]
     rec = json.loads((tmp_path / "again" / "result.json").read_text())
@@ -123,12 +126,17 @@ def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tin
     """Following the hint must fill the store the run reads (not the collector's default) with the run's group,
     recorded as the run's debug overlay records (debug=tiny: 32x32 frames; without it collect records 64x64)."""
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
-            "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+            "protocol=paper", "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
     assert r.stderr.strip() == (
         "error: task 'stack-two-blocks' has 3 episodes; training on 5 and evaluating on episodes 1-40 needs 40 per "
         f"task (collect them: python src/collect.py pipeline=gensim task_group=stacking episodes=40 "
         f"store={tiny_sim_store} debug=tiny)")
+    r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
+            "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)  # protocol=heldout: 41-50
+    assert r.returncode == 2 and r.stderr.strip().endswith(
+        f"evaluating on episodes 41-50 needs 50 per task (collect them: python src/collect.py pipeline=gensim "
+        f"task_group=stacking episodes=50 store={tiny_sim_store} debug=tiny)"), r.stderr
 
 
 def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
