@@ -12,6 +12,7 @@ import hashlib
 import json
 import logging
 import math
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -227,8 +228,10 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
     with WorldModel.compile_failures_named(compile):
         summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
                         log_metrics=log_metrics, progress=progress, device=device, compile=compile)
+        started = time.perf_counter()
         prediction = evaluate_prediction(setup.model, eval_ds, means, context, seed=eval_seed,
                                          batch_size=eval_batch_size, progress=progress)
+        prediction["seconds"] = time.perf_counter() - started  # what a sweep spends beside training (benchmarks)
         clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
                  if videos > 0 and video_dir is not None else {})
     prediction["episodes"] = [lo + 1, hi]
