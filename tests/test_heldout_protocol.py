@@ -259,6 +259,11 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
         assert rec["values"]["protocol"]["evaluated_on"] == [5, 6]
         assert {e["seed"] for e in rec["values"]["prediction"]["per_episode"]} == {4, 5}  # ranks 5-6 (seeds 4, 5)
     assert "skill" in r.stdout  # the log line of each run names its skill scores
+    from simeval.report.tidy import run_rows
+
+    rows = run_rows(recs)  # the notebook's DataFrame: the one-step error is each run's headline
+    assert [row["statistic"] for row in rows] == ["heldout_one_step_error"] * 4
+    assert rows[0]["value"] == recs[0]["values"]["prediction"]["summary"]["one_step"]["model"]["error"]
     out = tmp_path / "table4_heldout"
     t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
                         "--root", str(tmp_path / "sweep"), "--out", str(out), "--figure", str(tmp_path / "t.png")],

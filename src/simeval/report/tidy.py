@@ -5,7 +5,8 @@ Columns (COLUMNS): metric, pipeline, group, episodes, model, seed, status, stati
 per_pixel, path. Per metric, `value` is the run's headline number, named by `statistic`:
 
     dynamics_diversity  eval_image_error: the world model's eval image error (summed over pixels), per_pixel beside
-                        it; episodes = training episodes per task; model = world_model preset
+                        it (protocol=paper); heldout_one_step_error: the one-step prediction error on held-out
+                        episodes (protocol=heldout); episodes = training episodes per task; model = world_model preset
     generalization      eval_success: success rate of the eval (varied) split with its Wilson interval and k/n;
                         episodes = training episodes per task; model = policy preset
     text_diversity      div (paper Eq. 1) with its bootstrap interval, one row per group of the run; model =
@@ -36,7 +37,12 @@ def run_rows(records: list[dict]) -> list[dict]:
         row, ident, values = _base(rec), rec.get("identity") or {}, rec.get("values")
         values = values if isinstance(values, dict) else {}
         metric = rec.get("metric")
-        if metric == "dynamics_diversity":
+        if metric == "dynamics_diversity" and "prediction" in values:  # protocol=heldout: the one-step error
+            one = ((values.get("prediction") or {}).get("summary") or {}).get("one_step") or {}
+            row.update(episodes=ident.get("episodes"), model=ident.get("preset"), statistic="heldout_one_step_error",
+                       value=(one.get("model") or {}).get("error"),
+                       per_pixel=(one.get("model") or {}).get("error_per_pixel"))
+        elif metric == "dynamics_diversity":
             ev = values.get("eval") or {}
             row.update(episodes=ident.get("episodes"), model=ident.get("preset"), statistic="eval_image_error",
                        value=ev.get("image_error"), per_pixel=ev.get("image_error_per_pixel"))
