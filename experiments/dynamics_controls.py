@@ -167,15 +167,16 @@ def main(argv: list[str] | None = None) -> None:
     stem = args.out / "tables" / f"control_{args.control}"
     write(rows, stem)
     (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
-    plot(rows, args.out / "figures" / f"control_{args.control}.png",
-         f"{args.control} control ({args.preset}, {args.steps} steps, seeds {args.seeds}): "
-         f"passes {result['verdict']['passes']}")
     if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
         v = result["verdict"]
         full_moves = v["one_step"][f"varied_minus_shared_at_{min(args.episodes)}_interval"][0] > 0
         v["passes"] = {"full_frame_moves": full_moves,
                        "object_moves_under_a_quarter": v["relative_change_at_fewest"]["object_over_full"] < 0.25}
         (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
+    seeds = ", ".join(map(str, args.seeds))
+    plot(rows, args.out / "figures" / f"control_{args.control}.png",
+         f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}")
     print(json.dumps(result["verdict"], indent=1, default=float))
 
 

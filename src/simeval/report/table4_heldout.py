@@ -173,7 +173,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     colors = [f"C{i}" for i in range(10)]
     for r, color in zip(rows, colors):
         ks = [int(c) for c in r["counts"].split("/")]
@@ -188,13 +188,16 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--", color=color, alpha=0.6,
                  label=f"{r['group']}: mean image")
     ax1.set(xlabel="training episodes per task", ylabel="one-step error (sum over pixels per frame)",
-            title="held-out one-step prediction error (95% CI)", xscale="log")
+            title="held-out one-step error (95% CI)", xscale="log")
     ax2.axhline(0, color="0.5", lw=0.8)
     ax2.set(xlabel="training episodes per task", ylabel="skill vs last frame (1 - model / baseline)",
-            title="skill against copying the last frame (one step; dotted: open loop)", xscale="log")
+            title="skill vs the last frame (dotted: open loop)", xscale="log")
+    from matplotlib.ticker import NullFormatter
+
     for ax in (ax1, ax2):
         ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
         ax.set_xticks(ks, [str(k) for k in ks])
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
