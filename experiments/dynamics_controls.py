@@ -10,7 +10,8 @@ held-out episodes 41-50. A run's numbers are saved as soon as it ends (outputs/c
 its model is checkpointed, so a killed control resumes where it stopped. Then:
     outputs/tables/control_<control>.{json,md}   per condition and count the errors, skills, intervals (seeds x
                                                  held-out episodes) and the verdicts below
-    outputs/figures/control_<control>.png        open-loop error (with baselines) and skill against episodes
+    outputs/figures/control_<control>.png        one-step error (with baselines), skill and object-focused error
+                                                 against episodes
 
 The budget (steps, learning rate), context and horizon default to the protocol's (conf/protocol/heldout.yaml).
 The dynamics control passes when the varied group's one-step error (the protocol's primary number) at the fewest
@@ -27,6 +28,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -41,6 +44,29 @@ def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int
     if make is not None:
         return {kind: make(kind, n_tasks, episodes, n_actions, size, seed=data_seed) for kind in CONDITIONS[control]}
     raise SystemExit(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
+
+
+def run_settings(args) -> dict:
+    """What a run's numbers depend on besides its condition, count and seed: a saved run is reused only when these
+    match (else the table would label old numbers with new settings)."""
+    return {"preset": args.preset, "steps": args.steps, "lr": args.lr, "context": args.context,
+            "horizon": args.horizon, "heldout": list(args.heldout), "tasks": args.tasks, "actions": args.actions,
+            "data_seed": args.data_seed}
+
+
+def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool) -> None:
+    """A committed result is replaced only when asked (--overwrite): a rebuild that gives the same bytes is fine,
+    another one stops with one line naming the file."""
+    import subprocess
+
+    for path, data in zip(paths, new_bytes):
+        if overwrite or not path.exists() or path.read_bytes() == data:
+            continue
+        tracked = subprocess.run(["git", "ls-files", "--error-unmatch", str(path)], cwd=ROOT,
+                                 capture_output=True).returncode == 0
+        if tracked:
+            raise SystemExit(f"error: {path} is a committed result and this run would change it; write elsewhere "
+                             "with --out DIR, or replace it with --overwrite")
 
 
 def run_all(args) -> list[dict]:
@@ -58,11 +84,20 @@ def run_all(args) -> list[dict]:
     runs_dir = args.out / "controls" / args.control / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     data = sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1], args.data_seed)
+    settings = run_settings(args)
     for seed in args.seeds:
         for condition, source in data.items():
             for k in args.episodes:
                 path = runs_dir / f"{condition}_k{k}_s{seed}.json"
-                if path.exists() or (args.conditions and condition not in args.conditions):
+                if path.exists():
+                    stored = json.loads(path.read_text()).get("settings")
+                    if stored != settings:
+                        differ = sorted(key for key in settings if (stored or {}).get(key) != settings[key])
+                        raise SystemExit(f"error: {path} was run with other settings ({', '.join(differ)}: "
+                                         f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
+                                         f"--out for these settings, or delete that folder's runs to redo them")
+                    continue
+                if args.conditions and condition not in args.conditions:
                     continue
                 t0 = time.perf_counter()
                 values = fit_and_evaluate(
@@ -76,7 +111,7 @@ def run_all(args) -> list[dict]:
                                        "preset": args.preset, "seed": seed, "protocol": "heldout",
                                        "steps": args.steps},
                           "values": {key: values[key] for key in ("protocol", "prediction", "train", "model")},
-                          "data": {"tasks": args.tasks, "actions": args.actions, "data_seed": args.data_seed}}
+                          "settings": settings}
                 record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
                 path.write_text(json.dumps(record, indent=1))
                 one = values["prediction"]["summary"]["one_step"]
@@ -129,7 +164,8 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
 def main(argv: list[str] | None = None) -> None:
     import yaml
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("control", choices=sorted(CONDITIONS))
     ap.add_argument("--preset", default="cpu", help="world_model preset (conf/world_model/<name>.yaml)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
@@ -145,7 +181,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")
     ap.add_argument("--data-seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs", help="runs under OUT/controls/<control>/runs, "
+                    "checkpoints under OUT/checkpoints/controls, tables and figures under OUT/tables, OUT/figures")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace committed tables/figures that this run would change (default: refuse)")
     args = ap.parse_args(argv)
     if max(args.episodes) >= args.heldout[0]:
         raise SystemExit(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
@@ -164,20 +203,29 @@ def main(argv: list[str] | None = None) -> None:
     result = {"control": args.control, "preset": args.preset, "steps": args.steps, "lr": args.lr, "seeds": args.seeds,
               "episodes": args.episodes, "heldout": args.heldout, "tasks": args.tasks, "actions": args.actions,
               "verdict": verdicts(records, CONDITIONS[args.control]), "rows": rows}
-    stem = args.out / "tables" / f"control_{args.control}"
-    write(rows, stem)
-    (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
     if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
         v = result["verdict"]
         full_moves = v["one_step"][f"varied_minus_shared_at_{min(args.episodes)}_interval"][0] > 0
         v["passes"] = {"full_frame_moves": full_moves,
                        "object_moves_under_a_quarter": v["relative_change_at_fewest"]["object_over_full"] < 0.25}
-        (stem.with_suffix(".json")).write_text(json.dumps(result, indent=1, default=float) + "\n")
     passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
     seeds = ", ".join(map(str, args.seeds))
-    plot(rows, args.out / "figures" / f"control_{args.control}.png",
-         f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}")
+    stem = args.out / "tables" / f"control_{args.control}"
+    figure = args.out / "figures" / f"control_{args.control}.png"
+    with tempfile.TemporaryDirectory() as tmp:  # built aside, compared with what is committed, then moved in
+        tmp_stem = Path(tmp) / stem.name
+        write(rows, tmp_stem)
+        tmp_stem.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
+        plot(rows, Path(tmp) / figure.name, f"{args.control} control ({args.preset}, {args.steps} steps, seeds "
+                                            f"{seeds}): {passes}")
+        made = [tmp_stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [Path(tmp) / figure.name]
+        targets = [stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [figure]
+        refuse_to_replace_committed(targets, [m.read_bytes() for m in made], args.overwrite)
+        for m, t in zip(made, targets):
+            t.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(m, t)
     print(json.dumps(result["verdict"], indent=1, default=float))
+    print("wrote", ", ".join(map(str, targets)))
 
 
 if __name__ == "__main__":

@@ -29,9 +29,10 @@ def main(argv: list[str] | None = None) -> None:
                                              "task group) from dynamics_diversity result.json files, with a figure.")
     ap.add_argument("--root", default=str(ROOT / "outputs"), help="folder searched for result.json files")
     ap.add_argument("--preset", default=None, help="only runs of this world_model preset")
-    ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "table4"), help="tables, without suffix")
-    ap.add_argument("--figure", default=str(ROOT / "outputs" / "figures" / "table4.png"),
-                    help="the figure (.png; a .pdf is written beside it)")
+    ap.add_argument("--out", default=None, help="tables, without suffix (default: outputs/tables/table4, or "
+                                                 "table4_heldout with --protocol heldout)")
+    ap.add_argument("--figure", default=None, help="the figure (.png; with --protocol paper a .pdf is written beside "
+                                                   "it; default: outputs/figures/table4.png or table4_heldout.png)")
     ap.add_argument("--episodes", default="10,20,40",
                     help="our training-episode counts shown beside the paper's 10/20/40 (quick profile: 1,2,4)")
     ap.add_argument("--keep", action="append", default=[], metavar="CSV",
@@ -44,6 +45,8 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     if a.protocol == "heldout":
         return heldout(a)
+    a.out = a.out or str(ROOT / "outputs" / "tables" / "table4")
+    a.figure = a.figure or str(ROOT / "outputs" / "figures" / "table4.png")
     from simeval.errors import UserError
     from simeval.report import table4
     from simeval.results import read_results
@@ -86,8 +89,8 @@ def heldout(a) -> None:
     from simeval.report import table4_heldout
     from simeval.results import read_results
 
-    stem = Path(ROOT / "outputs" / "tables" / "table4_heldout") if a.out.endswith("table4") else Path(a.out)
-    figure = Path(a.figure).with_name("table4_heldout.png") if a.figure.endswith("table4.png") else Path(a.figure)
+    stem = Path(a.out or ROOT / "outputs" / "tables" / "table4_heldout")
+    figure = Path(a.figure or ROOT / "outputs" / "figures" / "table4_heldout.png")
     try:
         records = [r for r in read_results(a.root, metric=table4_heldout.METRIC)
                    if (r.get("identity") or {}).get("protocol") == "heldout"]

@@ -78,11 +78,25 @@ def test_every_episode_count_trains_the_same_steps_and_overlap_is_refused():
         run(source, k=10)
     with pytest.raises(UserError, match="protocol.steps"):
         run(source, k=2, steps=None)
+    with pytest.raises(UserError, match="at most 21 rows; use protocol.horizon=18 or less"):
+        run(source, k=2, horizon=30)
+
+
+def test_the_one_step_error_does_not_depend_on_the_open_loop_horizon():
+    """One step and reconstruction are scored on windows of the training length; only the open loop changes."""
+    source = make_physics_group("varied", 2, 12, 20, 16)
+    a, b = (run(source, k=4, horizon=h)["prediction"]["summary"] for h in (3, 6))
+    for kind in ("one_step", "reconstruction"):
+        assert a[kind]["frames"] == b[kind]["frames"]
+        assert a[kind]["mean"]["error"] == pytest.approx(b[kind]["mean"]["error"])
+    assert a["one_step"]["model"]["error"] == pytest.approx(b["one_step"]["model"]["error"], rel=1e-6)
+    assert a["open_loop"]["frames"] != b["open_loop"]["frames"]
 
 
 def _by_hand(source: ArraySource, k: int, lo: int, hi: int, context: int, horizon: int, masked: bool) -> dict:
-    """Baseline sums from the raw arrays: windows of context + horizon rows from row 0 of each evaluated episode."""
-    L = context + horizon
+    """Baseline sums from the raw arrays: from row 0 of each evaluated episode, windows of the training window's
+    length (tiny: 8 rows) for the one step, of context + horizon rows for the open loop."""
+    L, S = context + horizon, TINY["window"]["length"]
     means = {}
     for t in sorted({i.task for i in source.infos}):
         frames = [a["image"] for i, a in zip(source.infos, source.arrays) if i.task == t and i.seed < k]
@@ -94,12 +108,13 @@ def _by_hand(source: ArraySource, k: int, lo: int, hi: int, context: int, horizo
         o = a["image"].astype(np.float64) / 255
         free = ~a["robot_mask"] if masked else np.ones(o.shape[:3], bool)
         n = len(o)
-        for s in range(0, n, L):
-            for t in range(s + 1, min(s + L, n)):  # one step: o_t from o_{t-1}
+        for s in range(0, n, S):
+            for t in range(s + 1, min(s + S, n)):  # one step: o_t from o_{t-1}
                 keep = free[t] & free[t - 1]
                 out["last1"] += ((o[t] - o[t - 1]) ** 2).sum(-1)[keep].sum()
                 out["mean1"] += ((o[t] - means[info.task]) ** 2).sum(-1)[keep].sum()
                 out["n1"] += keep.sum() if masked else 1
+        for s in range(0, n, L):
             if s + context - 1 < n:
                 ref = s + context - 1
                 for t in range(s + context, min(s + L, n)):  # open loop: o_t against the last observed frame

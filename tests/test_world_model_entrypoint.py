@@ -134,9 +134,10 @@ def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tin
         f"store={tiny_sim_store} debug=tiny)")
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
             "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)  # protocol=heldout: 41-50
-    assert r.returncode == 2 and r.stderr.strip().endswith(
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and (
         f"evaluating on episodes 41-50 needs 50 per task (collect them: python src/collect.py pipeline=gensim "
-        f"task_group=stacking episodes=50 store={tiny_sim_store} debug=tiny)"), r.stderr
+        f"task_group=stacking episodes=50 store={tiny_sim_store} debug=tiny; or evaluate episodes the store has "
+        "past the training ones, eval_episodes=[6,LAST], or use protocol=paper)") in r.stderr, r.stderr
 
 
 def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):

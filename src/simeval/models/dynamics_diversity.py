@@ -215,11 +215,25 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
     train_cfg = replace(train_cfg, epochs=budget_epochs(probe, window, train_cfg.batch_size, steps), max_steps=steps,
                         lr=train_cfg.lr if lr is None else float(lr))
-    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, how_to_get_more,
+    def more(n: int) -> str:  # besides collecting: evaluate what the store has, or the paper's protocol
+        how = how_to_get_more(n) if how_to_get_more is not None else f"collect more: src/collect.py episodes={n}"
+        return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
+                "or use protocol=paper")
+
+    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, more,
                      protocol="heldout")
-    eval_spec = WindowSpec(length=context + horizon, stride=context + horizon, pad_end=True)
-    eval_ds = WindowDataset(source, eval_spec, rank_mask(setup.ranks, lo, hi), stats=setup.stats,
-                            image_size=model_cfg.image_size, robot_masks=True)
+    evaluated = rank_mask(setup.ranks, lo, hi)
+    longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
+    if context + horizon > longest:
+        raise UserError(f"protocol.horizon={horizon} with eval.context={context}: open-loop windows of "
+                        f"{context + horizon} rows, but the evaluated episodes have at most {longest} rows; use "
+                        f"protocol.horizon={max(1, longest - context)} or less")
+
+    def held_out(length: int) -> WindowDataset:
+        return WindowDataset(source, WindowSpec(length=length, stride=length, pad_end=True), evaluated,
+                             stats=setup.stats, image_size=model_cfg.image_size, robot_masks=True)
+
+    step_ds, eval_ds = held_out(window.length), held_out(context + horizon)  # one step; open loop
     if eval_ds.action_space.get("kind") != setup.train_ds.action_space.get("kind"):
         raise UserError("evaluation episodes have another action space than the training ones")
     if np.any(setup.train_mask & eval_ds.episodes):  # the ranks above make this impossible; a guard on the plumbing
@@ -229,7 +243,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
                         log_metrics=log_metrics, progress=progress, device=device, compile=compile)
         started = time.perf_counter()
-        prediction = evaluate_prediction(setup.model, eval_ds, means, context, seed=eval_seed,
+        prediction = evaluate_prediction(setup.model, step_ds, eval_ds, means, context, seed=eval_seed,
                                          batch_size=eval_batch_size, progress=progress)
         prediction["seconds"] = time.perf_counter() - started  # what a sweep spends beside training (benchmarks)
         clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)

@@ -1,9 +1,12 @@
 """Held-out prediction error of a world model, beside trivial baselines on the same frames (the `heldout` protocol
 of dynamics diversity; simeval.models.dynamics_diversity).
 
-Shapes: a batch of B evaluation windows of L = context + horizon rows (simeval.episodes.dataset), images o (B, L, H,
-W, 3) in [0, 1], optional robot masks m (B, L, H, W) (True where the robot, its gripper or tool is seen). D is the
-image decoder, se(x, y) the squared error summed over the 3 channels (per pixel, (H, W)).
+Shapes: a batch of B evaluation windows of L rows (simeval.episodes.dataset), images o (B, L, H, W, 3) in [0, 1],
+optional robot masks m (B, L, H, W) (True where the robot, its gripper or tool is seen). D is the image decoder,
+se(x, y) the squared error summed over the 3 channels (per pixel, (H, W)). Two sets of windows cut the held-out
+episodes from row 0 without overlap: windows of the training window's length for the one-step error and the
+reconstruction (the history the model was trained to use; so they do not depend on the open-loop horizon), and
+windows of context + horizon rows for the open loop.
 
     one step        for every window step t >= 1 whose rows t - 1 and t are real (t is never a reset inside a
                     window: windows never cross episodes):
@@ -62,24 +65,23 @@ def _count(out: dict, kind: str, valid: torch.Tensor, keep: torch.Tensor) -> Non
     out[f"{kind}/kept_pixels"] = (keep.sum((-2, -1)) * v).sum(1)
 
 
-@torch.no_grad()
-def window_sums(model, batch: dict, context: int, task_means: torch.Tensor, generator=None) -> dict[str, torch.Tensor]:
-    """Per-window sums (B,) of every SUM_KEYS entry for one batch of evaluation windows (see the module docstring).
-    `batch`: the dataset's arrays as tensors on the model's device (image uint8, state, prev_action, is_first, mask,
-    optional robot_mask), plus `task` (B,) long indexing `task_means` (n_tasks, H, W, 3) in [0, 1]. The generator
-    draws the posterior samples of the whole window first, then those of the open-loop context and imagination."""
+def _frames(model, batch: dict, task_means: torch.Tensor):
     image = model._images(batch)  # (B, L, H, W, 3)
-    B, L = image.shape[:2]
-    mask = batch["mask"].bool()
     robot = batch.get("robot_mask")
     free = torch.ones(image.shape[:-1], dtype=image.dtype, device=image.device) if robot is None else \
         (~robot.bool()).to(image.dtype)  # (B, L, H, W): 1 where no robot is seen
-    mean = task_means[batch["task"]][:, None]  # (B, 1, H, W, 3)
+    return image, batch["mask"].bool(), free, task_means[batch["task"]][:, None]  # mean: (B, 1, H, W, 3)
 
+
+@torch.no_grad()
+def step_sums(model, batch: dict, task_means: torch.Tensor, generator=None) -> dict[str, torch.Tensor]:
+    """Per-window sums (B,) of the one_step and reconstruction entries of SUM_KEYS (see the module docstring).
+    `batch`: the dataset's arrays as tensors on the model's device (image uint8, state, prev_action, is_first, mask,
+    optional robot_mask), plus `task` (B,) long indexing `task_means` (n_tasks, H, W, 3) in [0, 1]."""
+    image, mask, free, mean = _frames(model, batch, task_means)
     post, prior = model.rssm.observe(model.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
                                      generator=generator)
     out: dict[str, torch.Tensor] = {}
-    # reconstruction: every real row
     _add(out, "reconstruction", "model", _se(model.image_decoder(model.rssm.features(post)), image), mask, free)
     _add(out, "reconstruction", "mean", _se(mean, image), mask, free)
     _count(out, "reconstruction", mask, free)
@@ -91,17 +93,27 @@ def window_sums(model, batch: dict, context: int, task_means: torch.Tensor, gene
     _add(out, "one_step", "last", _se(prev, target), valid, keep)
     _add(out, "one_step", "mean", _se(mean, target), valid, keep)
     _count(out, "one_step", valid, keep)
-    # open loop: rows c..L-1 imagined after observing rows 0..c-1
+    return out
+
+
+@torch.no_grad()
+def open_loop_sums(model, batch: dict, context: int, task_means: torch.Tensor,
+                   generator=None) -> dict[str, torch.Tensor]:
+    """Per-window sums (B,) of the open_loop entries of SUM_KEYS, and per imagined step (horizon,) summed over the
+    windows: open_loop/model/by_step, open_loop/last/by_step, open_loop/frames_by_step. Rows c..L-1 are imagined
+    after observing rows 0..c-1 (the generator draws the context's samples, then imagination's)."""
+    image, mask, free, mean = _frames(model, batch, task_means)
     _, imagined = model._open_loop(image, batch, context, generator)
     target, ref = image[:, context:], image[:, context - 1 : context]
     valid = mask[:, context:] & mask[:, context - 1 : context]
     keep = free[:, context:] * free[:, context - 1 : context]
+    out: dict[str, torch.Tensor] = {}
     model_se = _se(model.image_decoder(model.rssm.features(imagined)), target)
     _add(out, "open_loop", "model", model_se, valid, keep)
     _add(out, "open_loop", "last", _se(ref, target), valid, keep)
     _add(out, "open_loop", "mean", _se(mean, target), valid, keep)
     _count(out, "open_loop", valid, keep)
-    out["open_loop/model/by_step"] = (model_se.sum((-2, -1)) * valid).sum(0)  # (horizon,): summed over windows
+    out["open_loop/model/by_step"] = (model_se.sum((-2, -1)) * valid).sum(0)
     out["open_loop/last/by_step"] = (_se(ref, target).sum((-2, -1)) * valid).sum(0)
     out["open_loop/frames_by_step"] = valid.to(image.dtype).sum(0)
     return out
@@ -145,43 +157,50 @@ def summarise(sums: dict[str, float], image_size: int) -> dict:
 
 
 @torch.no_grad()
-def evaluate_prediction(model, dataset, task_means: dict[str, np.ndarray], context: int, seed: int = 0,
-                        batch_size: int = 16, progress: bool = False) -> dict:
-    """Every window of `dataset` (its windows(0): the held-out episodes, windows of context + horizon rows):
-    {summary (summarise over everything), per_task, per_episode: [{task, seed, episode, sums}], by_step:
-    {model, last} open-loop error per imagined step, robot_mask: whether the episodes had robot masks,
-    context, horizon, seed}. Seeded: the same seed gives the same numbers."""
+def evaluate_prediction(model, step_dataset, open_loop_dataset, task_means: dict[str, np.ndarray], context: int,
+                        seed: int = 0, batch_size: int = 16, progress: bool = False) -> dict:
+    """Every window of `step_dataset` (held-out episodes in windows of the training length: one step,
+    reconstruction) and of `open_loop_dataset` (the same episodes in windows of context + horizon rows): {summary
+    (summarise over everything), per_task, per_episode: [{task, seed, sums}], by_step: {model, last} open-loop error
+    per imagined step, robot_mask: whether the episodes had robot masks, context, horizon, windows, seed}. Seeded:
+    the same seed gives the same numbers (the one-step pass draws first, then the open-loop pass)."""
     from tqdm.auto import tqdm
 
     from simeval.models.training import _loader, to_torch
 
     model.eval()
     device = module_device(model)
-    infos = dataset.source.infos
+    infos = step_dataset.source.infos
     tasks = sorted(task_means)
     means = torch.as_tensor(np.stack([task_means[t] for t in tasks])).to(device)
     index = {t: i for i, t in enumerate(tasks)}
-    windows = dataset.windows(0)
-    L = dataset.spec.length
+    horizon = open_loop_dataset.spec.length - context
     gen = torch.Generator().manual_seed(int(seed))
     per_episode: dict[int, dict[str, float]] = {}
-    by_step = {"model": np.zeros(L - context), "last": np.zeros(L - context), "frames": np.zeros(L - context)}
-    has_masks = None
-    batches = [[(int(e), int(s)) for e, s in windows[i : i + batch_size]] for i in range(0, len(windows), batch_size)]
-    for batch in tqdm(_loader(dataset, batches, 0), total=len(batches), desc="eval", disable=not progress,
-                      leave=False):
-        has_masks = "robot_mask" in batch if has_masks is None else has_masks
-        b = to_torch(batch)
-        episodes = b["episode"][:, 0].tolist()
-        b["task"] = torch.tensor([index[infos[e].task] for e in episodes])
-        s = to_cpu(window_sums(model, to_device(b, device, non_blocking=True), context, means, generator=gen))
-        for j, e in enumerate(episodes):
-            acc = per_episode.setdefault(e, dict.fromkeys(SUM_KEYS, 0.0))
-            for k in SUM_KEYS:
-                acc[k] += float(s[k][j])
-        by_step["model"] += s["open_loop/model/by_step"].numpy()
-        by_step["last"] += s["open_loop/last/by_step"].numpy()
-        by_step["frames"] += s["open_loop/frames_by_step"].numpy()
+    by_step = {"model": np.zeros(horizon), "last": np.zeros(horizon), "frames": np.zeros(horizon)}
+    has_masks = step_dataset.robot_masks
+    n_windows = 0
+    for dataset, sums in ((step_dataset, lambda b: step_sums(model, b, means, generator=gen)),
+                          (open_loop_dataset, lambda b: open_loop_sums(model, b, context, means, generator=gen))):
+        windows = dataset.windows(0)
+        n_windows += len(windows)
+        batches = [[(int(e), int(s)) for e, s in windows[i : i + batch_size]]
+                   for i in range(0, len(windows), batch_size)]
+        for batch in tqdm(_loader(dataset, batches, 0), total=len(batches), desc="eval", disable=not progress,
+                          leave=False):
+            b = to_torch(batch)
+            episodes = b["episode"][:, 0].tolist()
+            b["task"] = torch.tensor([index[infos[e].task] for e in episodes])
+            s = to_cpu(sums(to_device(b, device, non_blocking=True)))
+            for j, e in enumerate(episodes):
+                acc = per_episode.setdefault(e, dict.fromkeys(SUM_KEYS, 0.0))
+                for k in SUM_KEYS:
+                    if k in s:
+                        acc[k] += float(s[k][j])
+            if "open_loop/model/by_step" in s:
+                by_step["model"] += s["open_loop/model/by_step"].numpy()
+                by_step["last"] += s["open_loop/last/by_step"].numpy()
+                by_step["frames"] += s["open_loop/frames_by_step"].numpy()
     model.train()
     size = int(model.cfg.image_size)
     total = {k: sum(acc[k] for acc in per_episode.values()) for k in SUM_KEYS}
@@ -197,5 +216,6 @@ def evaluate_prediction(model, dataset, task_means: dict[str, np.ndarray], conte
             "per_episode": [{"task": infos[e].task, "seed": int(infos[e].seed), "sums": {k: round(v, 4) for k, v in
                                                                                        acc.items()}}
                             for e, acc in sorted(per_episode.items())],
-            "by_step": curve, "robot_mask": bool(has_masks), "context": int(context), "horizon": L - context,
-            "windows": int(len(windows)), "seed": int(seed), "image_size": size}
+            "by_step": curve, "robot_mask": bool(has_masks), "context": int(context), "horizon": int(horizon),
+            "step_window": int(step_dataset.spec.length), "windows": int(n_windows), "seed": int(seed),
+            "image_size": size}

@@ -82,7 +82,8 @@ def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float
 
 
 def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dict]:
-    """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring)."""
+    """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring). Runs
+    of one seed found twice (a sweep run again: it resumes and evaluates again) count once, the newest."""
     cells: dict = defaultdict(lambda: defaultdict(list))
     for rec in records:
         ident = rec.get("identity") or {}
@@ -90,6 +91,12 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
             continue
         cells[(ident["pipeline"], ident["task_group"], ident["preset"], ident.get("steps"))][
             int(ident["episodes"])].append(rec)
+    for by_k in cells.values():  # one run per seed: a sweep rerun after a kill writes the same runs again
+        for k, recs in by_k.items():
+            newest = {}
+            for rec in sorted(recs, key=lambda r: str(r.get("created", ""))):
+                newest[int(rec["identity"].get("seed", 0))] = rec
+            by_k[k] = list(newest.values())
     rows = []
     for (p, g, pr, steps), by_k in sorted(cells.items(), key=lambda kv: tuple(map(str, kv[0]))):
         counts = sorted(by_k)
@@ -166,43 +173,50 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
 
 
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
-    """Per row, against training episodes: the open-loop error with its interval and the two baselines (left), the
-    skill against the last frame with its interval (right)."""
+    """Per row, against training episodes: the one-step error with its interval and the row's two baselines
+    (left), the skill against the last frame, one step and open loop (middle), and the object-focused one-step
+    error per kept pixel (right; the full frame's when the episodes carry no robot masks). Saved without dates
+    or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    colors = [f"C{i}" for i in range(10)]
-    for r, color in zip(rows, colors):
-        ks = [int(c) for c in r["counts"].split("/")]
-        for ax, name, style in ((ax1, "one_step", "o-"), (ax2, "one_step_skill_last", "o-"),
-                                (ax2, "open_loop_skill_last", "s:")):
-            v = np.array([r[f"{name}_{k}"] for k in ks])
-            err = np.array([[v[i] - r[f"{name}_{k}_lo"], r[f"{name}_{k}_hi"] - v[i]] for i, k in enumerate(ks)]).T
-            err = np.maximum(err, 0)  # a percentile interval of a ratio may sit beside its point estimate
-            label = f"{r['pipeline']}/{r['group']}" + (" (open loop)" if name.startswith("open") else "")
-            ax.errorbar(ks, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
-        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":", color=color, label=f"{r['group']}: last frame")
-        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--", color=color, alpha=0.6,
-                 label=f"{r['group']}: mean image")
-    ax1.set(xlabel="training episodes per task", ylabel="one-step error (sum over pixels per frame)",
-            title="held-out one-step error (95% CI)", xscale="log")
-    ax2.axhline(0, color="0.5", lw=0.8)
-    ax2.set(xlabel="training episodes per task", ylabel="skill vs last frame (1 - model / baseline)",
-            title="skill vs the last frame (dotted: open loop)", xscale="log")
     from matplotlib.ticker import NullFormatter
 
-    for ax in (ax1, ax2):
-        ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
+    from simeval.report.figures import save_figure
+
+    def bars(ax, r, name, ks, style, color, label, shift=1.0, scale=1.0):
+        v = np.array([r[f"{name}_{k}"] for k in ks]) * scale
+        lo = np.array([r[f"{name}_{k}_lo"] for k in ks]) * scale
+        hi = np.array([r[f"{name}_{k}_hi"] for k in ks]) * scale
+        err = np.maximum(np.stack([v - lo, hi - v]), 0)  # a percentile interval of a ratio may sit beside its point
+        ax.errorbar(np.array(ks) * shift, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
+
+    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(15, 4.6))
+    for r, color in zip(rows, [f"C{i}" for i in range(10)]):
+        ks = [int(c) for c in r["counts"].split("/")]
+        name = f"{r['pipeline']}/{r['group']}"
+        bars(ax1, r, "one_step", ks, "o-", color, f"{name}: model")
+        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":", color=color, label=f"{name}: last frame")
+        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--", color=color, alpha=0.6, label=f"{name}: mean image")
+        bars(ax2, r, "one_step_skill_last", ks, "o-", color, f"{name}: one step")
+        bars(ax2, r, "open_loop_skill_last", ks, "s:", color, f"{name}: open loop", shift=1.04)
+        masked = all(r.get(f"robot_mask_{k}") for k in ks)
+        bars(ax3, r, "one_step_object", ks, "o-", color, name + ("" if masked else " (no masks: full frame)"),
+             scale=1e3)
+    ax1.set(ylabel="one-step error (sum over pixels per frame)", title="held-out one-step error (model: 95% CI)")
+    ax2.axhline(0, color="0.5", lw=0.8)
+    ax2.set(ylabel="skill vs last frame (1 - model / baseline)", title="skill vs the last frame (95% CI)")
+    ax3.set(ylabel="per kept pixel and channel (x1e-3)", title="object-focused one-step error (robot excluded)")
+    ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
+    for ax in (ax1, ax2, ax3):
+        ax.set(xlabel="training episodes per task", xscale="log")
         ax.set_xticks(ks, [str(k) for k in ks])
         ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.legend(fontsize=7)
+        ax.set_xlim(min(ks) / 1.3, max(ks) * 1.3)
+        ax.legend(fontsize=6.5, framealpha=0.8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    out = save_figure(fig, path, dpi=120)
     plt.close(fig)
-    return path
+    return out

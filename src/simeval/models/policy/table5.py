@@ -31,6 +31,8 @@ from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
+CHANCE = "random"  # policy=random: the chance baseline (simeval.models.policy.random_baseline), nothing trained
+CHANCE_NOTE = " (chance: nothing trained)"
 PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
@@ -111,7 +113,7 @@ def read_rows(path: str | Path) -> list[dict]:
         pipeline, group, paper, *splits, policy, runs = cells
         try:
             row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
-                   "policy": None if policy == "-" else policy, "runs": int(runs)}
+                   "policy": None if policy == "-" else policy.removesuffix(CHANCE_NOTE), "runs": int(runs)}
         except ValueError as e:
             raise UserError(f"{path}, line {line}: {e}") from e
         for split, text in zip(SPLITS, splits):
@@ -139,6 +141,10 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
                   key=lambda r: (order.index((r["pipeline"], r["group"])), str(r["policy"])))
 
 
+def _policy_cell(policy: str | None) -> str:
+    return "-" if not policy else policy + (CHANCE_NOTE if policy == CHANCE else "")
+
+
 def _fmt(v) -> str:
     return "-" if v is None else f"{v['rate']:.2f} [{v['ci'][0]:.2f}, {v['ci'][1]:.2f}] ({v['k']}/{v['n']})"
 
@@ -146,7 +152,7 @@ def _fmt(v) -> str:
 def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
     """`<out>.csv`, `<out>.md` and `<out>.tex` (booktabs): {suffix: path}."""
     table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}",
-              *(_fmt(r[s]) for s in SPLITS), r["policy"] or "-", str(r["runs"])] for r in rows]
+              *(_fmt(r[s]) for s in SPLITS), _policy_cell(r["policy"]), str(r["runs"])] for r in rows]
     notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:],
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed state)",
@@ -204,7 +210,8 @@ def write_detail(rows: list[dict], out: str | Path) -> dict[str, Path]:
     def interval(ci) -> str:
         return "-" if ci is None else f"[{ci[0]:.2f}, {ci[1]:.2f}]"
 
-    table = [[r["pipeline"], r["group"], r["policy"] or "-", r["split"], "all tasks" if r["task"] == "*" else r["task"],
+    table = [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
+              "all tasks" if r["task"] == "*" else r["task"],
               f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
               f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
     notes = ["Task-level 95%: percentile bootstrap over the group's tasks (whole tasks resampled), the interval a "
@@ -253,8 +260,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         for i in range(1, len(per[p])):
             ax.axvline(i - 0.5, color="0.85", lw=0.8)
         several = len({r["policy"] for r in rows if r["policy"]}) > 1
-        ax.set_xticks(range(len(per[p])), [r["group"] + (f"\n({r['policy']})" if several and r["policy"] else "")
-                                           for r in per[p]], fontsize=8)
+        ax.set_xticks(range(len(per[p])), [r["group"] + (f"\n({_policy_cell(r['policy'])})" if several and r["policy"]
+                                                         else "") for r in per[p]], fontsize=7)
         ax.set_xlim(-0.5, len(per[p]) - 0.5)
         ax.set_ylim(-0.04, 1.12)
         ax.grid(axis="y", alpha=0.3)
