@@ -50,7 +50,8 @@ def run_settings(args) -> dict:
     """What a run's numbers depend on besides its condition, count and seed: a saved run is reused only when these
     match (else the table would label old numbers with new settings)."""
     return {"preset": args.preset, "steps": args.steps, "lr": args.lr, "context": args.context,
-            "horizon": args.horizon, "heldout": list(args.heldout), "tasks": args.tasks, "actions": args.actions,
+            "horizon": args.horizon, "mask_margin": args.mask_margin, "heldout": list(args.heldout),
+            "tasks": args.tasks, "actions": args.actions,
             "data_seed": args.data_seed}
 
 
@@ -104,7 +105,8 @@ def run_all(args) -> list[dict]:
                     source, episodes_per_task=k, model_cfg=model_cfg,
                     train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
                     eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
-                    horizon=args.horizon, lr=args.lr, eval_context=args.context, eval_seed=seed, progress=False,
+                    horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=args.context,
+                    eval_seed=seed, progress=False,
                     checkpoint_dir=args.out / "checkpoints" / "controls")
                 record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,  # no machine paths
                           "identity": {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
@@ -176,6 +178,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lr", type=float, default=protocol["lr"], help="learning rate for every run")
     ap.add_argument("--context", type=int, default=5)
     ap.add_argument("--horizon", type=int, default=protocol["horizon"])
+    ap.add_argument("--mask-margin", type=int, default=protocol["mask_margin"],
+                    help="pixels the robot masks are grown by in the object-focused error")
     ap.add_argument("--conditions", nargs="+", default=None, help="run only these conditions (default: all)")
     ap.add_argument("--tasks", type=int, default=4)
     ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")

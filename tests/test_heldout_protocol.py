@@ -289,3 +289,18 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     # episodes that would be trained on and evaluated: one line, exit 2, before any training
     r = _diversity(*common, "episodes=5", cwd=tmp_path)
     assert r.returncode == 2 and "would train on evaluated episodes" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_grow_masks_by_hand():
+    from simeval.episodes.dataset import grow_masks
+
+    m = np.zeros((2, 8, 8), bool)
+    m[0, 3, 3] = True
+    m[1, 0, 7] = True  # at a corner: the grown square is cut by the border
+    g = grow_masks(m, 1)
+    want = np.zeros_like(m)
+    want[0, 2:5, 2:5] = True
+    want[1, 0:2, 6:8] = True
+    np.testing.assert_array_equal(g, want)
+    np.testing.assert_array_equal(grow_masks(m, 0), m)
+    assert grow_masks(m, 2)[0].sum() == 25

@@ -315,8 +315,10 @@ class WindowDataset:
     DataLoader's batch_sampler can hand them straight to workers (the dataset itself holds no epoch state)."""
 
     def __init__(self, source, spec: WindowSpec, episodes: np.ndarray | None = None, stats: NormStats | None = None,
-                 image_size: int | None = None, seed: int = 0, robot_masks: bool = False) -> None:
+                 image_size: int | None = None, seed: int = 0, robot_masks: bool = False,
+                 mask_margin: int = 0) -> None:
         self.source, self.spec, self.stats, self.seed = source, spec, stats, seed
+        self.mask_margin = int(mask_margin)  # robot masks grown by this many pixels (at image_size), see grow_masks
         # windows carry `robot_mask` (L, H, W) only when asked and every episode has masks (evaluation, not training)
         self.robot_masks = bool(robot_masks) and source.has_robot_masks()
         self.image_size = image_size
@@ -375,6 +377,7 @@ class WindowDataset:
             robot = robot[k:]
             if self.image_size is not None and robot.shape[1] != self.image_size:
                 robot = resize_masks(robot, self.image_size)
+            robot = grow_masks(robot, self.mask_margin)
             out["robot_mask"] = np.zeros((L, *robot.shape[1:]), bool)
             out["robot_mask"][a:b] = robot
         return out
@@ -399,6 +402,19 @@ def resize_masks(masks: np.ndarray, size: int) -> np.ndarray:
     x = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
     mode = "area" if size <= masks.shape[1] else "nearest"
     return (F.interpolate(x, size=(size, size), mode=mode)[:, 0] > 0).numpy()
+
+
+def grow_masks(masks: np.ndarray, margin: int) -> np.ndarray:
+    """(n, H, W) bool masks grown by `margin` pixels (a square neighbourhood: a pixel is set when any pixel within
+    `margin` rows and columns is). Why: a world model's image of the robot is blurred, so its error spills a pixel
+    or two past the robot's outline; a margin keeps that spill out of an object-focused error."""
+    if margin <= 0 or not len(masks):
+        return masks
+    import torch
+    import torch.nn.functional as F
+
+    x = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
+    return (F.max_pool2d(x, 2 * margin + 1, stride=1, padding=margin)[:, 0] > 0).numpy()
 
 
 def infos_to_json(infos: Sequence[EpisodeInfo]) -> str:

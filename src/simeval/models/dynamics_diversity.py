@@ -96,7 +96,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      videos: int = 0, video_dir: str | Path | None = None,
                      device: str | torch.device | None = "auto", compile: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
-                     steps: int | None = None, horizon: int | None = None, lr: float | None = None) -> dict:
+                     steps: int | None = None, horizon: int | None = None, lr: float | None = None,
+                     mask_margin: int = 0) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -116,7 +117,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
     `horizon`-step open-loop prediction errors after `eval_context`
     observed frames, with the last-frame and per-task-mean-image baselines, skill scores, object-focused errors
-    (robot pixels excluded where the episodes carry robot masks) and per-episode sums for intervals
+    (robot pixels excluded where the episodes carry robot masks, grown by `mask_margin` pixels) and per-episode
+    sums for intervals
     (simeval.models.prediction). `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
@@ -124,7 +126,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     if protocol == "heldout":
         return _fit_and_evaluate_heldout(
             source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, eval_seed=eval_seed,
+            eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
+            eval_seed=eval_seed,
             eval_context=eval_context,
             eval_batch_size=eval_batch_size, checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
@@ -185,7 +188,8 @@ def budget_epochs(train_ds: WindowDataset, window: WindowSpec, batch_size: int, 
 
 def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
                               train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
-                              steps: int | None, horizon: int | None, lr: float | None, eval_seed: int,
+                              steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
+                              eval_seed: int,
                               eval_context: int | None,
                               eval_batch_size: int, checkpoint_dir, log_metrics, progress: bool, videos: int,
                               video_dir, device, compile: bool, how_to_get_more) -> dict:
@@ -207,6 +211,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                         f"eval.context={context} observed ones)")
     if context < 1:
         raise UserError(f"eval.context={context}: expected a whole number >= 1")
+    if isinstance(mask_margin, bool) or not isinstance(mask_margin, int) or mask_margin < 0:
+        raise UserError(f"protocol.mask_margin={mask_margin!r}: expected a whole number of pixels >= 0")
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
     probe = WindowDataset(source, window, rank_mask(episode_ranks([i.task for i in source.infos],
                                                                   [i.seed for i in source.infos]), 0, k),
@@ -231,7 +237,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
 
     def held_out(length: int) -> WindowDataset:
         return WindowDataset(source, WindowSpec(length=length, stride=length, pad_end=True), evaluated,
-                             stats=setup.stats, image_size=model_cfg.image_size, robot_masks=True)
+                             stats=setup.stats, image_size=model_cfg.image_size, robot_masks=True,
+                             mask_margin=mask_margin)
 
     step_ds, eval_ds = held_out(window.length), held_out(context + horizon)  # one step; open loop
     if eval_ds.action_space.get("kind") != setup.train_ds.action_space.get("kind"):
@@ -249,7 +256,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
                  if videos > 0 and video_dir is not None else {})
     prediction["episodes"] = [lo + 1, hi]
-    values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "trained_on": [1, k],
+    values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "mask_margin": mask_margin,
+                           "trained_on": [1, k],
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))

@@ -197,8 +197,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
         bars(ax1, r, "one_step", ks, "o-", color, f"{name}: model")
-        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":", color=color, label=f"{name}: last frame")
-        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--", color=color, alpha=0.6, label=f"{name}: mean image")
+        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":x", color=color, label=f"{name}: last frame")
+        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--+", color=color, alpha=0.6, ms=9,
+                 label=f"{name}: mean image")
         bars(ax2, r, "one_step_skill_last", ks, "o-", color, f"{name}: one step")
         bars(ax2, r, "open_loop_skill_last", ks, "s:", color, f"{name}: open loop", shift=1.04)
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
