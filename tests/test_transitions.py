@@ -104,6 +104,7 @@ def test_a_training_set_never_mixes_action_spaces(stored, tmp_path):
     high = read_episode(stored["store"].path_for("gensim", "sweep-pile-into-zone", 0))
     high.action = np.concatenate([high.high_level_action, high.high_level_action[-1:]])
     high.rgb = {k: v[: len(high.action)] for k, v in high.rgb.items()}
+    high.robot_mask = {k: v[: len(high.action)] for k, v in (high.robot_mask or {}).items()} or None
     for name in ("state", "reward", "progress", "is_first", "is_terminal", "object_poses"):
         setattr(high, name, getattr(high, name)[: len(high.action)])
     from simeval.sim.action_spaces import pick_place_action_space
