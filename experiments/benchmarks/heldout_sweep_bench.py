@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> None:
     from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask
     from simeval.models.prediction import evaluate_prediction, task_mean_images
     from simeval.models.synthetic import make_physics_group
-    from simeval.models.training import evaluate, to_torch, collate, epoch_batches
+    from simeval.models.training import collate, epoch_batches, evaluate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -70,11 +70,14 @@ def main(argv: list[str] | None = None) -> None:
     step_s = float(np.median(times[2:]))
 
     context, horizon = 5, protocol["horizon"]
-    held = WindowDataset(src, WindowSpec(context + horizon, context + horizon, pad_end=True), rank_mask(ranks, 40, 50),
-                         stats=stats, image_size=cfg.image_size, robot_masks=True)
+
+    def held(length: int) -> WindowDataset:
+        return WindowDataset(src, WindowSpec(length, length, pad_end=True), rank_mask(ranks, 40, 50), stats=stats,
+                             image_size=cfg.image_size, robot_masks=True)
+
     means = task_mean_images(src, rank_mask(ranks, 0, 10), cfg.image_size)
     t0 = time.perf_counter()
-    pred = evaluate_prediction(model, held, means, context)
+    pred = evaluate_prediction(model, held(window.length), held(context + horizon), means, context)
     heldout_eval_s = time.perf_counter() - t0
     heldout_frame_s = heldout_eval_s / pred["summary"]["reconstruction"]["frames"]
     paper = WindowDataset(src, WindowSpec(window.length, window.length, pad_end=True), rank_mask(ranks, 0, 40),
