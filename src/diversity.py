@@ -85,8 +85,8 @@ def main(cfg: DictConfig) -> None:
                             config=config, choices=run["choices"], seed=int(cfg.seed), identity=identity,
                             overrides=run["overrides"])
         logger.log_metrics(headline(values))
-    log.info("%s/%s episodes=%d [%s, %s, protocol=%s]: %s", cfg.pipeline.name, cfg.task_group, cfg.episodes,
-             wm["name"], device, protocol, summary_line(values))
+    log.info("%s/%s episodes=%d [preset %s, device %s, protocol=%s]: %s", cfg.pipeline.name, cfg.task_group,
+             cfg.episodes, wm["name"], device, protocol, summary_line(values))
     log.info("wrote %s", path)
 
 
