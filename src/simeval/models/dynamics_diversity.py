@@ -115,11 +115,10 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     "heldout" (what simeval's own readings rest on, see PROTOCOLS): `eval_episodes` must lie past every training
     episode (the default (40, 50): episodes 41-50), every episode count trains for the same `steps` gradient steps,
     with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
-    `horizon`-step open-loop prediction errors after `eval_context`
-    observed frames, with the last-frame and per-task-mean-image baselines, skill scores, object-focused errors
-    (robot pixels excluded where the episodes carry robot masks, grown by `mask_margin` pixels) and per-episode
-    sums for intervals
-    (simeval.models.prediction). `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
+    `horizon`-step open-loop prediction errors after `eval_context` observed frames, with the last-frame and
+    per-task-mean-image baselines, skill scores, object-focused errors (robot pixels excluded where the episodes
+    carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals (simeval.models.prediction).
+    `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
         raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -127,9 +126,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         return _fit_and_evaluate_heldout(
             source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
-            eval_seed=eval_seed,
-            eval_context=eval_context,
-            eval_batch_size=eval_batch_size, checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
+            eval_seed=eval_seed, eval_context=eval_context, eval_batch_size=eval_batch_size,
+            checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
             how_to_get_more=how_to_get_more)
     setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
@@ -177,22 +175,41 @@ PROTOCOLS = {
 }
 
 
-def budget_epochs(train_ds: WindowDataset, window: WindowSpec, batch_size: int, steps: int) -> int:
+def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size: int, steps: int) -> int:
     """Epochs enough for `steps` gradient steps however the epochs' random offsets cut the windows: steps divided
     by the fewest batches any offset gives, rounded up (training stops at `steps` through max_steps)."""
-    fewest = min(len(build_index(train_ds.n_rows, window, train_ds.episodes, off)) for off in range(window.stride))
+    fewest = min(len(build_index(n_rows, window, train_mask, off)) for off in range(window.stride))
     if fewest == 0:
         return 1  # no window at some offset: the window check names the tasks
     return int(math.ceil(steps / math.ceil(fewest / batch_size)))
 
 
+def _whole(value, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int) -> None:
+    """One UserError naming the first protocol.* (or eval.context) value the heldout protocol cannot use."""
+    if not _whole(steps, 1):
+        raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
+                        "whole number of gradient steps >= 1")
+    if not _whole(horizon, 1):
+        raise UserError(f"protocol.horizon={horizon!r}: expected a whole number >= 1 (frames imagined after "
+                        f"eval.context={context} observed ones)")
+    if context < 1:
+        raise UserError(f"eval.context={context}: expected a whole number >= 1")
+    if not _whole(mask_margin, 0):
+        raise UserError(f"protocol.mask_margin={mask_margin!r}: expected a whole number of pixels >= 0")
+    if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
+        raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
+
+
 def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
                               train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
                               steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
-                              eval_seed: int,
-                              eval_context: int | None,
-                              eval_batch_size: int, checkpoint_dir, log_metrics, progress: bool, videos: int,
-                              video_dir, device, compile: bool, how_to_get_more) -> dict:
+                              eval_seed: int, eval_context: int | None, eval_batch_size: int, checkpoint_dir,
+                              log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
+                              how_to_get_more) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.models.prediction import evaluate_prediction, task_mean_images
 
@@ -202,25 +219,14 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
                         f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, e.g. "
                         f"eval_episodes=[{k + 1},{k + 10}]")
-    if steps is None or isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
-                        "whole number of gradient steps >= 1")
     context = 5 if eval_context is None else int(eval_context)
-    if horizon is None or isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
-        raise UserError(f"protocol.horizon={horizon!r}: expected a whole number >= 1 (frames imagined after "
-                        f"eval.context={context} observed ones)")
-    if context < 1:
-        raise UserError(f"eval.context={context}: expected a whole number >= 1")
-    if isinstance(mask_margin, bool) or not isinstance(mask_margin, int) or mask_margin < 0:
-        raise UserError(f"protocol.mask_margin={mask_margin!r}: expected a whole number of pixels >= 0")
+    _check_heldout_settings(steps, horizon, lr, mask_margin, context)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
-    probe = WindowDataset(source, window, rank_mask(episode_ranks([i.task for i in source.infos],
-                                                                  [i.seed for i in source.infos]), 0, k),
-                          seed=train_cfg.seed)
-    if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
-        raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
-    train_cfg = replace(train_cfg, epochs=budget_epochs(probe, window, train_cfg.batch_size, steps), max_steps=steps,
-                        lr=train_cfg.lr if lr is None else float(lr))
+    ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
+    epochs = budget_epochs([i.n_rows for i in source.infos], rank_mask(ranks, 0, k), window, train_cfg.batch_size,
+                           steps)
+    train_cfg = replace(train_cfg, epochs=epochs, max_steps=steps, lr=train_cfg.lr if lr is None else float(lr))
+
     def more(n: int) -> str:  # besides collecting: evaluate what the store has, or the paper's protocol
         how = how_to_get_more(n) if how_to_get_more is not None else f"collect more: src/collect.py episodes={n}"
         return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
