@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -43,7 +44,7 @@ def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int
     make = {"dynamics": make_physics_group, "visual": make_visual_group}.get(control)
     if make is not None:
         return {kind: make(kind, n_tasks, episodes, n_actions, size, seed=data_seed) for kind in CONDITIONS[control]}
-    raise SystemExit(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
+    fail(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
 
 
 def run_settings(args) -> dict:
@@ -66,8 +67,22 @@ def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overw
         tracked = subprocess.run(["git", "ls-files", "--error-unmatch", str(path)], cwd=ROOT,
                                  capture_output=True).returncode == 0
         if tracked:
-            raise SystemExit(f"error: {path} is a committed result and this run would change it; write elsewhere "
+            fail(f"error: {path} is a committed result and this run would change it; write elsewhere "
                              "with --out DIR, or replace it with --overwrite")
+
+
+def fail(message: str) -> None:
+    """A user error: one line on stderr, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
+def _committed(folder: Path) -> bool:
+    """Whether git tracks any file in `folder` (a control's committed run records)."""
+    import subprocess
+
+    out = subprocess.run(["git", "ls-files", str(folder)], cwd=ROOT, capture_output=True, text=True)
+    return out.returncode == 0 and bool(out.stdout.strip())
 
 
 def run_all(args) -> list[dict]:
@@ -94,12 +109,15 @@ def run_all(args) -> list[dict]:
                     stored = json.loads(path.read_text()).get("settings")
                     if stored != settings:
                         differ = sorted(key for key in settings if (stored or {}).get(key) != settings[key])
-                        raise SystemExit(f"error: {path} was run with other settings ({', '.join(differ)}: "
+                        fail(f"error: {path} was run with other settings ({', '.join(differ)}: "
                                          f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
                                          f"--out for these settings, or delete that folder's runs to redo them")
                     continue
                 if args.conditions and condition not in args.conditions:
                     continue
+                if not args.overwrite and _committed(runs_dir):  # checked before training, not after it
+                    fail(f"error: {runs_dir} holds committed runs and {path.name} is not among them; "
+                                     "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
                 values = fit_and_evaluate(
                     source, episodes_per_task=k, model_cfg=model_cfg,
@@ -191,7 +209,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="replace committed tables/figures that this run would change (default: refuse)")
     args = ap.parse_args(argv)
     if max(args.episodes) >= args.heldout[0]:
-        raise SystemExit(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
+        fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
     from simeval.report.table4_heldout import build, plot, write
 
