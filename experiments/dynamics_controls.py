@@ -3,6 +3,7 @@
     python experiments/dynamics_controls.py dynamics            # physics shared vs varied, identical visuals
     python experiments/dynamics_controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
     python experiments/dynamics_controls.py visual --episodes 10   # identical physics, the robot's look varied
+    python experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30   # 4 levels of a real task's pose range
 
 Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
@@ -20,6 +21,12 @@ fewest to the most episodes is larger (interval of the difference of falls above
 reported as it is. The visual control passes when the full-frame one-step error of the varied-looks group is
 higher than the shared group's (95% interval of the difference above zero) while the object-focused error (robot
 pixels excluded) moves less than a quarter as much, relative to the shared group's (the ratio is reported).
+The dose-response control collects one real suite task (DOSE_TASK, PyBullet, oracle demonstrations with robot
+masks) at four levels of its initial-pose range (the `scene: {pose_range}` knob: 0 = one layout in every episode,
+1 = the suite's usual uniform poses; DOSE_LEVELS) into OUT/control_episodes, and passes when the protocol's
+primary number (the object-focused one-step error, robot pixels out of the loss and the score) increases with the
+level at every step (point values) and the top level minus the bottom one has a 95% interval above zero. Both
+criteria were written down before the control ran.
 `--conditions` runs some conditions only (two processes can share the runs; the last one to
 finish, or any later call, builds the table from every run saved).
 """
@@ -35,25 +42,61 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied")}
+DOSE_TASK = ("gensim", "put-blocks-in-matching-zones")  # fixed counts: only the poses differ between levels
+DOSE_LEVELS = {"range000": 0.0, "range033": 1 / 3, "range067": 2 / 3, "range100": 1.0}  # names sort by level
+CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied"), "dose": tuple(DOSE_LEVELS)}
 
 
-def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int) -> dict:
+def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int,
+            out: Path | None = None, workers: int = 1) -> dict:
     from simeval.models.synthetic import make_physics_group, make_visual_group
 
     make = {"dynamics": make_physics_group, "visual": make_visual_group}.get(control)
     if make is not None:
         return {kind: make(kind, n_tasks, episodes, n_actions, size, seed=data_seed) for kind in CONDITIONS[control]}
+    if control == "dose":
+        return dose_sources(size, episodes, out, workers)
     fail(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
 
 
-def run_settings(args) -> dict:
+def dose_sources(size: int, episodes: int, out: Path, workers: int) -> dict:
+    """Per level, episode seeds 0..episodes-1 of DOSE_TASK collected (once: the store keeps them, keyed by the
+    variation) at frames of `size` with robot masks, from the top camera."""
+    from simeval.collect import collect
+    from simeval.episodes.dataset import StoreSource
+    from simeval.episodes.store import EpisodeStore
+    from simeval.sim.rollout import RecordSettings
+    from simeval.sim.spec import SUITES_DIR, load_suite
+
+    pipeline, task = DOSE_TASK
+    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    store = EpisodeStore(out / "control_episodes")
+    settings = RecordSettings(cameras=("top",), image_size=(size, size), robot_masks=True)
+    data = {}
+    for name, level in DOSE_LEVELS.items():
+        variation = {"scene": {"pose_range": level}}
+        seeds = list(range(episodes))
+        done = collect([spec], seeds, store, settings, pipeline=pipeline, workers=workers, progress=False,
+                       variation=variation)
+        failed = [e for e in done["new"] if not e.get("success", True)]
+        print(f"{name} (pose_range {level:.2f}): {len(done['new'])} episodes collected, {done['skipped']} in the "
+              f"store; oracle success {done['tasks'][task]['rate']:.2f}" + (f", {len(failed)} failed" if failed
+                                                                           else ""), flush=True)
+        data[name] = StoreSource([store.path_for(pipeline, task, s, variation) for s in seeds], "top")
+    return data
+
+
+def run_settings(args, has_robot_masks: bool) -> dict:
     """What a run's numbers depend on besides its condition, count and seed: a saved run is reused only when these
-    match (else the table would label old numbers with new settings)."""
-    return {"preset": args.preset, "steps": args.steps, "lr": args.lr, "context": args.context,
-            "horizon": args.horizon, "mask_margin": args.mask_margin, "heldout": list(args.heldout),
-            "tasks": args.tasks, "actions": args.actions,
-            "data_seed": args.data_seed}
+    match (else the table would label old numbers with new settings). Where the data has no robot masks (the
+    dynamics control) leaving the robot out of the loss changes nothing, so it is not a setting there."""
+    settings = {"preset": args.preset, "steps": args.steps, "lr": args.lr, "context": args.context,
+                "horizon": args.horizon, "mask_margin": args.mask_margin, "heldout": list(args.heldout),
+                "tasks": args.tasks, "actions": args.actions,
+                "data_seed": args.data_seed}
+    if has_robot_masks:
+        settings["exclude_robot_from_loss"] = args.exclude_robot_from_loss
+    return settings
 
 
 def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool) -> None:
@@ -99,8 +142,9 @@ def run_all(args) -> list[dict]:
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     runs_dir = args.out / "controls" / args.control / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
-    data = sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1], args.data_seed)
-    settings = run_settings(args)
+    data = sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1], args.data_seed,
+                   args.out, args.threads)
+    settings = run_settings(args, any(s.has_robot_masks() for s in data.values()))
     for seed in args.seeds:
         for condition, source in data.items():
             for k in args.episodes:
@@ -124,6 +168,7 @@ def run_all(args) -> list[dict]:
                     train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
                     eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
                     horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=args.context,
+                    exclude_robot_from_loss=args.exclude_robot_from_loss,
                     eval_seed=seed, progress=False,
                     checkpoint_dir=args.out / "checkpoints" / "controls")
                 record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,  # no machine paths
@@ -181,6 +226,74 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     return out
 
 
+def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 2000) -> dict:
+    """Per level (at the fewest episodes) the object-focused and full-frame one-step errors with intervals, the
+    differences between neighbouring levels and between the top and bottom levels (independent resamples of each
+    level's seeds and held-out episodes), and whether the primary number rises with the level."""
+    from simeval.metrics import resample
+    from simeval.report.table4_heldout import cell_replicates, sum_arrays
+
+    k = min(int(r["identity"]["episodes"]) for r in records)
+    points, reps = {}, {}
+    for i, level in enumerate(levels):
+        recs = sorted((r for r in records if r["identity"]["task_group"] == level and
+                       int(r["identity"]["episodes"]) == k), key=lambda r: r["identity"]["seed"])
+        sums, tasks = sum_arrays(recs)
+        points[level], reps[level] = cell_replicates(sums, resample.draws(len(recs), tasks, n_boot, seed=1 + i))
+    out: dict = {"episodes": k}
+    for metric in ("one_step_object", "one_step", "one_step_object_skill_last", "one_step_skill_last"):
+        out[metric] = {
+            "by_level": {lv: [points[lv][metric], *resample.percentile(reps[lv][metric])] for lv in levels},
+            "steps": {f"{b}_minus_{a}": [points[b][metric] - points[a][metric],
+                                         *resample.percentile(reps[b][metric] - reps[a][metric])]
+                      for a, b in zip(levels, levels[1:])},
+            "top_minus_bottom": [points[levels[-1]][metric] - points[levels[0]][metric],
+                                 *resample.percentile(reps[levels[-1]][metric] - reps[levels[0]][metric])]}
+    primary = out["one_step_object"]  # the protocol's primary number with robot masks, fixed before the run
+    out["passes"] = {"rises_at_every_level": all(v[0] > 0 for v in primary["steps"].values()),
+                     "top_minus_bottom_above_zero": primary["top_minus_bottom"][1] > 0}
+    return out
+
+
+def plot_dose(rows: list[dict], levels: dict[str, float], path: Path, title: str) -> Path:
+    """Against the pose-range level: the object-focused one-step error (the primary number) with its interval and
+    both baselines on the same pixels (left), and the full-frame one-step error with its baselines (right). Saved
+    without dates (simeval.report.figures.save_figure): the same runs give the same bytes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from simeval.report.figures import save_figure
+
+    by_level = {r["group"]: r for r in rows}
+    names = [n for n in levels if n in by_level]
+    x = np.array([levels[n] for n in names])
+    k = int(rows[0]["counts"].split("/")[0])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, name, scale, unit in ((axes[0], "one_step_object", 1e3, "per kept pixel and channel (x1e-3)"),
+                                  (axes[1], "one_step", 1.0, "sum over pixels per frame")):
+        v = np.array([by_level[n][f"{name}_{k}"] for n in names]) * scale
+        lo = np.array([by_level[n][f"{name}_{k}_lo"] for n in names]) * scale
+        hi = np.array([by_level[n][f"{name}_{k}_hi"] for n in names]) * scale
+        ax.errorbar(x, v, yerr=np.maximum(np.stack([v - lo, hi - v]), 0), fmt="o-", color="C0", capsize=3,
+                    label="model (95% CI)")
+        ax.plot(x, [by_level[n][f"{name}_last_{k}"] * scale for n in names], ":x", color="C1", label="last frame")
+        ax.plot(x, [by_level[n][f"{name}_mean_{k}"] * scale for n in names], "--+", color="C2", ms=9,
+                label="task's mean training image")
+        ax.set_xticks(x, [f"{level:.2f}" for level in x])
+        ax.set(xlabel="initial-pose range (scene.pose_range)", ylabel=unit,
+               title=("object-focused one-step error (primary)" if name == "one_step_object" else
+                      "full-frame one-step error (robot not trained on)"))
+        ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    out = save_figure(fig, path, dpi=120)
+    plt.close(fig)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     import yaml
 
@@ -198,6 +311,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--horizon", type=int, default=protocol["horizon"])
     ap.add_argument("--mask-margin", type=int, default=protocol["mask_margin"],
                     help="pixels the robot masks are grown by in the object-focused error")
+    ap.add_argument("--exclude-robot-from-loss", action=argparse.BooleanOptionalAction,
+                    default=protocol["exclude_robot_from_loss"],
+                    help="leave the (grown) robot pixels out of the training loss")
     ap.add_argument("--conditions", nargs="+", default=None, help="run only these conditions (default: all)")
     ap.add_argument("--tasks", type=int, default=4)
     ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")
@@ -222,9 +338,14 @@ def main(argv: list[str] | None = None) -> None:
     records = [r for r in records if (r["identity"]["task_group"], r["identity"]["episodes"], r["identity"]["seed"])
                in wanted]
     rows = build(records)
+    verdict = (dose_verdict(records, CONDITIONS["dose"]) if args.control == "dose"
+               else verdicts(records, CONDITIONS[args.control]))
     result = {"control": args.control, "preset": args.preset, "steps": args.steps, "lr": args.lr, "seeds": args.seeds,
               "episodes": args.episodes, "heldout": args.heldout, "tasks": args.tasks, "actions": args.actions,
-              "verdict": verdicts(records, CONDITIONS[args.control]), "rows": rows}
+              "exclude_robot_from_loss": args.exclude_robot_from_loss, "verdict": verdict, "rows": rows}
+    if args.control == "dose":
+        result.update(task="/".join(DOSE_TASK), levels=DOSE_LEVELS)
+        del result["tasks"], result["actions"]
     if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
         v = result["verdict"]
         full_moves = v["one_step"][f"varied_minus_shared_at_{min(args.episodes)}_interval"][0] > 0
@@ -238,8 +359,13 @@ def main(argv: list[str] | None = None) -> None:
         tmp_stem = Path(tmp) / stem.name
         write(rows, tmp_stem)
         tmp_stem.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-        plot(rows, Path(tmp) / figure.name, f"{args.control} control ({args.preset}, {args.steps} steps, seeds "
-                                            f"{seeds}): {passes}")
+        title = f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}"
+        if args.control == "dose":
+            plot_dose(rows, DOSE_LEVELS, Path(tmp) / figure.name,
+                      f"{'/'.join(DOSE_TASK)}, {min(args.episodes)} training episodes, held-out episodes "
+                      f"{args.heldout[0]}-{args.heldout[1]}\n{title}")
+        else:
+            plot(rows, Path(tmp) / figure.name, title)
         made = [tmp_stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [Path(tmp) / figure.name]
         targets = [stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [figure]
         refuse_to_replace_committed(targets, [m.read_bytes() for m in made], args.overwrite)

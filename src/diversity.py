@@ -71,6 +71,7 @@ def main(cfg: DictConfig) -> None:
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_ranks, protocol=protocol, steps=cfg.protocol.steps, horizon=cfg.protocol.horizon,
             lr=cfg.protocol.lr, mask_margin=cfg.protocol.get("mask_margin") or 0,
+            exclude_robot_from_loss=cfg.protocol.get("exclude_robot_from_loss") or False,
             heldout_episodes=heldout_ranks if protocol == "paper" else None, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),

@@ -74,8 +74,10 @@ def test_no_training_read_touches_an_evaluated_episode(monkeypatch):
 def test_every_episode_count_trains_the_same_steps_and_overlap_is_refused():
     source = make_physics_group("shared", 2, 12, 20, 16)
     assert run(source, k=2)["train"]["steps"] == run(source, k=6)["train"]["steps"] == 12
-    with pytest.raises(UserError, match="would train on evaluated episodes"):
-        run(source, k=10)
+    with pytest.raises(UserError, match=r"would train on evaluated episodes.*eval_episodes=\[11,12\]$"):
+        run(source, k=10)  # the fix names a range the 12 episodes per task hold, not one past them
+    with pytest.raises(UserError, match=r"with more episodes: collect episodes=22, then eval_episodes=\[13,22\]"):
+        run(source, k=12)
     with pytest.raises(UserError, match="protocol.steps"):
         run(source, k=2, steps=None)
     with pytest.raises(UserError, match="at most 21 rows; use protocol.horizon=18 or less"):
@@ -304,3 +306,73 @@ def test_grow_masks_by_hand():
     np.testing.assert_array_equal(g, want)
     np.testing.assert_array_equal(grow_masks(m, 0), m)
     assert grow_masks(m, 2)[0].sum() == 25
+
+
+def test_robot_pixels_carry_no_training_loss_computed_by_hand():
+    """WorldModel.step_errors with a robot_mask: the image term is the squared error over the unmasked pixels
+    only, checked against the decoder's output summed by hand in numpy."""
+    from simeval.models.world_model import WorldModel
+
+    torch.manual_seed(0)
+    model = WorldModel(WorldModelConfig.from_dict(TINY["model"]), state_dim=2, action_dim=2)
+    size = model.cfg.image_size
+    rng = np.random.default_rng(0)
+    batch = {"image": torch.as_tensor(rng.integers(0, 256, (2, 3, size, size, 3), dtype=np.uint8)),
+             "state": torch.zeros(2, 3, 2), "prev_action": torch.zeros(2, 3, 2),
+             "is_first": torch.tensor([[True, False, False]] * 2), "mask": torch.ones(2, 3, dtype=torch.bool)}
+    robot = np.zeros((2, 3, size, size), bool)
+    robot[:, :, : size // 3] = True
+    robot[1, 2] = True  # a frame that is all robot carries no image loss at all
+    decoded = {}
+    real_decoder = model.image_decoder.forward
+    model.image_decoder.forward = lambda feat: decoded.setdefault("x", real_decoder(feat))
+    g = torch.Generator().manual_seed(1)
+    masked = model.step_errors({**batch, "robot_mask": torch.as_tensor(robot)}, generator=g)["image_se"]
+    pred = decoded.pop("x").detach().numpy()
+    image = batch["image"].numpy() / 255.0
+    by_hand = ((pred - image) ** 2 * ~robot[..., None]).sum((-3, -2, -1))
+    np.testing.assert_allclose(masked.detach().numpy(), by_hand, rtol=1e-5)
+    assert masked[1, 2] == 0
+    g = torch.Generator().manual_seed(1)
+    full = model.step_errors(batch, generator=g)["image_se"].detach().numpy()  # no mask: every pixel
+    np.testing.assert_allclose(full, ((decoded.pop("x").detach().numpy() - image) ** 2).sum((-3, -2, -1)), rtol=1e-5)
+
+
+def test_exclude_robot_from_loss_trains_on_masks_where_episodes_have_them():
+    plain = make_physics_group("shared", 2, 12, 22, 16)
+    masked = run(_with_flickering_robot(plain), k=4, exclude_robot_from_loss=True, mask_margin=1)["protocol"]
+    assert masked["exclude_robot_from_loss"] is True and masked["robot_excluded_from_loss"] is True
+    without = run(plain, k=4, exclude_robot_from_loss=True)["protocol"]
+    assert without["robot_excluded_from_loss"] is False  # no masks: the full frame, and the result says so
+    assert run(plain, k=4)["protocol"]["robot_excluded_from_loss"] is False
+    with pytest.raises(UserError, match="exclude_robot_from_loss"):
+        run(plain, k=4, exclude_robot_from_loss="yes")
+
+
+def test_pose_range_shrinks_poses_towards_one_anchor_layout():
+    from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, sample_instance
+    from simeval.sim.world import WORKSPACE
+
+    spec = next(s for s in load_suite(SUITES_DIR / "gensim") if s.name == "put-blocks-in-matching-zones")
+
+    def poses(seed, pose_range):
+        inst = sample_instance(spec, seed, None, pose_range)
+        return inst, {k: (xy.copy(), yaw) for k, (xy, yaw) in inst.poses.items()}
+
+    _, anchor = poses(0, 0.0)
+    for seed in range(1, 6):
+        _, p0 = poses(seed, 0.0)  # every episode the anchor layout
+        assert all(np.array_equal(p0[k][0], anchor[k][0]) and p0[k][1] == anchor[k][1] for k in anchor)
+        default, p1 = poses(seed, 1.0)
+        usual = sample_instance(spec, seed).poses  # 1 is the suite's usual draw, bit for bit
+        assert all(np.array_equal(p1[k][0], usual[k][0]) and p1[k][1] == usual[k][1] for k in usual)
+        inst, half = poses(seed, 0.5)
+        assert [o.color for o in inst.objects] == [o.color for o in default.objects]  # colours do not move
+        extent = np.array([hi - lo for lo, hi in WORKSPACE])
+        for k in anchor:  # within half the workspace's extent of the anchor
+            assert np.all(np.abs(half[k][0] - anchor[k][0]) <= 0.5 * extent + 1e-9)
+    spread = [np.std([np.concatenate([xy for xy, _ in poses(s, f)[1].values()]) for s in range(20)], 0).mean()
+              for f in (0.0, 1 / 3, 2 / 3, 1.0)]
+    assert spread[0] < 1e-12 and spread[1] < spread[2] < spread[3]
+    with pytest.raises(SpecError, match="pose_range"):
+        check_variation([spec], {"scene": {"pose_range": 1.5}})

@@ -304,7 +304,7 @@ def store_paths_for(store_root: str | os.PathLike, pipeline: str, group: str, va
     if not metas:
         groups = sorted({m["group"] for m in store.index(pipeline)}) if store.root.is_dir() else []
         hint = (f"its groups there: {groups}" if groups else "none of this pipeline there" if store.root.is_dir()
-                else "the folder does not exist")
+                else "it is a file, not a folder" if store.root.exists() else "the folder does not exist")
         raise UserError(f"no episodes of pipeline '{pipeline}' group '{group}' in store {store.root} ({hint})")
     return [Path(m["path"]) for m in metas]
 
@@ -319,7 +319,8 @@ class WindowDataset:
                  mask_margin: int = 0) -> None:
         self.source, self.spec, self.stats, self.seed = source, spec, stats, seed
         self.mask_margin = int(mask_margin)  # robot masks grown by this many pixels (at image_size), see grow_masks
-        # windows carry `robot_mask` (L, H, W) only when asked and every episode has masks (evaluation, not training)
+        # windows carry `robot_mask` (L, H, W) only when asked and every episode has masks (the evaluation's
+        # object-focused error; in training, WorldModel.step_errors leaves those pixels out of the loss)
         self.robot_masks = bool(robot_masks) and source.has_robot_masks()
         self.image_size = image_size
         self.episodes = np.ones(len(source.infos), bool) if episodes is None else np.asarray(episodes, bool)

@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -97,7 +98,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      device: str | torch.device | None = "auto", compile: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
                      steps: int | None = None, horizon: int | None = None, lr: float | None = None,
-                     mask_margin: int = 0) -> dict:
+                     mask_margin: int = 0, exclude_robot_from_loss: bool = False) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -118,6 +119,9 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     `horizon`-step open-loop prediction errors after `eval_context` observed frames, with the last-frame and
     per-task-mean-image baselines, skill scores, object-focused errors (robot pixels excluded where the episodes
     carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals (simeval.models.prediction).
+    With `exclude_robot_from_loss` (heldout only) those same grown robot pixels carry no training loss either, so the
+    model learns nothing of the robot's looks (the visual control failed without it); episodes without masks train
+    on the full frame, and `values["protocol"]["robot_excluded_from_loss"]` says which happened.
     `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
@@ -126,7 +130,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         return _fit_and_evaluate_heldout(
             source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
-            eval_seed=eval_seed, eval_context=eval_context, eval_batch_size=eval_batch_size,
+            exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context, eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
             how_to_get_more=how_to_get_more)
@@ -207,7 +211,7 @@ def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int) -> No
 def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
                               train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
                               steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
-                              eval_seed: int, eval_context: int | None, eval_batch_size: int, checkpoint_dir,
+                              exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None, eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
                               how_to_get_more) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
@@ -216,11 +220,17 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
     k = int(episodes_per_task)
     lo, hi = eval_episodes
     if lo < k:
+        have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
+        fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
+               f"with more episodes: "
+               + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
+               + f", then eval_episodes=[{k + 1},{k + 10}]")
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
-                        f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, e.g. "
-                        f"eval_episodes=[{k + 1},{k + 10}]")
+                        f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
     context = 5 if eval_context is None else int(eval_context)
     _check_heldout_settings(steps, horizon, lr, mask_margin, context)
+    if not isinstance(exclude_robot_from_loss, bool):
+        raise UserError(f"protocol.exclude_robot_from_loss={exclude_robot_from_loss!r}: expected true or false")
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
     ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
     epochs = budget_epochs([i.n_rows for i in source.infos], rank_mask(ranks, 0, k), window, train_cfg.batch_size,
@@ -233,7 +243,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                 "or use protocol=paper")
 
     setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, more,
-                     protocol="heldout")
+                     protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
     evaluated = rank_mask(setup.ranks, lo, hi)
     longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
     if context + horizon > longest:
@@ -263,6 +273,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                  if videos > 0 and video_dir is not None else {})
     prediction["episodes"] = [lo + 1, hi]
     values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "mask_margin": mask_margin,
+                           "exclude_robot_from_loss": exclude_robot_from_loss,
+                           "robot_excluded_from_loss": setup.train_ds.robot_masks,
                            "trained_on": [1, k],
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
@@ -302,10 +314,11 @@ class _Setup:
 
 def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
              eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
-             protocol: str = "paper") -> _Setup:
+             protocol: str = "paper", loss_robot_margin: int | None = None) -> _Setup:
     """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
     checkpoint key is the config + training data, and `protocol` for any protocol but the paper's (so the paper's
-    checkpoints keep their names)."""
+    checkpoints keep their names). `loss_robot_margin`: None trains on the full frame; a margin leaves the robot's
+    pixels (masks grown by it) out of the loss where the episodes carry masks (and is then part of the key)."""
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
     ranks = episode_ranks(tasks, seeds)
@@ -318,7 +331,8 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
     train_mask = rank_mask(ranks, 0, k)
     check_every_task_has_windows(infos, train_mask, window, train_cfg.seed, train_cfg.epochs)
     check_frames_not_upsampled(source, model_cfg.image_size)
-    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed)
+    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed,
+                             robot_masks=loss_robot_margin is not None, mask_margin=loss_robot_margin or 0)
     stats = train_ds.fit_stats()
     train_ds.stats = stats
     state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
@@ -330,6 +344,8 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
             "action_space": train_ds.action_space}
     if protocol != "paper":
         meta["protocol"] = protocol
+    if train_ds.robot_masks:
+        meta["loss_excludes_robot_grown_by"] = int(loss_robot_margin)
     checkpoint = None
     if checkpoint_dir is not None:
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]

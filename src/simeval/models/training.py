@@ -162,7 +162,10 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
         epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
         frames_before, seconds_before = int(ck.get("frames", 0)), float(ck.get("seconds", 0.0))
         segments = list(ck.get("segments") or ([{"steps": [0, step], "device": None, "compile": None}] if step else []))
-        log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
+        if ck.get("finished"):  # a finished run only evaluates: "resumed" would say it trains on
+            log.info("trained already (%d steps): %s; evaluating only", step, checkpoint)
+        else:
+            log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
 
     first_step = step
 

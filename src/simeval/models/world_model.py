@@ -408,13 +408,17 @@ class WorldModel(nn.Module):
 
     def step_errors(self, batch: dict, generator=None) -> dict[str, torch.Tensor]:
         """Per-step (B, T) terms of the loss: image_se (squared error summed over pixels and channels, images in
-        [0, 1]), state_se (summed over dimensions, symlog space), kl_dyn = KL[sg(q) || p], kl_rep = KL[q || sg(p)]
+        [0, 1]; a batch that carries `robot_mask` (B, T, H, W) leaves those pixels out), state_se (summed over dimensions, symlog space), kl_dyn = KL[sg(q) || p], kl_rep = KL[q || sg(p)]
         (their values are equal; the two differ only in where gradients flow)."""
         image = self._images(batch)
         post, prior = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
                                         generator=generator)
         feat = self.rssm.features(post)
-        out = {"image_se": (self.image_decoder(feat) - image).pow(2).sum((-3, -2, -1))}
+        se = (self.image_decoder(feat) - image).pow(2)
+        robot = batch.get("robot_mask")
+        if robot is not None:  # pixels the robot covers carry no loss: the model spends nothing on its looks
+            se = se * (~robot.bool()).to(se.dtype)[..., None]
+        out = {"image_se": se.sum((-3, -2, -1))}
         if self.state_decoder is not None:
             out["state_se"] = (self.state_decoder(feat) - symlog(batch["state"])).pow(2).sum(-1)
         else:

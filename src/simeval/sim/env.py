@@ -288,8 +288,8 @@ class SimEnv(_gym().Env):
         spec, variation = self.spec_task, dict(self.variation)
         home_noise = float(variation.pop("robot", {}).get("home_noise", spec.home_noise))
         seed = scene_seed(spec, seed, variation)  # a `fixed` task: every episode from the scene of seed 0
-        variation.pop("scene", None)
-        self.inst = sample_instance(spec, seed, variation)
+        pose_range = float(variation.pop("scene", {}).get("pose_range", 1.0))
+        self.inst = sample_instance(spec, seed, variation, pose_range)
         # the physical randomness (pile spreads, the arm's home noise): a child of the task's own stream, so two
         # tasks with the same seed differ here too, and it stays unrelated to the draws of sample_instance
         rng = np.random.default_rng(task_seed(spec.name, seed).spawn(1)[0])

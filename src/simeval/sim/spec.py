@@ -42,7 +42,9 @@ Variation knobs (`check_variation`), all per episode seed: objects' `colors`, `c
 `scale` (a factor or [lo, hi]: the object's overall size times a factor drawn uniformly) and `joint_init_noise`
 (fraction: each joint's initial fraction moved by a uniform draw in [-x, x], clipped to [0, 1]); `robot:
 {home_noise}` (radians); `scene: {initial_state: random}` (a `fixed` task's scene drawn from the episode seed, as
-test-time variation does; without it a fixed task ignores the seed whatever the other knobs say).
+test-time variation does; without it a fixed task ignores the seed whatever the other knobs say) and `scene:
+{pose_range}` (a fraction in [0, 1]: how far the poses may stray from one anchor layout per task; a diversity dose
+for the dynamics-diversity controls, see sample_instance).
 
 Every task draws from its own random stream, seeded by (task name, seed): the same episode seed gives unrelated
 layouts in different tasks. A layout that does not fit is redrawn from the same stream, so every seed is valid.
@@ -339,7 +341,7 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
 
 OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size")  # size: [x, y, z] m, every instance
 ROBOT_KNOBS = ("home_noise",)
-SCENE_KNOBS = ("initial_state",)
+SCENE_KNOBS = ("initial_state", "pose_range")
 
 
 def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
@@ -372,6 +374,10 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
             if knobs.get("initial_state", "random") not in INITIAL_STATES:
                 raise SpecError(f"{key}.initial_state: expected one of {', '.join(INITIAL_STATES)}, "
                                 f"got {knobs['initial_state']!r}")
+            pr = knobs.get("pose_range", 1.0)
+            if isinstance(pr, bool) or not isinstance(pr, (int, float)) or not 0 <= pr <= 1:
+                raise SpecError(f"{key}.pose_range: expected a fraction in [0, 1] (0: every episode the task's "
+                                f"one anchor layout, 1: poses uniform over the regions as usual), got {pr!r}")
             out[name] = dict(knobs)
             continue
         if not any(name == o.name for s in specs for o in s.objects):
@@ -492,8 +498,12 @@ _LAYOUT_ATTEMPTS = 200  # whole-layout redraws before a spec is declared unplace
 _TRIES_PER_OBJECT = 100
 
 
-def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) -> Instance:
-    """Colours, counts and poses from (task, seed). `variation` may override per object: {name: {colors, count}}."""
+def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, pose_range: float = 1.0) -> Instance:
+    """Colours, counts and poses from (task, seed). `variation` may override per object: {name: {colors, count}}.
+    `pose_range` in [0, 1] (the `scene: {pose_range}` knob, a diversity dose): each object's position and yaw are
+    anchor + pose_range * (uniform draw - anchor), the anchor being one layout of the same objects fixed per task
+    (drawn from its own stream); 0 gives every episode the anchor layout, 1 (default) the usual uniform poses,
+    between them uniform over the regions shrunk towards the anchor. Colours and counts do not depend on it."""
     rng = np.random.default_rng(task_seed(spec.name, seed))
     variation = variation or {}
     unknown = set(variation) - {o.name for o in spec.objects}
@@ -529,8 +539,9 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None) ->
             if n_what != n_where:
                 raise SpecError(f"task {spec.name}: goal '{g.type}' asks for one {'/'.join(g.what)} per "
                                 f"{'/'.join(g.where)}, but the counts are {n_what} and {n_where}; give them equal counts")
+    anchor = _anchor_layout(spec, objects) if pose_range < 1 else None  # 1: the usual draws, bit for bit
     for _ in range(_LAYOUT_ATTEMPTS):  # a layout that does not fit is redrawn from the same stream
-        poses = _layout(spec, objects, rng)
+        poses = _layout(spec, objects, rng, anchor, float(pose_range))
         if poses is not None:
             break
     else:
@@ -563,8 +574,22 @@ def _scaled(size, rng: np.random.Generator, scale) -> tuple[float, float, float]
     return tuple(float(x) * factor for x in size)
 
 
-def _layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator):
-    """Poses with no two footprints closer than 2.5 cm, or None when one object found no room."""
+def _anchor_layout(spec: TaskSpec, objects: list[SimObject]) -> dict[str, tuple[np.ndarray, float]]:
+    """The layout `pose_range` shrinks towards: the same objects placed from a stream of the task's own that no
+    episode seed draws from (task_seed's entropy plus one more word)."""
+    rng = np.random.default_rng([*task_seed(spec.name, 0).entropy, 1])
+    for _ in range(_LAYOUT_ATTEMPTS):
+        poses = _layout(spec, objects, rng)
+        if poses is not None:
+            return poses
+    raise SpecError(f"task {spec.name}: cannot place its {len(objects)} objects without overlap in "
+                    f"{_LAYOUT_ATTEMPTS} layouts; enlarge the regions or reduce counts/sizes")
+
+
+def _layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator, anchor: dict | None = None,
+            pose_range: float = 1.0):
+    """Poses with no two footprints closer than 2.5 cm, or None when one object found no room. With an `anchor`
+    layout, each draw is pulled towards the object's anchor pose (see sample_instance's `pose_range`)."""
     poses: dict[str, tuple[np.ndarray, float]] = {}
     placed: list[tuple[np.ndarray, float]] = []
     for obj in sorted(objects, key=lambda x: -x.footprint):  # big things first: they are hardest to fit
@@ -576,11 +601,15 @@ def _layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator):
             (x0, x1), (y0, y1) = ((a + r, b - r) for a, b in WORKSPACE)
         for _ in range(_TRIES_PER_OBJECT):
             xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
+            if anchor is not None:
+                xy = anchor[obj.id][0] + pose_range * (xy - anchor[obj.id][0])
             if all(np.linalg.norm(xy - p) > r + q + 0.025 for p, q in placed):
                 break
         else:
             return None
         placed.append((xy, r))
         yaw = float(rng.uniform(*spec_o.yaw)) if obj.shape not in ("sphere", "pile", "bowl") else 0.0
+        if anchor is not None:
+            yaw = anchor[obj.id][1] + pose_range * (yaw - anchor[obj.id][1])
         poses[obj.id] = (xy, yaw)
     return poses
