@@ -442,7 +442,12 @@ def summary_line(values: dict) -> str:
     p = values["prediction"]["summary"]
     f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
     ol, one = p["open_loop"], p["one_step"]
-    return (f"held-out episodes {values['protocol']['evaluated_on']}: open-loop error {f(ol['model']['error'])} (last "
+    milli = lambda x: "n/a" if x is None else f"{1e3 * x:.3f}"  # noqa: E731
+    trained = values["protocol"].get("robot_excluded_from_loss")
+    return (f"held-out episodes {values['protocol']['evaluated_on']}: object-focused one-step error (primary, "
+            f"x1e-3 per pixel) {milli(one['model']['object_error_per_pixel'])} (last frame "
+            f"{milli(one['last']['object_error_per_pixel'])}, mean image {milli(one['mean']['object_error_per_pixel'])}"
+            f"{'; robot not trained on' if trained else ''}); open-loop error {f(ol['model']['error'])} (last "
             f"frame {f(ol['last']['error'])}, mean image {f(ol['mean']['error'])}; skill {f(ol['skill_vs_last'])} / "
             f"{f(ol['skill_vs_mean'])}), one-step {f(one['model']['error'])} (skill vs last frame "
             f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}"

@@ -4,14 +4,18 @@ held-out episodes (simeval.metrics.resample), from dynamics_diversity result.jso
 
 Per cell (the runs of one count: one per training seed, all evaluated on the same held-out episodes), from the
 per-episode sums of simeval.models.prediction, with x[r, e] summed squared errors and n[r, e] frames, for each kind
-of prediction K (one_step: the primary number, o_t predicted from o_{<t} and the actions; open_loop: frames imagined
-from the actions after the context; reconstruction: the paper's quantity, here on held-out frames):
+of prediction K (one_step: o_t predicted from o_{<t} and the actions; open_loop: frames imagined from the actions
+after the context; reconstruction: the paper's quantity, here on held-out frames):
     K                   sum x_model / sum n
     K_last, K_mean      the baselines on the same frames: copy the last observed frame; the task's mean training image
     K_skill_last        1 - K / K_last;  K_skill_mean  1 - K / K_mean   (< 0: worse than the baseline)
     K_object, K_object_last, K_object_skill_last   the same per kept (non-robot) pixel and channel
-and per row the fall from the first to the last count of one_step and open_loop (`drop_K`) on paired resamples
-(the same seeds' indices and held-out episodes for both counts).
+and per row the fall from the first to the last count of one_step_object, one_step and open_loop (`drop_K`) on
+paired resamples (the same seeds' indices and held-out episodes for both counts).
+
+The primary number (PRIMARY) is the object-focused one-step error: the protocol leaves the robot's pixels out of
+the training loss (protocol.exclude_robot_from_loss), so where episodes carry robot masks the full-frame error scores
+pixels the model never learned; without masks the two are the same frames (per pixel vs summed).
 
     rows = build(read_results(root, "dynamics_diversity"))
     write(rows, "outputs/tables/table4_heldout")      # .csv (every number), .md
@@ -31,7 +35,7 @@ from simeval.report.tables import to_csv, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
-PRIMARY = "one_step"
+PRIMARY = "one_step_object"
 BASELINES = {"one_step": ("last", "mean"), "open_loop": ("last", "mean"), "reconstruction": ("mean",)}
 # name -> (numerator sum key, denominator sum key, scale of the denominator)
 RATIOS = {}
@@ -118,7 +122,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
-            for kind in ("one_step", "open_loop"):
+            for kind in ("one_step_object", "one_step", "open_loop"):
                 row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
                 row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
                     reps_by_k[lo][kind] - reps_by_k[hi][kind])
@@ -133,26 +137,34 @@ def _ci(row: dict, name: str, digits: int) -> str:
     return f"{v:.{digits}f} [{row[name + '_lo']:.{digits}f}, {row[name + '_hi']:.{digits}f}]"
 
 
+def _milli(row: dict, name: str) -> str:
+    """`name` with its interval, x1e3 (the per-pixel object-focused errors)."""
+    if row.get(name) is None or not np.isfinite(row[name]):
+        return "—"
+    return _ci({f"v{s}": row[f"{name}{s}"] * 1e3 for s in ("", "_lo", "_hi")}, "v", 2)
+
+
 def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """A compact Markdown view: per count the one-step error (the primary number) with its skill against both
-    baselines and its object-focused error, the open-loop error with its skill against the last frame, and the
-    reconstruction, each with its 95% interval."""
-    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "one-step error", "skill vs last frame",
-              "skill vs mean image", "object-focused (x1e-3/pixel)", "open-loop error", "open-loop skill vs last",
-              "reconstruction", "one-step fall first->last"]
+    """A compact Markdown view: per count the object-focused one-step error (the primary number) with its skill
+    against both baselines and its fall, then the full-frame one-step error with its skill against the last frame,
+    the open-loop error with its skill against the last frame, and the reconstruction, each with its 95% interval."""
+    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "object-focused one-step (x1e-3/pixel)",
+              "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
+              "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
+              "reconstruction"]
     body = []
     for r in rows:
         for i, k in enumerate(int(c) for c in r["counts"].split("/")):
-            obj = "—"
-            if r.get(f"one_step_object_{k}") is not None and np.isfinite(r[f"one_step_object_{k}"]):
-                scaled = {f"o{s}": r[f"one_step_object_{k}{s}"] * 1e3 for s in ("", "_lo", "_hi")}
-                obj = _ci(scaled, "o", 2) + ("" if r[f"robot_mask_{k}"] else " (no masks: full frame)")
+            obj = _milli(r, f"one_step_object_{k}")
+            if obj != "—" and not r[f"robot_mask_{k}"]:
+                obj += " (no masks: full frame)"
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
-                         f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]),
+                         f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]), obj,
+                         _ci(r, f"one_step_object_skill_last_{k}", 2), _ci(r, f"one_step_object_skill_mean_{k}", 2),
+                         _milli(r, "drop_one_step_object") if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
-                         _ci(r, f"one_step_skill_mean_{k}", 2), obj, _ci(r, f"open_loop_{k}", 1),
-                         _ci(r, f"open_loop_skill_last_{k}", 2), _ci(r, f"reconstruction_{k}", 1),
-                         _ci(r, "drop_one_step", 1) if i == 0 else ""])
+                         _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
+                         _ci(r, f"reconstruction_{k}", 1)])
     return header, body
 
 
@@ -164,8 +176,9 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     csv_rows = [[r.get(c, "") for c in columns] for r in rows]
     header, body = display(rows)
     note = ("Held-out episodes (no model of a row trained on them); the same gradient steps for every count; "
-            "errors summed over H x W x 3 pixels per frame; [95% interval over training seeds and held-out "
-            "episodes]; skill = 1 - error / baseline error (< 0: worse than the baseline).")
+            "object-focused errors per kept (non-robot) pixel and channel, the others summed over H x W x 3 pixels "
+            "per frame; [95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
+            "error (< 0: worse than the baseline).")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
@@ -173,10 +186,11 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
 
 
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
-    """Per row, against training episodes: the one-step error with its interval and the row's two baselines
-    (left), the skill against the last frame, one step and open loop (middle), and the object-focused one-step
-    error per kept pixel (right; the full frame's when the episodes carry no robot masks). Saved without dates
-    or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes."""
+    """Per row, against training episodes: the object-focused one-step error per kept pixel (the primary number;
+    the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
+    same pixels (left), its skill against the last frame beside the open loop's (middle), and the full-frame
+    one-step error (right). Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild
+    from the same runs gives the same bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -196,19 +210,22 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     for r, color in zip(rows, [f"C{i}" for i in range(10)]):
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
-        bars(ax1, r, "one_step", ks, "o-", color, f"{name}: model")
-        ax1.plot(ks, [r[f"one_step_last_{k}"] for k in ks], ":x", color=color, label=f"{name}: last frame")
-        ax1.plot(ks, [r[f"one_step_mean_{k}"] for k in ks], "--+", color=color, alpha=0.6, ms=9,
-                 label=f"{name}: mean image")
-        bars(ax2, r, "one_step_skill_last", ks, "o-", color, f"{name}: one step")
-        bars(ax2, r, "open_loop_skill_last", ks, "s:", color, f"{name}: open loop", shift=1.04)
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
-        bars(ax3, r, "one_step_object", ks, "o-", color, name + ("" if masked else " (no masks: full frame)"),
-             scale=1e3)
-    ax1.set(ylabel="one-step error (sum over pixels per frame)", title="held-out one-step error (model: 95% CI)")
+        bars(ax1, r, "one_step_object", ks, "o-", color,
+             f"{name}: model" + ("" if masked else " (no masks: full frame)"), scale=1e3)
+        ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], ":x", color=color,
+                 label=f"{name}: last frame")
+        ax1.plot(ks, [r[f"one_step_object_mean_{k}"] * 1e3 for k in ks], "--+", color=color, alpha=0.6, ms=9,
+                 label=f"{name}: mean image")
+        bars(ax2, r, "one_step_object_skill_last", ks, "o-", color, f"{name}: one step (object-focused)")
+        bars(ax2, r, "open_loop_object_skill_last", ks, "s:", color, f"{name}: open loop (object-focused)",
+             shift=1.04)
+        bars(ax3, r, "one_step", ks, "o-", color, name)
+    ax1.set(ylabel="per kept pixel and channel (x1e-3)",
+            title="object-focused one-step error (primary; model: 95% CI)")
     ax2.axhline(0, color="0.5", lw=0.8)
-    ax2.set(ylabel="skill vs last frame (1 - model / baseline)", title="skill vs the last frame (95% CI)")
-    ax3.set(ylabel="per kept pixel and channel (x1e-3)", title="object-focused one-step error (robot excluded)")
+    ax2.set(ylabel="skill vs last frame (1 - model / baseline)", title="object-focused skill vs the last frame")
+    ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
     for ax in (ax1, ax2, ax3):
         ax.set(xlabel="training episodes per task", xscale="log")
