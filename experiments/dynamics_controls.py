@@ -180,8 +180,10 @@ def run_all(args) -> list[dict]:
                 record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
                 path.write_text(json.dumps(record, indent=1))
                 one = values["prediction"]["summary"]["one_step"]
-                print(f"{condition} k={k} seed={seed}: one-step {one['model']['error']:.2f} (last frame "
-                      f"{one['last']['error']:.2f}, mean image {one['mean']['error']:.2f}) in "
+                obj = {who: 1e3 * one[who]["object_error_per_pixel"] for who in ("model", "last", "mean")}
+                print(f"{condition} k={k} seed={seed}: object-focused one-step {obj['model']:.3f} x1e-3 (last frame "
+                      f"{obj['last']:.3f}, mean image {obj['mean']:.3f}); full frame {one['model']['error']:.2f} "
+                      f"(last frame {one['last']['error']:.2f}, mean image {one['mean']['error']:.2f}) in "
                       f"{time.perf_counter() - t0:.0f} s", flush=True)
     return [json.loads(p.read_text()) for p in sorted(runs_dir.glob("*.json"))]
 
