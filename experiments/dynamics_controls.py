@@ -45,6 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOSE_TASK = ("gensim", "put-blocks-in-matching-zones")  # fixed counts: only the poses differ between levels
 DOSE_LEVELS = {"range000": 0.0, "range033": 1 / 3, "range067": 2 / 3, "range100": 1.0}  # names sort by level
 CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied"), "dose": tuple(DOSE_LEVELS)}
+ROBOT_MASKS = {"dynamics": False, "visual": True, "dose": True}  # whether a control's episodes carry robot masks
 
 
 def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int,
@@ -142,11 +143,21 @@ def run_all(args) -> list[dict]:
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     runs_dir = args.out / "controls" / args.control / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
-    data = sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1], args.data_seed,
-                   args.out, args.threads)
-    settings = run_settings(args, any(s.has_robot_masks() for s in data.values()))
+    data: dict = {}
+
+    def source_of(condition: str):
+        """The episodes, made (or for dose collected) when a run first needs training: a rebuild from saved runs
+        needs none."""
+        if not data:
+            data.update(sources(args.control, model_cfg.image_size, args.tasks, args.actions, args.heldout[1],
+                                args.data_seed, args.out, args.threads))
+            if any(s.has_robot_masks() for s in data.values()) != ROBOT_MASKS[args.control]:
+                raise RuntimeError(f"ROBOT_MASKS[{args.control!r}] does not match its episodes")
+        return data[condition]
+
+    settings = run_settings(args, ROBOT_MASKS[args.control])
     for seed in args.seeds:
-        for condition, source in data.items():
+        for condition in CONDITIONS[args.control]:
             for k in args.episodes:
                 path = runs_dir / f"{condition}_k{k}_s{seed}.json"
                 if path.exists():
@@ -164,7 +175,7 @@ def run_all(args) -> list[dict]:
                                      "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
                 values = fit_and_evaluate(
-                    source, episodes_per_task=k, model_cfg=model_cfg,
+                    source_of(condition), episodes_per_task=k, model_cfg=model_cfg,
                     train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
                     eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
                     horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=args.context,

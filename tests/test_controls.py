@@ -54,9 +54,9 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     figure = tmp_path / "figures" / "control_dose.png"
     assert figure.stat().st_size > 10_000
 
-    again = control(*TINY_DOSE, out=tmp_path)  # everything saved: collected and trained runs are reused
-    assert again.returncode == 0 and "0 episodes collected, 4 in the store" in again.stdout
-    assert "one-step" not in again.stdout  # no run trained again
+    again = control(*TINY_DOSE, out=tmp_path)  # every run saved: the table is rebuilt without collecting or training
+    assert again.returncode == 0 and "collected" not in again.stdout and "one-step" not in again.stdout
+    assert (tmp_path / "tables" / "control_dose.json").read_text() == json.dumps(result, indent=1) + "\n"
     other = control(*[("7" if a == "6" else a) for a in TINY_DOSE], out=tmp_path)
     assert other.returncode == 2 and "other settings (steps: 6)" in other.stderr
     assert len(other.stderr.strip().splitlines()) == 1 and "Traceback" not in other.stderr
