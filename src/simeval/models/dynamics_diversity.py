@@ -130,7 +130,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
         return _fit_and_evaluate_heldout(
             source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
-            exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context, eval_batch_size=eval_batch_size,
+            exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context,
+            eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
             how_to_get_more=how_to_get_more)
@@ -192,7 +193,7 @@ def _whole(value, low: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= low
 
 
-def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int) -> None:
+def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclude_robot_from_loss=False) -> None:
     """One UserError naming the first protocol.* (or eval.context) value the heldout protocol cannot use."""
     if not _whole(steps, 1):
         raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
@@ -204,6 +205,8 @@ def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int) -> No
         raise UserError(f"eval.context={context}: expected a whole number >= 1")
     if not _whole(mask_margin, 0):
         raise UserError(f"protocol.mask_margin={mask_margin!r}: expected a whole number of pixels >= 0")
+    if not isinstance(exclude_robot_from_loss, bool):
+        raise UserError(f"protocol.exclude_robot_from_loss={exclude_robot_from_loss!r}: expected true or false")
     if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
         raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
 
@@ -211,7 +214,8 @@ def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int) -> No
 def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
                               train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
                               steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
-                              exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None, eval_batch_size: int, checkpoint_dir,
+                              exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
+                              eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
                               how_to_get_more) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
@@ -228,9 +232,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
                         f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
     context = 5 if eval_context is None else int(eval_context)
-    _check_heldout_settings(steps, horizon, lr, mask_margin, context)
-    if not isinstance(exclude_robot_from_loss, bool):
-        raise UserError(f"protocol.exclude_robot_from_loss={exclude_robot_from_loss!r}: expected true or false")
+    _check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
     ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
     epochs = budget_epochs([i.n_rows for i in source.infos], rank_mask(ranks, 0, k), window, train_cfg.batch_size,
