@@ -167,6 +167,7 @@ def run_all(args) -> list[dict]:
                         fail(f"error: {path} was run with other settings ({', '.join(differ)}: "
                                          f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
                                          f"--out for these settings, or delete that folder's runs to redo them")
+                    print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
                     continue
                 if args.conditions and condition not in args.conditions:
                     continue

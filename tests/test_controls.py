@@ -56,6 +56,7 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
 
     again = control(*TINY_DOSE, out=tmp_path)  # every run saved: the table is rebuilt without collecting or training
     assert again.returncode == 0 and "collected" not in again.stdout and "one-step" not in again.stdout
+    assert again.stdout.count("saved already") == 4  # each reused run says so
     assert (tmp_path / "tables" / "control_dose.json").read_text() == json.dumps(result, indent=1) + "\n"
     other = control(*[("7" if a == "6" else a) for a in TINY_DOSE], out=tmp_path)
     assert other.returncode == 2 and "other settings (steps: 6)" in other.stderr

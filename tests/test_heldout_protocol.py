@@ -376,3 +376,11 @@ def test_pose_range_shrinks_poses_towards_one_anchor_layout():
     assert spread[0] < 1e-12 and spread[1] < spread[2] < spread[3]
     with pytest.raises(SpecError, match="pose_range"):
         check_variation([spec], {"scene": {"pose_range": 1.5}})
+
+
+def test_a_store_that_is_a_file_is_named_without_a_collect_command_into_it(tmp_path):
+    (tmp_path / "a_file").write_text("")
+    r = _diversity("store=a_file", "pipeline=bbsea", "task_group=drawer", cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip() == ("error: store=a_file: is a file, not a folder; give the episode store's folder "
+                                "(default outputs/episodes)")

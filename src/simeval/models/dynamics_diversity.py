@@ -397,6 +397,9 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     from simeval.episodes.dataset import StoreSource, store_paths_for
     from simeval.episodes.episode import EpisodeFormatError
 
+    if Path(store).exists() and not Path(store).is_dir():  # collecting "into" it would fail the same way
+        raise UserError(f"store={store}: is a file, not a folder; give the episode store's folder "
+                        "(default outputs/episodes)")
     try:
         paths = store_paths_for(store, pipeline, group)
     except EpisodeFormatError as e:
