@@ -80,6 +80,7 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/policy_bench.py --presets tiny cpu authors_gensim
 	$(PY) experiments/benchmarks/world_model_bench.py
 	$(PY) experiments/benchmarks/heldout_sweep_bench.py
+	$(PY) experiments/benchmarks/robot_loss_bench.py
 
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
