@@ -4,6 +4,7 @@
     python experiments/dynamics_controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
     python experiments/dynamics_controls.py visual --episodes 10   # identical physics, the robot's look varied
     python experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30   # 4 levels of a real task's pose range
+    python experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30   # 4 drawer-opening noises
 
 Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
@@ -21,14 +22,23 @@ fewest to the most episodes is larger (interval of the difference of falls above
 reported as it is. The visual control passes when the full-frame one-step error of the varied-looks group is
 higher than the shared group's (95% interval of the difference above zero) while the object-focused error (robot
 pixels excluded) moves less than a quarter as much, relative to the shared group's (the ratio is reported).
-The dose-response control collects one real suite task (DOSE_TASK, PyBullet, oracle demonstrations with robot
-masks) at four levels of its initial-pose range (the `scene: {pose_range}` knob: 0 = one layout in every episode,
-1 = the suite's usual uniform poses; DOSE_LEVELS) into OUT/control_episodes, and passes when the protocol's
-primary number (the object-focused one-step error, robot pixels out of the loss and the score) increases with the
-level at every step (point values) and the top level minus the bottom one has a 95% interval above zero. Both
-criteria were written down before the control ran.
-`--conditions` runs some conditions only (two processes can share the runs; the last one to
-finish, or any later call, builds the table from every run saved).
+A dose-response control (DOSES) collects one real suite task (PyBullet, oracle demonstrations with robot masks)
+at four levels of one variation knob into OUT/control_episodes, and passes when its judged number increases with
+the level at every step (point values) and the top level minus the bottom one has a 95% interval above zero:
+`dose`, GenSim's put-blocks-in-matching-zones from the top camera at four initial-pose ranges (the `scene:
+{pose_range}` knob: 0 = one layout in every episode, 1 = the suite's usual uniform poses), judged by the protocol's
+primary number (the object-focused one-step error, robot pixels out of the loss and the score); `dose_drawer`,
+BBSEA's close-drawer from the front camera at four noises of the drawer's initial opening (`drawer:
+{joint_init_noise}`: how far the slide the arm closes varies), judged by the one-step moving-pixel error. The
+criteria were written down before each control ran.
+The moving-pixel errors (simeval.models.prediction: kept pixels whose colour changed from the reference frame) are
+read beside the primary number, by criteria written down before their first reading (`moving_passes`; they do not
+decide `passes`): in the dynamics control the same two criteria on the one-step moving-pixel error; in the visual
+control the moving-pixel error moves less than a quarter as much as the full frame's. The `dose` control reports
+their share of the kept pixels (its top camera shows nothing moving outside the robot: the carried block is under
+the suction cup); `dose_drawer` is judged by them. `--reevaluate` scores saved runs again from their checkpoints,
+for quantities added later. `--conditions` runs some conditions only (two processes can share the runs; the last
+one to finish, or any later call, builds the table from every run saved).
 """
 
 from __future__ import annotations
@@ -39,13 +49,42 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DOSE_TASK = ("gensim", "put-blocks-in-matching-zones")  # fixed counts: only the poses differ between levels
-DOSE_LEVELS = {"range000": 0.0, "range033": 1 / 3, "range067": 2 / 3, "range100": 1.0}  # names sort by level
-CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied"), "dose": tuple(DOSE_LEVELS)}
-ROBOT_MASKS = {"dynamics": False, "visual": True, "dose": True}  # whether a control's episodes carry robot masks
+
+@dataclass(frozen=True)
+class Dose:
+    """A dose-response control: one real suite task collected at levels of one variation knob (`knob`: the
+    variation's (section, key); a level l is the variation {section: {key: l}}), scored by `metric` (a
+    table4_heldout name) whose criterion was written down before the control ran."""
+
+    task: tuple[str, str]  # (pipeline, task)
+    camera: str
+    knob: tuple[str, str]
+    levels: dict  # condition name -> level; the names sort by level
+    metric: str
+    knob_label: str
+
+    def variation(self, level: float) -> dict:
+        return {self.knob[0]: {self.knob[1]: level}}
+
+
+DOSES = {
+    # how much the layouts vary: poses pulled towards one anchor layout (fixed counts: only the poses differ)
+    "dose": Dose(("gensim", "put-blocks-in-matching-zones"), "top", ("scene", "pose_range"),
+                 {"range000": 0.0, "range033": 1 / 3, "range067": 2 / 3, "range100": 1.0}, "one_step_object",
+                 "initial-pose range (scene.pose_range)"),
+    # how much the motion varies: the drawer starts open by 0.8 of its travel, +- up to the noise, and the arm closes
+    # it from there, in view of the front camera (the drawer's slide is most of what moves outside the robot)
+    "dose_drawer": Dose(("bbsea", "bbsea-close-drawer"), "front", ("drawer", "joint_init_noise"),
+                        {"noise000": 0.0, "noise017": 1 / 6, "noise033": 1 / 3, "noise050": 0.5}, "one_step_moving",
+                        "drawer's initial-opening noise (drawer.joint_init_noise)"),
+}
+CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied"),
+              **{name: tuple(d.levels) for name, d in DOSES.items()}}
+ROBOT_MASKS = {"dynamics": False, "visual": True, **dict.fromkeys(DOSES, True)}  # whether episodes carry robot masks
 
 
 def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int,
@@ -55,35 +94,35 @@ def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int
     make = {"dynamics": make_physics_group, "visual": make_visual_group}.get(control)
     if make is not None:
         return {kind: make(kind, n_tasks, episodes, n_actions, size, seed=data_seed) for kind in CONDITIONS[control]}
-    if control == "dose":
-        return dose_sources(size, episodes, out, workers)
+    if control in DOSES:
+        return dose_sources(DOSES[control], size, episodes, out, workers)
     fail(f"error: control {control!r}: expected one of {', '.join(CONDITIONS)}")
 
 
-def dose_sources(size: int, episodes: int, out: Path, workers: int) -> dict:
-    """Per level, episode seeds 0..episodes-1 of DOSE_TASK collected (once: the store keeps them, keyed by the
-    variation) at frames of `size` with robot masks, from the top camera."""
+def dose_sources(dose: Dose, size: int, episodes: int, out: Path, workers: int) -> dict:
+    """Per level, episode seeds 0..episodes-1 of the dose's task collected (once: the store keeps them, keyed by
+    the variation) at frames of `size` with robot masks, from the dose's camera."""
     from simeval.collect import collect
     from simeval.episodes.dataset import StoreSource
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.rollout import RecordSettings
     from simeval.sim.spec import SUITES_DIR, load_suite
 
-    pipeline, task = DOSE_TASK
+    pipeline, task = dose.task
     spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
     store = EpisodeStore(out / "control_episodes")
-    settings = RecordSettings(cameras=("top",), image_size=(size, size), robot_masks=True)
+    settings = RecordSettings(cameras=(dose.camera,), image_size=(size, size), robot_masks=True)
     data = {}
-    for name, level in DOSE_LEVELS.items():
-        variation = {"scene": {"pose_range": level}}
+    for name, level in dose.levels.items():
+        variation = dose.variation(level)
         seeds = list(range(episodes))
         done = collect([spec], seeds, store, settings, pipeline=pipeline, workers=workers, progress=False,
                        variation=variation)
         failed = [e for e in done["new"] if not e.get("success", True)]
-        print(f"{name} (pose_range {level:.2f}): {len(done['new'])} episodes collected, {done['skipped']} in the "
+        print(f"{name} ({dose.knob[1]} {level:.2f}): {len(done['new'])} episodes collected, {done['skipped']} in the "
               f"store; oracle success {done['tasks'][task]['rate']:.2f}" + (f", {len(failed)} failed" if failed
                                                                            else ""), flush=True)
-        data[name] = StoreSource([store.path_for(pipeline, task, s, variation) for s in seeds], "top")
+        data[name] = StoreSource([store.path_for(pipeline, task, s, variation) for s in seeds], dose.camera)
     return data
 
 
@@ -167,14 +206,17 @@ def run_all(args) -> list[dict]:
                         fail(f"error: {path} was run with other settings ({', '.join(differ)}: "
                                          f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
                                          f"--out for these settings, or delete that folder's runs to redo them")
-                    print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
-                    continue
+                    if not args.reevaluate:
+                        print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
+                        continue
                 if args.conditions and condition not in args.conditions:
                     continue
-                if not args.overwrite and _committed(runs_dir):  # checked before training, not after it
+                if not path.exists() and not args.overwrite and _committed(runs_dir):  # before training, not after
                     fail(f"error: {runs_dir} holds committed runs and {path.name} is not among them; "
                                      "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
+                reevaluated = path.exists()  # --reevaluate: from its checkpoint, if that is still there
+                checkpoints = set((args.out / "checkpoints" / "controls").glob("*.pt"))
                 values = fit_and_evaluate(
                     source_of(condition), episodes_per_task=k, model_cfg=model_cfg,
                     train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
@@ -190,6 +232,10 @@ def run_all(args) -> list[dict]:
                           "values": {key: values[key] for key in ("protocol", "prediction", "train", "model")},
                           "settings": settings}
                 record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
+                if reevaluated:
+                    again = Path(values["checkpoint"]) not in checkpoints
+                    print(f"{condition} k={k} seed={seed}: " + ("its checkpoint was gone: trained again" if again
+                                                                 else "evaluated again from its checkpoint"), flush=True)
                 path.write_text(json.dumps(record, indent=1))
                 one = values["prediction"]["summary"]["one_step"]
                 obj = {who: 1e3 * one[who]["object_error_per_pixel"] for who in ("model", "last", "mean")}
@@ -219,7 +265,10 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     out = {}
     a, b = conditions
     for metric in ("one_step", "one_step_object", "one_step_skill_last", "open_loop", "open_loop_skill_last",
-                   "reconstruction"):
+                   "reconstruction", "one_step_moving", "one_step_moving_skill_last", "open_loop_moving",
+                   "open_loop_moving_skill_last"):
+        if metric not in points[a, lo]:  # runs recorded before the moving pixels were summed
+            continue
         diff = reps[b, lo][metric] - reps[a, lo][metric]
         fall_b = reps[b, lo][metric] - reps[b, hi][metric]
         fall_a = reps[a, lo][metric] - reps[a, hi][metric]
@@ -236,16 +285,31 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     out["passes"] = {"higher_at_fewest": primary[f"{b}_minus_{a}_at_{lo}_interval"][0] > 0,
                      "larger_fall": primary["fall_difference_interval"][0] > 0}
     # how far each error moves from the first condition to the second, relative to the first (the visual control)
-    rel = {m: (points[b, lo][m] - points[a, lo][m]) / points[a, lo][m] for m in ("one_step", "one_step_object")}
+    rel = {m: (points[b, lo][m] - points[a, lo][m]) / points[a, lo][m]
+           for m in ("one_step", "one_step_object", "one_step_moving") if m in points[a, lo]}
     out["relative_change_at_fewest"] = {**rel, "object_over_full": abs(rel["one_step_object"]) /
                                         max(abs(rel["one_step"]), 1e-12)}
+    if "one_step_moving" in rel:
+        out["relative_change_at_fewest"]["moving_over_full"] = abs(rel["one_step_moving"]) / max(abs(rel["one_step"]),
+                                                                                                 1e-12)
+    # the moving pixels' readings beside the primary one, judged by criteria written before their runs (the module
+    # docstring); they do not decide `passes`
+    if "one_step_moving" in out:
+        m = out["one_step_moving"]
+        out["moving_passes"] = {"higher_at_fewest": m[f"{b}_minus_{a}_at_{lo}_interval"][0] > 0,
+                                "larger_fall": m["fall_difference_interval"][0] > 0,
+                                "moves_under_a_quarter_of_full": out["relative_change_at_fewest"].get(
+                                    "moving_over_full", float("nan")) < 0.25}
     return out
 
 
-def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 2000) -> dict:
+def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 2000,
+                 primary: str = "one_step_object") -> dict:
     """Per level (at the fewest episodes) the object-focused and full-frame one-step errors with intervals, the
     differences between neighbouring levels and between the top and bottom levels (independent resamples of each
     level's seeds and held-out episodes), and whether the primary number rises with the level."""
+    import numpy as np
+
     from simeval.metrics import resample
     from simeval.report.table4_heldout import cell_replicates, sum_arrays
 
@@ -257,7 +321,11 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
         sums, tasks = sum_arrays(recs)
         points[level], reps[level] = cell_replicates(sums, resample.draws(len(recs), tasks, n_boot, seed=1 + i))
     out: dict = {"episodes": k}
-    for metric in ("one_step_object", "one_step", "one_step_object_skill_last", "one_step_skill_last"):
+    for metric in ("one_step_object", "one_step", "one_step_object_skill_last", "one_step_skill_last",
+                   "one_step_moving", "one_step_moving_skill_last", "one_step_moving_share", "open_loop_moving_share",
+                   "open_loop_moving", "open_loop_moving_skill_last"):
+        if metric not in points[levels[0]]:  # runs recorded before the moving pixels were summed
+            continue
         out[metric] = {
             "by_level": {lv: [points[lv][metric], *resample.percentile(reps[lv][metric])] for lv in levels},
             "steps": {f"{b}_minus_{a}": [points[b][metric] - points[a][metric],
@@ -265,16 +333,21 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
                       for a, b in zip(levels, levels[1:])},
             "top_minus_bottom": [points[levels[-1]][metric] - points[levels[0]][metric],
                                  *resample.percentile(reps[levels[-1]][metric] - reps[levels[0]][metric])]}
-    primary = out["one_step_object"]  # the protocol's primary number with robot masks, fixed before the run
-    out["passes"] = {"rises_at_every_level": all(v[0] > 0 for v in primary["steps"].values()),
-                     "top_minus_bottom_above_zero": primary["top_minus_bottom"][1] > 0}
+    judged = out.get(primary)  # the dose's number, fixed before the run
+    if judged is None:
+        raise RuntimeError(f"the runs have no {primary} (recorded before it was summed): rerun with --reevaluate")
+    finite = all(np.isfinite(v[0]) for v in judged["by_level"].values())  # nothing moving at a level: no reading
+    out["judged_by"] = primary
+    out["passes"] = {"rises_at_every_level": finite and all(v[0] > 0 for v in judged["steps"].values()),
+                     "top_minus_bottom_above_zero": finite and judged["top_minus_bottom"][1] > 0}
     return out
 
 
-def plot_dose(rows: list[dict], levels: dict[str, float], path: Path, title: str) -> Path:
-    """Against the pose-range level: the object-focused one-step error (the primary number) with its interval and
-    both baselines on the same pixels (left), and the full-frame one-step error with its baselines (right). Saved
-    without dates (simeval.report.figures.save_figure): the same runs give the same bytes."""
+def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
+    """Against the dose's level, each with its interval and both baselines on the same pixels: the object-focused
+    one-step error, the moving-pixel one-step error (where the runs summed it) and the full-frame one-step error;
+    the panel of the dose's judged number says so. Saved without dates (simeval.report.figures.save_figure): the
+    same runs give the same bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -284,12 +357,15 @@ def plot_dose(rows: list[dict], levels: dict[str, float], path: Path, title: str
     from simeval.report.figures import save_figure
 
     by_level = {r["group"]: r for r in rows}
-    names = [n for n in levels if n in by_level]
-    x = np.array([levels[n] for n in names])
+    names = [n for n in dose.levels if n in by_level]
+    x = np.array([dose.levels[n] for n in names])
     k = int(rows[0]["counts"].split("/")[0])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, name, scale, unit in ((axes[0], "one_step_object", 1e3, "per kept pixel and channel (x1e-3)"),
-                                  (axes[1], "one_step", 1.0, "sum over pixels per frame")):
+    panels = [("one_step_object", 1e3, "per kept pixel and channel (x1e-3)", "object-focused one-step error"),
+              ("one_step_moving", 1e3, "per moving pixel and channel (x1e-3)", "moving-pixel one-step error"),
+              ("one_step", 1.0, "sum over pixels per frame", "full-frame one-step error (robot not trained on)")]
+    panels = [p for p in panels if all(np.isfinite(by_level[n].get(f"{p[0]}_{k}", np.nan)) for n in names)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2))
+    for ax, (name, scale, unit, label) in zip(np.atleast_1d(axes), panels):
         v = np.array([by_level[n][f"{name}_{k}"] for n in names]) * scale
         lo = np.array([by_level[n][f"{name}_{k}_lo"] for n in names]) * scale
         hi = np.array([by_level[n][f"{name}_{k}_hi"] for n in names]) * scale
@@ -299,9 +375,7 @@ def plot_dose(rows: list[dict], levels: dict[str, float], path: Path, title: str
         ax.plot(x, [by_level[n][f"{name}_mean_{k}"] * scale for n in names], "--+", color="C2", ms=9,
                 label="task's mean training image")
         ax.set_xticks(x, [f"{level:.2f}" for level in x])
-        ax.set(xlabel="initial-pose range (scene.pose_range)", ylabel=unit,
-               title=("object-focused one-step error (primary)" if name == "one_step_object" else
-                      "full-frame one-step error (robot not trained on)"))
+        ax.set(xlabel=dose.knob_label, ylabel=unit, title=label + (" (judged)" if name == dose.metric else ""))
         ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -339,6 +413,9 @@ def main(argv: list[str] | None = None) -> None:
                     "checkpoints under OUT/checkpoints/controls, tables and figures under OUT/tables, OUT/figures")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace committed tables/figures that this run would change (default: refuse)")
+    ap.add_argument("--reevaluate", action="store_true",
+                    help="evaluate saved runs again from their checkpoints and rewrite their records (for quantities "
+                    "added to the evaluation; a run whose checkpoint is gone trains again and says so)")
     args = ap.parse_args(argv)
     if max(args.episodes) >= args.heldout[0]:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
@@ -354,19 +431,24 @@ def main(argv: list[str] | None = None) -> None:
     records = [r for r in records if (r["identity"]["task_group"], r["identity"]["episodes"], r["identity"]["seed"])
                in wanted]
     rows = build(records)
-    verdict = (dose_verdict(records, CONDITIONS["dose"]) if args.control == "dose"
+    dose = DOSES.get(args.control)
+    verdict = (dose_verdict(records, CONDITIONS[args.control], primary=dose.metric) if dose is not None
                else verdicts(records, CONDITIONS[args.control]))
     result = {"control": args.control, "preset": args.preset, "steps": args.steps, "lr": args.lr, "seeds": args.seeds,
               "episodes": args.episodes, "heldout": args.heldout, "tasks": args.tasks, "actions": args.actions,
               "exclude_robot_from_loss": args.exclude_robot_from_loss, "verdict": verdict, "rows": rows}
-    if args.control == "dose":
-        result.update(task="/".join(DOSE_TASK), levels=DOSE_LEVELS)
+    if dose is not None:
+        result.update(task="/".join(dose.task), camera=dose.camera, knob=".".join(dose.knob), levels=dose.levels)
         del result["tasks"], result["actions"]
     if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
         v = result["verdict"]
         full_moves = v["one_step"][f"varied_minus_shared_at_{min(args.episodes)}_interval"][0] > 0
         v["passes"] = {"full_frame_moves": full_moves,
                        "object_moves_under_a_quarter": v["relative_change_at_fewest"]["object_over_full"] < 0.25}
+        if "moving_passes" in v:
+            v["moving_passes"] = {"moves_under_a_quarter_of_full": v["moving_passes"]["moves_under_a_quarter_of_full"]}
+    elif "moving_passes" in result["verdict"]:  # the dynamics control: the quarter rule is the visual one's
+        del result["verdict"]["moving_passes"]["moves_under_a_quarter_of_full"]
     passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
     seeds = ", ".join(map(str, args.seeds))
     stem = args.out / "tables" / f"control_{args.control}"
@@ -376,9 +458,9 @@ def main(argv: list[str] | None = None) -> None:
         write(rows, tmp_stem)
         tmp_stem.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
         title = f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}"
-        if args.control == "dose":
-            plot_dose(rows, DOSE_LEVELS, Path(tmp) / figure.name,
-                      f"{'/'.join(DOSE_TASK)}, {min(args.episodes)} training episodes, held-out episodes "
+        if dose is not None:
+            plot_dose(rows, dose, Path(tmp) / figure.name,
+                      f"{'/'.join(dose.task)} ({dose.camera}), {min(args.episodes)} training episodes, held-out episodes "
                       f"{args.heldout[0]}-{args.heldout[1]}\n{title}")
         else:
             plot(rows, Path(tmp) / figure.name, title)

@@ -32,8 +32,9 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.device import resolve_device
-    from simeval.models.dynamics_diversity import (VIDEO_FPS, check_eval_context, data_fingerprint, fit_and_evaluate,
-                                                   headline, how_to_get_episodes, store_source, summary_line)
+    from simeval.models.dynamics_diversity import (VIDEO_FPS, check_eval_context, check_heldout_settings,
+                                                   data_fingerprint, fit_and_evaluate, headline, how_to_get_episodes,
+                                                   store_source, summary_line)
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
     from simeval.results import hydra_run_info, write_result
@@ -54,6 +55,10 @@ def main(cfg: DictConfig) -> None:
     window = WindowSpec(**wm["window"])
     check_eval_context(int(cfg.eval.context), window)
     protocol = cfg.protocol.name
+    if protocol == "heldout":  # a bad protocol.* value stops here, before the store is read
+        check_heldout_settings(cfg.protocol.steps, cfg.protocol.horizon, cfg.protocol.lr,
+                               cfg.protocol.get("mask_margin", 0), int(cfg.eval.context),
+                               cfg.protocol.get("exclude_robot_from_loss", False))
     needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # protocol=paper's held-out episodes are optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
     debug = f" debug={overlay}" if overlay != "none" else ""

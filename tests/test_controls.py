@@ -61,3 +61,40 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     other = control(*[("7" if a == "6" else a) for a in TINY_DOSE], out=tmp_path)
     assert other.returncode == 2 and "other settings (steps: 6)" in other.stderr
     assert len(other.stderr.strip().splitlines()) == 1 and "Traceback" not in other.stderr
+
+
+def _record(level: str, seed: int, moving: list[tuple[float, float]]) -> dict:
+    """A run record with per-episode sums where only the one-step moving-pixel sums matter: (model se, pixels)."""
+    from simeval.models.prediction import SUM_KEYS
+
+    episodes = []
+    for e, (se, pixels) in enumerate(moving):
+        sums = dict.fromkeys(SUM_KEYS, 1.0)
+        sums.update({"one_step/model/moving": se, "one_step/moving_pixels": pixels, "one_step/last/moving": 2 * pixels})
+        episodes.append({"task": "bbsea-close-drawer", "seed": 10 + e, "sums": sums})
+    return {"identity": {"task_group": level, "episodes": 10, "seed": seed},
+            "values": {"prediction": {"per_episode": episodes}}}
+
+
+def test_a_dose_judged_by_moving_pixels_reads_their_ratio_of_sums_and_no_motion_passes_nothing(monkeypatch):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("dynamics_controls", SCRIPT)
+    dc = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, dc)  # a script, not a package: loaded from its file
+    spec.loader.exec_module(dc)
+    levels = tuple(dc.DOSES["dose_drawer"].levels)
+    assert dc.DOSES["dose_drawer"].metric == "one_step_moving" and dc.DOSES["dose"].metric == "one_step_object"
+    # per level, two seeds x two held-out episodes; the error per moving pixel and channel rises with the level
+    data = {lv: [[(3.0 * (i + 1) * px, px) for px in (40.0, 60.0)] for _ in range(2)] for i, lv in enumerate(levels)}
+    records = [_record(lv, s, eps) for lv, runs in data.items() for s, eps in enumerate(runs)]
+    verdict = dc.dose_verdict(records, levels, n_boot=200, primary="one_step_moving")
+    assert verdict["judged_by"] == "one_step_moving"
+    for i, lv in enumerate(levels):  # sum se / (3 sum pixels) = i + 1
+        np.testing.assert_allclose(verdict["one_step_moving"]["by_level"][lv][0], i + 1, rtol=1e-12)
+    assert verdict["passes"] == {"rises_at_every_level": True, "top_minus_bottom_above_zero": True}
+    # a task where nothing moves outside the robot gives no reading, and so no pass
+    still = [_record(lv, 0, [(0.0, 0.0)]) for lv in levels]
+    verdict = dc.dose_verdict(still, levels, n_boot=50, primary="one_step_moving")
+    assert not any(verdict["passes"].values())
+    assert all(not np.isfinite(v[0]) for v in verdict["one_step_moving"]["by_level"].values())

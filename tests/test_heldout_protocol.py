@@ -103,7 +103,8 @@ def _by_hand(source: ArraySource, k: int, lo: int, hi: int, context: int, horizo
     for t in sorted({i.task for i in source.infos}):
         frames = [a["image"] for i, a in zip(source.infos, source.arrays) if i.task == t and i.seed < k]
         means[t] = np.concatenate(frames).astype(np.float64).mean(0) / 255
-    out = {key: 0.0 for key in ("last1", "mean1", "n1", "lastk", "meank", "nk")}
+    out = {key: 0.0 for key in ("last1", "mean1", "n1", "lastk", "meank", "nk", "movinglast1", "movingmean1",
+                                "moving1", "movinglastk", "movingmeank", "movingk")}
     for info, a in zip(source.infos, source.arrays):
         if not lo <= info.seed < hi:
             continue
@@ -113,17 +114,27 @@ def _by_hand(source: ArraySource, k: int, lo: int, hi: int, context: int, horizo
         for s in range(0, n, S):
             for t in range(s + 1, min(s + S, n)):  # one step: o_t from o_{t-1}
                 keep = free[t] & free[t - 1]
-                out["last1"] += ((o[t] - o[t - 1]) ** 2).sum(-1)[keep].sum()
-                out["mean1"] += ((o[t] - means[info.task]) ** 2).sum(-1)[keep].sum()
+                last, mean = ((o[t] - o[t - 1]) ** 2).sum(-1), ((o[t] - means[info.task]) ** 2).sum(-1)
+                out["last1"] += last[keep].sum()
+                out["mean1"] += mean[keep].sum()
                 out["n1"] += keep.sum() if masked else 1
+                moving = keep & (last > 0.01)  # kept pixels whose colour changed
+                out["movinglast1"] += last[moving].sum()
+                out["movingmean1"] += mean[moving].sum()
+                out["moving1"] += moving.sum()
         for s in range(0, n, L):
             if s + context - 1 < n:
                 ref = s + context - 1
                 for t in range(s + context, min(s + L, n)):  # open loop: o_t against the last observed frame
                     keep = free[t] & free[ref]
-                    out["lastk"] += ((o[t] - o[ref]) ** 2).sum(-1)[keep].sum()
-                    out["meank"] += ((o[t] - means[info.task]) ** 2).sum(-1)[keep].sum()
+                    last, mean = ((o[t] - o[ref]) ** 2).sum(-1), ((o[t] - means[info.task]) ** 2).sum(-1)
+                    out["lastk"] += last[keep].sum()
+                    out["meank"] += mean[keep].sum()
                     out["nk"] += keep.sum() if masked else 1
+                    moving = keep & (last > 0.01)
+                    out["movinglastk"] += last[moving].sum()
+                    out["movingmeank"] += mean[moving].sum()
+                    out["movingk"] += moving.sum()
     return out
 
 
@@ -139,6 +150,17 @@ def test_baselines_are_scored_on_the_models_frames_computed_by_hand():
     np.testing.assert_allclose(ol["mean"]["error"], ref["meank"] / ref["nk"], rtol=1e-5)
     np.testing.assert_allclose(one["skill_vs_last"], 1 - one["model"]["error"] / one["last"]["error"])
     assert p["reconstruction"]["frames"] == 4 * 2 * 23  # every held-out row
+    # moving pixels: those whose colour changed from the reference frame, chosen and scored here from the raw arrays
+    for block, sfx, frames in ((one, "1", ref["n1"]), (ol, "k", ref["nk"])):
+        assert 0 < ref[f"moving{sfx}"] < frames * 16 * 16  # the squares move over a static floor
+        np.testing.assert_allclose(block["moving_share"], ref[f"moving{sfx}"] / (frames * 16 * 16), rtol=1e-6)
+        np.testing.assert_allclose(block["last"]["moving_error_per_pixel"],
+                                   ref[f"movinglast{sfx}"] / (3 * ref[f"moving{sfx}"]), rtol=1e-5)
+        np.testing.assert_allclose(block["mean"]["moving_error_per_pixel"],
+                                   ref[f"movingmean{sfx}"] / (3 * ref[f"moving{sfx}"]), rtol=1e-5)
+        assert block["last"]["moving_error_per_pixel"] > 0.01 / 3  # every moving pixel changed by the threshold
+        np.testing.assert_allclose(block["moving_skill_vs_last"], 1 - block["model"]["moving_error_per_pixel"]
+                                   / block["last"]["moving_error_per_pixel"])
 
 
 def _with_flickering_robot(source: ArraySource, seed: int = 0) -> ArraySource:
@@ -164,6 +186,10 @@ def test_object_error_excludes_the_masked_pixels():
     np.testing.assert_allclose(one["last"]["object_error_per_pixel"], ref["last1"] / (3 * ref["n1"]), rtol=1e-5)
     np.testing.assert_allclose(pred["summary"]["open_loop"]["mean"]["object_error_per_pixel"],
                                ref["meank"] / (3 * ref["nk"]), rtol=1e-5)
+    # the flickering band changes every frame but is the robot's: no moving pixel comes from it
+    np.testing.assert_allclose(one["moving_share"], ref["moving1"] / ref["n1"], rtol=1e-6)
+    np.testing.assert_allclose(one["last"]["moving_error_per_pixel"], ref["movinglast1"] / (3 * ref["moving1"]),
+                               rtol=1e-5)
     # the noise band dominates the full-frame baseline error and is absent from the object-focused one
     unmasked = _by_hand(plain, 4, 8, 12, 3, 5, masked=False)
     assert one["last"]["error"] > 5 * unmasked["last1"] / unmasked["n1"]

@@ -54,6 +54,8 @@ def replicates(x, n, resamples: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarr
 def percentile(values, level: float = 0.95) -> list[float]:
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
+    if not len(values):  # a statistic with nothing to count in any resample (e.g. no moving pixel at all)
+        return [float("nan"), float("nan")]
     alpha = (1 - level) / 2
     return [float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))]
 

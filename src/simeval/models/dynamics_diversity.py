@@ -193,7 +193,7 @@ def _whole(value, low: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= low
 
 
-def _check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclude_robot_from_loss=False) -> None:
+def check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclude_robot_from_loss=False) -> None:
     """One UserError naming the first protocol.* (or eval.context) value the heldout protocol cannot use."""
     if not _whole(steps, 1):
         raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
@@ -232,7 +232,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
                         f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
     context = 5 if eval_context is None else int(eval_context)
-    _check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
+    check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
     ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
     epochs = budget_epochs([i.n_rows for i in source.infos], rank_mask(ranks, 0, k), window, train_cfg.batch_size,

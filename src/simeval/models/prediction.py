@@ -28,6 +28,14 @@ the reconstruction, in the target), divided by the number of such pixels times 3
 channel), so frames where the arm covers more of the view count no more. Without robot masks the object-focused
 numbers are the full frame's (per pixel) and `robot_mask` in the summary is False.
 
+Moving (one step and open loop): the kept pixels whose true colour changed from the reference frame,
+se(o_r, o_t) > MOTION_THRESHOLD, per moving pixel and channel: what moved outside the robot (a drawer, a pushed or
+placed object, a falling one). Static pixels, where the object-focused error only reads how well the model redraws
+the scene, count nowhere here; the last frame scores each moving pixel at least the threshold, so a model's skill
+against it reads whether it predicts the motion. Where nothing outside the robot moves (a top camera over a
+suction gripper hides the carried block) the moving numbers are None and `moving_share` (moving / kept pixels) says
+why. Why a threshold and not > 0: frames are 8-bit, so a resized or re-lit static pixel may differ by a few levels.
+
 Aggregates are ratios of sums over frames: error = sum se / frames; skill vs a baseline = 1 - error_model /
 error_baseline (> 0: better than the baseline; < 0: worse than a constant image or a copy). Per episode the sums are
 kept (`per_episode`), so intervals can resample held-out episodes and training seeds (simeval.metrics.resample).
@@ -43,26 +51,41 @@ from simeval.models.device import module_device, to_cpu, to_device
 KINDS = ("one_step", "open_loop", "reconstruction")
 PREDICTORS = {"one_step": ("model", "last", "mean"), "open_loop": ("model", "last", "mean"),
               "reconstruction": ("model", "mean")}
-# per (kind, predictor): se over the full frame, se over kept (object) pixels; per kind: frames, kept pixels
-SUM_KEYS = tuple(f"{k}/{p}/{part}" for k in KINDS for p in PREDICTORS[k] for part in ("full", "object")) + tuple(
-    f"{k}/{n}" for k in KINDS for n in ("frames", "kept_pixels"))
+MOVING_KINDS = ("one_step", "open_loop")  # the reconstruction's reference is its target: nothing moves
+MOTION_THRESHOLD = 0.01  # se over the 3 channels in [0, 1]: e.g. one channel off by 0.1 (26 of 255 levels)
+# per (kind, predictor): se over the full frame, over kept (object) pixels, over moving kept pixels; per kind:
+# frames, kept pixels, moving pixels
+SUM_KEYS = tuple(f"{k}/{p}/{part}" for k in KINDS for p in PREDICTORS[k]
+                 for part in ("full", "object") + (("moving",) if k in MOVING_KINDS else ())) + tuple(
+    f"{k}/{n}" for k in KINDS for n in ("frames", "kept_pixels") + (("moving_pixels",) if k in MOVING_KINDS else ()))
 
 
 def _se(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return (x - y).pow(2).sum(-1)  # (..., H, W)
 
 
-def _add(out: dict, kind: str, predictor: str, se: torch.Tensor, valid: torch.Tensor, keep: torch.Tensor) -> None:
-    """se (B, T, H, W), valid (B, T) bool, keep (B, T, H, W) float: per-window sums (B,) into out."""
+def _add(out: dict, kind: str, predictor: str, se: torch.Tensor, valid: torch.Tensor, keep: torch.Tensor,
+         moving: torch.Tensor | None = None) -> None:
+    """se (B, T, H, W), valid (B, T) bool, keep and moving (B, T, H, W) float: per-window sums (B,) into out."""
     v = valid.to(se.dtype)
     out[f"{kind}/{predictor}/full"] = (se.sum((-2, -1)) * v).sum(1)
     out[f"{kind}/{predictor}/object"] = ((se * keep).sum((-2, -1)) * v).sum(1)
+    if moving is not None:
+        out[f"{kind}/{predictor}/moving"] = ((se * moving).sum((-2, -1)) * v).sum(1)
 
 
-def _count(out: dict, kind: str, valid: torch.Tensor, keep: torch.Tensor) -> None:
+def _count(out: dict, kind: str, valid: torch.Tensor, keep: torch.Tensor,
+           moving: torch.Tensor | None = None) -> None:
     v = valid.to(keep.dtype)
     out[f"{kind}/frames"] = v.sum(1)
     out[f"{kind}/kept_pixels"] = (keep.sum((-2, -1)) * v).sum(1)
+    if moving is not None:
+        out[f"{kind}/moving_pixels"] = (moving.sum((-2, -1)) * v).sum(1)
+
+
+def _moving(keep: torch.Tensor, last_se: torch.Tensor) -> torch.Tensor:
+    """The kept pixels whose true colour changed from the reference frame (last_se: se(o_r, o_t))."""
+    return keep * (last_se > MOTION_THRESHOLD).to(keep.dtype)
 
 
 def _frames(model, batch: dict, task_means: torch.Tensor):
@@ -89,10 +112,13 @@ def step_sums(model, batch: dict, task_means: torch.Tensor, generator=None) -> d
     target, prev = image[:, 1:], image[:, :-1]
     valid = mask[:, 1:] & mask[:, :-1] & ~batch["is_first"][:, 1:].bool()
     keep = free[:, 1:] * free[:, :-1]
-    _add(out, "one_step", "model", _se(model.image_decoder(model.rssm.features(prior))[:, 1:], target), valid, keep)
-    _add(out, "one_step", "last", _se(prev, target), valid, keep)
-    _add(out, "one_step", "mean", _se(mean, target), valid, keep)
-    _count(out, "one_step", valid, keep)
+    last_se = _se(prev, target)
+    moving = _moving(keep, last_se)
+    _add(out, "one_step", "model", _se(model.image_decoder(model.rssm.features(prior))[:, 1:], target), valid, keep,
+         moving)
+    _add(out, "one_step", "last", last_se, valid, keep, moving)
+    _add(out, "one_step", "mean", _se(mean, target), valid, keep, moving)
+    _count(out, "one_step", valid, keep, moving)
     return out
 
 
@@ -108,13 +134,14 @@ def open_loop_sums(model, batch: dict, context: int, task_means: torch.Tensor,
     valid = mask[:, context:] & mask[:, context - 1 : context]
     keep = free[:, context:] * free[:, context - 1 : context]
     out: dict[str, torch.Tensor] = {}
-    model_se = _se(model.image_decoder(model.rssm.features(imagined)), target)
-    _add(out, "open_loop", "model", model_se, valid, keep)
-    _add(out, "open_loop", "last", _se(ref, target), valid, keep)
-    _add(out, "open_loop", "mean", _se(mean, target), valid, keep)
-    _count(out, "open_loop", valid, keep)
+    model_se, last_se = _se(model.image_decoder(model.rssm.features(imagined)), target), _se(ref, target)
+    moving = _moving(keep, last_se)
+    _add(out, "open_loop", "model", model_se, valid, keep, moving)
+    _add(out, "open_loop", "last", last_se, valid, keep, moving)
+    _add(out, "open_loop", "mean", _se(mean, target), valid, keep, moving)
+    _count(out, "open_loop", valid, keep, moving)
     out["open_loop/model/by_step"] = (model_se.sum((-2, -1)) * valid).sum(0)
-    out["open_loop/last/by_step"] = (_se(ref, target).sum((-2, -1)) * valid).sum(0)
+    out["open_loop/last/by_step"] = (last_se.sum((-2, -1)) * valid).sum(0)
     out["open_loop/frames_by_step"] = valid.to(image.dtype).sum(0)
     return out
 
@@ -147,11 +174,20 @@ def summarise(sums: dict[str, float], image_size: int) -> dict:
             full = sums[f"{kind}/{p}/full"] / n if n else None
             block[p] = {"error": full, "error_per_pixel": full / (pixels * 3) if n else None,
                         "object_error_per_pixel": sums[f"{kind}/{p}/object"] / (kept * 3) if kept else None}
+        moving = sums.get(f"{kind}/moving_pixels", 0.0) if kind in MOVING_KINDS else 0.0  # absent: older records
+        for p in PREDICTORS[kind]:
+            if kind in MOVING_KINDS:
+                block[p]["moving_error_per_pixel"] = sums[f"{kind}/{p}/moving"] / (moving * 3) if moving else None
+        if kind in MOVING_KINDS:
+            block["moving_share"] = moving / kept if kept else None
         for base in PREDICTORS[kind][1:]:
             m, b = block["model"], block[base]
             block[f"skill_vs_{base}"] = (1 - m["error"] / b["error"]) if n and b["error"] else None
             block[f"object_skill_vs_{base}"] = (1 - m["object_error_per_pixel"] / b["object_error_per_pixel"]
                                                 if kept and b["object_error_per_pixel"] else None)
+            if kind in MOVING_KINDS:
+                block[f"moving_skill_vs_{base}"] = (1 - m["moving_error_per_pixel"] / b["moving_error_per_pixel"]
+                                                    if moving and b["moving_error_per_pixel"] else None)
         out[kind] = block
     return out
 

@@ -10,6 +10,8 @@ after the context; reconstruction: the paper's quantity, here on held-out frames
     K_last, K_mean      the baselines on the same frames: copy the last observed frame; the task's mean training image
     K_skill_last        1 - K / K_last;  K_skill_mean  1 - K / K_mean   (< 0: worse than the baseline)
     K_object, K_object_last, K_object_skill_last   the same per kept (non-robot) pixel and channel
+    K_moving, K_moving_last, K_moving_skill_last   the same per moving kept pixel and channel (one step and open loop:
+                        kept pixels whose colour changed from the reference frame); K_moving_share = moving / kept
 and per row the fall from the first to the last count of one_step_object, one_step and open_loop (`drop_K`) on
 paired resamples (the same seeds' indices and held-out episodes for both counts).
 
@@ -48,6 +50,13 @@ for _kind, _bases in BASELINES.items():
     for _base in _bases:
         SKILLS[f"{_kind}_skill_{_base}"] = (_kind, f"{_kind}_{_base}")
         SKILLS[f"{_kind}_object_skill_{_base}"] = (f"{_kind}_object", f"{_kind}_object_{_base}")
+    if _kind != "reconstruction":  # kept pixels whose colour changed from the reference (prediction's docstring)
+        RATIOS[f"{_kind}_moving_share"] = (f"{_kind}/moving_pixels", f"{_kind}/kept_pixels", 1)
+        for _who in ("model", *_bases):
+            _suffix = "" if _who == "model" else f"_{_who}"
+            RATIOS[f"{_kind}_moving{_suffix}"] = (f"{_kind}/{_who}/moving", f"{_kind}/moving_pixels", 3)
+        for _base in _bases:
+            SKILLS[f"{_kind}_moving_skill_{_base}"] = (f"{_kind}_moving", f"{_kind}_moving_{_base}")
 
 
 def sum_arrays(recs: list[dict]) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -61,7 +70,8 @@ def sum_arrays(recs: list[dict]) -> tuple[dict[str, np.ndarray], np.ndarray]:
         if sorted(episodes(rec)) != order:
             raise UserError(f"{rec.get('path', 'a run')}: evaluated other held-out episodes than "
                             f"{recs[0].get('path', 'the first run')}; a cell compares runs on the same episodes")
-    keys = recs[0]["values"]["prediction"]["per_episode"][0]["sums"].keys()
+    # the sums every run has: records written before a sum existed (the moving pixels) leave its ratios out
+    keys = set.intersection(*(set(rec["values"]["prediction"]["per_episode"][0]["sums"]) for rec in recs))
     out = {k: np.zeros((len(recs), len(order))) for k in keys}
     for r, rec in enumerate(recs):
         where = {(e["task"], int(e["seed"])): e["sums"] for e in rec["values"]["prediction"]["per_episode"]}
@@ -75,11 +85,15 @@ def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float
     """Point values and bootstrap replicates (on `draws`) of every RATIOS and SKILLS entry of one cell."""
     point, reps = {}, {}
     for name, (num, den, scale) in RATIOS.items():
+        if num not in sums or den not in sums:
+            continue
         x, n = sums[num], sums[den] * scale
         point[name] = resample.ratio(x, n)
         reps[name] = resample.replicates(x, n, draws)
     with np.errstate(invalid="ignore", divide="ignore"):
         for name, (model, base) in SKILLS.items():
+            if model not in point or base not in point:
+                continue
             point[name] = 1 - point[model] / point[base] if point[base] else float("nan")
             reps[name] = 1 - reps[model] / reps[base]
     return point, reps
@@ -151,7 +165,8 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
     header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "object-focused one-step (x1e-3/pixel)",
               "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
               "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
-              "reconstruction"]
+              "reconstruction", "moving pixels (% of kept: one step / open loop)", "moving-pixel one-step skill vs last",
+              "moving-pixel open-loop skill vs last"]
     body = []
     for r in rows:
         for i, k in enumerate(int(c) for c in r["counts"].split("/")):
@@ -164,8 +179,17 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
                          _milli(r, "drop_one_step_object") if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
                          _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
-                         _ci(r, f"reconstruction_{k}", 1)])
+                         _ci(r, f"reconstruction_{k}", 1), _shares(r, k),
+                         _ci(r, f"one_step_moving_skill_last_{k}", 2), _ci(r, f"open_loop_moving_skill_last_{k}", 2)])
     return header, body
+
+
+def _shares(row: dict, k: int) -> str:
+    """The share of kept pixels that moved, one step and open loop ('—' for runs recorded before it was summed)."""
+    v = [row.get(f"{kind}_moving_share_{k}") for kind in ("one_step", "open_loop")]
+    if any(x is None or not np.isfinite(x) for x in v):
+        return "—"
+    return f"{100 * v[0]:.2g}% / {100 * v[1]:.2g}%"
 
 
 def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
@@ -177,7 +201,7 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     header, body = display(rows)
     note = ("Held-out episodes (no model of a row trained on them); the same gradient steps for every count; "
             "object-focused errors per kept (non-robot) pixel and channel, the others summed over H x W x 3 pixels "
-            "per frame; [95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
+            "per frame; moving pixels: kept pixels whose colour changed from the last observed frame; [95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
             "error (< 0: worse than the baseline).")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
@@ -188,9 +212,10 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     """Per row, against training episodes: the object-focused one-step error per kept pixel (the primary number;
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
-    same pixels (left), its skill against the last frame beside the open loop's (middle), and the full-frame
-    one-step error (right). Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild
-    from the same runs gives the same bytes."""
+    same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
+    error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
+    model predicts of the motion outside the robot). Saved without dates or versions
+    (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -206,7 +231,10 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         err = np.maximum(np.stack([v - lo, hi - v]), 0)  # a percentile interval of a ratio may sit beside its point
         ax.errorbar(np.array(ks) * shift, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
 
-    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(15, 4.6))
+    moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
+                                     for k in (int(c) for c in r["counts"].split("/")))]
+    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.6))
+    ax1, ax2, ax3 = axes[:3]
     for r, color in zip(rows, [f"C{i}" for i in range(10)]):
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
@@ -221,13 +249,21 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         bars(ax2, r, "open_loop_object_skill_last", ks, "s:", color, f"{name}: open loop (object-focused)",
              shift=1.04)
         bars(ax3, r, "one_step", ks, "o-", color, name)
+        if r in moving:
+            bars(axes[3], r, "one_step_moving_skill_last", ks, "o-", color, f"{name}: one step")
+            if all(np.isfinite(r.get(f"open_loop_moving_skill_last_{k}", np.nan)) for k in ks):
+                bars(axes[3], r, "open_loop_moving_skill_last", ks, "s:", color, f"{name}: open loop", shift=1.04)
     ax1.set(ylabel="per kept pixel and channel (x1e-3)",
             title="object-focused one-step error (primary; model: 95% CI)")
     ax2.axhline(0, color="0.5", lw=0.8)
     ax2.set(ylabel="skill vs last frame (1 - model / baseline)", title="object-focused skill vs the last frame")
     ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
+    if moving:
+        axes[3].axhline(0, color="0.5", lw=0.8)
+        axes[3].set(ylabel="skill vs last frame (1 - model / baseline)",
+                    title="moving pixels: skill vs the last frame")
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
-    for ax in (ax1, ax2, ax3):
+    for ax in axes:
         ax.set(xlabel="training episodes per task", xscale="log")
         ax.set_xticks(ks, [str(k) for k in ks])
         ax.xaxis.set_minor_formatter(NullFormatter())
