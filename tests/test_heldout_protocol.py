@@ -410,3 +410,15 @@ def test_a_store_that_is_a_file_is_named_without_a_collect_command_into_it(tmp_p
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip() == ("error: store=a_file: is a file, not a folder; give the episode store's folder "
                                 "(default outputs/episodes)")
+
+
+def test_the_run_line_names_the_moving_pixels_with_their_share():
+    values = run(make_physics_group("varied", 2, 12, 20, 16), k=4)
+    one = values["prediction"]["summary"]["one_step"]
+    line = dd.summary_line(values)
+    assert f"moving pixels ({100 * one['moving_share']:.2g}% of kept) one-step " \
+           f"{1e3 * one['model']['moving_error_per_pixel']:.3f} x1e-3" in line
+    assert line.endswith("; no robot masks: object-focused = full frame")
+    still = {**values, "prediction": {**values["prediction"], "summary": {
+        **values["prediction"]["summary"], "one_step": {**one, "moving_share": None}}}}
+    assert "moving pixels none" in dd.summary_line(still)

@@ -455,5 +455,7 @@ def summary_line(values: dict) -> str:
             f"{'; robot not trained on' if trained else ''}); open-loop error {f(ol['model']['error'])} (last "
             f"frame {f(ol['last']['error'])}, mean image {f(ol['mean']['error'])}; skill {f(ol['skill_vs_last'])} / "
             f"{f(ol['skill_vs_mean'])}), one-step {f(one['model']['error'])} (skill vs last frame "
-            f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}"
+            f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}; moving pixels "
+            + (f"({100 * one['moving_share']:.2g}% of kept) one-step {milli(one['model']['moving_error_per_pixel'])} "
+               f"x1e-3 (skill vs last frame {f(one['moving_skill_vs_last'])})" if one.get("moving_share") else "none")
             + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame"))

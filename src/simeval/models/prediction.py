@@ -32,7 +32,9 @@ Moving (one step and open loop): the kept pixels whose true colour changed from 
 se(o_r, o_t) > MOTION_THRESHOLD, per moving pixel and channel: what moved outside the robot (a drawer, a pushed or
 placed object, a falling one). Static pixels, where the object-focused error only reads how well the model redraws
 the scene, count nowhere here; the last frame scores each moving pixel at least the threshold, so a model's skill
-against it reads whether it predicts the motion. Where nothing outside the robot moves (a top camera over a
+against it reads whether it predicts the motion. The pixels are chosen by the truth alone: a model that blurs
+change everywhere gains here and loses on the still pixels, so read it beside the object-focused error. Where
+nothing outside the robot moves (a top camera over a
 suction gripper hides the carried block) the moving numbers are None and `moving_share` (moving / kept pixels) says
 why. Why a threshold and not > 0: frames are 8-bit, so a resized or re-lit static pixel may differ by a few levels.
 
