@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from simeval.sim.colors import COLORS
+
 ARTICULATED = ("laptop", "lamp", "display", "faucet", "drawer", "oven", "window", "toilet", "dishwasher",
                "table_doors")
 ON_TABLE_Z = 0.03  # thickness of the wooden board a table-top object stands on (shows it is on a table)
@@ -244,8 +246,6 @@ def write_urdf(text: str) -> str:
 
 def object_design(obj) -> Design:
     """The design of a SimObject of an articulated shape (its size, colour and whether it stands on a table)."""
-    from simeval.sim.objects import COLORS
-
     d = design(obj.shape, obj.size, (*COLORS[obj.color], 1.0))
     return _with_board(d, obj.size) if getattr(obj, "on_table", False) else d
 

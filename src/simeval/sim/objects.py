@@ -8,20 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-# Ravens/CLIPort/GenSim's palette (utils.COLORS: muted Tableau 10 colours, 0-255 below), plus GenSim's white and
-# our black. Black is lifted off pure black so that it stays visible on the dark workspace tile (0.2 grey):
-# zones and lines also get a light outline (see OUTLINE). Every pair of colours is at least 50 apart in 0-255
-# RGB (tests/test_sim_look.py).
-_RAVENS_255 = {
-    "blue": (78, 121, 167), "red": (255, 87, 89), "green": (89, 169, 79), "orange": (242, 142, 43),
-    "yellow": (237, 201, 72), "purple": (176, 122, 161), "pink": (255, 157, 167), "cyan": (118, 183, 178),
-    "brown": (156, 117, 95), "gray": (186, 176, 172), "white": (255, 255, 255), "black": (20, 20, 20),
-}
-COLORS = {name: tuple(round(v / 255.0, 4) for v in rgb) for name, rgb in _RAVENS_255.items()}
+from simeval.sim.articulated import ARTICULATED  # articulated objects: simeval.sim.articulated
+from simeval.sim.colors import COLORS
+
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
-from simeval.sim.articulated import ARTICULATED  # noqa: E402 (articulated objects: simeval.sim.articulated)
-
 FIXTURES = ("drawer_cabinet", "bin", "button")  # the BBSEA suite's fixtures (simeval.sim.fixtures)
 SHAPES = SHAPES + ARTICULATED + FIXTURES
 FLAT = ("zone", "line")  # drawn on the table, no collision
