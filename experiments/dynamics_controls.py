@@ -50,9 +50,11 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
 
 @dataclass(frozen=True)
 class Dose:
@@ -154,6 +156,24 @@ def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overw
                              "with --out DIR, or replace it with --overwrite")
 
 
+def finite(obj):
+    """`obj` with every NaN or infinite float (a reading with nothing to read) as None, numpy numbers as Python's,
+    so the JSON written is strict (jq, JavaScript and W&B read it)."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
 def fail(message: str) -> None:
     """A user error: one line on stderr, exit status 2."""
     print(message, file=sys.stderr)
@@ -174,6 +194,7 @@ def run_all(args) -> list[dict]:
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.dynamics_diversity import fit_and_evaluate
+    from simeval.results import atomic_write_text
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
 
@@ -195,6 +216,9 @@ def run_all(args) -> list[dict]:
         return data[condition]
 
     settings = run_settings(args, ROBOT_MASKS[args.control])
+    if args.reevaluate and not args.overwrite and _committed(runs_dir):  # before any record is rewritten
+        fail(f"error: {runs_dir} holds committed runs; --reevaluate rewrites them: add --overwrite, or write "
+             "elsewhere with --out DIR")
     for seed in args.seeds:
         for condition in CONDITIONS[args.control]:
             for k in args.episodes:
@@ -215,14 +239,13 @@ def run_all(args) -> list[dict]:
                     fail(f"error: {runs_dir} holds committed runs and {path.name} is not among them; "
                                      "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
-                reevaluated = path.exists()  # --reevaluate: from its checkpoint, if that is still there
-                checkpoints = set((args.out / "checkpoints" / "controls").glob("*.pt"))
+                reevaluated = path.exists()  # --reevaluate: from its checkpoint, refused where it is gone
                 values = fit_and_evaluate(
                     source_of(condition), episodes_per_task=k, model_cfg=model_cfg,
                     train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
                     eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
                     horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=args.context,
-                    exclude_robot_from_loss=args.exclude_robot_from_loss,
+                    exclude_robot_from_loss=args.exclude_robot_from_loss, evaluate_only=reevaluated,
                     eval_seed=seed, progress=False,
                     checkpoint_dir=args.out / "checkpoints" / "controls")
                 record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,  # no machine paths
@@ -233,10 +256,8 @@ def run_all(args) -> list[dict]:
                           "settings": settings}
                 record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
                 if reevaluated:
-                    again = Path(values["checkpoint"]) not in checkpoints
-                    print(f"{condition} k={k} seed={seed}: " + ("its checkpoint was gone: trained again" if again
-                                                                 else "evaluated again from its checkpoint"), flush=True)
-                path.write_text(json.dumps(record, indent=1))
+                    print(f"{condition} k={k} seed={seed}: evaluated again from its checkpoint", flush=True)
+                atomic_write_text(path, json.dumps(record, indent=1))  # a kill mid-write leaves the old record
                 one = values["prediction"]["summary"]["one_step"]
                 obj = {who: 1e3 * one[who]["object_error_per_pixel"] for who in ("model", "last", "mean")}
                 print(f"{condition} k={k} seed={seed}: object-focused one-step {obj['model']:.3f} x1e-3 (last frame "
@@ -267,18 +288,19 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     for metric in ("one_step", "one_step_object", "one_step_skill_last", "open_loop", "open_loop_skill_last",
                    "reconstruction", "one_step_moving", "one_step_moving_skill_last", "open_loop_moving",
                    "open_loop_moving_skill_last"):
-        if metric not in points[a, lo]:  # runs recorded before the moving pixels were summed
+        if not all(metric in p for p in points.values()):  # some runs recorded before the moving pixels were summed
             continue
+        ci = partial(resample.percentile, max_missing=0.05 if "_moving" in metric else 1.0)
         diff = reps[b, lo][metric] - reps[a, lo][metric]
         fall_b = reps[b, lo][metric] - reps[b, hi][metric]
         fall_a = reps[a, lo][metric] - reps[a, hi][metric]
         out[metric] = {
             f"{b}_minus_{a}_at_{lo}": points[b, lo][metric] - points[a, lo][metric],
-            f"{b}_minus_{a}_at_{lo}_interval": resample.percentile(diff),
+            f"{b}_minus_{a}_at_{lo}_interval": ci(diff),
             f"fall_{lo}_to_{hi}": {c: points[c, lo][metric] - points[c, hi][metric] for c in conditions},
             f"fall_difference": (points[b, lo][metric] - points[b, hi][metric])
             - (points[a, lo][metric] - points[a, hi][metric]),
-            "fall_difference_interval": resample.percentile(fall_b - fall_a)}
+            "fall_difference_interval": ci(fall_b - fall_a)}
     # the protocol's primary number (table4_heldout.PRIMARY): the object-focused one-step error, which is the full
     # frame's per pixel where episodes have no robot masks (the dynamics control: its verdict is unchanged by it)
     primary = out["one_step_object"]
@@ -305,9 +327,10 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
 
 def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 2000,
                  primary: str = "one_step_object") -> dict:
-    """Per level (at the fewest episodes) the object-focused and full-frame one-step errors with intervals, the
-    differences between neighbouring levels and between the top and bottom levels (independent resamples of each
-    level's seeds and held-out episodes), and whether the primary number rises with the level."""
+    """Per level (at the fewest episodes) the object-focused, full-frame and moving-pixel errors, skills and shares
+    with intervals, the differences between neighbouring levels and between the top and bottom levels (independent
+    resamples of each level's seeds and held-out episodes), and whether `primary` (the dose's judged number) rises
+    with the level; a level with no reading of it (nothing moved) passes nothing."""
     import numpy as np
 
     from simeval.metrics import resample
@@ -324,18 +347,19 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
     for metric in ("one_step_object", "one_step", "one_step_object_skill_last", "one_step_skill_last",
                    "one_step_moving", "one_step_moving_skill_last", "one_step_moving_share", "open_loop_moving_share",
                    "open_loop_moving", "open_loop_moving_skill_last"):
-        if metric not in points[levels[0]]:  # runs recorded before the moving pixels were summed
+        if not all(metric in p for p in points.values()):  # some runs recorded before the moving pixels were summed
             continue
+        ci = partial(resample.percentile, max_missing=0.05 if "_moving" in metric else 1.0)
         out[metric] = {
-            "by_level": {lv: [points[lv][metric], *resample.percentile(reps[lv][metric])] for lv in levels},
+            "by_level": {lv: [points[lv][metric], *ci(reps[lv][metric])] for lv in levels},
             "steps": {f"{b}_minus_{a}": [points[b][metric] - points[a][metric],
-                                         *resample.percentile(reps[b][metric] - reps[a][metric])]
+                                         *ci(reps[b][metric] - reps[a][metric])]
                       for a, b in zip(levels, levels[1:])},
             "top_minus_bottom": [points[levels[-1]][metric] - points[levels[0]][metric],
-                                 *resample.percentile(reps[levels[-1]][metric] - reps[levels[0]][metric])]}
+                                 *ci(reps[levels[-1]][metric] - reps[levels[0]][metric])]}
     judged = out.get(primary)  # the dose's number, fixed before the run
     if judged is None:
-        raise RuntimeError(f"the runs have no {primary} (recorded before it was summed): rerun with --reevaluate")
+        fail(f"error: the runs have no {primary} (recorded before it was summed): rerun with --reevaluate")
     finite = all(np.isfinite(v[0]) for v in judged["by_level"].values())  # nothing moving at a level: no reading
     out["judged_by"] = primary
     out["passes"] = {"rises_at_every_level": finite and all(v[0] > 0 for v in judged["steps"].values()),
@@ -422,7 +446,12 @@ def main(argv: list[str] | None = None) -> None:
                          f"{args.heldout[0]}; use --heldout past it")
     from simeval.report.table4_heldout import build, plot, write
 
-    records = run_all(args)
+    from simeval.errors import UserError
+
+    try:
+        records = run_all(args)
+    except UserError as e:  # e.g. --reevaluate where a checkpoint is gone: one line, exit 2
+        fail(f"error: {e}")
     wanted = {(c, k, s) for c in CONDITIONS[args.control] for k in args.episodes for s in args.seeds}
     have = {(r["identity"]["task_group"], r["identity"]["episodes"], r["identity"]["seed"]) for r in records}
     if wanted - have:
@@ -456,11 +485,12 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:  # built aside, compared with what is committed, then moved in
         tmp_stem = Path(tmp) / stem.name
         write(rows, tmp_stem)
-        tmp_stem.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
+        tmp_stem.with_suffix(".json").write_text(json.dumps(finite(result), indent=1, allow_nan=False) + "\n")
         title = f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}"
         if dose is not None:
             plot_dose(rows, dose, Path(tmp) / figure.name,
-                      f"{'/'.join(dose.task)} ({dose.camera}), {min(args.episodes)} training episodes, held-out episodes "
+                      f"{'/'.join(dose.task)} ({dose.camera}), {min(args.episodes)} training episodes, "
+                      f"held-out episodes "
                       f"{args.heldout[0]}-{args.heldout[1]}\n{title}")
         else:
             plot(rows, Path(tmp) / figure.name, title)
@@ -470,7 +500,7 @@ def main(argv: list[str] | None = None) -> None:
         for m, t in zip(made, targets):
             t.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(m, t)
-    print(json.dumps(result["verdict"], indent=1, default=float))
+    print(json.dumps(finite(result["verdict"]), indent=1))
     print("wrote", ", ".join(map(str, targets)))
 
 

@@ -58,6 +58,26 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     assert again.returncode == 0 and "collected" not in again.stdout and "one-step" not in again.stdout
     assert again.stdout.count("saved already") == 4  # each reused run says so
     assert (tmp_path / "tables" / "control_dose.json").read_text() == json.dumps(result, indent=1) + "\n"
+    runs = sorted((tmp_path / "controls" / "dose" / "runs").glob("*.json"))
+    def training(paths):  # what each run's training record says, less its clock (the checkpoint keeps its own)
+        return [{k: v for k, v in json.loads(r.read_text())["values"]["train"].items() if k != "seconds"}
+                for r in paths]
+
+    trained = training(runs)
+    scored = control(*TINY_DOSE, "--reevaluate", out=tmp_path)  # scored again from the checkpoints, not trained
+    assert scored.returncode == 0, scored.stderr
+    assert scored.stdout.count("evaluated again from its checkpoint") == 4 and "saved already" not in scored.stdout
+    assert scored.stdout.count(" 0 episodes collected") == 4  # the store's episodes, nothing collected again
+    assert training(runs) == trained  # each checkpoint's record: no step taken again
+    again_verdict = json.loads((tmp_path / "tables" / "control_dose.json").read_text())["verdict"]
+    np.testing.assert_allclose(again_verdict["one_step_object"]["by_level"]["range100"][0],
+                               verdict["one_step_object"]["by_level"]["range100"][0], rtol=1e-6)
+    for checkpoint in (tmp_path / "checkpoints" / "controls").glob("*.pt"):
+        checkpoint.unlink()
+    gone = control(*TINY_DOSE, "--reevaluate", out=tmp_path)  # no checkpoint: refused, not trained again
+    assert gone.returncode == 2 and "Traceback" not in gone.stderr
+    # (pybullet's import prints its build time on stderr before it)
+    assert gone.stderr.strip().splitlines()[-1].startswith("error: no checkpoint to evaluate from")
     other = control(*[("7" if a == "6" else a) for a in TINY_DOSE], out=tmp_path)
     assert other.returncode == 2 and "other settings (steps: 6)" in other.stderr
     assert len(other.stderr.strip().splitlines()) == 1 and "Traceback" not in other.stderr

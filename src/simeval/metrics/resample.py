@@ -35,27 +35,32 @@ def draws(n_seeds: int, strata, n_boot: int = 2000, seed: int = 0) -> list[tuple
     return out
 
 
-def ratio(x, n, seeds: np.ndarray | None = None, episodes: np.ndarray | None = None) -> float:
-    """sum x / sum n over the rows `seeds` and columns `episodes` (all when None; repeats count again)."""
+def ratio(x, n, seeds: np.ndarray | None = None, episodes: np.ndarray | None = None,
+          min_total: float = 0.0) -> float:
+    """sum x / sum n over the rows `seeds` and columns `episodes` (all when None; repeats count again); NaN when
+    sum n is 0 or below `min_total` (too little to read)."""
     x, n = np.asarray(x, float), np.asarray(n, float)
     if seeds is not None:
         x, n = x[seeds], n[seeds]
     if episodes is not None:
         x, n = x[:, episodes], n[:, episodes]
     total = n.sum()
-    return float(x.sum() / total) if total > 0 else float("nan")
+    return float(x.sum() / total) if total > 0 and total >= min_total else float("nan")
 
 
-def replicates(x, n, resamples: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+def replicates(x, n, resamples: list[tuple[np.ndarray, np.ndarray]], min_total: float = 0.0) -> np.ndarray:
     """The statistic on every resample: (n_boot,)."""
-    return np.array([ratio(x, n, s, e) for s, e in resamples])
+    return np.array([ratio(x, n, s, e, min_total) for s, e in resamples])
 
 
-def percentile(values, level: float = 0.95) -> list[float]:
+def percentile(values, level: float = 0.95, max_missing: float = 1.0) -> list[float]:
+    """The percentile interval of the finite replicates; NaN when more than `max_missing` of them are not finite
+    (the interval would hold only for the resamples that happened to have something to count)."""
     values = np.asarray(values, float)
-    values = values[np.isfinite(values)]
-    if not len(values):  # a statistic with nothing to count in any resample (e.g. no moving pixel at all)
+    finite = np.isfinite(values)
+    if not finite.any() or 1 - finite.mean() > max_missing:
         return [float("nan"), float("nan")]
+    values = values[finite]
     alpha = (1 - level) / 2
     return [float(np.quantile(values, alpha)), float(np.quantile(values, 1 - alpha))]
 

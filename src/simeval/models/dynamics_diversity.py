@@ -98,7 +98,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      device: str | torch.device | None = "auto", compile: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
                      steps: int | None = None, horizon: int | None = None, lr: float | None = None,
-                     mask_margin: int = 0, exclude_robot_from_loss: bool = False) -> dict:
+                     mask_margin: int = 0, exclude_robot_from_loss: bool = False,
+                     evaluate_only: bool = False) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -122,7 +123,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     With `exclude_robot_from_loss` (heldout only) those same grown robot pixels carry no training loss either, so the
     model learns nothing of the robot's looks (the visual control failed without it); episodes without masks train
     on the full frame, and `values["protocol"]["robot_excluded_from_loss"]` says which happened.
-    `heldout_episodes` is not used by "heldout" (its evaluation is held out)."""
+    `heldout_episodes` is not used by "heldout" (its evaluation is held out). `evaluate_only` (heldout): a
+    UserError instead of training when the run's checkpoint is not there (to score finished runs again)."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
         raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -134,7 +136,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
-            how_to_get_more=how_to_get_more)
+            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only)
     setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
                      checkpoint_dir, how_to_get_more)
     infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
@@ -217,7 +219,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                               exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
                               eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
-                              how_to_get_more) -> dict:
+                              how_to_get_more, evaluate_only: bool = False) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.models.prediction import evaluate_prediction, task_mean_images
 
@@ -246,6 +248,9 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
 
     setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, more,
                      protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
+    if evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
+        raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
+                        "would have to be trained again")
     evaluated = rank_mask(setup.ranks, lo, hi)
     longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
     if context + horizon > longest:

@@ -34,8 +34,8 @@ placed object, a falling one). Static pixels, where the object-focused error onl
 the scene, count nowhere here; the last frame scores each moving pixel at least the threshold, so a model's skill
 against it reads whether it predicts the motion. The pixels are chosen by the truth alone: a model that blurs
 change everywhere gains here and loses on the still pixels, so read it beside the object-focused error. Where
-nothing outside the robot moves (a top camera over a
-suction gripper hides the carried block) the moving numbers are None and `moving_share` (moving / kept pixels) says
+fewer than MIN_MOVING_PIXELS kept pixels move over all the frames summed (a top camera over a suction gripper
+hides the block it carries) the moving errors and skills are None and `moving_share` (moving / kept pixels) says
 why. Why a threshold and not > 0: frames are 8-bit, so a resized or re-lit static pixel may differ by a few levels.
 
 Aggregates are ratios of sums over frames: error = sum se / frames; skill vs a baseline = 1 - error_model /
@@ -55,6 +55,7 @@ PREDICTORS = {"one_step": ("model", "last", "mean"), "open_loop": ("model", "las
               "reconstruction": ("model", "mean")}
 MOVING_KINDS = ("one_step", "open_loop")  # the reconstruction's reference is its target: nothing moves
 MOTION_THRESHOLD = 0.01  # se over the 3 channels in [0, 1]: e.g. one channel off by 0.1 (26 of 255 levels)
+MIN_MOVING_PIXELS = 100  # fewer moving pixels (summed over frames) give no moving-pixel reading: a few would be noise
 # per (kind, predictor): se over the full frame, over kept (object) pixels, over moving kept pixels; per kind:
 # frames, kept pixels, moving pixels
 SUM_KEYS = tuple(f"{k}/{p}/{part}" for k in KINDS for p in PREDICTORS[k]
@@ -176,12 +177,13 @@ def summarise(sums: dict[str, float], image_size: int) -> dict:
             full = sums[f"{kind}/{p}/full"] / n if n else None
             block[p] = {"error": full, "error_per_pixel": full / (pixels * 3) if n else None,
                         "object_error_per_pixel": sums[f"{kind}/{p}/object"] / (kept * 3) if kept else None}
-        moving = sums.get(f"{kind}/moving_pixels", 0.0) if kind in MOVING_KINDS else 0.0  # absent: older records
+        count = sums.get(f"{kind}/moving_pixels")  # None: not summed (the reconstruction)
+        moving = count if count is not None and count >= MIN_MOVING_PIXELS else 0.0  # fewer: no reading
         for p in PREDICTORS[kind]:
             if kind in MOVING_KINDS:
                 block[p]["moving_error_per_pixel"] = sums[f"{kind}/{p}/moving"] / (moving * 3) if moving else None
         if kind in MOVING_KINDS:
-            block["moving_share"] = moving / kept if kept else None
+            block["moving_share"] = count / kept if kept and count is not None else None
         for base in PREDICTORS[kind][1:]:
             m, b = block["model"], block[base]
             block[f"skill_vs_{base}"] = (1 - m["error"] / b["error"]) if n and b["error"] else None

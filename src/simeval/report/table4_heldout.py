@@ -32,6 +32,7 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.metrics import resample
+from simeval.models.prediction import MIN_MOVING_PIXELS
 from simeval.report.table4 import one_setting
 from simeval.report.tables import to_csv, to_markdown
 from simeval.results import atomic_write_text
@@ -82,14 +83,16 @@ def sum_arrays(recs: list[dict]) -> tuple[dict[str, np.ndarray], np.ndarray]:
 
 
 def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-    """Point values and bootstrap replicates (on `draws`) of every RATIOS and SKILLS entry of one cell."""
+    """Point values and bootstrap replicates (on `draws`) of every RATIOS and SKILLS entry of one cell (a moving
+    ratio is NaN where fewer than MIN_MOVING_PIXELS pixels moved, in the cell or in a resample)."""
     point, reps = {}, {}
     for name, (num, den, scale) in RATIOS.items():
         if num not in sums or den not in sums:
             continue
         x, n = sums[num], sums[den] * scale
-        point[name] = resample.ratio(x, n)
-        reps[name] = resample.replicates(x, n, draws)
+        least = MIN_MOVING_PIXELS * scale if den.endswith("/moving_pixels") else 0.0
+        point[name] = resample.ratio(x, n, min_total=least)
+        reps[name] = resample.replicates(x, n, draws, min_total=least)
     with np.errstate(invalid="ignore", divide="ignore"):
         for name, (model, base) in SKILLS.items():
             if model not in point or base not in point:
@@ -132,7 +135,9 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
             row[f"robot_mask_{k}"] = all(r["values"]["prediction"].get("robot_mask") for r in recs)
             for name, v in point.items():
                 row[f"{name}_{k}"] = v
-                row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(reps[name])
+                # a moving ratio's interval only where nearly every resample had enough moving pixels to read
+                row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(
+                    reps[name], max_missing=0.05 if "_moving" in name else 1.0)
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
@@ -161,12 +166,17 @@ def _milli(row: dict, name: str) -> str:
 def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
     """A compact Markdown view: per count the object-focused one-step error (the primary number) with its skill
     against both baselines and its fall, then the full-frame one-step error with its skill against the last frame,
-    the open-loop error with its skill against the last frame, and the reconstruction, each with its 95% interval."""
+    the open-loop error with its skill against the last frame, and the reconstruction, each with its 95% interval;
+    where any row's runs summed them, the moving pixels' share of the kept pixels and their one-step and open-loop
+    skill against the last frame (runs recorded before they were summed give the table they gave then)."""
     header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "object-focused one-step (x1e-3/pixel)",
               "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
               "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
-              "reconstruction", "moving pixels (% of kept: one step / open loop)", "moving-pixel one-step skill vs last",
-              "moving-pixel open-loop skill vs last"]
+              "reconstruction"]
+    moving = has_moving(rows)
+    if moving:
+        header += ["moving pixels (% of kept: one step / open loop)", "moving-pixel one-step skill vs last",
+                   "moving-pixel open-loop skill vs last"]
     body = []
     for r in rows:
         for i, k in enumerate(int(c) for c in r["counts"].split("/")):
@@ -179,9 +189,15 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
                          _milli(r, "drop_one_step_object") if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
                          _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
-                         _ci(r, f"reconstruction_{k}", 1), _shares(r, k),
-                         _ci(r, f"one_step_moving_skill_last_{k}", 2), _ci(r, f"open_loop_moving_skill_last_{k}", 2)])
+                         _ci(r, f"reconstruction_{k}", 1)]
+                        + ([_shares(r, k), _ci(r, f"one_step_moving_skill_last_{k}", 2),
+                            _ci(r, f"open_loop_moving_skill_last_{k}", 2)] if moving else []))
     return header, body
+
+
+def has_moving(rows: list[dict]) -> bool:
+    """Whether any row's runs summed the moving pixels."""
+    return any(key.startswith("one_step_moving_share_") for r in rows for key in r)
 
 
 def _shares(row: dict, k: int) -> str:
@@ -201,7 +217,9 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     header, body = display(rows)
     note = ("Held-out episodes (no model of a row trained on them); the same gradient steps for every count; "
             "object-focused errors per kept (non-robot) pixel and channel, the others summed over H x W x 3 pixels "
-            "per frame; moving pixels: kept pixels whose colour changed from the last observed frame; [95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
+            "per frame; " + ("moving pixels: kept pixels whose colour changed from the last observed frame (no "
+                             f"reading where fewer than {MIN_MOVING_PIXELS} moved); " if has_moving(rows) else "")
+            + "[95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
             "error (< 0: worse than the baseline).")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
