@@ -55,10 +55,12 @@ def main(cfg: DictConfig) -> None:
     window = WindowSpec(**wm["window"])
     check_eval_context(int(cfg.eval.context), window)
     protocol = cfg.protocol.name
+    # protocol=paper leaves these null (it has no robot masks in its score or loss)
+    mask_margin = cfg.protocol.get("mask_margin", 0) if protocol == "heldout" else 0
+    exclude_robot = cfg.protocol.get("exclude_robot_from_loss", False) if protocol == "heldout" else False
     if protocol == "heldout":  # a bad protocol.* value stops here, before the store is read
-        check_heldout_settings(cfg.protocol.steps, cfg.protocol.horizon, cfg.protocol.lr,
-                               cfg.protocol.get("mask_margin", 0), int(cfg.eval.context),
-                               cfg.protocol.get("exclude_robot_from_loss", False))
+        check_heldout_settings(cfg.protocol.steps, cfg.protocol.horizon, cfg.protocol.lr, mask_margin,
+                               int(cfg.eval.context), exclude_robot)
     needed = max(int(cfg.episodes), (eval_ranks or (0, 40))[1])  # protocol=paper's held-out episodes are optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
     debug = f" debug={overlay}" if overlay != "none" else ""
@@ -75,8 +77,7 @@ def main(cfg: DictConfig) -> None:
         values = fit_and_evaluate(
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_ranks, protocol=protocol, steps=cfg.protocol.steps, horizon=cfg.protocol.horizon,
-            lr=cfg.protocol.lr, mask_margin=cfg.protocol.get("mask_margin") or 0,
-            exclude_robot_from_loss=cfg.protocol.get("exclude_robot_from_loss") or False,
+            lr=cfg.protocol.lr, mask_margin=mask_margin, exclude_robot_from_loss=exclude_robot,
             heldout_episodes=heldout_ranks if protocol == "paper" else None, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),

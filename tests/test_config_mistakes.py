@@ -42,6 +42,7 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["checkpoint_dir=a_file"], "checkpoint_dir=a_file: is a file, not a folder"),
     (["protocol.exclude_robot_from_loss=maybe"], "protocol.exclude_robot_from_loss='maybe': expected true or false"),
     (["protocol.mask_margin=-1"], "protocol.mask_margin=-1: expected a whole number of pixels >= 0"),
+    (["protocol.mask_margin=null"], "protocol.mask_margin=null: expected a whole number of pixels >= 0"),
     (["protocol.steps=0"], "protocol.steps=0: the heldout protocol trains every episode count"),
 ])
 def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):

@@ -191,6 +191,11 @@ def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size
     return int(math.ceil(steps / math.ceil(fewest / batch_size)))
 
 
+def _yaml(value) -> str:
+    """A config value as the user wrote it: null for None, else its repr."""
+    return "null" if value is None else repr(value)
+
+
 def _whole(value, low: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= low
 
@@ -206,9 +211,9 @@ def check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclud
     if context < 1:
         raise UserError(f"eval.context={context}: expected a whole number >= 1")
     if not _whole(mask_margin, 0):
-        raise UserError(f"protocol.mask_margin={mask_margin!r}: expected a whole number of pixels >= 0")
+        raise UserError(f"protocol.mask_margin={_yaml(mask_margin)}: expected a whole number of pixels >= 0")
     if not isinstance(exclude_robot_from_loss, bool):
-        raise UserError(f"protocol.exclude_robot_from_loss={exclude_robot_from_loss!r}: expected true or false")
+        raise UserError(f"protocol.exclude_robot_from_loss={_yaml(exclude_robot_from_loss)}: expected true or false")
     if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
         raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
 
