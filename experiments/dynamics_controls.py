@@ -160,24 +160,6 @@ def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overw
                              "with --out DIR, or replace it with --overwrite")
 
 
-def finite(obj):
-    """`obj` with every NaN or infinite float (a reading with nothing to read) as None, numpy numbers as Python's,
-    so the JSON written is strict (jq, JavaScript and W&B read it)."""
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {k: finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite(v) for v in obj]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
-
-
 def fail(message: str) -> None:
     """A user error: one line on stderr, exit status 2."""
     print(message, file=sys.stderr)
@@ -450,6 +432,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
     from simeval.report.table4_heldout import build, plot, write
+    from simeval.results import dumps_strict
 
     from simeval.errors import UserError
 
@@ -490,7 +473,7 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:  # built aside, compared with what is committed, then moved in
         tmp_stem = Path(tmp) / stem.name
         write(rows, tmp_stem)
-        tmp_stem.with_suffix(".json").write_text(json.dumps(finite(result), indent=1, allow_nan=False) + "\n")
+        tmp_stem.with_suffix(".json").write_text(dumps_strict(result, indent=1) + "\n")
         title = f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}"
         if dose is not None:
             plot_dose(rows, dose, Path(tmp) / figure.name,
@@ -505,7 +488,7 @@ def main(argv: list[str] | None = None) -> None:
         for m, t in zip(made, targets):
             t.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(m, t)
-    print(json.dumps(finite(result["verdict"]), indent=1))
+    print(dumps_strict(result["verdict"], indent=1))
     print("wrote", ", ".join(map(str, targets)))
 
 
