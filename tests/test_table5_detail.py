@@ -32,6 +32,53 @@ def test_task_interval_is_wider_than_wilson_when_one_task_holds_every_success():
     assert task_bootstrap_interval([3], [10]) is None  # one task: nothing to resample
 
 
+def test_seed_and_task_bootstrap_reduces_to_the_task_bootstrap_for_identical_seeds():
+    k, n = [5, 0, 1, 0, 2, 0], [5, 5, 5, 5, 5, 5]
+    one = task_bootstrap_interval(k, n)
+    assert task_bootstrap_interval([k], [n]) == one  # one seed: the (T,) interval exactly
+    assert task_bootstrap_interval([k, k, k], [n, n, n]) == one  # identical seeds add nothing
+
+
+def test_seed_spread_alone_widens_the_interval_by_hand():
+    """Two tasks of equal rate inside each seed, seeds 0.5 and 0.0 apart: resampling tasks alone sees no spread
+    ([0.25, 0.25]); resampling the two seeds gives 0 (both seed 1), 0.25 (one each, p = 1/2) or 0.5 (both seed 0)."""
+    k, n = [[2, 2], [0, 0]], [[4, 4], [4, 4]]
+    assert task_bootstrap_interval(np.sum(k, 0), np.sum(n, 0)) == (0.25, 0.25)
+    assert task_bootstrap_interval(k, n, n_boot=2000) == (0.0, 0.5)
+
+
+def test_seed_and_task_bootstrap_matches_exact_enumeration():
+    """2 seeds x 3 tasks: all 2^2 * 3^3 = 108 equally likely (seed draw, task draw) pairs enumerated, the pooled rate
+    of each; the bootstrap's 2.5% / 97.5% quantiles must land on the exact distribution's quantiles (chosen where its
+    CDF does not sit on 0.025 or 0.975, so a large bootstrap cannot fall between two support points)."""
+    import itertools
+
+    k = np.array([[3, 0, 1], [1, 0, 2]])
+    n = np.full((2, 3), 4)
+    rates = []
+    for seeds in itertools.product(range(2), repeat=2):
+        for tasks in itertools.product(range(3), repeat=3):
+            rates.append(sum(k[s, t] for s in seeds for t in tasks) / sum(n[s, t] for s in seeds for t in tasks))
+    values = np.unique(rates)
+    cdf = np.array([np.mean(np.array(rates) <= v) for v in values])  # P(rate <= v) over the 108 draws
+    exact = []
+    for q in (0.025, 0.975):
+        i = int(np.searchsorted(cdf, q))  # the smallest support point whose CDF reaches q
+        below = cdf[i - 1] if i else 0.0
+        assert cdf[i] - q > 0.004 and q - below > 0.004  # q is inside a step, not on its edge
+        exact.append(values[i])
+    lo_exact, hi_exact = exact
+    lo, hi = task_bootstrap_interval(k, n, n_boot=40000)
+    assert (lo, hi) == pytest.approx((lo_exact, hi_exact))
+
+
+def test_task_bootstrap_refuses_mismatched_shapes():
+    from simeval.errors import UserError
+
+    with pytest.raises(UserError, match="one shape"):
+        task_bootstrap_interval([[1, 2]], [[3, 3], [3, 3]])
+
+
 def test_random_actions_are_seeded_and_inside_the_box():
     from gymnasium import spaces
 
@@ -48,17 +95,19 @@ def test_random_actions_are_seeded_and_inside_the_box():
     assert np.all(np.abs(draws[0].mean(0) - (space.low + space.high) / 2) < 0.1 * (space.high - space.low))
 
 
-def _record(policy: str, tasks: list[tuple[str, str, list[tuple[bool, float]]]]) -> dict:
+def _record(policy: str, tasks: list[tuple[str, str, list[tuple[bool, float]]]], seed: int = 0) -> dict:
     rows = [{"split": split, "task": task,
              "success": {"k": sum(s for s, _ in eps), "n": len(eps)},
              "episodes": [{"seed": i, "success": s, "progress": p, "steps": 1} for i, (s, p) in enumerate(eps)]}
             for split, task, eps in tasks]
-    return {"identity": {"pipeline": "bbsea", "task_group": "drawer", "policy": policy}, "values": {"tasks": rows}}
+    return {"identity": {"pipeline": "bbsea", "task_group": "drawer", "policy": policy, "seed": seed},
+            "values": {"tasks": rows}, "path": f"runs/{policy}/{seed}/result.json"}
 
 
 def test_detail_rows_pool_runs_per_task_and_report_progress(tmp_path):
     a = _record("cpu", [("eval", "close", [(True, 1.0), (True, 1.0)]), ("eval", "open", [(False, 0.5), (False, 0.0)])])
-    b = _record("cpu", [("eval", "close", [(False, 0.25), (True, 1.0)]), ("eval", "open", [(False, 0.0), (False, 0.0)])])
+    b = _record("cpu", [("eval", "close", [(False, 0.25), (True, 1.0)]), ("eval", "open", [(False, 0.0), (False, 0.0)])],
+                seed=1)
     rows = detail_rows([a, b, _record("random", [("eval", "close", [(True, 1.0)]), ("eval", "open", [(False, 0.0)])])])
     group = next(r for r in rows if r["policy"] == "cpu" and r["task"] == "*")
     assert (group["k"], group["n"], group["runs"]) == (3, 8, 2)
@@ -68,3 +117,16 @@ def test_detail_rows_pool_runs_per_task_and_report_progress(tmp_path):
     assert [r["policy"] for r in rows if r["task"] == "*"] == ["cpu", "random"]
     md = write_detail(rows, tmp_path / "detail")["md"].read_text()
     assert "| bbsea | drawer | cpu | eval | all tasks | 0.38 (3/8) |" in md
+    assert group["run_rates"] == {0: 0.5, 1: 0.25}  # seed 0: 2 of 4, seed 1: 1 of 4
+    assert group["task_ci"] == task_bootstrap_interval([[2, 0], [1, 0]], [[2, 2], [2, 2]])
+    assert "seed 0: 0.50, seed 1: 0.25" in md
+
+
+def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
+    from simeval.errors import UserError
+    from simeval.models.policy.table5 import build
+
+    a = _record("cpu", [("eval", "close", [(True, 1.0)])])
+    b = dict(a, path="elsewhere/result.json")
+    with pytest.raises(UserError, match="seed 0"):
+        build([a, b])

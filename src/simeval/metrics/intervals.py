@@ -12,6 +12,10 @@
         replacement, each with all its rollouts: a cluster bootstrap). Rollouts of one task are not independent of
         each other (one easy task can hold every success), which the Wilson interval of the pooled counts assumes;
         resampling whole tasks is what a group-level interval must do. None for fewer than 2 tasks.
+        With several training seeds, k and n are (S, T) (seed s, task t): seeds and tasks are drawn with
+        replacement independently (a crossed two-way cluster bootstrap: the S drawn seeds each contribute the T
+        drawn tasks), so the interval holds the spread between training seeds as well as between tasks. For S = 1
+        it is the (T,) interval exactly (the task draws come first from the same generator).
 """
 
 from __future__ import annotations
@@ -48,11 +52,21 @@ def success_summary(successes: Iterable[bool], level: float = 0.95) -> dict:
 def task_bootstrap_interval(k, n, level: float = 0.95, n_boot: int = 4000, seed: int = 0) -> tuple[float, float] | None:
     import numpy as np
 
-    k, n = np.asarray(k, float), np.asarray(n, float)
-    if len(k) < 2 or n.sum() == 0:
+    k, n = np.atleast_2d(np.asarray(k, float)), np.atleast_2d(np.asarray(n, float))
+    if k.shape != n.shape or k.ndim != 2:
+        raise UserError(f"task_bootstrap_interval needs k and n of one shape, (tasks,) or (seeds, tasks); got "
+                        f"{k.shape} and {n.shape}")
+    n_seeds, n_tasks = k.shape
+    if n_tasks < 2 or n.sum() == 0:
         return None
-    idx = np.random.default_rng(seed).integers(0, len(k), (n_boot, len(k)))
-    num, den = k[idx].sum(1), n[idx].sum(1)
+    rng = np.random.default_rng(seed)
+    tasks = rng.integers(0, n_tasks, (n_boot, n_tasks))
+    seeds = rng.integers(0, n_seeds, (n_boot, n_seeds))
+    # per draw: the (S*, T*) block of drawn seeds x drawn tasks, summed; per-task sums over the drawn seeds first
+    k_task = k[seeds].sum(1)  # (n_boot, T): each task's successes over the drawn seeds
+    n_task = n[seeds].sum(1)
+    rows = np.arange(n_boot)[:, None]
+    num, den = k_task[rows, tasks].sum(1), n_task[rows, tasks].sum(1)
     rates = num[den > 0] / den[den > 0]
     alpha = (1 - level) / 2
     return float(np.quantile(rates, alpha)), float(np.quantile(rates, 1 - alpha))

@@ -6,7 +6,8 @@ and a figure.
 writes table5.{csv,md,tex}, table5_detail.{csv,md} (per task, task-level intervals, mean progress) and
 table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
 group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
-runs of one cell must agree on their identity (settings); seeds are pooled (successes and rollouts add up). The
+runs of one cell must agree on their identity (settings), one run per training seed; seeds are pooled (successes and
+rollouts add up; table5_detail adds each seed's rate and an interval over seeds and tasks). The
 paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
 No generalization result.json under --runs: one line on stderr, exit status 2. `--keep outputs/tables/table5.csv`
 (repeatable) extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table
@@ -62,7 +63,13 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
                             f"runs of one setting only: move the other runs out of the folder searched, or search "
                             f"one sweep's folder (--runs)")
-        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": []})
+        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}})
+        seed = rec["identity"].get("seed")
+        if seed in cell["seeds"]:
+            raise UserError(f"{rec['path']} and {cell['seeds'][seed]}: two runs of {key[:2]} with policy {key[2]} and "
+                            f"seed {seed}; a cell pools one run per training seed: move one out of the folder "
+                            f"searched (--runs)")
+        cell["seeds"][seed] = rec["path"]
         cell["runs"].append(rec["path"])
         for split, v in rec["values"].get("splits", {}).items():
             k, n = cell["counts"].get(split, (0, 0))
@@ -164,44 +171,53 @@ def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
 
 
 DETAIL_HEAD = ["Pipeline", "Task group", "Policy", "Split", "Task", "Success", "Wilson 95%", "Task-level 95%",
-               "Mean progress", "Runs"]
+               "Per run", "Mean progress", "Runs"]
 
 
 def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
     """Per (pipeline, group, policy, split): the pooled success with its Wilson interval and its task-level
-    (cluster) bootstrap interval (simeval.metrics.intervals.task_bootstrap_interval), the mean progress (GenSim's
-    step-wise reward is a progress, not a success), then one row per task. Runs of one cell (seeds) are pooled per
-    task. Rows are dicts: {pipeline, group, policy, split, task ('*' for the group), k, n, rate, ci, task_ci,
-    progress, runs}."""
+    (cluster) bootstrap interval (simeval.metrics.intervals.task_bootstrap_interval; with several runs of the cell,
+    i.e. training seeds, over runs and tasks both), each run's own rate, the mean progress (GenSim's step-wise reward
+    is a progress, not a success), then one row per task, its runs pooled. Rows are dicts: {pipeline, group, policy,
+    split, task ('*' for the group), k, n, rate, ci, task_ci, run_rates (the group line's {training seed: rate},
+    None on task lines), progress, runs}."""
     cells: dict = {}
     for rec in records:
         key = _cell(rec, policy)
         if key is None:
             continue
-        cell = cells.setdefault(key, {"runs": 0, "tasks": {}})
+        cell = cells.setdefault(key, {"runs": 0, "tasks": {}, "seeds": []})
+        run = cell["runs"]
         cell["runs"] += 1
+        cell["seeds"].append(rec["identity"].get("seed"))
         for t in rec["values"].get("tasks", []):
-            k, n, prog = cell["tasks"].get((t["split"], t["task"]), (0, 0, 0.0))
             eps = t.get("episodes") or []
-            cell["tasks"][t["split"], t["task"]] = (k + t["success"]["k"], n + t["success"]["n"],
-                                                    prog + sum(e["progress"] for e in eps))
+            per_run = cell["tasks"].setdefault((t["split"], t["task"]), {})
+            k, n, prog = per_run.get(run, (0, 0, 0.0))
+            per_run[run] = (k + t["success"]["k"], n + t["success"]["n"], prog + sum(e["progress"] for e in eps))
     order = [*PAPER, *sorted({k[:2] for k in cells} - set(PAPER))]
     rows = []
     for key in sorted(cells, key=lambda c: (order.index(c[:2]), str(c[2]))):
         cell = cells[key]
+        runs = range(cell["runs"])
         for split in SPLITS:
             tasks = sorted((t, v) for (sp, t), v in cell["tasks"].items() if sp == split)
             if not tasks:
                 continue
-            k = sum(v[0] for _, v in tasks)
-            n = sum(v[1] for _, v in tasks)
+            # (runs, tasks) counts; a run that did not roll a task out adds 0 of 0 there
+            k_rt = [[v.get(r, (0, 0, 0))[0] for _, v in tasks] for r in runs]
+            n_rt = [[v.get(r, (0, 0, 0))[1] for _, v in tasks] for r in runs]
+            pooled = [tuple(sum(c[i] for c in v.values()) for i in range(3)) for _, v in tasks]
+            k, n = sum(p[0] for p in pooled), sum(p[1] for p in pooled)
             base = dict(zip(("pipeline", "group", "policy"), key), split=split, runs=cell["runs"])
+            run_rates = {seed: sum(kr) / sum(nr) if sum(nr) else None
+                         for seed, kr, nr in zip(cell["seeds"], k_rt, n_rt)}
             rows.append({**base, "task": "*", "k": k, "n": n, "rate": k / n, "ci": list(wilson_interval(k, n)),
-                         "task_ci": task_bootstrap_interval([v[0] for _, v in tasks], [v[1] for _, v in tasks]),
-                         "progress": sum(v[2] for _, v in tasks) / n})
-            for t, (tk, tn, tp) in tasks:
+                         "task_ci": task_bootstrap_interval(k_rt, n_rt), "run_rates": run_rates,
+                         "progress": sum(p[2] for p in pooled) / n})
+            for (t, _), (tk, tn, tp) in zip(tasks, pooled):
                 rows.append({**base, "task": t, "k": tk, "n": tn, "rate": tk / tn, "ci": list(wilson_interval(tk, tn)),
-                             "task_ci": None, "progress": tp / tn})
+                             "task_ci": None, "run_rates": None, "progress": tp / tn})
     return rows
 
 
@@ -210,14 +226,21 @@ def write_detail(rows: list[dict], out: str | Path) -> dict[str, Path]:
     def interval(ci) -> str:
         return "-" if ci is None else f"[{ci[0]:.2f}, {ci[1]:.2f}]"
 
+    def per_run(rates) -> str:
+        if rates is None or len(rates) < 2:
+            return "-"
+        return ", ".join(f"seed {seed}: " + ("-" if x is None else f"{x:.2f}") for seed, x in rates.items())
+
     table = [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
               "all tasks" if r["task"] == "*" else r["task"],
               f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
-              f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
+              per_run(r["run_rates"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
     notes = ["Task-level 95%: percentile bootstrap over the group's tasks (whole tasks resampled), the interval a "
              "group rate needs when one task holds most successes; the Wilson interval treats every rollout as "
-             "independent", "Policy 'random': uniform random actions on the same tasks, seeds and step limits (the "
-             "chance level)", "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed "
+             "independent. With several runs (training seeds) runs and tasks are both resampled",
+             "Per run: each run's rate on the split, by its training seed",
+             "Policy 'random': uniform random actions on the same tasks, seeds and step limits (the chance level)",
+             "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed "
              "state)"]
     paths = write_table(out, DETAIL_HEAD, table, notes=notes, label="tab:table5-detail",
                         caption="Table 5 per task: success, intervals and mean progress per split.")
