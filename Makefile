@@ -54,8 +54,8 @@ else
 	@cat outputs/table3_suites/tables/table3.md
 endif
 
-report-table3: setup ## rebuild Table 3 from the result.json files only (no rerun)
-	$(PY) src/report.py report=table3
+report-table3: setup ## rebuild Table 3 from the result.json files only (no rerun; OVERWRITE=1: replace the committed table)
+	$(PY) src/report.py report=table3 $(if $(OVERWRITE),overwrite=true)
 
 figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tables + figure under outputs/figures/
 	$(PY) src/agreement.py scores_path=$(HUMAN_SCORES) hydra.run.dir=outputs/figures/figure3
@@ -90,8 +90,8 @@ table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Polic
 	  $(PY) src/generalization.py pipeline=$$p task_group=$$g $$h || exit 1; done
 	$(MAKE) --no-print-directory report-table5
 
-report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset; KEEP=outputs/tables/table5.csv: extend the committed table instead of replacing it): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
-	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP))
+report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset; KEEP=outputs/tables/table5.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
+	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
 
 # Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
 # (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job: 128x128 episodes, windows of 20 for
@@ -110,8 +110,8 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 	  $(PY) src/diversity.py protocol=paper pipeline=$$p task_group=$$g world_model=$(WM_PRESET) $$w store=$(WM_STORE) -m episodes=10,20,40 || exit 1; done
 	$(MAKE) --no-print-directory report-table4
 
-report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it)
-	$(PY) experiments/world_model_table4.py $(if $(filter paper,$(WM_PRESET)),--preset paper --out outputs/tables/table4_paper --figure outputs/figures/table4_paper.png) $(if $(KEEP),--keep $(KEEP))
+report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files)
+	$(PY) experiments/world_model_table4.py $(if $(filter paper,$(WM_PRESET)),--preset paper --out outputs/tables/table4_paper --figure outputs/figures/table4_paper.png) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
 
 world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
@@ -175,5 +175,5 @@ report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) o
 # Every table and figure again from the result.json files on disk (experiments/report_all.py; nothing is rerun):
 # Tables 3, 4 and 5 with their figures, Figure 4 when quality runs with a model judge exist, and the HTML report of
 # RUNS. A step with no runs prints one line saying what makes them and is skipped; the others still run.
-report: setup ## rebuild EVERY table and figure from result.json files only (no reruns); steps without runs are skipped with a note
-	$(PY) experiments/report_all.py --html-runs $(RUNS)
+report: setup ## rebuild EVERY table and figure from result.json files only (no reruns); steps without runs are skipped with a note; committed tables are replaced only with OVERWRITE=1
+	$(PY) experiments/report_all.py --html-runs $(RUNS) $(if $(OVERWRITE),--overwrite)

@@ -8,7 +8,6 @@ descriptions say. Writes outputs/figures/contact_sheet_<suite>.png.
 from __future__ import annotations
 
 import argparse
-import sys
 import textwrap
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -16,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 
 
 def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:

@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 
 FIELDS = ["task", "group", "seed", "success", "progress", "steps", "seconds", "error"]
 

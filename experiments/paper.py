@@ -40,7 +40,6 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 PROFILES = ROOT / "experiments" / "profiles"
 STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
 # Figure 3 from the paper's own appendix score tables, shipped with the package (experiments/paper_human_eval.py);

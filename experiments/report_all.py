@@ -10,7 +10,9 @@ Steps, each with the same library calls as its own command:
     figure4  Figure 4 (quality)          as src/report.py report=figure4            figures/figure4.{png,pdf,md,...}
     html     the HTML report             as src/report.py report=html               <html-runs>/report/index.html
 (tables: .csv, .md and .tex; figures: .png and .pdf)
-A step whose inputs are missing (no result.json of its metric; for Figure 4, no quality run scored by a model
+A step never replaces a table or figure that git tracks (the committed results) unless --overwrite (`make report
+OVERWRITE=1`): it says which file and is not rebuilt, like a step that fails on its inputs. A step whose inputs are
+missing (no result.json of its metric; for Figure 4, no quality run scored by a model
 judge) prints one line saying what to run and is skipped; the others still run. A step that fails on its inputs
 (an unreadable result.json, two runs of one cell with different settings) prints one line and the command exits
 with status 2 after the remaining steps.
@@ -23,7 +25,6 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 
 STEPS = ("table3", "table4", "table5", "figure4", "html")
 
@@ -41,6 +42,17 @@ def _records(root: Path, metric: str, make: str) -> list[dict]:
     return records
 
 
+def _refuse_committed(a, paths: list[Path]) -> None:
+    """Before a step writes: those of its files that git tracks stop it unless --overwrite."""
+    from simeval.report.tables import refuse_committed
+
+    refuse_committed(paths, a.overwrite, "--overwrite (make report OVERWRITE=1)")
+
+
+def _files(folder: str, stem: str, suffixes: tuple[str, ...]) -> list[Path]:
+    return [Path(folder) / f"{stem}{x}" for x in suffixes]
+
+
 def table3(a) -> list[Path]:
     import yaml
 
@@ -49,6 +61,9 @@ def table3(a) -> list[Path]:
     runs = Path(a.table3_runs)
     _records(runs, "text_diversity", "`make table3` runs the sweep")
     spec = yaml.safe_load((ROOT / "conf" / "report" / "table3.yaml").read_text())
+    from simeval.report.tables import outputs_named
+
+    _refuse_committed(a, outputs_named(a.tables, spec["id"]))
     written = build_text_diversity_report(runs, a.tables, id=spec["id"], rows=spec["rows"], columns=spec["columns"],
                                           caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"),
                                           digits=spec.get("digits", 2))
@@ -59,6 +74,8 @@ def table4(a) -> list[Path]:
     from simeval.report import table4 as t4
 
     records = _records(Path(a.table4_runs), t4.METRIC, "`make table4` trains the world models")
+    _refuse_committed(a, [*_files(a.tables, "table4", (".csv", ".md", ".tex")),
+                          *_files(a.figures, "table4", (".png", ".pdf"))])
     episodes = [int(x) for x in a.table4_episodes.split(",")]
     rows = t4.build(records, episodes=episodes)
     unused = t4.unused_episodes(records, episodes)
@@ -73,6 +90,8 @@ def table5(a) -> list[Path]:
     from simeval.models.policy import table5 as t5
 
     records = _records(Path(a.table5_runs), t5.METRIC, "`make table5` trains and rolls out the policies")
+    _refuse_committed(a, [*_files(a.tables, "table5", (".csv", ".md", ".tex")),
+                          *_files(a.figures, "table5", (".png", ".pdf"))])
     rows = t5.build(records, policy=a.table5_policy)
     return [*t5.write(rows, Path(a.tables) / "table5").values(), *t5.plot(rows, Path(a.figures) / "table5.png")]
 
@@ -89,6 +108,9 @@ def figure4(a) -> list[Path]:
                for p in quality_points(records)):
         raise Skip(f"no quality run under {runs} has both scene_alignment and task_completion scores (run "
                    "src/quality.py metric=all)")
+    from simeval.report.tables import outputs_named
+
+    _refuse_committed(a, outputs_named(a.figures, "figure4"))
     written = build_quality_figure(runs, a.figures, id="figure4")
     return [p for paths in written.values() for p in paths]
 
@@ -119,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--html-out", default=None, help="default: <html-runs>/report")
     ap.add_argument("--tables", default="outputs/tables")
     ap.add_argument("--figures", default="outputs/figures")
+    ap.add_argument("--overwrite", action="store_true", help="replace tables and figures that git tracks (default: "
+                                                             "refuse, one line per step)")
     a = ap.parse_args(argv)
     from simeval.errors import UserError
 

@@ -8,7 +8,8 @@ error falls with episodes) and per-pixel values, not raw magnitudes. Runs of one
 averaged. No dynamics_diversity result.json under --root: one line on stderr, exit status 2.
 `--protocol heldout` tabulates the protocol=heldout runs instead (simeval.report.table4_heldout: held-out prediction
 error with baselines, skill and intervals over seeds and episodes) into outputs/tables/table4_heldout.{csv,md} and
-outputs/figures/table4_heldout.png; it does not replace those files when git tracks them unless --overwrite.
+outputs/figures/table4_heldout.png. Neither protocol replaces tables or figures that git tracks (the committed ones)
+unless --overwrite.
 `--keep outputs/tables/table4.csv` (repeatable) extends an earlier table: its cells that the runs under --root lack
 are kept (how the committed table gathers groups run on different machines, whose result.json files are not all
 here); the runs under --root still have to exist, and a cell they have replaces the kept one.
@@ -21,7 +22,6 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--protocol", choices=["paper", "heldout"], default="paper",
                     help="which runs: the paper's (Table 4 as published) or simeval's held-out prediction protocol")
     ap.add_argument("--overwrite", action="store_true",
-                    help="--protocol heldout: replace the committed outputs/tables/table4_heldout.* (default: refuse)")
+                    help="replace tables or figures that git tracks (the committed Table 4; default: refuse)")
     a = ap.parse_args(argv)
     if a.protocol == "heldout":
         return heldout(a)
@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     a.figure = a.figure or str(ROOT / "outputs" / "figures" / "table4.png")
     from simeval.errors import UserError
     from simeval.report import table4
+    from simeval.report.tables import refuse_committed
     from simeval.results import read_results
 
     try:
@@ -61,6 +62,8 @@ def main(argv: list[str] | None = None) -> None:
         if not records:  # with --keep too: a mistyped --root must not pass for "nothing new"
             raise UserError(f"no {table4.METRIC} result.json under {a.root}: run the world models first "
                             "(make table4, or src/diversity.py), or give --root the folder that holds them")
+        refuse_committed([*(Path(a.out).with_suffix(x) for x in (".csv", ".md", ".tex")),
+                          *(Path(a.figure).with_suffix(x) for x in (".png", ".pdf"))], a.overwrite)
         presets = sorted({str(r["identity"].get("preset")) for r in records})
         if a.preset and a.preset not in presets:
             raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
@@ -83,10 +86,9 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def heldout(a) -> None:
-    import subprocess
-
     from simeval.errors import UserError
     from simeval.report import table4_heldout
+    from simeval.report.tables import refuse_committed
     from simeval.results import read_results
 
     stem = Path(a.out or ROOT / "outputs" / "tables" / "table4_heldout")
@@ -97,12 +99,7 @@ def heldout(a) -> None:
         if not records:
             raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {a.root}: run "
                             "src/diversity.py (protocol=heldout is its default) first, or give --root their folder")
-        targets = [stem.with_suffix(".csv"), stem.with_suffix(".md"), figure]
-        tracked = [p for p in targets if p.exists() and subprocess.run(
-            ["git", "ls-files", "--error-unmatch", str(p)], cwd=ROOT, capture_output=True).returncode == 0]
-        if tracked and not a.overwrite:
-            raise UserError(f"{tracked[0]} is a committed result; write elsewhere with --out DIR/NAME --figure "
-                            "DIR/NAME.png, or replace it with --overwrite")
+        refuse_committed([stem.with_suffix(".csv"), stem.with_suffix(".md"), figure], a.overwrite)
         rows = table4_heldout.build(records)
         written = table4_heldout.write(rows, stem)
         table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")

@@ -18,8 +18,15 @@ log = logging.getLogger("report")
 def main(cfg: DictConfig) -> None:
     from simeval.report.build import build_text_diversity_report
     from simeval.report.quality_figure import build_quality_figure
+    from simeval.results import read_results
 
     spec = OmegaConf.to_container(cfg.report, resolve=True)
+    if spec.get("kind") != "html" and read_results(spec["runs_dir"], spec.get("metric")):
+        # with runs to report only (without, the builder's own error says what to run); the HTML report writes into
+        # the runs' folder, never over a committed result
+        from simeval.report.tables import outputs_named, refuse_committed
+
+        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), bool(cfg.overwrite), "overwrite=true")
     if spec.get("kind") == "html":
         from simeval.report.html import build_html_report
 

@@ -169,6 +169,18 @@ def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     agreement = list(csv.DictReader((out / "table3_rank_agreement.csv").open()))
     gensim = next(r for r in agreement if r["Scope"] == "GenSim")
     assert gensim["Groups"] == "4" and float(gensim["Kendall tau"]) == pytest.approx(1 / 3, abs=0.01)
+    # once committed, the table is replaced only when asked (one line naming the file and the key otherwise)
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+    subprocess.run(["git", "init", "-q"], cwd=out, check=True)
+    subprocess.run([*git, "add", "-A"], cwd=out, check=True)
+    subprocess.run([*git, "commit", "-qm", "committed"], cwd=out, check=True)
+    (out / "table3.md").write_text("committed\n")
+    res = run("report.py", "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out}")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "is a committed result" in res.stderr
+    assert res.stderr.rstrip().endswith("replace it with overwrite=true")
+    assert (out / "table3.md").read_text() == "committed\n"
+    res = run("report.py", "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out}", "overwrite=true")
+    assert res.returncode == 0 and (out / "table3.md").read_text() == md
 
 
 @pytest.mark.parametrize("script,args,job_error", [

@@ -192,7 +192,8 @@ def test_import_authors_pt_formats(tmp_path):
     assert ep.group == "table-top" and ep.seed == 2 and ep.description == "Open Laptop"
     assert not ep.success_known and ep.progress is None  # these files record neither
     from simeval.episodes.bundles import export_bundles
-    from simeval.quality import load_bundles, oracle_completion
+    from simeval.quality.bundle import load_bundles
+    from simeval.quality.run import oracle_completion
 
     store = EpisodeStore(tmp_path / "store")
     store.write(ep)

@@ -20,7 +20,8 @@ from simeval.judges.prompts import load_template
 from simeval.httpretry import FatalHTTPError
 from simeval.judges.providers import Image, OpenAIChatProvider
 from simeval.judges.runner import JudgeItem, JudgeSettings, ReplayMiss, dry_run, run_judge
-from simeval.quality import load_bundles, oracle_completion, sample_frame_indices, summarize
+from simeval.quality.bundle import load_bundles, sample_frame_indices
+from simeval.quality.run import oracle_completion, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

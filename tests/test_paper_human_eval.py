@@ -2,7 +2,6 @@
 paper's LaTeX by experiments/paper_human_eval.py, checked against a copy typed independently."""
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -10,7 +9,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "src" / "simeval" / "report" / "paper_human_eval.json"
 SHARED = ROOT.parent / "shared"
-sys.path.insert(0, str(ROOT / "experiments"))
 
 from paper_human_eval import extract, parse_table  # noqa: E402
 

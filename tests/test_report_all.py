@@ -125,3 +125,39 @@ def test_table4_suggests_three_counts_even_when_fewer_runs_are_left_out():
     assert notes[-1].endswith("build one for them with --episodes 2,3,10")
     _, _, notes = table4.display(table4.build([], episodes=(1, 2, 4)), (1, 2, 4), unused=[40, 5, 80, 10, 20])
     assert notes[-1].endswith("--episodes 5,10,20")
+
+
+def _commit_all(repo: Path) -> None:
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+    subprocess.run(["git", "init", "-q"], cwd=repo, check=True)
+    subprocess.run([*git, "add", "-A", "outputs/tables", "outputs/figures"], cwd=repo, check=True)
+    subprocess.run([*git, "commit", "-qm", "committed results"], cwd=repo, check=True)
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path):
+    """A checkout's committed Tables 4/5 stay as committed when a user rebuilds reports from their own runs: each
+    command refuses in one line naming the file and the flag, changes nothing, and replaces them with the flag."""
+    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    (outputs / "tables" / "table5.md").write_text("committed Table 5\n")
+    _commit_all(tmp_path)
+    before = {p: p.read_bytes() for p in (outputs / "tables").iterdir()}
+    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5", cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.splitlines()[0] == (f"Table 4: error: {Path('outputs/tables/table4.csv')} is a committed result "
+                                        "and would be replaced by a table of the runs on disk; write elsewhere "
+                                        "(another output path) or replace it with --overwrite (make report "
+                                        "OVERWRITE=1)")
+    for cmd in ([str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs", "--out",
+                 "outputs/tables/table4", "--figure", "outputs/figures/table4.png"],
+                ["-m", "simeval.models.policy.table5", "--runs", "outputs"]):
+        r = py(*cmd, cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a committed result" in r.stderr, r.stderr
+        assert r.stderr.rstrip().endswith("replace it with --overwrite")
+    assert {p: p.read_bytes() for p in (outputs / "tables").iterdir()} == before
+    r = py("-m", "simeval.models.policy.table5", "--runs", "outputs", "--overwrite", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (outputs / "tables" / "table5.md").read_text() != "committed Table 5\n"
+    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--overwrite", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

@@ -5,13 +5,11 @@ group whose tasks share one dynamics (same colours, same starts, same actions). 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "experiments"))
 
 
 @pytest.mark.timeout(600)

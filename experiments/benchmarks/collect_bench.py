@@ -19,17 +19,14 @@ each, bytes on disk. Writes outputs/bench/collect_bbsea.json.
 
 from __future__ import annotations
 
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ROOT, machine, save  # noqa: E402
+from common import machine, save  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.collect import collect  # noqa: E402
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_meta  # noqa: E402

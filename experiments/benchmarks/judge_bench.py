@@ -16,10 +16,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, machine, save  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.devserver import LoopbackOpenAI  # noqa: E402
 from simeval.judges.providers import Image  # noqa: E402

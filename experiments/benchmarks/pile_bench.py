@@ -17,16 +17,12 @@ also the particles' worst penetration into the table. Writes outputs/bench/pile.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ROOT, machine, save  # noqa: E402
+from common import machine, save  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "src"))
 
 import simeval.sim.env as env_mod  # noqa: E402
 import simeval.sim.objects as objects  # noqa: E402

@@ -12,17 +12,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 import torch
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, device_info, machine, save  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.errors import UserError  # noqa: E402
 from simeval.models.device import resolve_device  # noqa: E402

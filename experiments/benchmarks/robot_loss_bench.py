@@ -11,11 +11,8 @@ read; seconds depend on the machine and its load (recorded).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import ROOT, machine, save  # noqa: E402
 

@@ -15,10 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, machine, save  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "src"))
 
 
 def timed(args: list[str], env: dict) -> float:

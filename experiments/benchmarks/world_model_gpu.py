@@ -21,10 +21,7 @@ import argparse
 import importlib.util
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import ROOT, device_info, machine, save, world_model_batch  # noqa: E402
 

@@ -7,8 +7,9 @@ gets a `wandb.Table` with images, the CSV logger a `<name>.csv` holding the imag
 and `log_video(name, video, fps, caption)`, where video is an mp4/gif/webm/ogg file or (T, H, W, 3) uint8 frames
 (written first to `<run_dir>/videos/<name>.mp4`): W&B gets a `wandb.Video` of the file (which needs no encoder),
 the CSV logger a row of `videos.csv` (name, path, caption), the null logger nothing.
-On a clean exit from the `with` block, the csv and wandb loggers mirror the tables of the run's result.json
-(`mirror_result`: a quality run's per-task scores with its images).
+`wants_tables` says whether a logger keeps tables (csv, wandb), so a run skips building a table (reading images)
+for the null logger. Loggers only log: the tables themselves are built by the runs (e.g. a quality run's per-task
+scores with its images, simeval.quality.run.log_task_table).
 
 W&B runs are grouped and tagged so a dashboard is built by grouping: group `<metric>/<pipeline>` (the Hydra job
 name, e.g. `quality/gensim`), tags `<config group>=<choice>` for every config choice plus `git=<sha>`, unless
@@ -18,7 +19,6 @@ name, e.g. `quality/gensim`), tags `<config group>=<choice>` for every config ch
 from __future__ import annotations
 
 import csv
-import logging
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -56,7 +56,7 @@ class LogImage:
 
 
 class NullLogger:
-    wants_tables = False  # mirror_result (which reads images) is skipped for a logger that drops tables
+    wants_tables = False  # runs skip building tables (which read images) for a logger that drops them
 
     def __init__(self, **_: Any) -> None:
         pass
@@ -89,30 +89,7 @@ class NullLogger:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        try:
-            if exc_type is None and self.wants_tables:
-                self.mirror_result()
-        finally:
-            self.finish(exit_code=0 if exc_type is None else 1)
-
-    def mirror_result(self) -> None:
-        """Log the tables derived from the run's result.json, if the entrypoint wrote one inside the `with` block:
-        for a quality run, `quality/tasks` (per-task scores with the scene views and judged frames, lowest first).
-        Done here so that entrypoints stay thin and every table is rebuilt from result.json, as reports are."""
-        run_dir = getattr(self, "run_dir", None)
-        path = Path(run_dir) / "result.json" if run_dir else None
-        if path is None or not path.is_file():
-            return
-        import json
-
-        rec = {**json.loads(path.read_text()), "path": str(path)}
-        if rec.get("metric") == "quality" and rec.get("values"):
-            from simeval.report.quality_tasks import quality_task_table
-
-            try:
-                self.log_table("quality/tasks", *quality_task_table(rec))
-            except Exception as e:  # result.json is written: a table that cannot be drawn must not fail the run
-                logging.getLogger(__name__).warning("quality/tasks table not logged: %s: %s", type(e).__name__, e)
+        self.finish(exit_code=0 if exc_type is None else 1)
 
 
 class CsvLogger(NullLogger):

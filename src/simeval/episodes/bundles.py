@@ -2,7 +2,7 @@
 
 - `store_tasks`: each episode's identity and ground truth (success, final progress), read from the store's
   metadata for judge=oracle: no frame is decoded and nothing is written.
-- `export_bundles`: task bundles (the folder layout documented in simeval/quality.py) for the model judges, which
+- `export_bundles`: task bundles (the folder layout documented in simeval/quality/bundle.py) for the model judges, which
   need images: the description, the ground truth, the scene views, and up to `max_frames` trajectory frames of
   one camera spread evenly over the episode (first and last kept).
 
@@ -56,7 +56,7 @@ def store_tasks(store_root: str | os.PathLike, *, pipeline: str | None = None, g
     left out, never scored as 0). An episode whose recorded truth is invalid is a per-task error."""
     import h5py
 
-    from simeval.quality import BundleError, TaskBundle, validate_ground_truth
+    from simeval.quality.bundle import BundleError, TaskBundle, validate_ground_truth
 
     tasks, errors = [], {}
     for m in _episodes(store_root, pipeline, group, per_task):

@@ -10,9 +10,9 @@ the folder can be zipped and opened on another machine. Sections:
 - Tables: every Markdown table under `tables_dir` (as written by simeval.report.tables), with links to its CSV/TeX.
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
-  views and the trajectory frames sampled as quality.py samples them, and the video when there is one) and every
-  judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
-  simeval.report.quality_tasks finds them; a run whose bundles are gone is shown with its scores, replies and a
+  views and the trajectory frames sampled as simeval.quality.run samples them, and the video when there is one) and
+  every judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
+  simeval.quality.task_media finds them; a run whose bundles are gone is shown with its scores, replies and a
   note saying so.
 
 Records under `out_dir` are ignored, so a report written inside `runs_dir` does not report on itself.
@@ -27,7 +27,7 @@ import shutil
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.quality_tasks import SCALES, find_bundles, judged_media, normalized, ordered_tasks
+from simeval.quality.task_media import SCALES, find_bundles, judged_media, normalized, ordered_tasks
 from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
@@ -303,7 +303,7 @@ def _media_strip(bundle, n_frames: int, assets: _Assets, group: str) -> str:
 
 def ground_truth_line(truth: dict) -> str:
     """`success: yes, progress: 1.00 (oracle completion 10.0 / 10)`: the simulator's verdict beside the judge's,
-    the oracle completion computed as simeval.quality.oracle_completion does."""
+    the oracle completion computed as simeval.quality.run.oracle_completion does."""
     parts = []
     if "success" in truth:
         parts.append(f"success: {'yes' if truth['success'] else 'no'}")

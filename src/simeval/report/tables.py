@@ -81,3 +81,38 @@ def write_table(stem: str | Path, header: list[str], rows: list[list[str]], *, c
         atomic_write_text(stem.with_suffix(".md"), to_markdown(header, rows, notes)),
         atomic_write_text(stem.with_suffix(".tex"), to_latex(header, rows, caption, label, notes)),
     ]
+
+
+def committed(paths) -> list[Path]:
+    """The files among `paths` that exist and that git tracks (in whatever repository holds each): committed results.
+    Outside a repository, or without git, nothing is committed."""
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None:
+        return []
+    out = []
+    for p in map(Path, paths):
+        if p.is_file() and subprocess.run(["git", "ls-files", "--error-unmatch", p.name], cwd=p.parent,
+                                          capture_output=True).returncode == 0:
+            out.append(p)
+    return out
+
+
+def outputs_named(out_dir: str | Path, id: str) -> list[Path]:
+    """The files a report with this id writes into `out_dir`: `<id>.*` and `<id>_*.*`."""
+    out = Path(out_dir)
+    return sorted({*out.glob(f"{id}.*"), *out.glob(f"{id}_*.*")})
+
+
+def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite") -> None:
+    """A report of the runs on disk must not replace a committed result unless asked: raises a UserError naming the
+    first committed file among `paths` and how to proceed (`flag`, or another output path), unless `overwrite`."""
+    from simeval.errors import UserError
+
+    if overwrite:
+        return
+    hit = committed(paths)
+    if hit:
+        raise UserError(f"{hit[0]} is a committed result and would be replaced by a table of the runs on disk; write "
+                        f"elsewhere (another output path) or replace it with {flag}")

@@ -61,7 +61,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from simeval.errors import UserError
-from simeval.sim.goals import still, task_progress
+from simeval.sim.geometry import still
+from simeval.sim.goals import task_progress
 from simeval.sim.objects import make_object
 from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, EE_POSE_HIGH, EE_POSE_HZ,  # noqa: F401
                                        EE_POSE_KIND, EE_POSE_LOW, JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,

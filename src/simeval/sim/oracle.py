@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.sim.goals import (container_assignment, height, in_bowl, in_zone, offset_target, pose,
-                               stack_chain, still, unit_status)
+from simeval.sim.geometry import height, in_bowl, in_zone, offset_target, pose, still
+from simeval.sim.goals import container_assignment, stack_chain, unit_status
 from simeval.sim.objects import BOWL_WALL, SimObject
 from simeval.sim.robot import SAFE_Z, Arm  # noqa: F401 (SAFE_Z: re-exported)
 from simeval.sim.spec import Instance

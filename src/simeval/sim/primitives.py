@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from simeval.sim.goals import height, pose
+from simeval.sim.geometry import height, in_zone, pose
 from simeval.sim.objects import SimObject
 from simeval.sim.world import TABLE_Z
 
@@ -165,8 +165,6 @@ def _goal_target(ctx: Context, name: str, goal_type: str) -> SimObject | None:
 
 
 def push(ctx: Context, name: str):
-    from simeval.sim.goals import in_zone
-
     obj = ctx.obj(name)
     zone = _goal_target(ctx, name, "in_zone")
     if zone is None:

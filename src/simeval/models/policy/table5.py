@@ -12,7 +12,8 @@ paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise rewar
 No generalization result.json under --runs: one line on stderr, exit status 2. `--keep outputs/tables/table5.csv`
 (repeatable) extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table
 gathers groups run on different machines, whose result.json files are not all here); the runs under --runs still
-have to exist, and a cell they have replaces the kept row.
+have to exist, and a cell they have replaces the kept row. Tables and figures that git tracks (the committed ones)
+are replaced only with `--overwrite`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import read_csv, write_table
+from simeval.report.tables import read_csv, refuse_committed, write_table
 from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
@@ -313,6 +314,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--keep", action="append", default=[], metavar="CSV",
                     help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made on another "
                          "machine); repeatable, the first file that has a row gives it")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace tables or figures that git tracks (the committed Table 5); default: refuse")
     args = ap.parse_args(argv)
     try:
         kept = [read_rows(path) for path in args.keep]  # read first: a bad file fails before any work
@@ -320,6 +323,10 @@ def main(argv: list[str] | None = None) -> None:
         if not records:  # with --keep too: a mistyped --runs must not pass for "nothing new"
             raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
                             "src/generalization.py), or give --runs the folder that holds them")
+        targets = [Path(f"{stem}{suffix}") for stem in (args.out, f"{args.out}_detail")
+                   for suffix in (".csv", ".md", ".tex")]
+        refuse_committed([*targets, Path(args.figure).with_suffix(".png"), Path(args.figure).with_suffix(".pdf")],
+                         args.overwrite)
         rows = build(records, policy=args.policy)
         for rows_of_file in kept:
             rows = merge([r for r in rows_of_file if args.policy in (None, r["policy"]) or not r["runs"]], rows)

@@ -1,8 +1,8 @@
 """Per-task view of a quality run, from its result.json and its task bundles: what the judge saw and what it said.
 
-Shared by the HTML report's gallery (simeval.report.html) and the W&B table of per-task scores (src/quality.py with
-`logger=wandb`). Bundles are found from the record's `config.bundles_dir` (absolute, or relative to the working
-directory) or the `<run>/bundles` export of an episode-store run. Frames are sampled exactly as simeval.quality
+Shared by the HTML report's gallery (simeval.report.html) and the loggers' table of per-task scores
+(simeval.quality.run.log_task_table). Bundles are found from the record's `config.bundles_dir` (absolute, or relative to the working
+directory) or the `<run>/bundles` export of an episode-store run. Frames are sampled exactly as simeval.quality.run
 samples them for the completion judge (`n_frames` evenly, first and last included).
 """
 
@@ -12,8 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simeval.errors import UserError
-
-SCALES = {"scene_alignment": (1.0, 5.0), "task_completion": (0.0, 10.0)}
+from simeval.quality.bundle import SCALES, BundleError, load_bundles, read_video_frames, sample_frame_indices
 
 
 @dataclass
@@ -38,8 +37,6 @@ def bundle_roots(rec: dict) -> list[Path]:
 
 def find_bundles(rec: dict) -> tuple[dict[str, object], str | None]:
     """{task name: TaskBundle} for a quality record (with its `path`), and a note when they cannot be found."""
-    from simeval.quality import load_bundles
-
     roots = bundle_roots(rec)
     if not roots:
         where = (rec.get("config") or {}).get("bundles_dir")
@@ -54,8 +51,6 @@ def find_bundles(rec: dict) -> tuple[dict[str, object], str | None]:
 
 def judged_media(bundle, n_frames: int) -> JudgedMedia:
     """The scene views and the sampled trajectory frames of a bundle; an unreadable video is `error`, not raised."""
-    from simeval.quality import BundleError, read_video_frames, sample_frame_indices
-
     media = JudgedMedia(scene=sorted((bundle.path / "scene").glob("*.png")))
     frames_dir, video = bundle.path / "frames", bundle.path / "trajectory.mp4"
     files = sorted(frames_dir.glob("*.png")) if frames_dir.is_dir() else []

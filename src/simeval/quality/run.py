@@ -1,15 +1,9 @@
-"""Single-task quality: scene alignment (1-5) and task completion (0-10) from judges, over task bundles.
+"""Single-task quality: scene alignment (1-5) and task completion (0-10) from judges, over task bundles (the format:
+simeval.quality.bundle).
 
-A task bundle is a folder:
-    <root>/<task>/task.yaml        description (required), name, pipeline, ground_truth {success, progress} (optional)
-    <root>/<task>/scene/*.png      the views of the initial scene (the paper uses 4), sorted by file name
-    <root>/<task>/trajectory.mp4   or frames/*.png: the trajectory, from which `n_frames` are sampled evenly
-                                   (first and last included) in order
-A task's name (task.yaml `name:`, else the folder name) is its identity: two bundles with one name are an error.
-Ground truth is validated (success: true/false; progress: a number in [0, 1]). Unreadable parts and bad ground
-truth are a per-task error: the other tasks are still judged and the failures are reported. A task with no valid
-score at all (every reply unparseable, or nothing readable) is a failed task; a run where every task failed has
-status "failed".
+Unreadable parts and bad ground truth are a per-task error: the other tasks are still judged and the failures are
+reported. A task with no valid score at all (every reply unparseable, or nothing readable) is a failed task; a run
+where every task failed has status "failed".
 
 `run_quality` is the whole run as one call (the Hydra entrypoint src/quality.py only builds its arguments).
 """
@@ -17,187 +11,20 @@ status "failed".
 from __future__ import annotations
 
 import logging
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from simeval.judges.prompts import PromptTemplate
-from simeval.judges.providers import Image
-from simeval.judges.runner import JudgeItem, ScoreRecord
 from simeval.errors import UserError
+from simeval.judges.prompts import PromptTemplate
+from simeval.judges.runner import JudgeItem, ScoreRecord
+from simeval.quality.bundle import (METRICS, SCALES, BundleError, TaskBundle, load_bundles,
+                                    validate_ground_truth)
 
 log = logging.getLogger(__name__)
 VERSION = "1.1"  # 1.1: tasks with no valid score are failed tasks; ground truth validated; progress not clipped
-SCALES = {"scene_alignment": (1.0, 5.0), "task_completion": (0.0, 10.0)}
-METRICS = tuple(SCALES)
-
-
-class BundleError(UserError):
-    pass
-
-
-@dataclass
-class TaskBundle:
-    name: str
-    path: Path
-    description: str
-    pipeline: str | None = None
-    ground_truth: dict | None = None
-    meta: dict = field(default_factory=dict)
-
-    def scene_images(self) -> list[Image]:
-        views = sorted((self.path / "scene").glob("*.png"))
-        if not views:
-            raise BundleError(f"{self.path / 'scene'}: no scene views (*.png)")
-        return [_read_png(p) for p in views]
-
-    def trajectory_frames(self, n_frames: int) -> list[Image]:
-        frames_dir, video = self.path / "frames", self.path / "trajectory.mp4"
-        if frames_dir.is_dir() and any(frames_dir.glob("*.png")):
-            files = sorted(frames_dir.glob("*.png"))
-            return [_read_png(files[i]) for i in sample_frame_indices(len(files), n_frames)]
-        if video.is_file():
-            return [Image.from_array(f) for f in read_video_frames(video, n_frames)]
-        raise BundleError(f"{self.path}: no trajectory (trajectory.mp4 or frames/*.png)")
-
-
-def _read_png(path: Path) -> Image:
-    from PIL import Image as PILImage, UnidentifiedImageError
-
-    try:
-        with PILImage.open(path) as im:
-            im.verify()  # catches truncated or non-image files before a paid call is made
-    except (UnidentifiedImageError, OSError, SyntaxError) as e:
-        raise BundleError(f"unreadable image {path}: {e}") from e
-    return Image.from_png(path.read_bytes())
-
-
-def sample_frame_indices(n_total: int, n_frames: int) -> list[int]:
-    """`n_frames` indices spread evenly over [0, n_total - 1], first and last included, in order."""
-    if n_total < 1:
-        raise BundleError("trajectory has no frames")
-    if n_frames < 2:
-        raise ValueError(f"n_frames must be >= 2 (first and last), got {n_frames}")
-    return sorted(set(np.linspace(0, n_total - 1, min(n_frames, n_total)).round().astype(int).tolist()))
-
-
-def count_video_frames(path: Path) -> int | None:
-    """Frames of the first video stream, counted from its packets (ffmpeg `-c copy -f framecrc` lists one line
-    per packet; nothing is decoded); None when ffmpeg is missing or cannot tell."""
-    import subprocess
-
-    try:
-        import imageio_ffmpeg
-
-        res = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path), "-map",
-                              "0:v:0", "-c", "copy", "-f", "framecrc", "-"], capture_output=True, timeout=120)
-    except (ImportError, OSError, RuntimeError, subprocess.SubprocessError):
-        return None
-    if res.returncode != 0:
-        return None
-    return sum(1 for line in res.stdout.decode(errors="ignore").splitlines() if line and not line.startswith("#"))
-
-
-def read_video_frames(path: Path, n_frames: int) -> list[np.ndarray]:
-    """The sampled frames of a video, decoded once as a stream that keeps only the sampled frames (memory holds
-    `n_frames` frames however long the trajectory is). The frame count comes from the container's packets (no
-    decoding); should the decoded count differ from it, the video is decoded a second time with the true count."""
-    import imageio.v3 as iio
-
-    try:
-        total = count_video_frames(path)
-        if total:
-            wanted = set(sample_frame_indices(total, n_frames))
-            kept, decoded = {}, 0
-            for i, frame in enumerate(iio.imiter(path)):
-                decoded = i + 1
-                if i in wanted:
-                    kept[i] = frame
-            if decoded == total:
-                return [kept[i] for i in sorted(kept)]
-            log.warning("%s: the container lists %d frames but %d were decoded; decoding again", path, total, decoded)
-        total = sum(1 for _ in iio.imiter(path))
-        wanted = set(sample_frame_indices(total, n_frames))
-        return [frame for i, frame in enumerate(iio.imiter(path)) if i in wanted]
-    except BundleError:
-        raise
-    except Exception as e:  # imageio raises many types for a damaged video; all mean the same to the user
-        raise BundleError(f"unreadable video {path}: {type(e).__name__}: {e}") from e
-
-
-def validate_ground_truth(gt, where: str) -> dict:
-    """task.yaml's `ground_truth`, checked: {success: bool, progress: float in [0, 1]}, either optional (null is
-    unknown). Raises BundleError naming `where`, the key and the value."""
-    if gt is None:
-        return {}
-    if not isinstance(gt, dict):
-        raise BundleError(f"{where}: ground_truth must be a mapping like {{success: true, progress: 0.7}}, "
-                          f"got {type(gt).__name__} {gt!r}")
-    unknown = sorted(str(k) for k in gt if k not in ("success", "progress"))
-    if unknown:
-        raise BundleError(f"{where}: ground_truth has unknown key(s) {unknown}; valid: success, progress")
-    out = {}
-    if gt.get("success") is not None:
-        if not isinstance(gt["success"], bool):
-            raise BundleError(f"{where}: ground_truth.success must be true or false, got {gt['success']!r} "
-                              f"({type(gt['success']).__name__})")
-        out["success"] = gt["success"]
-    if gt.get("progress") is not None:
-        p = gt["progress"]
-        if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(p) or not 0 <= p <= 1:
-            raise BundleError(f"{where}: ground_truth.progress must be a number in [0, 1], got {p!r} "
-                              f"({type(p).__name__})")
-        out["progress"] = float(p)
-    return out
-
-
-def check_unique_names(bundles: list[TaskBundle], where: str) -> None:
-    """A task's name is its identity in result.json: two bundles with one name would be merged. Raises a
-    BundleError naming every folder (or episode file) that shares a name."""
-    by_name: dict[str, list[str]] = {}
-    for b in bundles:
-        by_name.setdefault(b.name, []).append(str(b.path))
-    dups = {n: paths for n, paths in by_name.items() if len(paths) > 1}
-    if dups:
-        name, paths = next(iter(sorted(dups.items())))
-        more = f" (and {len(dups) - 1} more shared name(s))" if len(dups) > 1 else ""
-        raise BundleError(f"{where}: task name {name!r} is used by {len(paths)} bundles: {' and '.join(paths)}; "
-                          f"a task's name (task.yaml `name:`, else its folder name) must be unique{more}")
-
-
-def load_bundles(root: str | os.PathLike) -> tuple[list[TaskBundle], dict[str, str]]:
-    """(bundles, errors by folder name). A missing root, or two bundles with one task name, is an error; a bad
-    bundle (task.yaml unreadable, no description, bad ground truth) is reported and skipped."""
-    root = Path(root).expanduser()
-    if not root.is_dir():
-        raise BundleError(f"bundles_dir {root} does not exist (expected <root>/<task>/task.yaml)")
-    bundles, errors = [], {}
-    for d in sorted(p for p in root.iterdir() if p.is_dir()):
-        meta_path = d / "task.yaml"
-        try:
-            meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) if meta_path.is_file() else None
-            if not isinstance(meta, dict) or not isinstance(meta.get("description"), str):
-                raise BundleError(f"{meta_path}: needs a mapping with a `description` string")
-            for key in ("name", "pipeline"):
-                if meta.get(key) is not None and not isinstance(meta[key], (str, int)):
-                    raise BundleError(f"{meta_path}: `{key}` must be a string, got {meta[key]!r}")
-            truth = validate_ground_truth(meta.get("ground_truth"), str(meta_path))
-        except BundleError as e:
-            errors[d.name] = str(e)
-            continue
-        except (yaml.YAMLError, UnicodeDecodeError) as e:
-            errors[d.name] = f"{meta_path}: not readable YAML ({' '.join(str(e).split())})"
-            continue
-        pipeline = None if meta.get("pipeline") is None else str(meta["pipeline"])
-        bundles.append(TaskBundle(str(meta.get("name", d.name)), d, meta["description"], pipeline, truth, meta))
-    if not bundles and not errors:
-        raise BundleError(f"{root}: no task bundles (<task>/task.yaml) found")
-    check_unique_names(bundles, str(root))
-    return bundles, errors
 
 
 def completion_items(bundles: list[TaskBundle], template: PromptTemplate, n_frames: int = 8
@@ -445,6 +272,21 @@ def _summary_line(judge: str, scored: list[str], failed: list[str], cost: dict |
     return line
 
 
+def log_task_table(logger, result_path: Path) -> None:
+    """`quality/tasks` (per-task scores with the scene views and judged frames, lowest first), rebuilt from the
+    written result.json as every report table is. The run's result is already written: a table that cannot be drawn
+    is a warning, not a failed run."""
+    import json
+
+    from simeval.quality.task_media import quality_task_table
+
+    rec = {**json.loads(Path(result_path).read_text()), "path": str(result_path)}
+    try:
+        logger.log_table("quality/tasks", *quality_task_table(rec))
+    except Exception as e:  # noqa: BLE001 (any drawing failure: the scores are safe in result.json)
+        log.warning("quality/tasks table not logged: %s: %s", type(e).__name__, e)
+
+
 def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | None = None,
                 episodes: dict | None = None, judge: str = "model", provider=None, templates: dict | None = None,
                 cache=None, ledger=None, settings=None, captioner=None, caption_settings=None,
@@ -457,7 +299,8 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
     judge gets the episodes exported as bundles into `<out_dir>/bundles`. A model judge needs `provider`,
     `templates` ({name: PromptTemplate}), `cache` (JudgeCache), `ledger` (Ledger) and `settings` (JudgeSettings);
     the caption path also `captioner` and `caption_settings`. `meta` is added to result.json (config, choices,
-    seed, overrides, label); `logger` (anything with log_metrics) gets the cost.
+    seed, overrides, label); `logger` (anything with log_metrics) gets the cost, and, when it keeps tables
+    (`wants_tables`), the per-task table (log_task_table).
     A budget or replay stop writes status "stopped" with what finished and re-raises."""
     from simeval.results import write_result
 
@@ -520,5 +363,7 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
                         **extra, **result)
     if logger is not None and cost is not None:
         logger.log_metrics({"cost": cost})
+    if logger is not None and values and getattr(logger, "wants_tables", False):
+        log_task_table(logger, path)
     return QualityOutcome(status, values, errors, scored, failed, summary, cost=cost, error=error, records=records,
                           result_path=path)
