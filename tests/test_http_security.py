@@ -69,7 +69,8 @@ def test_key_goes_over_https_to_loopback_or_with_the_override(monkeypatch):
 def test_no_key_no_refusal_and_azure_header_is_covered_too(monkeypatch):
     monkeypatch.delenv("OPENAI_API_KEY", raising=False)
     seen: list = []
-    _provider("http://judge.example.com/v1", seen).complete("s", "u", [])  # nothing secret to leak
+    # a server without auth (api_key_env=null): plain http is fine, there is nothing secret to leak
+    _provider("http://judge.example.com/v1", seen, api_key_env=None).complete("s", "u", [])
     assert "authorization" not in seen[0].headers
     monkeypatch.setenv("AZURE_OPENAI_API_KEY", "0123456789abcdef0123456789abcdef")
     p = _provider("http://NAME.openai.azure.com", seen, api_style="azure", api_version="2024-02-15-preview",
@@ -177,3 +178,49 @@ def test_quality_stops_on_a_key_in_a_config_file(openai_server, tmp_path):
     assert FAKE_KEY not in res.stderr + res.stdout and openai_server.requests == []
     saved = list(tmp_path.rglob(".hydra/*.yaml"))
     assert saved and not any(FAKE_KEY in p.read_text() for p in saved)
+
+
+def test_a_remote_endpoint_without_its_key_stops_before_any_request(monkeypatch):
+    """No key for api.openai.com (or any host not on this machine): one line naming the variable, nothing sent;
+    offline this used to end ~35 s later in a DNS error that never mentioned the key."""
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    seen: list = []
+    with pytest.raises(UserError) as e:
+        _provider("https://api.openai.com/v1", seen).complete("s", "u", [])
+    assert seen == [] and "\n" not in str(e.value)
+    assert str(e.value).startswith("judge.provider: the environment variable OPENAI_API_KEY (named by "
+                                   "judge.provider.api_key_env) is not set")
+    assert "judge.provider.api_key_env=null" in str(e.value)
+    # a local server needs no key, and api_key_env=null says a remote one needs none
+    assert _provider("http://127.0.0.1:8000/v1", seen).complete("s", "u", []).text == "Score: 3"
+    assert _provider("https://judge.example.com/v1", seen, api_key_env=None).complete("s", "u", []).text == "Score: 3"
+    assert [r.headers.get("authorization") for r in seen] == [None, None]
+    backend = OpenAIEmbeddingBackend(base_url="https://api.openai.com/v1", model="text-embedding-3-small")
+    with pytest.raises(UserError, match="^embedding.backend: the environment variable OPENAI_API_KEY"):
+        backend.embed(["a task"])
+
+
+def test_a_refused_connection_is_not_retried():
+    """Nothing listens on the port: one attempt and a line that says so, not ~35 s of backoff."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed when the block ends: nothing listens there
+    waits: list = []
+    with pytest.raises(FatalHTTPError) as e:
+        post_json(httpx.Client(), f"http://127.0.0.1:{port}/v1/chat/completions", {}, retry=RetryPolicy(5, 1.0),
+                  sleep=waits.append)
+    assert waits == [] and len(e.value.attempts) == 1
+    assert str(e.value).startswith(f"POST http://127.0.0.1:{port}/v1/chat/completions: cannot connect (")
+    assert str(e.value).endswith("is the server running, and is base_url right?")
+
+
+def test_quality_without_the_key_for_a_remote_judge_is_one_line(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "OPENAI_API_KEY"}
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "quality.py"), f"bundles_dir={_bundles(tmp_path / 'b')}",
+                          f"cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path / 'run'}", "repeats=1",
+                          "judge=openai", "judge.provider.base_url=https://api.openai.com/v1"],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    line = _error_line(res)
+    assert "OPENAI_API_KEY (named by judge.provider.api_key_env) is not set" in line

@@ -1,7 +1,9 @@
-"""POST JSON to an HTTP API with bounded retries: 429 and 5xx (honouring Retry-After / retry-after-ms) and
-timeouts/connection errors are retried with exponential backoff; other 4xx stop at once with the server's message
-(a `FatalHTTPError`, which entrypoints print as one line). Every attempt is recorded so callers can report them.
-Also: where an API key may be sent (`check_key_transport`) and how it is read (`api_key_from_env`).
+"""POST JSON to an HTTP API with bounded retries: 429 and 5xx (honouring Retry-After / retry-after-ms), timeouts and
+broken connections are retried with exponential backoff; other 4xx stop at once with the server's message, and so
+does a connection that cannot be opened at all (refused, or a host name that does not resolve: a server that is not
+running or a mistyped base_url, which waiting does not fix) (a `FatalHTTPError`, which entrypoints print as one line).
+Every attempt is recorded so callers can report them. Also: where an API key may be sent (`check_key_transport`),
+how it is read (`api_key_from_env`), and that a remote endpoint has one (`require_key_for_remote`).
 
 Why not the official `openai` client (it was pinned but never imported; the pin is gone):
 - Its retries are internal. It retries the same statuses (408/409/429/5xx, connection errors) and honours
@@ -173,6 +175,18 @@ def api_key_from_env(api_key_env: str | None, *, config_key: str) -> str | None:
     return os.environ.get(api_key_env) or None
 
 
+def require_key_for_remote(key: str | None, base_url: str, *, config_key: str, key_env: str | None) -> None:
+    """A named key variable that is unset, for an endpoint on another machine (api.openai.com, Azure, a remote
+    vLLM), is a mistake to say before the first request: unauthenticated requests only come back as 401s, or,
+    offline, as a connection error that never mentions the key. Loopback servers (a local vLLM or Ollama) need no
+    key, and `<config_key>.api_key_env=null` says a remote one needs none either."""
+    if key or not key_env or is_loopback_url(base_url):
+        return
+    raise UserError(f"{config_key}: the environment variable {key_env} (named by {config_key}.api_key_env) is not set, "
+                    f"and {base_url} is not on this machine; export {key_env}=<your key>, or set "
+                    f"{config_key}.api_key_env=null for a server without auth")
+
+
 def post_json(
     client: httpx.Client,
     url: str,
@@ -191,6 +205,10 @@ def post_json(
         retry_after = None
         try:
             resp = client.post(url, json=payload, headers=headers, timeout=timeout_s)
+        except httpx.ConnectError as e:  # nothing listens there, or the name does not resolve: not transient
+            attempts.append(Attempt(None, f"{type(e).__name__}: {e}", time.perf_counter() - t0))
+            raise FatalHTTPError(f"POST {url}: cannot connect ({e}); is the server running, and is base_url right?",
+                                 None, attempts) from None
         except (httpx.TimeoutException, httpx.TransportError) as e:
             attempts.append(Attempt(None, f"{type(e).__name__}: {e}", time.perf_counter() - t0))
         else:

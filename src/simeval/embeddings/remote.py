@@ -6,7 +6,8 @@ from __future__ import annotations
 import httpx
 import numpy as np
 
-from simeval.httpretry import FatalHTTPError, RetryPolicy, api_key_from_env, check_key_transport, post_json
+from simeval.httpretry import (FatalHTTPError, RetryPolicy, api_key_from_env, check_key_transport, post_json,
+                               require_key_for_remote)
 
 CONFIG_KEY = "embedding.backend"
 
@@ -29,6 +30,7 @@ class OpenAIEmbeddingBackend:
 
     def _headers(self) -> dict:
         key = api_key_from_env(self.api_key_env, config_key=CONFIG_KEY)
+        require_key_for_remote(key, self.base_url, config_key=CONFIG_KEY, key_env=self.api_key_env)
         if key:
             check_key_transport(self.base_url, config_key=CONFIG_KEY, key_env=self.api_key_env,
                                 allow_insecure_http=self.allow_insecure_http)

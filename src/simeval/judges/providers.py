@@ -20,7 +20,8 @@ import httpx
 import numpy as np
 
 from simeval.errors import UserError
-from simeval.httpretry import RetryPolicy, api_key_from_env, check_key_transport, post_json
+from simeval.httpretry import (RetryPolicy, api_key_from_env, check_key_transport, post_json,
+                               require_key_for_remote)
 
 
 def endpoint_id(url: str) -> str:
@@ -115,6 +116,7 @@ class OpenAIChatProvider:
     def _headers(self) -> dict:
         if self._auth is None:
             key = api_key_from_env(self.api_key_env, config_key=self.config_key)
+            require_key_for_remote(key, self.base_url, config_key=self.config_key, key_env=self.api_key_env)
             if key:
                 check_key_transport(self.base_url, config_key=self.config_key, key_env=self.api_key_env,
                                     allow_insecure_http=self.allow_insecure_http)
