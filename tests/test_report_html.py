@@ -199,3 +199,50 @@ def test_a_runs_table_cell_cut_at_six_values_says_so_and_links_the_whole_record(
     link = re.search(r"<a href='([^']+)'>many</a>", many).group(1)
     assert f"<a href='{link}'>… all values</a>" in many and (tmp_path / "site" / link).is_file()
     assert "all values" not in few
+
+
+def test_two_reports_into_one_folder_take_turns(tmp_path, monkeypatch):
+    """Each report deletes the previous assets/ before writing its own; two at once would delete each other's files
+    mid-write. The build holds an exclusive lock on <out>/.report.lock: while another holder has it, the lock cannot
+    be taken (checked without waiting), and every build takes it."""
+    import fcntl
+
+    from simeval.report import html as report_html
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    taken = []
+    real = report_html._exclusive
+
+    def recording(path):
+        taken.append(path)
+        return real(path)
+
+    monkeypatch.setattr(report_html, "_exclusive", recording)
+    page = report_html.build_html_report(runs)
+    assert taken == [runs / "report" / ".report.lock"] and page.is_file()
+    with real(taken[0]), open(taken[0], "w") as other:
+        with pytest.raises(BlockingIOError):
+            fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with open(taken[0], "w") as other:  # released when the holder is done
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def test_the_papers_tables_and_figures_lead(tmp_path):
+    from simeval.report.html import build_html_report
+
+    runs, tables, figures = tmp_path / "runs", tmp_path / "tables", tmp_path / "figures"
+    for d in (runs, tables, figures):
+        d.mkdir()
+    for name in ("control_dose", "oracle_success_bbsea", "table5", "table3"):
+        (tables / f"{name}.md").write_text("| a | b |\n|---|---|\n| 1 | 2 |\n")
+    png = (ROOT / "outputs" / "figures").glob("*.png")
+    first = next(png)
+    for name in ("contact_sheet_bbsea", "figure3", "control_dose"):
+        shutil.copy(first, figures / f"{name}.png")
+    page = build_html_report(runs, tmp_path / "out", tables_dir=tables, figures_dir=figures).read_text()
+    assert re.findall(r"<h3 id='table-([^']+)'>", page) == ["table3.md", "table5.md", "control_dose.md",
+                                                            "oracle_success_bbsea.md"]
+    assert [m for m in re.findall(r"<figcaption>([^<·]+)", page)] == ["figure3.png", "contact_sheet_bbsea.png",
+                                                                      "control_dose.png"]
+    assert "not computed from the runs above" in page

@@ -24,6 +24,7 @@ import html
 import json
 import re
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -136,8 +137,17 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out)
 
 
+PAPER_FIRST = re.compile(r"^(table|figure)\d")  # the paper's tables and figures lead; controls, oracle tables follow
+
+
+def _reading_order(path: Path, root: Path) -> tuple:
+    rel = path.relative_to(root)
+    return (0 if PAPER_FIRST.match(rel.name) else 1, str(rel))
+
+
 def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
-    files = sorted(tables_dir.rglob("*.md")) if tables_dir and tables_dir.is_dir() else []
+    files = sorted(tables_dir.rglob("*.md"), key=lambda f: _reading_order(f, tables_dir)) \
+        if tables_dir and tables_dir.is_dir() else []
     if not files:
         return f"<p class='muted'>No tables under {_e(tables_dir)}.</p>"
     parts = []
@@ -161,7 +171,8 @@ def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
 
 
 def _figures_section(figures_dir: Path | None, assets: _Assets) -> str:
-    files = sorted(figures_dir.rglob("*.png")) if figures_dir and figures_dir.is_dir() else []
+    files = sorted(figures_dir.rglob("*.png"), key=lambda f: _reading_order(f, figures_dir)) \
+        if figures_dir and figures_dir.is_dir() else []
     if not files:
         return f"<p class='muted'>No figures under {_e(figures_dir)}.</p>"
     parts = []
@@ -383,6 +394,26 @@ def build_html_report(runs_dir: str | Path, out_dir: str | Path | None = None, *
         raise UserError(f"report.runs_dir={str(runs_dir)!r} is not a folder: give a run or sweep folder "
                         "(e.g. outputs/runs or outputs/multiruns/quality/<time>)")
     out_dir = Path(out_dir) if out_dir else runs_dir / "report"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with _exclusive(out_dir / ".report.lock"):  # two reports into one folder take turns (each would delete assets/)
+        return _build(runs_dir, out_dir, tables_dir, figures_dir, title)
+
+
+@contextmanager
+def _exclusive(lock_path: Path):
+    """An exclusive advisory lock (fcntl.flock, released when the holder exits, even killed), so that concurrent
+    reports into one folder run one after the other instead of deleting each other's assets mid-write."""
+    import fcntl
+
+    with open(lock_path, "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _build(runs_dir: Path, out_dir: Path, tables_dir, figures_dir, title: str) -> Path:
     out_resolved = out_dir.resolve()
     records = [r for r in read_results(runs_dir)
                if out_resolved not in Path(r["path"]).resolve().parents]
@@ -414,6 +445,8 @@ under <code>{_e(tables_dir)}</code> and the figures under <code>{_e(figures_dir)
 <h2 id="runs">Runs ({len(records)})</h2>
 {_runs_section(records, names, assets) if records else "<p class='muted'>No result.json here.</p>"}
 <h2 id="tables">Tables</h2>
+<p class="muted">The files under <code>{_e(tables_dir)}</code> as they are (the paper's first): tables of whatever runs
+built them (the committed ones unless rebuilt), not computed from the runs above.</p>
 {_tables_section(Path(tables_dir) if tables_dir else None, assets)}
 <h2 id="figures">Figures</h2>
 {_figures_section(Path(figures_dir) if figures_dir else None, assets)}
