@@ -314,6 +314,10 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     assert t.returncode == 0, t.stderr
     md = out.with_suffix(".md").read_text()
     assert "gensim | diverse | tiny (40) | 2 | 2 |" in md and (tmp_path / "t.png").stat().st_size > 10_000
+    # the sweep itself ended with the same table and a figure in its folder
+    assert (tmp_path / "sweep" / "table4_heldout.md").read_text() == md
+    assert (tmp_path / "sweep" / "table4_heldout.png").read_bytes() == (tmp_path / "t.png").read_bytes()
+    assert f"sweep table and figure: {tmp_path / 'sweep' / 'table4_heldout.csv'}" in r.stdout
     # episodes that would be trained on and evaluated: one line, exit 2, before any training
     r = _diversity(*common, "episodes=5", cwd=tmp_path)
     assert r.returncode == 2 and "would train on evaluated episodes" in r.stderr and "Traceback" not in r.stderr
