@@ -12,6 +12,7 @@ os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("WANDB_SILENT", "true")
 
 from simeval.devserver import LoopbackOpenAI  # noqa: E402
+from helpers import SECRET  # noqa: E402
 
 
 @pytest.fixture
@@ -85,3 +86,15 @@ def policy_run(tiny_sim_store, tmp_path_factory) -> Path:
                     "eval.variation={robot: {home_noise: 0.1}}", "eval.videos=false", "eval.sampler_check=false",
                     f"hydra.run.dir={root / 'table5' / 'stacking'}", cwd=root)
     return root / "table5" / "stacking"
+
+
+@pytest.fixture
+def wandb_env(tmp_path):
+    """Offline W&B with every W&B folder inside tmp_path, and a judge/embedding key in the environment."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "WANDB_MODE": "offline", "OPENAI_API_KEY": SECRET}
+    for var, name in (("WANDB_DIR", "wandb_dir"), ("WANDB_CACHE_DIR", "wandb_cache"),
+                      ("WANDB_CONFIG_DIR", "wandb_config")):
+        env[var] = str(tmp_path / name)
+    env.pop("WANDB_DATA_DIR", None)  # the logger keeps staged files with the run
+    env.pop("WANDB_API_KEY", None)
+    return env

@@ -13,7 +13,7 @@ from simeval.embeddings.cache import EmbeddingCache
 from simeval.errors import UserError
 from simeval.judges.cache import CachedCall, JudgeCache
 
-from test_http_security import _error_line, run_quality
+from helpers import _error_line, run_quality
 
 
 def _call(key: str) -> CachedCall:

@@ -18,16 +18,16 @@ import torch
 import yaml
 
 from simeval.episodes.dataset import WindowDataset, WindowSpec
-from simeval.episodes.episode import Episode
 from simeval.errors import UserError
 from simeval.models.device import resolve_device, to_cpu, to_device
-from simeval.models.diffusion_policy import (DiffusionPolicy, PolicyConfig, TrainSettings, load_checkpoint,
+from simeval.models.diffusion_policy import (DiffusionPolicy, TrainSettings, load_checkpoint,
                                              make_scheduler, policy_from_checkpoint, train_policy)
 from simeval.models.dynamics_diversity import fit_and_evaluate, load_model
 from simeval.models.policy.data import PolicyDataset
 from simeval.models.synthetic import make_group
 from simeval.models.training import TrainConfig, step_generator, train
 from simeval.models.world_model import WorldModel, WorldModelConfig, straight_through_sample
+from helpers import policy_config, square_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 CUDA = torch.cuda.is_available()
@@ -46,22 +46,6 @@ def one_thread():
 
 def wm_config() -> WorldModelConfig:
     return WorldModelConfig.from_dict(yaml.safe_load((ROOT / "conf" / "world_model" / "tiny.yaml").read_text())["model"])
-
-
-def policy_config() -> PolicyConfig:
-    model = yaml.safe_load((ROOT / "conf" / "policy" / "tiny.yaml").read_text())["model"]
-    return PolicyConfig.from_mapping({**model, "action_space": "joint"})
-
-
-def square_episode(T: int = 16) -> Episode:
-    """A square crossing a 32x32 frame while the action traces a circle: something for a policy to fit."""
-    rgb = np.zeros((T, 32, 32, 3), np.uint8)
-    for t in range(T):
-        rgb[t, 10:18, 2 + t : 8 + t] = (255, 200, 50)
-    ph = np.linspace(0, 1, T, dtype=np.float32)
-    return Episode(pipeline="p", task="t", description="", group="g", seed=0, rgb={"top": rgb},
-                   state=np.stack([ph, ph**2], 1), action=np.stack([np.sin(6 * ph), np.cos(6 * ph)], 1),
-                   reward=np.zeros(T, np.float32), is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1)
 
 
 def all_tensors(obj):

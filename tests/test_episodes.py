@@ -17,6 +17,7 @@ from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, impor
                                         import_robogen_pt)
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_episode, read_meta, write_episode
+from helpers import _write_ravens
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,24 +121,6 @@ def test_windows_never_cross_episodes_unless_asked(tmp_path):
     assert len(overlapping) == 4
     with pytest.raises(EpisodeFormatError, match="no camera 'top'"):
         list(iter_windows(paths, WindowSpec(length=4), camera="top"))
-
-
-def _write_ravens(root: Path, task="stack-block-pyramid", mode="train", episodes=2, t=3):
-    d = root / f"{task}-{mode}"
-    rng = np.random.default_rng(0)
-    for e in range(episodes):
-        seed = 100 + e
-        name = f"{e:06d}-{seed}.pkl"
-        color = rng.integers(0, 255, (t + 1, 3, 24, 32, 3), dtype=np.uint8)
-        action = [{"pose0": ((0.1, 0.2, 0.0), (0, 0, 0, 1)), "pose1": ((0.3, 0.4, 0.05), (0, 0, 0.7, 0.7))}] * t + [None]
-        reward = [0.0] + [1.0 / t] * t
-        info = [{"lang_goal": "stack the blocks into a pyramid"}] * (t + 1)
-        for key, value in (("color", color), ("depth", np.zeros((t + 1, 3, 24, 32), np.float32)), ("action", action),
-                           ("reward", reward), ("info", info)):
-            (d / key).mkdir(parents=True, exist_ok=True)
-            with (d / key / name).open("wb") as f:
-                pickle.dump(value, f)
-    return d
 
 
 def test_import_ravens(tmp_path):

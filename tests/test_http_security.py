@@ -8,17 +8,16 @@ import sys
 from pathlib import Path
 
 import httpx
-import numpy as np
 import pytest
 import yaml
 
 from simeval.embeddings.remote import OpenAIEmbeddingBackend
 from simeval.errors import UserError
 from simeval.httpretry import FatalHTTPError, RetryPolicy, is_loopback_url, post_json
-from simeval.judges.providers import Image, OpenAIChatProvider
+from simeval.judges.providers import OpenAIChatProvider
 
 ROOT = Path(__file__).resolve().parents[1]
-FAKE_KEY = "sk-test-0123456789abcdefghijklmnop"
+from helpers import FAKE_KEY, _bundles, _error_line, run_quality  # noqa: E402
 
 
 def _recording_transport(seen: list) -> httpx.MockTransport:
@@ -122,33 +121,6 @@ def test_fatal_http_error_is_one_line_with_the_server_message(openai_server):
 
 
 # --- through the entrypoint -------------------------------------------------------------------------------------
-
-def _bundles(root: Path) -> Path:
-    d = root / "task0"
-    (d / "scene").mkdir(parents=True)
-    (d / "frames").mkdir()
-    (d / "task.yaml").write_text(yaml.safe_dump({"description": "stack the block", "pipeline": "gensim"}))
-    png = Image.from_array(np.zeros((8, 8, 3))).png
-    (d / "scene" / "v0.png").write_bytes(png)
-    for f in range(2):
-        (d / "frames" / f"{f}.png").write_bytes(png)
-    return root
-
-
-def run_quality(tmp: Path, *args: str, flags: tuple = ()) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "src" / "quality.py"), *flags,
-                           f"bundles_dir={_bundles(tmp / 'b')}",
-                           f"cache_dir={tmp / 'cache'}", f"hydra.run.dir={tmp / 'run'}", "repeats=1", *args],
-                          cwd=ROOT, env={**os.environ, "OPENAI_API_KEY": FAKE_KEY},
-                          capture_output=True, text=True, timeout=300)
-
-
-def _error_line(res: subprocess.CompletedProcess) -> str:
-    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
-    lines = [x for x in res.stderr.splitlines() if x.startswith("error: ")]
-    assert len(lines) == 1, res.stderr[-3000:]
-    return lines[0]
-
 
 @pytest.mark.parametrize("status,message", [(401, "Incorrect API key provided: sk-abc***"),
                                             (400, "Invalid model 'gpt-5o'")])

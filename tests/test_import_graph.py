@@ -98,3 +98,17 @@ def test_the_bundle_format_imports_no_quality_run_and_loggers_import_no_report()
     edges = import_graph()
     assert not {m for m in edges["simeval.quality.bundle"] if m.startswith("simeval.quality")}
     assert not {m for m in edges["simeval.loggers"] if m.startswith(("simeval.report", "simeval.quality"))}
+
+
+def test_no_test_file_imports_another():
+    """Shared helpers live in tests/helpers.py and fixtures in conftest.py: a test file that imports another runs
+    that file's module-level code and ties the two together."""
+    tests = Path(__file__).resolve().parent
+    names = {f.stem for f in tests.glob("test_*.py")}
+    offenders = []
+    for f in sorted(tests.glob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module] if isinstance(node, ast.ImportFrom) and node.module else []
+            offenders += [f"{f.name} imports {m}" for m in mods if m in names]
+    assert offenders == []

@@ -3,15 +3,13 @@ resume after a killed run, cost ledger, budget, dry run, replay, per-task errors
 
 import json
 import os
+import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
 import pytest
-import yaml
 
 from simeval.judges.cache import JudgeCache
 from simeval.judges.ledger import BudgetExceeded, Ledger, Prices
@@ -22,6 +20,7 @@ from simeval.judges.providers import Image, OpenAIChatProvider
 from simeval.judges.runner import JudgeItem, JudgeSettings, ReplayMiss, dry_run, run_judge
 from simeval.quality.bundle import load_bundles, sample_frame_indices
 from simeval.quality.run import oracle_completion, summarize
+from helpers import _png, make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -40,35 +39,6 @@ def test_frame_sampling_includes_first_and_last_in_order():
     idx = sample_frame_indices(100, 8)
     assert idx[0] == 0 and idx[-1] == 99 and len(idx) == 8 and idx == sorted(idx)
     assert sample_frame_indices(5, 8) == [0, 1, 2, 3, 4]
-
-
-def _png(seed: int, size: int = 16) -> bytes:
-    return Image.from_array(np.random.default_rng(seed).integers(0, 255, (size, size, 3))).png
-
-
-def make_bundles(root: Path, n: int = 3, corrupt: str | None = None, video: str | None = None) -> Path:
-    for t in range(n):
-        d = root / f"task{t}"
-        (d / "scene").mkdir(parents=True)
-        (d / "frames").mkdir()
-        (d / "task.yaml").write_text(yaml.safe_dump({"description": f"stack block {t} on the pallet",
-                                                     "pipeline": "gensim", "ground_truth": {"progress": min(t / 2, 1.0)}}))
-        for v in range(4):
-            (d / "scene" / f"view{v}.png").write_bytes(_png(100 * t + v))
-        for f in range(12):
-            (d / "frames" / f"{f:04d}.png").write_bytes(_png(1000 * t + f))
-    if corrupt:
-        (root / corrupt / "scene" / "view0.png").write_bytes(b"not a png")
-    if video:
-        import imageio.v3 as iio
-
-        d = root / video
-        for f in (d / "frames").glob("*.png"):
-            f.unlink()
-        (d / "frames").rmdir()
-        iio.imwrite(d / "trajectory.mp4", np.random.default_rng(0).integers(0, 255, (20, 32, 32, 3), dtype=np.uint8),
-                    fps=10, codec="libx264")
-    return root
 
 
 def _items(n=2, metric="scene_alignment", template="scene_alignment_vlm"):
@@ -233,21 +203,29 @@ def test_quality_end_to_end_with_failures_reported(openai_server, tmp_path, monk
 
 
 def test_killed_run_resumes_without_repeating_a_stored_call(tmp_path):
+    """The server kills the run (kill -9) as the 10th request arrives, before answering it: mid-run at a known
+    point, whatever the machine's speed. The rerun asks exactly what the cache does not hold."""
     from simeval.devserver import LoopbackOpenAI
 
     root = make_bundles(tmp_path / "b", n=4)
-    with LoopbackOpenAI(latency_s=0.05) as srv:
+    victim: list = []
+
+    def reply_or_kill(payload):
+        with srv.lock:
+            arrived = len(srv.requests)
+        if arrived == 10 and victim:
+            os.kill(victim.pop().pid, signal.SIGKILL)
+        return "Score: 3"
+
+    with LoopbackOpenAI(latency_s=0.05, default_reply=reply_or_kill) as srv:
         args = [f"bundles_dir={root}", f"judge.provider.base_url={srv.base_url}", "repeats=5", "judge.concurrency=2",
                 f"cache_dir={tmp_path / 'cache'}"]
         proc = subprocess.Popen([sys.executable, str(ROOT / "src" / "quality.py"), *args,
                                  f"hydra.run.dir={tmp_path / 'r1'}"], cwd=ROOT, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
-        deadline = time.time() + 60
-        while len(srv.requests) < 10 and time.time() < deadline:
-            time.sleep(0.02)
-        proc.kill()
-        proc.wait()
-        time.sleep(0.2)
+        victim.append(proc)
+        assert proc.wait(timeout=120) == -signal.SIGKILL
+        assert not (tmp_path / "r1" / "result.json").exists()
         stored = sqlite3.connect(tmp_path / "cache" / "judge_calls.sqlite").execute("SELECT COUNT(*) FROM calls").fetchone()[0]
         assert 0 < stored < 40
         before = len(srv.requests)

@@ -75,23 +75,21 @@ def test_noise_schedule_is_the_squared_cosine_schedule_and_the_forward_process_i
 
 
 def test_ema_follows_the_official_warmup_decay():
-    """EMA decay at update n: d_n = min(1 - (1 + (n - 1))^-0.75, 0.9999) (0 at the first update), and
-    ema <- d ema + (1 - d) param."""
-    p = torch.nn.Parameter(torch.tensor([0.0]))
-    ema = make_ema(torch.nn.Module(), TrainSettings())  # only the settings matter; re-create over our parameter
-    from diffusers.training_utils import EMAModel
-
-    ema = EMAModel([p], decay=0.9999, min_decay=0.0, update_after_step=0, use_ema_warmup=True, inv_gamma=1.0,
-                   power=0.75)
+    """make_ema, stepped as training steps it: the decay at update n is d_n = min(1 - (1 + (n - 1))^-power,
+    max_decay) (0 at the first update), and ema <- d ema + (1 - d) param, with the settings' power and max decay."""
+    settings = TrainSettings()
+    module = torch.nn.Linear(1, 1, bias=False)
+    ema = make_ema(module, settings)
     values = [1.0, 2.0, -1.0, 4.0, 0.5, 3.0]
     hand = 0.0
     for n, v in enumerate(values, start=1):
-        p.data.fill_(v)
-        ema.step([p])
+        module.weight.data.fill_(v)
+        ema.step(module.parameters())
         step = n - 1
-        d = 0.0 if step <= 0 else min(1 - (1 + step) ** -0.75, 0.9999)
+        d = 0.0 if step <= 0 else min(1 - (1 + step) ** -settings.ema_power, settings.ema_max_decay)
         hand = d * hand + (1 - d) * v
         assert float(ema.shadow_params[0]) == pytest.approx(hand, rel=1e-6)
+    assert (settings.ema_power, settings.ema_max_decay) == (0.75, 0.9999)  # the official Diffusion Policy values
 
 
 def test_windows_pad_at_the_edges_and_every_action_is_executed_first_somewhere():
@@ -161,6 +159,21 @@ def test_pick_place_policy_outputs_unit_quaternions_and_uses_primitive_steps():
     np.testing.assert_allclose(unit[..., 3:7].norm(dim=-1), 1, rtol=1e-6)
     np.testing.assert_allclose(unit[..., 10:14].norm(dim=-1), 1, rtol=1e-6)
     assert torch.equal(unit[..., :3], raw[..., :3])
+    # the policy's own output: an untrained pick/place policy samples 14-d poses whose quaternions are unit, and
+    # the same sample without the normalisation is not (so the check above is what makes them unit)
+    cfg = PolicyConfig(**{**TINY, "horizon": 4, "n_obs_steps": 1, "n_action_steps": 1, "down_dims": [16, 32],
+                          "normalize_quaternions": True})
+    policy = DiffusionPolicy(cfg, ds.state_dim, ds.action_dim, ds.stats()).eval()
+    obs = ds.window(np.arange(3))
+    pred = policy.predict_action(obs, "ddim", 3, torch.Generator().manual_seed(0))
+    assert pred.shape == (3, 4, 14)
+    np.testing.assert_allclose(pred[..., 3:7].norm(dim=-1), 1, rtol=1e-5)
+    np.testing.assert_allclose(pred[..., 10:14].norm(dim=-1), 1, rtol=1e-5)
+    policy.cfg = PolicyConfig(**{**TINY, "horizon": 4, "n_obs_steps": 1, "n_action_steps": 1,
+                                 "down_dims": [16, 32], "normalize_quaternions": False})
+    raw_pred = policy.predict_action(obs, "ddim", 3, torch.Generator().manual_seed(0))
+    assert not torch.allclose(raw_pred[..., 3:7].norm(dim=-1), torch.ones(3, 4), atol=1e-3)
+    torch.testing.assert_close(normalize_pose14_quaternions(raw_pred), pred)
 
 
 def test_config_mistakes_name_the_key():

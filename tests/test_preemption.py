@@ -19,7 +19,7 @@ from simeval.models.preemption import PreemptionPoint, preemption_signal
 from simeval.models.synthetic import make_group
 from simeval.models.training import TrainConfig
 from simeval.models.world_model import WorldModelConfig
-from test_device import policy_config, square_episode
+from helpers import policy_config, square_episode
 
 REQUEUE_EXIT = 144  # what submitit's local executor exits with to be requeued (any code works here)
 

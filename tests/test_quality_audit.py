@@ -19,7 +19,7 @@ from simeval.judges.providers import OpenAIChatProvider
 from simeval.judges.runner import JudgeSettings, ScoreRecord
 from simeval.quality.bundle import BundleError, load_bundles, read_video_frames
 from simeval.quality.run import run_quality, write_scores
-from test_judges import make_bundles
+from helpers import make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,7 +16,7 @@ from urllib.parse import unquote, urlparse
 
 import pytest
 
-from test_judges import make_bundles
+from helpers import make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -15,45 +14,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from test_judges import make_bundles
+from helpers import _no_secret_anywhere, _run, make_bundles, wandb_records
 
 ROOT = Path(__file__).resolve().parents[1]
-SECRET = "sk-test-SECRET123"
 SHARED_DATA = ROOT.parent / "shared" / "data"
-
-
-def wandb_records(path: Path) -> list:
-    """Every protobuf Record of an offline run file. The format is W&B's LevelDB-style log (a 7-byte `:W&B` header,
-    then 32 KiB blocks of chunks with a 7-byte header: crc32, length, type FULL/FIRST/MIDDLE/LAST); wandb 0.31
-    ships no Python reader for it any more."""
-    from wandb.proto import wandb_internal_pb2 as pb
-
-    data = path.read_bytes()
-    assert data[:4] == b":W&B"
-    pos, block, chunks, pending = 7, 32768, [], b""
-    while pos + 7 <= len(data):
-        if block - pos % block < 7:  # a block's tail too short for a header is padding
-            pos += block - pos % block
-            continue
-        _crc, length, kind = struct.unpack("<IHB", data[pos:pos + 7])
-        if kind == 0:  # zero-filled padding up to the next block
-            pos += block - pos % block
-            continue
-        chunk, pos = data[pos + 7:pos + 7 + length], pos + 7 + length
-        if kind == 1:
-            chunks.append(chunk)
-        elif kind == 2:
-            pending = chunk
-        elif kind == 3:
-            pending += chunk
-        elif kind == 4:
-            chunks.append(pending + chunk)
-    records = []
-    for c in chunks:
-        r = pb.Record()
-        r.ParseFromString(c)
-        records.append(r)
-    return records
 
 
 def read_offline_run(run_dir: Path) -> dict:
@@ -76,23 +40,6 @@ def read_offline_run(run_dir: Path) -> dict:
     return out
 
 
-@pytest.fixture
-def wandb_env(tmp_path):
-    """Offline W&B with every W&B folder inside tmp_path, and a judge/embedding key in the environment."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "WANDB_MODE": "offline", "OPENAI_API_KEY": SECRET}
-    for var, name in (("WANDB_DIR", "wandb_dir"), ("WANDB_CACHE_DIR", "wandb_cache"),
-                      ("WANDB_CONFIG_DIR", "wandb_config")):
-        env[var] = str(tmp_path / name)
-    env.pop("WANDB_DATA_DIR", None)  # the logger keeps staged files with the run
-    env.pop("WANDB_API_KEY", None)
-    return env
-
-
-def _run(script: str, *args: str, env: dict, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "src" / script), *args, "logger=wandb"], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
-
-
 def _check_run(run_dir: Path, metric: str, group: str) -> tuple[dict, dict]:
     rec = json.loads((run_dir / "result.json").read_text())
     run = read_offline_run(run_dir)
@@ -104,13 +51,6 @@ def _check_run(run_dir: Path, metric: str, group: str) -> tuple[dict, dict]:
     # the resolved config, redacted as result.json's, is the run's W&B config
     assert {k: v for k, v in run["config"].items() if k != "_wandb"} == rec["config"]
     return rec, run
-
-
-def _no_secret_anywhere(root: Path) -> None:
-    files = [p for p in root.rglob("*") if p.is_file()]
-    assert any(p.suffix == ".wandb" for p in files)
-    leaked = [str(p) for p in files if SECRET.encode() in p.read_bytes()]
-    assert not leaked, leaked
 
 
 def test_text_diversity_logs_config_metrics_group_and_tags(openai_server, wandb_env, tmp_path):

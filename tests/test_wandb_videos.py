@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from test_wandb_runs import _no_secret_anywhere, _run, wandb_env, wandb_records  # noqa: F401 - wandb_env: fixture
+from helpers import _no_secret_anywhere, _run, wandb_records
 
 SIZE, WINDOW, CONTEXT = 16, 8, 5  # conf/world_model/tiny.yaml image_size and window length; conf/diversity.yaml
 

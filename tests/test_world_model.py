@@ -9,7 +9,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -264,16 +263,22 @@ def test_evaluation_is_seeded(tmp_path):
 
 
 RESUME_SCRIPT = textwrap.dedent("""
-    import sys, time, torch
+    import os, signal, sys, torch
     torch.set_num_threads(1)
     import simeval.models.training as T
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.dynamics_diversity import fit_and_evaluate, load_model
     from simeval.models.synthetic import make_group
     from simeval.models.world_model import WorldModelConfig
-    slow = float(sys.argv[2])
+    kill_at = int(sys.argv[2])
     step = T.step_generator
-    T.step_generator = lambda s, i: (time.sleep(slow), step(s, i))[1]  # slow enough to be killed mid-run
+
+    def step_or_die(s, i):  # a kill -9 of this process as it reaches step `kill_at`: mid-run, at a known step
+        if i == kill_at:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(s, i)
+
+    T.step_generator = step_or_die
     cfg = WorldModelConfig(image_size=16, deter=16, hidden=16, stoch=2, classes=4, cnn_depth=4, minres=4,
                            mlp_layers=1, mlp_units=8)
     v = fit_and_evaluate(make_group("shared", 2, 4, 12, 16), episodes_per_task=4, model_cfg=cfg,
@@ -292,19 +297,15 @@ def test_killed_run_resumes_from_its_checkpoint_and_matches_an_uninterrupted_run
     script.write_text(RESUME_SCRIPT)
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     whole.mkdir(), killed.mkdir()
-    ref = subprocess.run([sys.executable, str(script), str(whole), "0"], env=env, capture_output=True, text=True,
+    ref = subprocess.run([sys.executable, str(script), str(whole), "-1"], env=env, capture_output=True, text=True,
                          check=True).stdout
-    proc = subprocess.Popen([sys.executable, str(script), str(killed), "0.05"], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
-    deadline = time.time() + 120
-    while not list(killed.glob("world_model-*.pt")) and time.time() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.3)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    steps = int(ref.split("STEPS")[1].split()[0])
+    assert steps > 7
+    killed_run = subprocess.run([sys.executable, str(script), str(killed), "7"], env=env, capture_output=True)
+    assert killed_run.returncode == -signal.SIGKILL and b"STEPS" not in killed_run.stdout
     ck = torch.load(next(killed.glob("world_model-*.pt")), weights_only=False)
-    assert 0 < ck["step"] and not ck["finished"]  # killed part-way, a checkpoint on disk
-    again = subprocess.run([sys.executable, str(script), str(killed), "0"], env=env, capture_output=True, text=True,
+    assert 0 < ck["step"] <= 7 and not ck["finished"]  # killed part-way, the last checkpoint on disk
+    again = subprocess.run([sys.executable, str(script), str(killed), "-1"], env=env, capture_output=True, text=True,
                            check=True)
     # the same evaluation number, and the frames trained on count the whole run, not the part after the resume
     assert again.stdout.split("FRAMES")[1] == ref.split("FRAMES")[1]

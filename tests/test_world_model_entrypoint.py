@@ -219,7 +219,7 @@ def test_a_group_the_suite_lacks_gets_the_suites_groups_not_a_failing_command(tm
 def test_the_sweep_runs_on_imported_ravens_demos(tmp_path):
     """Imported episodes, not the suite's: GenSim/Ravens demos go through src/import_data.py into a store, and the
     paper's sweep runs on them as typed (pipeline gensim, the importer's group, the Ravens front camera)."""
-    from test_episodes import _write_ravens
+    from helpers import _write_ravens
 
     _write_ravens(tmp_path / "data", episodes=3, t=10)
     imp = subprocess.run([sys.executable, str(ROOT / "src" / "import_data.py"), "format=ravens",
