@@ -104,7 +104,7 @@ def test_an_override_of_a_key_the_config_lacks_is_one_line_naming_the_valid_keys
 
     line = one_line_exit_2(run("collect", "progress=false", cwd=tmp_path))
     doc = yaml.safe_load((ROOT / "conf" / "collect.yaml").read_text())
-    groups = ["pipeline", "variation", "logger"]  # from its defaults; debug is an overlay (@package _global_)
+    groups = ["paths", "pipeline", "variation", "logger"]  # from its defaults; debug is an overlay (@package _global_)
     expected = [k for k in doc if k != "defaults"] + groups
     valid = line.split("valid here: ")[1].split(")")[0].split(", ")
     assert line.startswith("error: override progress: no such key (") and sorted(valid) == sorted(expected)
@@ -163,7 +163,7 @@ def test_a_comma_list_without_m_and_a_group_of_another_command_say_what_to_do(tm
     line = one_line_exit_2(run("diversity", "episodes=2,3", cwd=tmp_path))
     assert "Ambiguous value for argument 'episodes=2,3'; to sweep over the values add -m" in line
     line = one_line_exit_2(run("generalization", "world_model=cpu", cwd=tmp_path))
-    assert line.endswith("No match in the defaults list. (this command's config groups: pipeline, policy, logger, "
+    assert line.endswith("No match in the defaults list. (this command's config groups: paths, pipeline, policy, logger, "
                          "debug)")
 
 

@@ -73,6 +73,7 @@ def test_run_folders_started_in_the_same_second_differ(conf, key):
     register_run_suffix_resolver()
     node = yaml.safe_load((ROOT / "conf" / conf).read_text())
     node = node if conf.startswith("experiment") else {"hydra": node}
+    node["paths"] = yaml.safe_load((ROOT / "conf" / "paths" / "default.yaml").read_text())  # what the dirs name
     try:
         OmegaConf.register_new_resolver("now", lambda pattern: "2026-01-01_00-00-00-000000", replace=True)
         dirs = {OmegaConf.select(OmegaConf.merge(node, {"hydra": {"job": {"name": "x", "num": 0}}}), key)
