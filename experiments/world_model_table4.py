@@ -43,71 +43,30 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--overwrite", action="store_true",
                     help="replace tables or figures that git tracks (the committed Table 4; default: refuse)")
     a = ap.parse_args(argv)
-    if a.protocol == "heldout":
-        return heldout(a)
-    a.out = a.out or str(ROOT / "outputs" / "tables" / "table4")
-    a.figure = a.figure or str(ROOT / "outputs" / "figures" / "table4.png")
     from simeval.errors import UserError
-    from simeval.report import table4
-    from simeval.report.tables import refuse_committed
-    from simeval.results import read_results
+    from simeval.report.rebuild import rebuild_table4, rebuild_table4_heldout
 
+    name = "table4_heldout" if a.protocol == "heldout" else "table4"
+    out = a.out or str(ROOT / "outputs" / "tables" / name)
+    figure = a.figure or str(ROOT / "outputs" / "figures" / f"{name}.png")
     try:
-        try:
-            episodes = [int(x) for x in a.episodes.split(",")]
-        except ValueError:
-            raise UserError(f"--episodes {a.episodes}: expected 3 whole numbers separated by commas, e.g. 10,20,40")
-        kept = [table4.read_rows(path) for path in a.keep]  # read first: a bad file fails before any work
-        records = read_results(a.root, metric=table4.METRIC)
-        if not records:  # with --keep too: a mistyped --root must not pass for "nothing new"
-            raise UserError(f"no {table4.METRIC} result.json under {a.root}: run the world models first "
-                            "(make table4, or src/diversity.py), or give --root the folder that holds them")
-        refuse_committed([*(Path(a.out).with_suffix(x) for x in (".csv", ".md", ".tex")),
-                          *(Path(a.figure).with_suffix(x) for x in (".png", ".pdf"))], a.overwrite)
-        presets = sorted({str(r["identity"].get("preset")) for r in records})
-        if a.preset and a.preset not in presets:
-            raise UserError(f"--preset {a.preset}: no {table4.METRIC} run of that preset under {a.root} (its runs' "
-                            f"presets: {', '.join(presets)})")
-        rows = table4.build(records, episodes=episodes, preset=a.preset)
-        for rows_of_file in kept:
-            rows = table4.merge([r for r in rows_of_file if not a.preset or r["preset"] in ("", a.preset)], rows,
-                                episodes)
-        unused = table4.unused_episodes(records, episodes)
-        written = table4.write(rows, a.out, episodes, unused)
-        figures = table4.plot(rows, a.figure)
+        if a.protocol == "heldout":
+            done = rebuild_table4_heldout(a.root, out, figure, overwrite=a.overwrite)
+        else:
+            try:
+                episodes = [int(x) for x in a.episodes.split(",")]
+            except ValueError:
+                raise UserError(f"--episodes {a.episodes}: expected 3 whole numbers separated by commas, e.g. "
+                                "10,20,40") from None
+            done = rebuild_table4(a.root, out, figure, episodes=episodes, preset=a.preset, keep=a.keep,
+                                  overwrite=a.overwrite)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    print(written["md"].read_text())
-    if unused:
-        print(f"note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
-              f"(--episodes {a.episodes} chose its columns)")
-    print("wrote", ", ".join(str(p) for p in [*written.values(), *figures]))
-
-
-def heldout(a) -> None:
-    from simeval.errors import UserError
-    from simeval.report import table4_heldout
-    from simeval.report.tables import refuse_committed
-    from simeval.results import read_results
-
-    stem = Path(a.out or ROOT / "outputs" / "tables" / "table4_heldout")
-    figure = Path(a.figure or ROOT / "outputs" / "figures" / "table4_heldout.png")
-    try:
-        records = [r for r in read_results(a.root, metric=table4_heldout.METRIC)
-                   if (r.get("identity") or {}).get("protocol") == "heldout"]
-        if not records:
-            raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {a.root}: run "
-                            "src/diversity.py (protocol=heldout is its default) first, or give --root their folder")
-        refuse_committed([stem.with_suffix(".csv"), stem.with_suffix(".md"), figure], a.overwrite)
-        rows = table4_heldout.build(records)
-        written = table4_heldout.write(rows, stem)
-        table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
-    except UserError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
-    print(written["md"].read_text())
-    print("wrote", ", ".join(str(p) for p in [*written.values(), figure]))
+    print(done.markdown)
+    for note in done.notes:
+        print(f"note: {note}")
+    print("wrote", ", ".join(str(p) for p in done.written))
 
 
 if __name__ == "__main__":

@@ -161,3 +161,23 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
     assert (outputs / "tables" / "table5.md").read_text() != "committed Table 5\n"
     r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--overwrite", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+
+
+def test_the_report_door_builds_tables_4_and_5_as_their_scripts_do(outputs, tmp_path):
+    """src/report.py report=table4|table5 (the one report entrypoint) and the scripts call the same library
+    function (simeval.report.rebuild): the same runs give the same bytes."""
+    for kind, script in (("table4", [str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs",
+                                     "--episodes", "1,2,3"]),
+                         ("table5", ["-m", "simeval.models.policy.table5", "--runs", "outputs"])):
+        r = py(*script, "--out", f"a/{kind}", "--figure", f"a/{kind}.png", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        extra = ["report.episodes=[1,2,3]"] if kind == "table4" else []
+        r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=outputs", f"report.out=b/{kind}",
+               f"report.figure=b/{kind}.png", *extra, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        a = sorted(p.name for p in (tmp_path / "a").iterdir())
+        assert a == sorted(p.name for p in (tmp_path / "b").iterdir()) and f"{kind}.md" in a
+        for name in a:
+            assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    r = py(str(ROOT / "src" / "report.py"), "report=table4_heldout", "report.runs_dir=outputs", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.startswith("error: no protocol=heldout dynamics_diversity result.json")

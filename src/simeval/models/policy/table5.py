@@ -28,8 +28,8 @@ from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import read_csv, refuse_committed, write_table
-from simeval.results import identity_difference, read_results
+from simeval.report.tables import read_csv, write_table
+from simeval.results import identity_difference
 
 METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
@@ -317,27 +317,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--overwrite", action="store_true",
                     help="replace tables or figures that git tracks (the committed Table 5); default: refuse")
     args = ap.parse_args(argv)
+    from simeval.report.rebuild import rebuild_table5
+
     try:
-        kept = [read_rows(path) for path in args.keep]  # read first: a bad file fails before any work
-        records = read_results(args.runs, metric=METRIC)
-        if not records:  # with --keep too: a mistyped --runs must not pass for "nothing new"
-            raise UserError(f"no {METRIC} result.json under {args.runs}: run the policies first (make table5, or "
-                            "src/generalization.py), or give --runs the folder that holds them")
-        targets = [Path(f"{stem}{suffix}") for stem in (args.out, f"{args.out}_detail")
-                   for suffix in (".csv", ".md", ".tex")]
-        refuse_committed([*targets, Path(args.figure).with_suffix(".png"), Path(args.figure).with_suffix(".pdf")],
-                         args.overwrite)
-        rows = build(records, policy=args.policy)
-        for rows_of_file in kept:
-            rows = merge([r for r in rows_of_file if args.policy in (None, r["policy"]) or not r["runs"]], rows)
-        written = write(rows, args.out)
-        detail = write_detail(detail_rows(records, policy=args.policy), f"{args.out}_detail")
-        figures = plot(rows, args.figure)
+        done = rebuild_table5(args.runs, args.out, args.figure, policy=args.policy, keep=args.keep,
+                              overwrite=args.overwrite)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    print(written["md"].read_text())
-    print("wrote", ", ".join(str(p) for p in [*written.values(), *detail.values(), *figures]))
+    print(done.markdown)
+    print("wrote", ", ".join(str(p) for p in done.written))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,137 @@
+"""Tables 4 and 5 rebuilt from the result.json files on disk, as plain functions: the one place the report door
+(`src/report.py report=table4|table4_heldout|table5`), the scripts (experiments/world_model_table4.py,
+`python -m simeval.models.policy.table5`) and `make report` call.
+
+    rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
+    rebuild_table4_heldout(root, out, figure, overwrite=False) -> Rebuilt
+    rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt
+Each reads every result.json of its metric under `root` (none: a UserError saying what makes them), refuses to
+replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
+(a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
+wrote with the Markdown table and notes to print. `keep`: CSVs of earlier tables whose rows the runs on disk lack
+are kept (groups run on other machines).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from simeval.errors import UserError
+from simeval.report.tables import refuse_committed
+from simeval.results import read_results
+
+
+@dataclass
+class Rebuilt:
+    written: list[Path]
+    markdown: str
+    notes: list[str] = field(default_factory=list)
+
+
+def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
+    return [Path(f"{stem}{s}") for s in suffixes]
+
+
+def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
+                   preset: str | None = None, keep=(), overwrite: bool = False) -> Rebuilt:
+    from simeval.report import table4
+
+    episodes = [int(k) for k in episodes]
+    kept = [table4.read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    records = read_results(root, metric=table4.METRIC)
+    if not records:  # with keep too: a mistyped root must not pass for "nothing new"
+        raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
+                        "(make table4, or src/diversity.py), or give the folder that holds them")
+    refuse_committed([*_with(Path(out), (".csv", ".md", ".tex")), *(Path(figure).with_suffix(x) for x in
+                                                                      (".png", ".pdf"))], overwrite)
+    presets = sorted({str(r["identity"].get("preset")) for r in records})
+    if preset and preset not in presets:
+        raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
+                        f"{', '.join(presets)})")
+    rows = table4.build(records, episodes=episodes, preset=preset)
+    for rows_of_file in kept:
+        rows = table4.merge([r for r in rows_of_file if not preset or r["preset"] in ("", preset)], rows, episodes)
+    unused = table4.unused_episodes(records, episodes)
+    written = table4.write(rows, out, episodes, unused)
+    figures = table4.plot(rows, figure)
+    notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table (episodes "
+             f"{','.join(map(str, episodes))} chose its columns)"] if unused else []
+    return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
+
+
+def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *,
+                           overwrite: bool = False) -> Rebuilt:
+    from simeval.report import table4_heldout
+
+    records = [r for r in read_results(root, metric=table4_heldout.METRIC)
+               if (r.get("identity") or {}).get("protocol") == "heldout"]
+    if not records:
+        raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
+                        "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them")
+    out, figure = Path(out), Path(figure)
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite)
+    rows = table4_heldout.build(records)
+    written = table4_heldout.write(rows, out)
+    table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
+    return Rebuilt([*written.values(), figure], written["md"].read_text())
+
+
+def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
+                   overwrite: bool = False) -> Rebuilt:
+    from simeval.models.policy import table5
+
+    kept = [table5.read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    records = read_results(root, metric=table5.METRIC)
+    if not records:  # with keep too: a mistyped root must not pass for "nothing new"
+        raise UserError(f"no {table5.METRIC} result.json under {root}: run the policies first (make table5, or "
+                        "src/generalization.py), or give the folder that holds them")
+    refuse_committed([*_with(out, (".csv", ".md", ".tex")), *_with(f"{out}_detail", (".csv", ".md", ".tex")),
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite)
+    rows = table5.build(records, policy=policy)
+    for rows_of_file in kept:
+        rows = table5.merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
+    written = table5.write(rows, out)
+    detail = table5.write_detail(table5.detail_rows(records, policy=policy), f"{out}_detail")
+    figures = table5.plot(rows, figure)
+    return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
+
+
+KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html")
+
+
+def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
+    """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder."""
+    kind = spec.get("kind")
+    if kind == "table4":
+        return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
+                              episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
+                              keep=spec.get("keep") or (), overwrite=overwrite)
+    if kind == "table4_heldout":
+        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], overwrite=overwrite)
+    if kind == "table5":
+        return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
+                              keep=spec.get("keep") or (), overwrite=overwrite)
+    if kind == "html":
+        from simeval.report.html import build_html_report
+
+        page = build_html_report(spec["runs_dir"], spec.get("out_dir"), tables_dir=spec.get("tables_dir"),
+                                 figures_dir=spec.get("figures_dir"), title=spec.get("title", "simeval report"))
+        return Rebuilt([page], f"HTML report: {page} (open it in a browser; the folder is self-contained)")
+    if kind not in ("table3", "figure4"):
+        raise UserError(f"report.kind={kind!r}: expected one of {', '.join(KINDS)}")
+    from simeval.report.tables import outputs_named
+
+    if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
+        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, "overwrite=true")
+    if kind == "figure4":
+        from simeval.report.quality_figure import build_quality_figure
+
+        written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
+        return Rebuilt([p for paths in written.values() for p in paths], Path(written["table"][1]).read_text())
+    from simeval.report.build import build_text_diversity_report
+
+    written = build_text_diversity_report(
+        spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
+        caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"), digits=spec.get("digits", 2))
+    return Rebuilt([p for paths in written.values() for p in paths], Path(written["main"][1]).read_text())
