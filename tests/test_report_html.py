@@ -14,6 +14,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import unquote, urlparse
 
+import numpy as np
 import pytest
 
 from helpers import make_bundles
@@ -246,3 +247,24 @@ def test_the_papers_tables_and_figures_lead(tmp_path):
     assert [m for m in re.findall(r"<figcaption>([^<·]+)", page)] == ["figure3.png", "contact_sheet_bbsea.png",
                                                                       "control_dose.png"]
     assert "not computed from the runs above" in page
+
+
+def test_a_runs_videos_play_in_the_report(tmp_path):
+    """A world-model run's open-loop videos (videos/*.mp4) and a policy run's rollout videos (*.mp4) are copied into
+    the report and embedded; a run without videos adds nothing."""
+    from simeval.media import write_video
+    from simeval.report.html import build_html_report
+
+    runs = tmp_path / "runs"
+    frames = np.zeros((4, 16, 16, 3), np.uint8)
+    for run, video in (("wm", "videos/open_loop_stack.mp4"), ("policy", "best_train.mp4"), ("plain", None)):
+        (runs / run).mkdir(parents=True)
+        (runs / run / "result.json").write_text(json.dumps({"metric": "m", "identity": {}, "values": {}}))
+        if video:
+            write_video(frames, runs / run / video, fps=4)
+    out = tmp_path / "out"
+    page = build_html_report(runs, out).read_text()
+    srcs = re.findall(r"<video controls muted preload='metadata' src='([^']+)'>", page)
+    assert sorted(Path(s).name for s in srcs) == ["best_train.mp4", "open_loop_stack.mp4"]
+    assert all((out / s).stat().st_size > 0 for s in srcs)
+    assert "<figcaption>open_loop_stack</figcaption>" in page

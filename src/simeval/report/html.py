@@ -7,6 +7,8 @@ the folder can be zipped and opened on another machine. Sections:
 - Runs: one row per result.json under `runs_dir` (metric, status, label or pipeline, git sha, headline values),
   each linking to a copy of its record (copied as `record.json`, never `result.json`: collectors that glob
   `result.json` under outputs/ must not count a report's copy as a run).
+- Videos: per run, the mp4s it left beside its result.json (open-loop predictions of a world model, a policy's best
+  and worst rollouts), played in the page.
 - Tables: every Markdown table under `tables_dir` (as written by simeval.report.tables), with links to its CSV/TeX.
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
@@ -259,6 +261,29 @@ def _runs_section(records: list[dict], names: list[str], assets: _Assets) -> str
     return "\n".join(rows)
 
 
+VIDEOS_PER_RUN = 8  # a sweep of many runs stays a page, not a download
+
+
+def _videos_section(records: list[dict], names: list[str], assets: _Assets) -> str:
+    """The videos each run left beside its result.json (a world model's open-loop predictions, videos/*.mp4; a
+    policy's best and worst rollouts, *.mp4), played in the page: what a number summarises, next to it."""
+    parts = []
+    for rec, name in zip(records, names):
+        run_dir = Path(rec["path"]).parent
+        videos = sorted({*run_dir.glob("*.mp4"), *run_dir.glob("videos/*.mp4")})
+        if not videos:
+            continue
+        shown = videos[:VIDEOS_PER_RUN]
+        more = f" (first {len(shown)} of {len(videos)})" if len(videos) > len(shown) else ""
+        clips = []
+        for v in shown:
+            src = assets.copy(v, f"runs/{_slug(name)}/videos")
+            clips.append(f"<figure><video controls muted preload='metadata' src='{_e(src)}'></video>"
+                         f"<figcaption>{_e(v.stem)}</figcaption></figure>")
+        parts.append(f"<h3>{_e(name)}{_e(more)}</h3><div class='strip'>{''.join(clips)}</div>")
+    return "\n".join(parts) if parts else "<p class='muted'>No run here left videos.</p>"
+
+
 # ------------------------------------------------------------------------------------------- quality gallery
 
 
@@ -440,10 +465,12 @@ def _build(runs_dir: Path, out_dir: Path, tables_dir, figures_dir, title: str) -
 <h1>{_e(title)}</h1>
 <p class="muted">Built from the {RESULT_FILE} files under <code>{_e(runs_dir)}</code> ({_e(summary)}), the tables
 under <code>{_e(tables_dir)}</code> and the figures under <code>{_e(figures_dir)}</code>. Nothing was rerun.</p>
-<nav><a href="#runs">Runs</a><a href="#tables">Tables</a><a href="#figures">Figures</a>
+<nav><a href="#runs">Runs</a><a href="#videos">Videos</a><a href="#tables">Tables</a><a href="#figures">Figures</a>
 <a href="#quality">Quality gallery</a></nav>
 <h2 id="runs">Runs ({len(records)})</h2>
 {_runs_section(records, names, assets) if records else "<p class='muted'>No result.json here.</p>"}
+<h2 id="videos">Videos</h2>
+{_videos_section(records, names, assets)}
 <h2 id="tables">Tables</h2>
 <p class="muted">The files under <code>{_e(tables_dir)}</code> as they are (the paper's first): tables of whatever runs
 built them (the committed ones unless rebuilt), not computed from the runs above.</p>
