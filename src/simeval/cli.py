@@ -194,10 +194,23 @@ def dead_job_line(exc: BaseException) -> str:
             "again: finished runs are kept and a training resumes from its last checkpoint")
 
 
+def refused_submission_line(exc: BaseException) -> str | None:
+    """One line when sbatch refused a job of the sweep (more memory, CPUs or GPUs than a node of the partition
+    has, an unknown partition or account): what sbatch said and what to change. None for any other failure."""
+    text = str(exc)
+    if "Batch job submission failed" not in text and "sbatch: error" not in text:
+        return None
+    said = "; ".join(dict.fromkeys(line.split("error:", 1)[1].strip() for line in text.splitlines()
+                                   if "sbatch: error:" in line)) or text.strip().splitlines()[0]
+    return (f"sbatch refused the sweep's jobs: {said}; ask for what a node of the partition has "
+            "(hydra.launcher.mem_gb, cpus_per_task, gpus_per_node; `sinfo -o '%P %c %m %G'` lists each partition's "
+            "CPUs, memory in MB and GPUs) or name another partition (hydra.launcher.partition)")
+
+
 def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
     """Call `launch` (a submitit launcher's launch); a job that died without a result ends the sweep with one
-    `error:` line and exit 1 (not a user error; the other jobs have finished by then). HYDRA_FULL_ERROR=1 keeps
-    submitit's exception."""
+    `error:` line and exit 1 (not a user error; the other jobs have finished by then), a job sbatch refused with
+    one line and exit 2 (a setting to change). HYDRA_FULL_ERROR=1 keeps submitit's exception."""
     try:
         from submitit.core.utils import UncompletedJobError
     except ImportError:  # no submitit installed: no submitit launcher either
@@ -207,6 +220,10 @@ def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
     except UncompletedJobError as e:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
+        refused = refused_submission_line(e)
+        if refused is not None:  # nothing ran: a setting to change, not a job to rerun
+            _print_error(refused)
+            sys.exit(USER_ERROR_EXIT)
         _print_error(dead_job_line(e))
         sys.exit(1)
 
