@@ -88,7 +88,7 @@ table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Polic
 	$(MAKE) --no-print-directory report-table5
 
 report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset; KEEP=outputs/tables/table5.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
-	$(PY) -m simeval.models.policy.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
+	$(PY) -m simeval.report.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
 
 # Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
 # (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job: 128x128 episodes, windows of 20 for

@@ -6,7 +6,7 @@
 Steps, each with the same library calls as its own command:
     table3   Table 3 (text diversity)    as src/report.py report=table3             tables/table3*.{csv,md,tex}
     table4   Table 4 (world models)      as experiments/world_model_table4.py       tables/table4.*, figures/table4.*
-    table5   Table 5 (Diffusion Policy)  as python -m simeval.models.policy.table5  tables/table5.*, figures/table5.*
+    table5   Table 5 (Diffusion Policy)  as python -m simeval.report.table5  tables/table5.*, figures/table5.*
     figure4  Figure 4 (quality)          as src/report.py report=figure4            figures/figure4.{png,pdf,md,...}
     html     the HTML report             as src/report.py report=html               <html-runs>/report/index.html
 (tables: .csv, .md and .tex; figures: .png and .pdf)
@@ -87,7 +87,7 @@ def table4(a) -> list[Path]:
 
 
 def table5(a) -> list[Path]:
-    from simeval.models.policy import table5 as t5
+    from simeval.report import table5 as t5
 
     records = _records(Path(a.table5_runs), t5.METRIC, "`make table5` trains and rolls out the policies")
     _refuse_committed(a, [*_files(a.tables, "table5", (".csv", ".md", ".tex")),

@@ -4,7 +4,7 @@ is refused."""
 import pytest
 
 from simeval.errors import UserError
-from simeval.models.policy.table5 import build, write
+from simeval.report.table5 import build, write
 
 
 def rec(path, k, n, seed=0, policy="cpu"):
@@ -56,7 +56,7 @@ def test_a_group_named_as_in_the_paper_lands_in_the_suite_row():
 
 def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_path):
     """--keep: the committed table gathers groups run on different machines; a row comes from exactly one side."""
-    from simeval.models.policy.table5 import merge, read_rows
+    from simeval.report.table5 import merge, read_rows
 
     placement = rec("p", 0, 50)
     placement["identity"]["task_group"] = "placement"
@@ -90,7 +90,7 @@ def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_
 
 
 def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
-    from simeval.models.policy.table5 import read_rows
+    from simeval.report.table5 import read_rows
     from simeval.report import table4
 
     write(build([rec("a", 2, 10)]), tmp_path / "t5")

@@ -74,7 +74,7 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     assert all(": skipped: " in x for x in r.stdout.splitlines())
     assert not (tmp_path / "outputs").exists()  # nothing written from nothing
     for cmd in ([str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs"],
-                ["-m", "simeval.models.policy.table5", "--runs", "outputs"]):
+                ["-m", "simeval.report.table5", "--runs", "outputs"]):
         r = py(*cmd, cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: no ")
         assert "result.json under outputs: run the" in r.stderr
@@ -151,12 +151,12 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
                                         "OVERWRITE=1)")
     for cmd in ([str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs", "--out",
                  "outputs/tables/table4", "--figure", "outputs/figures/table4.png"],
-                ["-m", "simeval.models.policy.table5", "--runs", "outputs"]):
+                ["-m", "simeval.report.table5", "--runs", "outputs"]):
         r = py(*cmd, cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a committed result" in r.stderr, r.stderr
         assert r.stderr.rstrip().endswith("replace it with --overwrite")
     assert {p: p.read_bytes() for p in (outputs / "tables").iterdir()} == before
-    r = py("-m", "simeval.models.policy.table5", "--runs", "outputs", "--overwrite", cwd=tmp_path)
+    r = py("-m", "simeval.report.table5", "--runs", "outputs", "--overwrite", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert (outputs / "tables" / "table5.md").read_text() != "committed Table 5\n"
     r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--overwrite", cwd=tmp_path)
@@ -168,7 +168,7 @@ def test_the_report_door_builds_tables_4_and_5_as_their_scripts_do(outputs, tmp_
     function (simeval.report.rebuild): the same runs give the same bytes."""
     for kind, script in (("table4", [str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs",
                                      "--episodes", "1,2,3"]),
-                         ("table5", ["-m", "simeval.models.policy.table5", "--runs", "outputs"])):
+                         ("table5", ["-m", "simeval.report.table5", "--runs", "outputs"])):
         r = py(*script, "--out", f"a/{kind}", "--figure", f"a/{kind}.png", cwd=tmp_path)
         assert r.returncode == 0, r.stderr
         extra = ["report.episodes=[1,2,3]"] if kind == "table4" else []

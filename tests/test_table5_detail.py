@@ -8,7 +8,7 @@ import pytest
 
 from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.models.policy.random_baseline import RandomActions
-from simeval.models.policy.table5 import detail_rows, write_detail
+from simeval.report.table5 import detail_rows, write_detail
 
 
 def test_task_bootstrap_matches_the_normal_approximation_with_many_tasks():
@@ -124,7 +124,7 @@ def test_detail_rows_pool_runs_per_task_and_report_progress(tmp_path):
 
 def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
     from simeval.errors import UserError
-    from simeval.models.policy.table5 import build
+    from simeval.report.table5 import build
 
     a = _record("cpu", [("eval", "close", [(True, 1.0)])])
     b = dict(a, path="elsewhere/result.json")

@@ -1,10 +1,10 @@
 """Tables 4 and 5 rebuilt from the result.json files on disk, as plain functions: the one place the report door
 (`src/report.py report=table4|table4_heldout|table5`), the scripts (experiments/world_model_table4.py,
-`python -m simeval.models.policy.table5`) and `make report` call.
+`python -m simeval.report.table5`) and `make report` call.
 
     rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
     rebuild_table4_heldout(root, out, figure, overwrite=False) -> Rebuilt
-    rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt
+    rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt   (simeval.report.table5)
 Each reads every result.json of its metric under `root` (none: a UserError saying what makes them), refuses to
 replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
 (a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
@@ -14,19 +14,14 @@ are kept (groups run on other machines).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.tables import refuse_committed
+from simeval.report.tables import Rebuilt, refuse_committed
+from simeval.report.table5 import rebuild_table5
 from simeval.results import read_results
 
-
-@dataclass
-class Rebuilt:
-    written: list[Path]
-    markdown: str
-    notes: list[str] = field(default_factory=list)
+__all__ = ["Rebuilt", "rebuild", "rebuild_table4", "rebuild_table4_heldout", "rebuild_table5"]
 
 
 def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
@@ -75,26 +70,6 @@ def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path
     written = table4_heldout.write(rows, out)
     table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
     return Rebuilt([*written.values(), figure], written["md"].read_text())
-
-
-def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
-                   overwrite: bool = False) -> Rebuilt:
-    from simeval.models.policy import table5
-
-    kept = [table5.read_rows(path) for path in keep]  # read first: a bad file fails before any work
-    records = read_results(root, metric=table5.METRIC)
-    if not records:  # with keep too: a mistyped root must not pass for "nothing new"
-        raise UserError(f"no {table5.METRIC} result.json under {root}: run the policies first (make table5, or "
-                        "src/generalization.py), or give the folder that holds them")
-    refuse_committed([*_with(out, (".csv", ".md", ".tex")), *_with(f"{out}_detail", (".csv", ".md", ".tex")),
-                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite)
-    rows = table5.build(records, policy=policy)
-    for rows_of_file in kept:
-        rows = table5.merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
-    written = table5.write(rows, out)
-    detail = table5.write_detail(table5.detail_rows(records, policy=policy), f"{out}_detail")
-    figures = table5.plot(rows, figure)
-    return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
 
 
 KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html")

@@ -5,9 +5,18 @@ from __future__ import annotations
 import csv
 import io
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from simeval.results import atomic_write_text
+
+
+@dataclass
+class Rebuilt:
+    """What a report rebuild wrote, the Markdown table to print and notes for the user (simeval.report.rebuild)."""
+    written: list[Path]
+    markdown: str
+    notes: list[str] = field(default_factory=list)
 
 
 def read_csv(path: str | Path) -> list[list[str]]:

@@ -1,7 +1,7 @@
 """Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group, as tables
 and a figure.
 
-    python -m simeval.models.policy.table5 [--runs outputs] [--out outputs/tables/table5] \
+    python -m simeval.report.table5 [--runs outputs] [--out outputs/tables/table5] \
         [--figure outputs/figures/table5.png] [--policy cpu]
 writes table5.{csv,md,tex}, table5_detail.{csv,md} (per task, task-level intervals, mean progress) and
 table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
@@ -28,8 +28,8 @@ from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import read_csv, write_table
-from simeval.results import identity_difference
+from simeval.report.tables import Rebuilt, read_csv, refuse_committed, write_table
+from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
@@ -110,7 +110,7 @@ def read_rows(path: str | Path) -> list[dict]:
     interval recomputed from them), for `merge`."""
     raw = read_csv(path)
     if not raw or raw[0] != HEAD:
-        raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.models.policy.table5): its header "
+        raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.report.table5): its header "
                         f"should be {','.join(HEAD)}")
     rows = []
     for line, cells in enumerate(raw[1:], start=2):
@@ -304,6 +304,26 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     return written
 
 
+def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
+                   overwrite: bool = False) -> Rebuilt:
+    """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
+    simeval.report.rebuild, which the report door calls)."""
+    kept = [read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    records = read_results(root, metric=METRIC)
+    if not records:  # with keep too: a mistyped root must not pass for "nothing new"
+        raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
+                        "src/generalization.py), or give the folder that holds them")
+    refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite)
+    rows = build(records, policy=policy)
+    for rows_of_file in kept:
+        rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
+    written = write(rows, out)
+    detail = write_detail(detail_rows(records, policy=policy), f"{out}_detail")
+    figures = plot(rows, figure)
+    return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="paper Table 5 from generalization result.json files")
     ap.add_argument("--runs", default="outputs", help="folder searched for result.json files")
@@ -317,8 +337,6 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--overwrite", action="store_true",
                     help="replace tables or figures that git tracks (the committed Table 5); default: refuse")
     args = ap.parse_args(argv)
-    from simeval.report.rebuild import rebuild_table5
-
     try:
         done = rebuild_table5(args.runs, args.out, args.figure, policy=args.policy, keep=args.keep,
                               overwrite=args.overwrite)
