@@ -110,3 +110,20 @@ def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
     (tmp_path / "t4cut.csv").write_text("\n".join(lines[:2] + [lines[2][:15]]) + "\n")
     with pytest.raises(UserError, match="t4cut.csv, line 3: .* cells, expected 18"):
         table4.read_rows(tmp_path / "t4cut.csv")
+
+
+def test_runs_of_one_cell_at_other_training_seeds_pool_but_other_settings_do_not():
+    """A generalization run records its training seed twice (identity.seed and identity.settings.train.seed):
+    runs that differ only there are one cell's seeds; any other difference is another experiment."""
+    from simeval.errors import UserError
+
+    def rec(seed, lr=3e-4, k=1):
+        ident = {"metric": "generalization", "pipeline": "bbsea", "task_group": "drawer", "policy": "cpu",
+                 "seed": seed, "settings": {"train": {"lr": lr, "seed": seed}}}
+        return {"identity": ident, "path": f"r{seed}/{lr}/result.json",
+                "values": {"splits": {"eval": {"success": {"k": k, "n": 5}}}}}
+
+    row = next(r for r in build([rec(0), rec(1, k=2), rec(2, k=0)]) if r["group"] == "drawer")
+    assert row["runs"] == 3 and (row["eval"]["k"], row["eval"]["n"]) == (3, 15)
+    with pytest.raises(UserError, match="settings.train.lr"):
+        build([rec(0), rec(1, lr=1e-3)])

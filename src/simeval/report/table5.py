@@ -47,6 +47,16 @@ def _cell(rec: dict, policy: str | None) -> tuple | None:
     return ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy")
 
 
+def _setting(identity: dict) -> dict:
+    """A run's identity without its training seed (top-level `seed`, and `settings.train.seed` where the run
+    records its training settings): what runs of one cell, one per seed, must share."""
+    base = {k: v for k, v in identity.items() if k != "seed"}
+    train = (base.get("settings") or {}).get("train")
+    if isinstance(train, dict) and "seed" in train:
+        base["settings"] = {**base["settings"], "train": {k: v for k, v in train.items() if k != "seed"}}
+    return base
+
+
 def build(records: list[dict], policy: str | None = None) -> list[dict]:
     """One row per paper cell and policy preset (then per other group run): {pipeline, group, paper, policy, runs,
     eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
@@ -58,7 +68,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         key = _cell(rec, policy)
         if key is None:
             continue
-        base = {k: v for k, v in rec["identity"].items() if k != "seed"}
+        base = _setting(rec["identity"])
         if key in cells and cells[key]["identity"] != base:
             diff = identity_difference(cells[key]["identity"], base)
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
@@ -284,8 +294,10 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         for i in range(1, len(per[p])):
             ax.axvline(i - 0.5, color="0.85", lw=0.8)
         several = len({r["policy"] for r in rows if r["policy"]}) > 1
-        ax.set_xticks(range(len(per[p])), [r["group"] + (f"\n({_policy_cell(r['policy'])})" if several and r["policy"]
-                                                         else "") for r in per[p]], fontsize=7)
+        short = {CHANCE: "random: chance"}  # the table's long note does not fit under a tick
+        ax.set_xticks(range(len(per[p])), [r["group"] + (f"\n({short.get(r['policy'], r['policy'])})"
+                                                         if several and r["policy"] else "") for r in per[p]],
+                      fontsize=7)
         ax.set_xlim(-0.5, len(per[p]) - 0.5)
         ax.set_ylim(-0.04, 1.12)
         ax.grid(axis="y", alpha=0.3)
