@@ -6,7 +6,7 @@
 Steps, each with the same library calls as its own command:
     table3   Table 3 (text diversity)    as src/report.py report=table3             tables/table3*.{csv,md,tex}
     table4   Table 4 (world models)      as experiments/world_model_table4.py       tables/table4.*, figures/table4.*
-    table5   Table 5 (Diffusion Policy)  as python -m simeval.report.table5  tables/table5.*, figures/table5.*
+    table5   Table 5 (Diffusion Policy)  as python -m simeval.report.table5     tables/table5*.*, figures/table5.*
     figure4  Figure 4 (quality)          as src/report.py report=figure4            figures/figure4.{png,pdf,md,...}
     html     the HTML report             as src/report.py report=html               <html-runs>/report/index.html
 (tables: .csv, .md and .tex; figures: .png and .pdf)
@@ -27,6 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 STEPS = ("table3", "table4", "table5", "figure4", "html")
+OVERWRITE_FLAG = "--overwrite (make report OVERWRITE=1)"  # how a step's refusal tells the user to replace a file
 
 
 class Skip(Exception):
@@ -46,11 +47,7 @@ def _refuse_committed(a, paths: list[Path]) -> None:
     """Before a step writes: those of its files that git tracks stop it unless --overwrite."""
     from simeval.report.tables import refuse_committed
 
-    refuse_committed(paths, a.overwrite, "--overwrite (make report OVERWRITE=1)")
-
-
-def _files(folder: str, stem: str, suffixes: tuple[str, ...]) -> list[Path]:
-    return [Path(folder) / f"{stem}{x}" for x in suffixes]
+    refuse_committed(paths, a.overwrite, OVERWRITE_FLAG)
 
 
 def table3(a) -> list[Path]:
@@ -72,28 +69,23 @@ def table3(a) -> list[Path]:
 
 def table4(a) -> list[Path]:
     from simeval.report import table4 as t4
+    from simeval.report.rebuild import rebuild_table4
 
-    records = _records(Path(a.table4_runs), t4.METRIC, "`make table4` trains the world models")
-    _refuse_committed(a, [*_files(a.tables, "table4", (".csv", ".md", ".tex")),
-                          *_files(a.figures, "table4", (".png", ".pdf"))])
-    episodes = [int(x) for x in a.table4_episodes.split(",")]
-    rows = t4.build(records, episodes=episodes)
-    unused = t4.unused_episodes(records, episodes)
-    if unused:
-        print(f"Table 4: note: runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
-              f"(--table4-episodes {a.table4_episodes} chose its columns)")
-    return [*t4.write(rows, Path(a.tables) / "table4", episodes, unused).values(),
-            *t4.plot(rows, Path(a.figures) / "table4.png")]
+    _records(Path(a.table4_runs), t4.METRIC, "`make table4` trains the world models")
+    done = rebuild_table4(a.table4_runs, Path(a.tables) / "table4", Path(a.figures) / "table4.png",
+                          episodes=[int(x) for x in a.table4_episodes.split(",")], overwrite=a.overwrite,
+                          flags={"episodes": "--table4-episodes", "overwrite": OVERWRITE_FLAG})
+    for note in done.notes:
+        print(f"Table 4: note: {note}")
+    return done.written
 
 
 def table5(a) -> list[Path]:
     from simeval.report import table5 as t5
 
-    records = _records(Path(a.table5_runs), t5.METRIC, "`make table5` trains and rolls out the policies")
-    _refuse_committed(a, [*_files(a.tables, "table5", (".csv", ".md", ".tex")),
-                          *_files(a.figures, "table5", (".png", ".pdf"))])
-    rows = t5.build(records, policy=a.table5_policy)
-    return [*t5.write(rows, Path(a.tables) / "table5").values(), *t5.plot(rows, Path(a.figures) / "table5.png")]
+    _records(Path(a.table5_runs), t5.METRIC, "`make table5` trains and rolls out the policies")
+    return t5.rebuild_table5(a.table5_runs, Path(a.tables) / "table5", Path(a.figures) / "table5.png",
+                             policy=a.table5_policy, overwrite=a.overwrite, overwrite_flag=OVERWRITE_FLAG).written
 
 
 def figure4(a) -> list[Path]:

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> None:
                 raise UserError(f"--episodes {a.episodes}: expected 3 whole numbers separated by commas, e.g. "
                                 "10,20,40") from None
             done = rebuild_table4(a.root, out, figure, episodes=episodes, preset=a.preset, keep=a.keep,
-                                  overwrite=a.overwrite)
+                                  overwrite=a.overwrite, flags={"episodes": "--episodes"})
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

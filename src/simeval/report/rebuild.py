@@ -29,8 +29,12 @@ def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 
 def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
-                   preset: str | None = None, keep=(), overwrite: bool = False) -> Rebuilt:
+                   preset: str | None = None, keep=(), overwrite: bool = False, flags: dict | None = None) -> Rebuilt:
+    """`flags`: how the caller's user spells `episodes` and `overwrite` ({"episodes": "--episodes", ...}), named in
+    the note about unused runs and in the refusal to replace a committed file."""
     from simeval.report import table4
+
+    flags = {"episodes": "episodes", "overwrite": "--overwrite", **(flags or {})}
 
     episodes = [int(k) for k in episodes]
     kept = [table4.read_rows(path) for path in keep]  # read first: a bad file fails before any work
@@ -39,7 +43,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
     refuse_committed([*_with(Path(out), (".csv", ".md", ".tex")), *(Path(figure).with_suffix(x) for x in
-                                                                      (".png", ".pdf"))], overwrite)
+                                                                      (".png", ".pdf"))], overwrite, flags["overwrite"])
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
@@ -50,8 +54,8 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     unused = table4.unused_episodes(records, episodes)
     written = table4.write(rows, out, episodes, unused)
     figures = table4.plot(rows, figure)
-    notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table (episodes "
-             f"{','.join(map(str, episodes))} chose its columns)"] if unused else []
+    notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
+             f"({flags['episodes']} {','.join(map(str, episodes))} chose its columns)"] if unused else []
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
