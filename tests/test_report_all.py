@@ -181,3 +181,11 @@ def test_the_report_door_builds_tables_4_and_5_as_their_scripts_do(outputs, tmp_
             assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     r = py(str(ROOT / "src" / "report.py"), "report=table4_heldout", "report.runs_dir=outputs", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.startswith("error: no protocol=heldout dynamics_diversity result.json")
+    # a committed table is refused naming the door's own key, not another command's flag
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path / "b", check=True)
+    subprocess.run([*git, "add", "table5.md"], cwd=tmp_path / "b", check=True)
+    subprocess.run([*git, "commit", "-qm", "committed"], cwd=tmp_path / "b", check=True)
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", "report.out=b/table5",
+           "report.figure=b/table5.png", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.rstrip().endswith("replace it with overwrite=true"), r.stderr

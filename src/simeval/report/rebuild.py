@@ -60,7 +60,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
 
 
 def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *,
-                           overwrite: bool = False) -> Rebuilt:
+                           overwrite: bool = False, overwrite_flag: str = "--overwrite") -> Rebuilt:
     from simeval.report import table4_heldout
 
     records = [r for r in read_results(root, metric=table4_heldout.METRIC)
@@ -69,7 +69,7 @@ def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them")
     out, figure = Path(out), Path(figure)
-    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite)
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag)
     rows = table4_heldout.build(records)
     written = table4_heldout.write(rows, out)
     table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
@@ -82,15 +82,18 @@ KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html")
 def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder."""
     kind = spec.get("kind")
+    flag = "overwrite=true"  # how a user of the report door asks to replace a committed file
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
-                              keep=spec.get("keep") or (), overwrite=overwrite)
+                              keep=spec.get("keep") or (), overwrite=overwrite,
+                              flags={"episodes": "report.episodes", "overwrite": flag})
     if kind == "table4_heldout":
-        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], overwrite=overwrite)
+        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], overwrite=overwrite,
+                                      overwrite_flag=flag)
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
-                              keep=spec.get("keep") or (), overwrite=overwrite)
+                              keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag)
     if kind == "html":
         from simeval.report.html import build_html_report
 
@@ -102,7 +105,7 @@ def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
     from simeval.report.tables import outputs_named
 
     if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
-        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, "overwrite=true")
+        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, flag)
     if kind == "figure4":
         from simeval.report.quality_figure import build_quality_figure
 
