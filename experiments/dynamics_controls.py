@@ -258,7 +258,7 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
     """Differences between the two conditions (second minus first) with intervals from independent resamples of
     each condition's seeds and held-out episodes: at the fewest episodes, and of the falls to the most."""
     from simeval.metrics import resample
-    from simeval.report.table4_heldout import cell_replicates, sum_arrays
+    from simeval.report.table4_heldout import cell_replicates, max_missing, sum_arrays
 
     counts = sorted({int(r["identity"]["episodes"]) for r in records})
     lo, hi = counts[0], counts[-1]
@@ -277,7 +277,7 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
                    "open_loop_moving_skill_last"):
         if not all(metric in p for p in points.values()):  # some runs recorded before the moving pixels were summed
             continue
-        ci = partial(resample.percentile, max_missing=0.05 if "_moving" in metric else 1.0)
+        ci = partial(resample.percentile, max_missing=max_missing(metric))
         diff = reps[b, lo][metric] - reps[a, lo][metric]
         fall_b = reps[b, lo][metric] - reps[b, hi][metric]
         fall_a = reps[a, lo][metric] - reps[a, hi][metric]
@@ -321,7 +321,7 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
     import numpy as np
 
     from simeval.metrics import resample
-    from simeval.report.table4_heldout import cell_replicates, sum_arrays
+    from simeval.report.table4_heldout import cell_replicates, max_missing, sum_arrays
 
     k = min(int(r["identity"]["episodes"]) for r in records)
     points, reps = {}, {}
@@ -336,7 +336,7 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
                    "open_loop_moving", "open_loop_moving_skill_last"):
         if not all(metric in p for p in points.values()):  # some runs recorded before the moving pixels were summed
             continue
-        ci = partial(resample.percentile, max_missing=0.05 if "_moving" in metric else 1.0)
+        ci = partial(resample.percentile, max_missing=max_missing(metric))
         out[metric] = {
             "by_level": {lv: [points[lv][metric], *ci(reps[lv][metric])] for lv in levels},
             "steps": {f"{b}_minus_{a}": [points[b][metric] - points[a][metric],

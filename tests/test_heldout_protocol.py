@@ -501,3 +501,44 @@ def test_the_table_reads_records_made_before_the_moving_pixels_were_summed(tmp_p
     assert "one_step_moving_4" not in mixed and np.isfinite(mixed["one_step_object_4"])
     alone = build([new], n_boot=50)[0]
     assert np.isfinite(alone["one_step_moving_4"]) and any("moving" in h for h in display([alone])[0])
+
+
+def _sums(moving_pixels: float, last_object: float) -> dict[str, float]:
+    """Summed SUM_KEYS of one run, made by hand: 10 frames, 1,000 kept pixels, the model's object error 6.0."""
+    from simeval.models.prediction import SUM_KEYS
+
+    sums = dict.fromkeys(SUM_KEYS, 1.0)
+    for kind in ("one_step", "open_loop", "reconstruction"):
+        sums.update({f"{kind}/frames": 10.0, f"{kind}/kept_pixels": 1000.0, f"{kind}/model/object": 6.0,
+                     f"{kind}/mean/object": 30.0})
+    for kind in ("one_step", "open_loop"):
+        sums.update({f"{kind}/moving_pixels": moving_pixels, f"{kind}/last/object": last_object})
+    return sums
+
+
+def test_object_skill_against_a_copy_needs_something_outside_the_robot_to_move():
+    """With (nearly) nothing moving outside the robot, the last frame is exact up to 8-bit noise: 1 - model / ~0 read
+    -13,823 on the GenSim dose control. No reading there; where enough moved, 1 - 6 / 3 = -1 by hand."""
+    from simeval.models.prediction import MIN_MOVING_PIXELS, summarise
+    from simeval.report.table4_heldout import cell_replicates
+
+    still = summarise(_sums(MIN_MOVING_PIXELS - 1, 1e-4), image_size=8)["one_step"]
+    assert still["object_skill_vs_last"] is None
+    assert still["object_skill_vs_mean"] == pytest.approx(1 - 6 / 30)  # a constant image still has an error
+    moved = summarise(_sums(MIN_MOVING_PIXELS, 3.0), image_size=8)["one_step"]
+    assert moved["object_skill_vs_last"] == pytest.approx(-1.0)
+
+    def cell(per_run: list[dict]):
+        arrays = {k: np.array([[s[k]] for s in per_run]) for k in per_run[0]}  # (runs, 1 episode)
+        draws = resample.draws(len(per_run), np.array(["t"]), 200, 0)
+        return cell_replicates(arrays, draws)
+
+    point, reps = cell([_sums(MIN_MOVING_PIXELS * 0.4, 1e-4), _sums(0, 1e-4)])  # no resample reaches 100
+    assert np.isnan(point["one_step_object_skill_last"]) and np.isnan(reps["one_step_object_skill_last"]).all()
+    assert np.isfinite(point["one_step_object_skill_mean"])
+    point, reps = cell([_sums(MIN_MOVING_PIXELS, 3.0), _sums(0, 3.0)])  # 100 moving over both runs: a reading
+    assert point["one_step_object_skill_last"] == pytest.approx(-1.0)
+    # a resample of the still run twice has too few moving pixels: no reading in it, the others read -1
+    gated = np.isnan(reps["one_step_object_skill_last"])
+    assert gated.any() and not gated.all()
+    np.testing.assert_allclose(reps["one_step_object_skill_last"][~gated], -1.0)

@@ -9,7 +9,9 @@ after the context; reconstruction: the paper's quantity, here on held-out frames
     K                   sum x_model / sum n
     K_last, K_mean      the baselines on the same frames: copy the last observed frame; the task's mean training image
     K_skill_last        1 - K / K_last;  K_skill_mean  1 - K / K_mean   (< 0: worse than the baseline)
-    K_object, K_object_last, K_object_skill_last   the same per kept (non-robot) pixel and channel
+    K_object, K_object_last, K_object_skill_last   the same per kept (non-robot) pixel and channel; the skill vs
+                        the last frame only where K_moving has a reading: with (nearly) nothing moving outside the
+                        robot the copy is exact up to 8-bit noise and the ratio divides by ~0 (it read -13,823)
     K_moving, K_moving_last, K_moving_skill_last   the same per moving kept pixel and channel (one step and open loop:
                         kept pixels whose colour changed from the reference frame); K_moving_share = moving / kept
 and per row the fall from the first to the last count of one_step_object, one_step, open_loop and one_step_moving
@@ -82,6 +84,17 @@ def sum_arrays(recs: list[dict]) -> tuple[dict[str, np.ndarray], np.ndarray]:
     return out, np.array([t for t, _ in order])
 
 
+def gated_by_motion(name: str) -> bool:
+    """Whether a ratio needs MIN_MOVING_PIXELS moving pixels to be read (NaN where fewer), so its interval is drawn
+    only where nearly every resample had them."""
+    return "_moving" in name or name.endswith("_object_skill_last")
+
+
+def max_missing(name: str) -> float:
+    """The share of NaN resamples `resample.percentile` accepts for `name`."""
+    return 0.05 if gated_by_motion(name) else 1.0
+
+
 def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Point values and bootstrap replicates (on `draws`) of every RATIOS and SKILLS entry of one cell (a moving
     ratio is NaN where fewer than MIN_MOVING_PIXELS pixels moved, in the cell or in a resample)."""
@@ -99,6 +112,11 @@ def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float
                 continue
             point[name] = 1 - point[model] / point[base] if point[base] else float("nan")
             reps[name] = 1 - reps[model] / reps[base]
+        for kind in ("one_step", "open_loop"):  # the object skill vs a copy needs something to have moved
+            name, moving = f"{kind}_object_skill_last", f"{kind}_moving"
+            if name in point and moving in point:
+                point[name] = point[name] if np.isfinite(point[moving]) else float("nan")
+                reps[name] = np.where(np.isfinite(reps[moving]), reps[name], np.nan)
     return point, reps
 
 
@@ -137,7 +155,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
                 row[f"{name}_{k}"] = v
                 # a moving ratio's interval only where nearly every resample had enough moving pixels to read
                 row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(
-                    reps[name], max_missing=0.05 if "_moving" in name else 1.0)
+                    reps[name], max_missing=max_missing(name))
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
@@ -146,7 +164,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
                     continue
                 row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
                 row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
-                    reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=0.05 if "_moving" in kind else 1.0)
+                    reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
         rows.append(row)
     return rows
 
