@@ -126,11 +126,12 @@ table4-heldout: setup ## Table 4 under protocol=heldout: collect 50 episodes/tas
 report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
 	$(PY) experiments/world_model_table4.py --protocol heldout $(if $(OVERWRITE),--overwrite)
 
-controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, two dose-responses (outputs/tables/control_*, outputs/figures/control_*.png)
+controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png)
 	$(PY) experiments/dynamics_controls.py dynamics --episodes 10 40
 	$(PY) experiments/dynamics_controls.py visual --episodes 10
 	$(PY) experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30
 	$(PY) experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30
+	$(PY) experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.

@@ -5,6 +5,7 @@
     python experiments/dynamics_controls.py visual --episodes 10   # identical physics, the robot's look varied
     python experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30   # 4 levels of a real task's pose range
     python experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30   # 4 drawer-opening noises
+    python experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30   # 4 friction ranges of a push
 
 Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
@@ -29,8 +30,10 @@ the level at every step (point values) and the top level minus the bottom one ha
 {pose_range}` knob: 0 = one layout in every episode, 1 = the suite's usual uniform poses), judged by the protocol's
 primary number (the object-focused one-step error, robot pixels out of the loss and the score); `dose_drawer`,
 BBSEA's close-drawer from the front camera at four noises of the drawer's initial opening (`drawer:
-{joint_init_noise}`: how far the slide the arm closes varies), judged by the one-step moving-pixel error. The
-criteria were written down before each control ran.
+{joint_init_noise}`: how far the slide the arm closes varies), judged by the one-step moving-pixel error;
+`dose_push`, BBSEA's push-block-to-area from the front camera at four ranges of the block's friction (`block:
+{friction}`, centred on one mean: how the block answers the same push varies, which no frame shows before it moves),
+judged by the one-step moving-pixel error. The criteria were written down before each control ran.
 The moving-pixel errors (simeval.models.prediction: kept pixels whose colour changed from the reference frame) are
 read beside the primary number, by criteria written down before their first reading (`moving_passes`; they do not
 decide `passes`): in the dynamics control the same two criteria on the one-step moving-pixel error; in the visual
@@ -69,9 +72,13 @@ class Dose:
     metric: str
     knob_label: str
     window: tuple = ()  # (key, value) pairs over the preset's training window, where the task's episodes need them
+    span: tuple[float, float] | None = None  # a range knob: level l draws from the middle of span +- l half-widths
 
     def variation(self, level: float) -> dict:
-        return {self.knob[0]: {self.knob[1]: level}}
+        if self.span is None:
+            return {self.knob[0]: {self.knob[1]: level}}
+        mid, half = (self.span[0] + self.span[1]) / 2, (self.span[1] - self.span[0]) / 2
+        return {self.knob[0]: {self.knob[1]: [mid - level * half, mid + level * half]}}
 
 
 DOSES = {
@@ -87,6 +94,14 @@ DOSES = {
                         # its episodes are 23 rows: a window of 20 from an offset past 3 would hold none (the
                         # preset's window check refuses that), so the last window of an epoch runs past the end
                         window=(("pad_end", True),)),
+    # how the pushed block responds: its friction drawn per episode from 0.425 +- level x 0.375 (level 1: 0.05 to
+    # 0.8; the mean stays the same, so only how much the response varies grows); the camera cannot see it before
+    # the block moves (PyBullet multiplies it by the table's 0.6). A sticky block moves with the fingers, a slippery
+    # one runs ahead of them in jerks; the arm's path is the same plan either way
+    "dose_push": Dose(("bbsea", "bbsea-push-block-to-area"), "front", ("block", "friction"),
+                      {"friction000": 0.0, "friction033": 1 / 3, "friction067": 2 / 3, "friction100": 1.0},
+                      "one_step_moving", "pushed block's friction range (block.friction: 0.425 +- level x 0.375)",
+                      window=(("pad_end", True),), span=(0.05, 0.8)),
 }
 CONDITIONS = {"dynamics": ("shared", "varied"), "visual": ("shared", "varied"),
               **{name: tuple(d.levels) for name, d in DOSES.items()}}

@@ -189,3 +189,61 @@ def test_panda_env_passes_gymnasiums_checker(task):
             check_env(env, skip_render_check=True)
     finally:
         env.close()
+
+
+def test_friction_knob_is_checked_drawn_last_and_given_to_the_physics():
+    push = SUITE["bbsea-push-block-to-area"]
+    with pytest.raises(SpecError, match=r"variation.block.friction: expected a coefficient or \[low, high\] with "
+                                        r"0 < low <= high <= 2, got \[0.9, 0.1\]"):
+        check_variation([push], {"block": {"friction": [0.9, 0.1]}})
+    with pytest.raises(SpecError, match=r"variation.area: friction applies to loose objects \(block, cylinder, "
+                                        r"sphere, pile\) only"):
+        check_variation([push], {"area": {"friction": 0.5}})
+    var = check_variation([push], {"block": {"friction": [0.05, 0.8]}})
+    assert var == {"block": {"friction": [0.05, 0.8]}}
+    drawn = [sample_instance(push, s, var) for s in range(20)]
+    plain = [sample_instance(push, s) for s in range(20)]
+    for a, b in zip(drawn, plain):  # drawn after everything else: colours and poses stay what they were
+        assert a.description == b.description and a.poses.keys() == b.poses.keys()
+        assert all(np.array_equal(a.poses[k][0], b.poses[k][0]) for k in a.poses) and not b.frictions
+    values = [i.frictions["block0"] for i in drawn]
+    assert all(0.05 <= v <= 0.8 for v in values) and max(values) - min(values) > 0.3  # spread over the range
+    env = make_env("bbsea-push-block-to-area", variation=var, image_size=(8, 8), cameras=("top",))
+    try:
+        env.reset(seed=3)
+        block = env.unwrapped.inst.by_name("block")[0].body_ids[0]
+        assert env.unwrapped.world.c.getDynamicsInfo(block, -1)[1] == pytest.approx(drawn[3].frictions["block0"])
+    finally:
+        env.close()
+
+
+def test_parking_after_a_push_leaves_the_pushed_block_where_it_is():
+    """Success can come mid-push (a slippery block runs into the area ahead of the fingers); the arm then parks.
+    It used to open its closed fingers beside the block first and kick it: at friction 0.3 the block flew 0.8 m off
+    the table, the success was lost and the plan pushed again (166 rows instead of 27)."""
+    from simeval.sim.env import SimEnv
+
+    push = SUITE["bbsea-push-block-to-area"]
+    env = SimEnv(push, "ee_pose", check_variation([push], {"block": {"friction": 0.3}}), (8, 8), ("top",))
+    parks = []
+    try:
+        obs, _ = env.reset(seed=0)
+        policy = PlanPolicy()
+        policy.reset(env)
+        block = env.inst.by_name("block")[0].body_ids[0]
+        arm_park = env.arm.park
+
+        def park(*a, **kw):
+            before = np.array(env.world.c.getBasePositionAndOrientation(block)[0])
+            arm_park(*a, **kw)
+            parks.append(np.linalg.norm(np.array(env.world.c.getBasePositionAndOrientation(block)[0]) - before))
+
+        env.arm.park = park
+        for steps in range(1, 60):
+            obs, _, terminated, truncated, info = env.step(policy(obs))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert info["success"] and terminated and steps < 40
+    assert len(parks) == 1 and parks[0] < 0.005  # m: the park moved the block less than 5 mm

@@ -307,6 +307,8 @@ class SimEnv(_gym().Env):
             make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
             for k, f in enumerate(self.inst.joints.get(obj.id, ())):  # articulated objects, jointed fixtures
                 set_joint_fraction(self.world.c, obj.body_ids[0], k, f)
+            for body in obj.body_ids if obj.id in self.inst.frictions else ():
+                self.world.c.changeDynamics(body, -1, lateralFriction=self.inst.frictions[obj.id])
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step
         if spec.robot == "xarm6":  # ee_delta's commanded tool pose (the Panda takes absolute targets instead)

@@ -40,7 +40,10 @@ for bit; the seed then drives only what the policy does, e.g. a controller's act
 
 Variation knobs (`check_variation`), all per episode seed: objects' `colors`, `count`, and for articulated objects
 `scale` (a factor or [lo, hi]: the object's overall size times a factor drawn uniformly) and `joint_init_noise`
-(fraction: each joint's initial fraction moved by a uniform draw in [-x, x], clipped to [0, 1]); `robot:
+(fraction: each joint's initial fraction moved by a uniform draw in [-x, x], clipped to [0, 1]); for loose objects
+(blocks, cylinders, spheres, piles: every particle alike) `friction` (a coefficient or [lo, hi]: the lateral friction of each instance, drawn
+uniformly; the default is 0.8, and PyBullet multiplies it by the table's 0.6: how far a pushed block slides on
+after the push, a property the camera cannot see before it moves, the dynamics dose of the controls); `robot:
 {home_noise}` (radians); `scene: {initial_state: random}` (a `fixed` task's scene drawn from the episode seed, as
 test-time variation does; without it a fixed task ignores the seed whatever the other knobs say) and `scene:
 {pose_range}` (a fraction in [0, 1]: how far the poses may stray from one anchor layout per task; a diversity dose
@@ -73,6 +76,7 @@ ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta", "ee_pose")  # a task's 
 ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robot.Arm, simeval.sim.panda.Panda
 FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.fixtures with one joint (joint_init, joint_range)
 JOINTED = ARTICULATED + FIXTURE_JOINTED
+LOOSE = ("block", "cylinder", "sphere", "pile")  # the `friction` knob's shapes: free on the table (a pile: every particle)
 INITIAL_STATES = ("random", "fixed")
 
 
@@ -339,7 +343,7 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
     return [s for s in specs if s.group == group]
 
 
-OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size")  # size: [x, y, z] m, every instance
+OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size", "friction")  # size: [x, y, z] m, every instance
 ROBOT_KNOBS = ("home_noise",)
 SCENE_KNOBS = ("initial_state", "pose_range")
 
@@ -417,6 +421,17 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
                     and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
                 raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
             knobs["size"] = [float(x) for x in sz]
+        if "friction" in knobs:
+            fr = knobs["friction"]
+            pair = (fr, fr) if isinstance(fr, (int, float)) and not isinstance(fr, bool) else fr
+            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair)
+                    and 0 < pair[0] <= pair[1] <= 2):
+                raise SpecError(f"{key}.friction: expected a coefficient or [low, high] with 0 < low <= high <= 2, "
+                                f"got {fr!r}")
+            knobs["friction"] = [float(pair[0]), float(pair[1])]
+            if not any(o.name == name and o.shape in LOOSE for s in specs for o in s.objects):
+                raise SpecError(f"{key}: friction applies to loose objects ({', '.join(LOOSE)}) only")
         if "joint_init_noise" in knobs and not any(
                 o.name == name and o.shape in JOINTED for s in specs for o in s.objects):
             raise SpecError(f"{key}: joint_init_noise applies to articulated objects ({', '.join(JOINTED)}) only")
@@ -451,6 +466,7 @@ class Instance:
     poses: dict[str, tuple[np.ndarray, float]]  # object id -> (xy, yaw)
     description: str
     joints: dict[str, list[float]] = field(default_factory=dict)  # articulated object id -> initial joint fractions
+    frictions: dict[str, float] = field(default_factory=dict)  # object id -> lateral friction (the `friction` knob)
 
     def by_name(self, name: str) -> list[SimObject]:
         return [o for o in self.objects if o.name == name]
@@ -558,6 +574,9 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
                 raise SpecError(f"task {spec.name}: joint_init of '{o.name}' gives {len(o.joint_init)} fractions, "
                                 f"a {o.shape} has {k} joint(s)")
             joints[obj.id] = [float(np.clip(f + rng.uniform(-noise, noise), 0, 1)) if noise else f for f in init]
+    # drawn last, and only where the knob is given, so every other draw of a task stays what it was
+    frictions = {obj.id: float(rng.uniform(*variation[obj.name]["friction"])) for obj in objects
+                 if "friction" in variation.get(obj.name, {})}
     fields = {}
     for o in spec.objects:
         inst = [x for x in objects if x.name == o.name]
@@ -566,7 +585,7 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
         description = spec.description.format(**fields)
     except (KeyError, AttributeError) as e:
         raise SpecError(f"task {spec.name}: description field {e} is not <object>.color or <object>.count") from e
-    return Instance(spec, seed, objects, poses, description, joints)
+    return Instance(spec, seed, objects, poses, description, joints, frictions)
 
 
 def _scaled(size, rng: np.random.Generator, scale) -> tuple[float, float, float]:
