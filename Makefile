@@ -152,16 +152,19 @@ clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite 
 # look and the CI smoke test); cpu = the default presets (hours); paper = the authors' sizes (GPU jobs).
 PROFILE ?= quick
 PIPELINE ?= gensim
+# LAUNCHER=slurm: every stage a batch job with its dependencies, submitted from here (SBATCH_ARGS="--partition=...")
+LAUNCHER ?= local
+SBATCH_ARGS ?=
 .PHONY: paper evaluate
 paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures under outputs/paper/$(PROFILE)/ (resumable)
 	@test -f experiments/profiles/$(PROFILE).yaml || { echo "error: PROFILE=$(PROFILE): no experiments/profiles/$(PROFILE).yaml; profiles: $(basename $(notdir $(wildcard experiments/profiles/*.yaml)))" >&2; exit 2; }
 	@if [ -n "$(HAVE_TASK_LISTS)" ]; then \
 	  $(MAKE) --no-print-directory table3; \
 	else echo "note: no GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT=, so Table 3 is built on the suites' task descriptions only (README, Table 3)"; fi
-	$(PY) experiments/paper.py --profile $(PROFILE)
+	$(PY) experiments/paper.py --profile $(PROFILE) --launcher $(LAUNCHER) --sbatch-args "$(SBATCH_ARGS)"
 
 evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea
-	$(PY) experiments/paper.py --profile $(PROFILE) --pipelines $(PIPELINE)
+	$(PY) experiments/paper.py --profile $(PROFILE) --pipelines $(PIPELINE) --launcher $(LAUNCHER) --sbatch-args "$(SBATCH_ARGS)"
 
 # The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
 # outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.

@@ -300,7 +300,7 @@ def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 200
             f"{b}_minus_{a}_at_{lo}": points[b, lo][metric] - points[a, lo][metric],
             f"{b}_minus_{a}_at_{lo}_interval": ci(diff),
             f"fall_{lo}_to_{hi}": {c: points[c, lo][metric] - points[c, hi][metric] for c in conditions},
-            f"fall_difference": (points[b, lo][metric] - points[b, hi][metric])
+            "fall_difference": (points[b, lo][metric] - points[b, hi][metric])
             - (points[a, lo][metric] - points[a, hi][metric]),
             "fall_difference_interval": ci(fall_b - fall_a)}
     # the protocol's primary number (table4_heldout.PRIMARY): the object-focused one-step error, which is the full

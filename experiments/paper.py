@@ -24,13 +24,24 @@ where they are.
 Resumable: a stage whose result.json exists is skipped, and the entrypoints resume their own work (collection
 per episode, training from checkpoints under outputs/paper/<profile>/checkpoints/). A failing stage stops the run
 with its exit status; rerun the same command after fixing the cause.
+
+On a SLURM cluster (`--launcher slurm`, `make paper LAUNCHER=slurm SBATCH_ARGS="--partition=..."`), every stage is
+one batch job (`sbatch --wrap` of the same command, its log the same file), submitted at once with its
+dependencies: a group's world models and policy after its collection, a pipeline's quality after its collections,
+the report after everything; a job whose dependency failed is cancelled (--kill-on-invalid-dep). The script waits
+for the jobs (`sacct`), prints each one's end and, when one failed, its log and exit 1; rerun the same command:
+finished stages are skipped as above. While jobs of the same output folder are still queued or running, a rerun
+refuses with one line (two jobs writing one run would mix them). `--sbatch-args` go to every sbatch (partition,
+memory, CPUs, time, account).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -123,6 +134,94 @@ def run(cmd: list[str], log: Path, echo: bool = False) -> None:
     print(f"    done in {time.monotonic() - t0:.0f} s ({log.stem})", flush=True)
 
 
+class Local:
+    """Stages run here, one after the other, in the order they are given (which respects their dependencies)."""
+
+    def stage(self, cmd: list[str], log: Path, after: tuple = (), echo: bool = False) -> None:
+        run(cmd, log, echo)
+
+    def finish(self) -> None:
+        pass
+
+
+FINAL_STATES = {"COMPLETED", "FAILED", "CANCELLED", "TIMEOUT", "OUT_OF_MEMORY", "NODE_FAIL", "PREEMPTED",
+                "BOOT_FAIL", "DEADLINE"}
+
+
+class Slurm:
+    """Stages as SLURM batch jobs with dependencies (see the module docstring). `stage` returns the job id, which
+    later stages name in `after`; `finish` waits for every job and reports. Jobs are named after the output
+    folder, so a rerun can see that jobs of the same run are still on the cluster."""
+
+    def __init__(self, out: Path, sbatch_args: list[str], poll_s: float = 2.0) -> None:
+        self.name = f"simeval-paper-{hashlib.sha1(str(out.resolve()).encode()).hexdigest()[:8]}"
+        self.sbatch_args, self.poll_s = sbatch_args, poll_s
+        self.jobs: dict[str, tuple[Path, bool]] = {}  # job id -> (log, echo)
+        for tool in ("sbatch", "squeue", "sacct"):
+            if shutil.which(tool) is None:
+                _fail(f"--launcher slurm: `{tool}` is not on PATH (no SLURM client here); use --launcher local")
+        queued = subprocess.run(["squeue", "-h", "-n", self.name, "-o", "%i"], capture_output=True, text=True)
+        if queued.returncode != 0:
+            _fail(f"--launcher slurm: squeue failed: {(queued.stderr or queued.stdout).strip()[-300:]}")
+        if queued.stdout.split():
+            _fail(f"jobs of this run ({out}) are still queued or running: {', '.join(queued.stdout.split())}; wait "
+                  f"for them (squeue -n {self.name}) or cancel them (scancel -n {self.name}), then rerun")
+
+    def stage(self, cmd: list[str], log: Path, after: tuple = (), echo: bool = False) -> str:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        deps = [j for j in after if j]
+        sbatch = ["sbatch", "--parsable", f"--job-name={self.name}", f"--output={log}", f"--chdir={ROOT}",
+                  "--kill-on-invalid-dep=yes", *([f"--dependency=afterok:{':'.join(deps)}"] if deps else []),
+                  *self.sbatch_args, f"--wrap={shlex.join(cmd)}"]
+        p = subprocess.run(sbatch, capture_output=True, text=True)
+        if p.returncode != 0:
+            said = (p.stderr or p.stdout).strip().splitlines()
+            _fail(f"sbatch refused the stage {log.stem}: {said[-1] if said else p.returncode} (--sbatch-args "
+                  f"{shlex.join(self.sbatch_args) or '(none)'})")
+        job = p.stdout.strip().split(";")[0]
+        print(f"  job {job}{' after ' + ','.join(deps) if deps else ''}: {shlex.join(cmd)}", flush=True)
+        self.jobs[job] = (log, echo)
+        return job
+
+    def states(self) -> dict[str, str]:
+        p = subprocess.run(["sacct", "-n", "-X", "-P", "-o", "JobID,State", "-j", ",".join(self.jobs)],
+                           capture_output=True, text=True)
+        out = {}
+        for line in p.stdout.splitlines():
+            job, _, state = line.partition("|")
+            out[job] = state.split()[0] if state else "UNKNOWN"  # "CANCELLED by 0" -> CANCELLED
+        return out
+
+    def finish(self) -> None:
+        if not self.jobs:
+            return
+        print(f"waiting for {len(self.jobs)} jobs (squeue -n {self.name})", flush=True)
+        t0, seen = time.monotonic(), {}
+        while True:
+            states = self.states()
+            for job, state in states.items():
+                if job in self.jobs and state in FINAL_STATES and job not in seen:
+                    seen[job] = state
+                    print(f"    job {job} {state} after {time.monotonic() - t0:.0f} s ({self.jobs[job][0].stem})",
+                          flush=True)
+            if len(seen) == len(self.jobs):
+                break
+            time.sleep(self.poll_s)
+        for job, (log, echo) in self.jobs.items():
+            if echo and seen[job] == "COMPLETED":
+                print("\n".join(f"    {line}" for line in log.read_text().splitlines()))
+        failed = [j for j, st in seen.items() if st != "COMPLETED"]
+        if failed:
+            first = ([j for j in failed if seen[j] != "CANCELLED"] or failed)[0]  # the cause, not its dependents
+            log = self.jobs[first][0]
+            tail = log.read_text().splitlines()[-15:] if log.is_file() else []
+            print("\n".join(f"    | {line}" for line in tail), file=sys.stderr)
+            print(f"error: {len(failed)} of {len(self.jobs)} jobs did not complete; the first, {first} "
+                  f"({log.stem}), ended {seen[first]} (log: {log}); the others depending on it were cancelled. Fix "
+                  "the cause and rerun the same command: finished stages are kept", file=sys.stderr)
+            raise SystemExit(1)
+
+
 def entry(name: str) -> list[str]:
     return [sys.executable, str(ROOT / "src" / f"{name}.py")]
 
@@ -133,6 +232,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
     ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")
     ap.add_argument("--stages", default=",".join(STAGES))
+    ap.add_argument("--launcher", choices=["local", "slurm"], default="local",
+                    help="local: stage after stage here; slurm: each stage a batch job, with dependencies")
+    ap.add_argument("--sbatch-args", default="", help="slurm: given to every sbatch, e.g. '--partition=gpu --mem=16G'")
     args = ap.parse_args(argv)
     prof = load_profile(args.profile)
     out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
@@ -145,59 +247,70 @@ def main(argv: list[str] | None = None) -> None:
     if unknown:
         _fail(f"--stages {','.join(unknown)}: unknown; stages: {','.join(STAGES)}")
     with_suite = [p for p in pipelines if suites[p]]
+    launcher = Slurm(out, shlex.split(args.sbatch_args)) if args.launcher == "slurm" else Local()
     if not with_suite:  # every stage but Figure 3 runs on a suite's episodes: nothing would run
         have = ", ".join(sorted(p.stem for p in (ROOT / "conf" / "pipeline").glob("*.yaml") if suite_of(p.stem)))
         _fail(f"--pipelines {args.pipelines}: no simeval suite to collect episodes from (pipeline.suite is null); "
               f"pipelines with one: {have}. For your own pipeline, import its episodes with src/import_data.py and "
               "run the entrypoints on them")
+    stage = launcher.stage
+    jobs: list = []  # every stage submitted so far: the report waits for all of them
     if "table3" in stages and with_suite:  # the suites' own task descriptions: needs no checkout of the pipelines
-        runs = out / "table3" / "runs"
+        runs, texts = out / "table3" / "runs", None
         if len(list(runs.glob("*/result.json"))) < 2 * len(with_suite):  # two embedding models per pipeline
-            run([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(with_suite)}",
-                 "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
-        run([*entry("report"), "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out / 'tables'}",
-             f'report.caption="{SUITE_TABLE3_CAPTION}"'], logs / "report_table3.log")
+            texts = stage([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(with_suite)}",
+                           "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
+        jobs += [texts, stage([*entry("report"), "report=table3", f"report.runs_dir={runs}",
+                               f"report.out_dir={out / 'tables'}", f'report.caption="{SUITE_TABLE3_CAPTION}"'],
+                              logs / "report_table3.log", after=(texts,))]
     if "figure3" in stages and not (out / "figures" / "figure3" / "result.json").exists():
-        run([*entry("agreement"), f"scores_path={HUMAN_SCORES}", f"hydra.run.dir={out / 'figures' / 'figure3'}"],
-            logs / "figure3.log")
+        jobs.append(stage([*entry("agreement"), f"scores_path={HUMAN_SCORES}",
+                           f"hydra.run.dir={out / 'figures' / 'figure3'}"], logs / "figure3.log"))
     for pipeline in pipelines:
         suite = suites[pipeline]
         extra = (prof.get("pipeline_overrides") or {}).get(pipeline, {})
-        ov = {stage: [*args_, *extra.get(stage, [])] for stage, args_ in prof["overrides"].items()}
+        ov = {stage_: [*args_, *extra.get(stage_, [])] for stage_, args_ in prof["overrides"].items()}
         if not suite:
             print(f"{pipeline}: no simeval suite (pipeline.suite is null): import its episodes with "
                   "src/import_data.py and run the entrypoints on them; skipped here")
             continue
         groups = groups_of(suite, prof["tasks_per_group"])
         print(f"{pipeline} ({args.profile}): groups {', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
+        collected = []  # this pipeline's collections: its quality stage reads all of them
         for group, tasks in groups.items():
-            sel = f"tasks=[{','.join(tasks)}]"
+            sel, collect = f"tasks=[{','.join(tasks)}]", None
             if "collect" in stages:
-                run([*entry("collect"), f"pipeline={pipeline}", sel, f"episodes={prof['episodes']}", f"store={store}",
-                     *ov["collect"], f"hydra.run.dir={out / 'collect' / pipeline / group}"],
-                    logs / f"collect_{pipeline}_{group}.log")
+                collect = stage([*entry("collect"), f"pipeline={pipeline}", sel, f"episodes={prof['episodes']}",
+                                 f"store={store}", *ov["collect"], f"hydra.run.dir={out / 'collect' / pipeline / group}"],
+                                logs / f"collect_{pipeline}_{group}.log")
+                collected.append(collect)
             for k in prof["world_model_episodes"] if "table4" in stages else []:
                 run_dir = out / "table4" / pipeline / group / f"episodes_{k}"
                 if not (run_dir / "result.json").exists():
-                    run([*entry("diversity"), f"pipeline={pipeline}", f"task_group={group}", f"episodes={k}",
-                         f"store={store}", f"checkpoint_dir={out / 'checkpoints' / 'world_model'}",
-                         *ov["diversity"], f"hydra.run.dir={run_dir}"],
-                        logs / f"table4_{pipeline}_{group}_{k}.log")
+                    jobs.append(stage([*entry("diversity"), f"pipeline={pipeline}", f"task_group={group}",
+                                       f"episodes={k}", f"store={store}",
+                                       f"checkpoint_dir={out / 'checkpoints' / 'world_model'}", *ov["diversity"],
+                                       f"hydra.run.dir={run_dir}"], logs / f"table4_{pipeline}_{group}_{k}.log",
+                                      after=(collect,)))
             run_dir = out / "table5" / pipeline / group
             if "table5" in stages and not (run_dir / "result.json").exists():
-                run([*entry("generalization"), f"pipeline={pipeline}", f"task_group={group}", sel, f"store={store}",
-                     f"checkpoint_dir={out / 'checkpoints' / 'policy'}", *ov["generalization"],
-                     f"hydra.run.dir={run_dir}"], logs / f"table5_{pipeline}_{group}.log")
+                jobs.append(stage([*entry("generalization"), f"pipeline={pipeline}", f"task_group={group}", sel,
+                                   f"store={store}", f"checkpoint_dir={out / 'checkpoints' / 'policy'}",
+                                   *ov["generalization"], f"hydra.run.dir={run_dir}"],
+                                  logs / f"table5_{pipeline}_{group}.log", after=(collect,)))
+        jobs += collected
         run_dir = out / "quality" / pipeline
         if "quality" in stages and not (run_dir / "result.json").exists():
-            run([*entry("quality"), f"episodes.store={store}", f"episodes.pipeline={pipeline}", *ov["quality"],
-                 f"cache_dir={out / 'cache'}", f"hydra.run.dir={run_dir}"], logs / f"quality_{pipeline}.log")
+            jobs.append(stage([*entry("quality"), f"episodes.store={store}", f"episodes.pipeline={pipeline}",
+                               *ov["quality"], f"cache_dir={out / 'cache'}", f"hydra.run.dir={run_dir}"],
+                              logs / f"quality_{pipeline}.log", after=tuple(collected)))
     if "report" in stages:  # tables and figures from the result.json files only, as `make report` builds them
         tables, figures = out / "tables", out / "figures"
-        run([sys.executable, str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5,figure4,html",
-             f"--table4-runs={out / 'table4'}", f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
-             f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
-             f"--tables={tables}", f"--figures={figures}"], logs / "report.log", echo=True)
+        stage([sys.executable, str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5,figure4,html",
+               f"--table4-runs={out / 'table4'}", f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
+               f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
+               f"--tables={tables}", f"--figures={figures}"], logs / "report.log", after=tuple(jobs), echo=True)
+    launcher.finish()
     print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:
         print("  (Tables 4, 5 and the HTML report are built by the report stage: --stages ...,report)")

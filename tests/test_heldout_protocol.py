@@ -14,7 +14,7 @@ import torch
 import yaml
 
 import simeval.models.dynamics_diversity as dd
-from simeval.episodes.dataset import ArraySource, EpisodeInfo, WindowSpec
+from simeval.episodes.dataset import ArraySource, WindowSpec
 from simeval.errors import UserError
 from simeval.metrics import resample
 from simeval.models.synthetic import make_physics_group

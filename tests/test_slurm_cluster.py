@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -87,3 +88,165 @@ def test_a_job_asking_more_than_any_node_has_is_refused_at_submission(slurm, tmp
     assert not list((tmp_path / "sweep").rglob("result.json"))
     queue = subprocess.run(["squeue", "-h"], env=slurm, capture_output=True, text=True, check=True).stdout
     assert queue.strip() == ""  # nothing pending
+
+
+# A tiny world-model sweep long enough to be interrupted: 1 training window per epoch, one step per epoch
+TRAINING = ["pipeline=gensim", "debug=tiny", "threads=1", "progress=false", "task_group=diverse", "protocol=paper",
+            "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", "world_model.train.epochs=800",
+            "world_model.train.checkpoint_every=50"]
+
+
+@pytest.fixture(scope="module")
+def training_store(tmp_path_factory):
+    from simeval.models.synthetic import write_group
+
+    store = tmp_path_factory.mktemp("store")
+    write_group(store, "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
+    return store
+
+
+def _training_sweep(env: dict, tmp: Path, store: Path, *overrides: str, slurm: bool = True) -> subprocess.Popen:
+    cmd = [sys.executable, str(ROOT / "src" / "diversity.py"), *TRAINING, f"store={store}",
+           f"checkpoint_dir={tmp / 'ck'}", f"hydra.sweep.dir={tmp / 'sweep'}", *(LAUNCH if slurm else []), *overrides,
+           "-m", "episodes=2"]
+    # the sweep's output to files, not pipes: a full pipe nobody reads would stop the training mid-log
+    with (tmp / "sweep.out").open("a") as out, (tmp / "sweep.err").open("w") as err:
+        return subprocess.Popen(cmd, cwd=tmp, env={**env, "OMP_NUM_THREADS": "1"}, stdout=out, stderr=err)
+
+
+def _wait(proc: subprocess.Popen, env: dict, tmp: Path, timeout: float = 600) -> tuple[int, str]:
+    """Wait for the sweep, releasing its requeued jobs at once: SLURM holds a requeued job for 2 minutes
+    (Reason=BeginTime) before it may start again, which would only make the test slow."""
+    deadline = time.time() + timeout
+    while proc.poll() is None and time.time() < deadline:
+        for line in subprocess.run(["squeue", "-h", "-o", "%i %r"], env=env, capture_output=True,
+                                   text=True).stdout.splitlines():
+            job, reason = line.split(maxsplit=1)
+            if reason == "BeginTime":
+                subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], env=env, capture_output=True)
+        time.sleep(0.5)
+    if proc.poll() is None:
+        proc.kill()
+    return proc.wait(), (tmp / "sweep.err").read_text()
+
+
+def _job_logs(tmp: Path) -> str:
+    return "".join(p.read_text() for p in sorted((tmp / "sweep" / ".submitit").glob("*/*_log.*")))
+
+
+def _values(tmp: Path) -> dict:
+    rec = json.loads((tmp / "sweep" / "0" / "result.json").read_text())
+    assert rec["status"] == "ok"
+    train = rec["values"]["train"]
+    return {"eval": rec["values"]["eval"], "steps": train["steps"], "frames": train["frames"]}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(training_store, tmp_path_factory):
+    """The same sweep run straight through on this machine (Hydra's basic launcher): what every interrupted
+    cluster run must end with, bit for bit (a resumed training replays the same batches and draws)."""
+    tmp = tmp_path_factory.mktemp("uninterrupted")
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    rc, err = _wait(_training_sweep(env, tmp, training_store, slurm=False), env, tmp)
+    assert rc == 0, err[-3000:]
+    return _values(tmp)
+
+
+@pytest.mark.timeout(900)  # each waits for a training sweep of ~1 min (more on a busy machine)
+def test_a_job_at_its_time_limit_is_requeued_and_resumes_at_the_step_it_stopped(slurm, tmp_path, training_store,
+                                                                                  uninterrupted):
+    """SLURM itself signals the job (USR2, `--signal=USR2@40` under a 1-minute limit); submitit requeues it and the
+    training goes on from the step the signal came in, however many times, and ends as the uninterrupted run."""
+    rc, err = _wait(_training_sweep(slurm, tmp_path, training_store, "hydra.launcher.timeout_min=1",
+                                    "hydra.launcher.signal_delay_s=40", "hydra.launcher.max_num_timeout=8"), slurm,
+                    tmp_path)
+    assert rc == 0, err[-3000:]
+    log = _job_logs(tmp_path)
+    stopped = re.findall(r"preempted at step (\d+): checkpoint saved", log)
+    resumed = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)", log)
+    assert stopped and resumed == stopped, log[-4000:]  # every stop resumed at its own step, none from step 0
+    assert "this job is timed-out" in log  # SLURM's time-limit signal, not one the test sent
+    assert _values(tmp_path) == uninterrupted
+
+
+@pytest.mark.timeout(900)  # each waits for a training sweep of ~1 min (more on a busy machine)
+def test_a_cancelled_job_resumes_from_its_checkpoint_when_the_sweep_is_run_again(slurm, tmp_path, training_store,
+                                                                                 uninterrupted):
+    proc = _training_sweep(slurm, tmp_path, training_store)
+    deadline = time.time() + 120
+    while not ((tmp_path / "sweep" / ".submitit").is_dir() and "epoch 120/800 done" in _job_logs(tmp_path)):
+        assert proc.poll() is None and time.time() < deadline, (tmp_path / "sweep.err").read_text()[-3000:]
+        time.sleep(0.2)
+    [job] = subprocess.run(["squeue", "-h", "-o", "%i"], env=slurm, capture_output=True, text=True).stdout.split()
+    subprocess.run(["scancel", job], env=slurm, check=True)
+    rc, err = _wait(proc, slurm, tmp_path)
+    assert rc == 1 and "Traceback" not in err, err[-3000:]
+    assert err.strip().splitlines()[-1] == (
+        f"error: a job of the sweep died without a result (killed, out of memory?): job {job} (task 0) left no "
+        f"result; its log: {tmp_path / 'sweep' / '.submitit' / job / job}_0_log.err and _log.out. Run the same "
+        "command again: finished runs are kept and a training resumes from its last checkpoint")
+    rc, err = _wait(_training_sweep(slurm, tmp_path, training_store), slurm, tmp_path)  # the same command again
+    assert rc == 0, err[-3000:]
+    [step] = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)",
+                        _job_logs(tmp_path))
+    assert int(step) >= 100  # the last periodic checkpoint before the kill (every 50 steps), not step 0
+    assert _values(tmp_path) == uninterrupted
+
+
+@pytest.mark.timeout(900)  # each waits for a training sweep of ~1 min (more on a busy machine)
+def test_a_job_out_of_requeues_ends_the_sweep_with_one_line_naming_the_limits(slurm, tmp_path, training_store):
+    rc, err = _wait(_training_sweep(slurm, tmp_path, training_store, "hydra.launcher.timeout_min=1",
+                                    "hydra.launcher.signal_delay_s=40", "hydra.launcher.max_num_timeout=0"), slurm,
+                    tmp_path)
+    assert rc == 1 and "Traceback" not in err, err[-3000:]
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("error: the sweep's job [") and "episodes=2] stopped and was not requeued again " \
+        "(timed-out too many times; hydra.launcher.timeout_min=1, hydra.launcher.max_num_timeout=0): its last " \
+        "checkpoint is kept; run the same command again to resume it" in last
+    assert list((tmp_path / "ck").glob("world_model-*.pt"))  # saved in the step the signal came in
+
+
+def _sacct_times(env: dict, jobs: list[str]) -> dict[str, tuple[str, str]]:
+    out = subprocess.run(["sacct", "-n", "-X", "-P", "-o", "JobID,Start,End", "-j", ",".join(jobs)], env=env,
+                         capture_output=True, text=True, check=True).stdout
+    return {j: (start, end) for j, start, end in (line.split("|") for line in out.split())}
+
+
+@pytest.mark.timeout(1500)  # the quick chain of one pipeline twice (here and on the cluster), ~3 min each
+def test_the_paper_chain_as_dependent_jobs_survives_a_cancelled_job_and_ends_with_the_local_tables(slurm, tmp_path):
+    """`make evaluate PIPELINE=robogen LAUNCHER=slurm` at the quick profile: every stage a job, each world model
+    and policy started only after its group's collection ended, the report after everything; a job cancelled
+    mid-run ends the run with one line naming it, and the same command again finishes what is left and gives the
+    tables of the run made here, stage after stage."""
+    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines", "robogen",
+              "--stages", "collect,table4,table5,report"]
+    local = subprocess.run([*common, "--out", str(tmp_path / "local")], cwd=ROOT, capture_output=True, text=True,
+                           timeout=900, env={k: v for k, v in slurm.items() if k != "SLURM_CONF"})
+    assert local.returncode == 0, local.stderr[-3000:]
+    on_cluster = [*common, "--out", str(tmp_path / "slurm"), "--launcher", "slurm", "--sbatch-args",
+                  "--partition=debug --mem=2G --cpus-per-task=1"]
+    with (tmp_path / "first.out").open("w") as out, (tmp_path / "first.err").open("w") as err:
+        first = subprocess.Popen(on_cluster, cwd=ROOT, env=slurm, stdout=out, stderr=err)
+    deadline, cancelled = time.time() + 600, None
+    while cancelled is None:  # cancel the first world model as soon as it runs
+        assert first.poll() is None and time.time() < deadline, (tmp_path / "first.err").read_text()[-3000:]
+        submitted = re.findall(r"job (\d+) after (\d+): .*diversity\.py", (tmp_path / "first.out").read_text())
+        running = subprocess.run(["squeue", "-h", "-t", "R", "-o", "%i"], env=slurm, capture_output=True,
+                                 text=True).stdout.split()
+        cancelled = next((job for job, _ in submitted if job in running), None)
+        time.sleep(0.2)
+    subprocess.run(["scancel", cancelled], env=slurm, check=True)
+    assert first.wait(timeout=600) == 1
+    last = (tmp_path / "first.err").read_text().strip().splitlines()[-1]
+    assert last.startswith("error: ") and f"the first, {cancelled} (table4_robogen_" in last and \
+        "ended CANCELLED" in last and last.endswith("rerun the same command: finished stages are kept")
+    text = (tmp_path / "first.out").read_text()
+    for job, collect in re.findall(r"job (\d+) after (\d+): .*(?:diversity|generalization)\.py", text):
+        times = _sacct_times(slurm, [job, collect])
+        if job != cancelled and times[job][0] != "None":  # started: only once its group's collection had ended
+            assert times[job][0] >= times[collect][1]
+    again = subprocess.run(on_cluster, cwd=ROOT, env=slurm, capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "diversity.py" in again.stdout and f"job {cancelled}" not in again.stdout  # only what was left
+    for table in ("table4.csv", "table5.csv"):
+        assert (tmp_path / "slurm" / "tables" / table).read_text() == (tmp_path / "local" / "tables" / table).read_text()

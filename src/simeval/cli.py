@@ -180,6 +180,33 @@ def stop_sweep_on_user_errors(results: Any) -> None:
         sys.exit(USER_ERROR_EXIT)
 
 
+def stop_sweep_on_unrequeued_jobs(results: Any, params: dict | None = None) -> None:
+    """In the launching process: a job that submitit did not requeue again (it reached its time limit more often
+    than max_num_timeout allows, or cannot be checkpointed) raised submitit's UncompletedJobError inside the job;
+    print one line per such job, naming the settings that bound it and that its checkpoint is kept, and exit 1
+    (the other jobs have finished by then) instead of Hydra's traceback."""
+    from hydra.core.utils import JobStatus
+
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":
+        return
+    try:
+        from submitit.core.utils import UncompletedJobError
+    except ImportError:
+        return
+    failed = [r for r in results if r.status == JobStatus.FAILED and isinstance(r._return_value, UncompletedJobError)]
+    if not failed:
+        return
+    params = params or {}
+    limits = ", ".join(f"hydra.launcher.{k}={params[k]}" for k in ("timeout_min", "max_num_timeout") if k in params)
+    for r in failed:
+        why = str(r._return_value).strip().removeprefix("Job not requeued because: ").rstrip(".")
+        job = " ".join(r.overrides) if r.overrides else "a job"
+        _print_error(f"the sweep's job [{job}] stopped and was not requeued again ({why}; {limits or 'see the launcher'}"
+                     "): its last checkpoint is kept; run the same command again to resume it, with a larger "
+                     "hydra.launcher.timeout_min or max_num_timeout so it can finish")
+    sys.exit(1)
+
+
 def dead_job_line(exc: BaseException) -> str:
     """One line for submitit's UncompletedJobError (a job of the sweep died without a result: killed, out of
     memory, a node lost), naming the job and its log instead of submitit's traceback and the log's tail."""
