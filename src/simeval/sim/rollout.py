@@ -74,122 +74,183 @@ class OraclePolicy:
         return None if prim is None else prim.pose14(self.env.world)
 
 
+class Expert:
+    """How one kind of suite task is solved and stored: the only part in which recording differs between them.
+    `run_episode` drives any expert through the same loop; an expert says which action space the environment runs
+    in and its settings there, which policy solves the task, how an action is stored, what the episode keeps
+    beside the rows, and how the final view is taken."""
+
+    name = "expert"  # in errors
+    mode = "joint"
+    action_space = staticmethod(joint_action_space)  # control_hz -> the stored actions' space
+
+    def env_kwargs(self, settings: RecordSettings) -> dict:
+        return {"control_hz": settings.control_hz}
+
+    def policy(self, settings: RecordSettings):
+        raise NotImplementedError
+
+    def to_env(self, action) -> np.ndarray:
+        """The action handed to env.step."""
+        return action
+
+    def stored(self, env: SimEnv, action: np.ndarray) -> np.ndarray:
+        """The action as the episode keeps it: as applied, so it replays bit for bit."""
+        return action
+
+    def state_names(self, spec: TaskSpec) -> tuple[str, ...]:
+        return STATE_NAMES
+
+    def extra(self, env: SimEnv, policy, settings: RecordSettings) -> dict:
+        """Kept in the episode's `extra`, read before the final view moves anything."""
+        return {}
+
+    def final_view(self, env: SimEnv, size: tuple[int, int]) -> np.ndarray:
+        return env.world.render(SCENE_VIEWS[0], size)
+
+
+class PickPlaceOracle(Expert):
+    """GenSim-style tasks: the replanning oracle's pick/place primitives, stored as the environment's low-level
+    control steps (7-d joint actions at settings.control_hz) with the 14-d primitives and the row each starts at."""
+
+    name, mode = "oracle", "pick_place"
+
+    def env_kwargs(self, settings: RecordSettings) -> dict:
+        return {"control_hz": settings.control_hz, "record_low_level": True}
+
+    def policy(self, settings: RecordSettings):
+        return OraclePolicy()
+
+
+class ArticulationExpert(Expert):
+    """RoboGen-style ee_delta tasks: the closed-loop articulation controller (simeval.sim.controllers, action
+    noise settings.noise_std), one 7-d action per control step, clipped and with a binary suction as applied.
+    The final view is taken with the suction off and the arm parked, so it shows the articulation (those moves are
+    not recorded)."""
+
+    name, mode = "controller", "ee_delta"
+
+    @staticmethod
+    def action_space(control_hz: float) -> dict:
+        from simeval.sim.action_spaces import ee_delta_action_space
+
+        return ee_delta_action_space(control_hz)
+
+    def policy(self, settings: RecordSettings):
+        from simeval.sim.controllers import ArticulationController
+
+        return ArticulationController(settings.noise_std)
+
+    def to_env(self, action) -> np.ndarray:
+        from simeval.sim.action_spaces import EE_HIGH, EE_LOW
+
+        action = np.clip(np.asarray(action, np.float32), EE_LOW, EE_HIGH).astype(np.float32)
+        action[6] = np.float32(action[6] >= 0.5)
+        return action
+
+    def extra(self, env: SimEnv, policy, settings: RecordSettings) -> dict:
+        final = {o.id: [float(x) for x in _joint_fractions(env, o)] for o in env.inst.objects
+                 if o.id in env.inst.joints}
+        return {"initial_state": env.spec_task.initial_state, "noise_std": settings.noise_std,
+                "joint_fractions": {"initial": env.inst.joints, "final": final}}
+
+    def final_view(self, env: SimEnv, size: tuple[int, int]) -> np.ndarray:
+        env.arm.suction_off()
+        env.arm.park()
+        return env.world.render(SCENE_VIEWS[0], size)
+
+
+class PlanExpert(Expert):
+    """BBSEA-style ee_pose tasks: the task's plan (simeval.sim.primitives.PlanPolicy) at the task's own 4 Hz
+    (`settings.control_hz` does not apply), one 8-d action per control step; the plan and the row where each
+    primitive starts are kept in `extra`."""
+
+    name, mode = "plan", "ee_pose"
+    action_space = staticmethod(ee_pose_action_space)
+
+    def env_kwargs(self, settings: RecordSettings) -> dict:
+        return {}
+
+    def policy(self, settings: RecordSettings):
+        from simeval.sim.primitives import PlanPolicy
+
+        return PlanPolicy()
+
+    def stored(self, env: SimEnv, action: np.ndarray) -> np.ndarray:
+        return np.asarray(env.arm.last_action, np.float32)
+
+    def state_names(self, spec: TaskSpec) -> tuple[str, ...]:
+        return state_names(spec.robot)
+
+    def extra(self, env: SimEnv, policy, settings: RecordSettings) -> dict:
+        return {"plan": [{p: n} for p, n in env.spec_task.plan], "plan_step": [int(x) for x in policy.plan_step]}
+
+
+EXPERTS = {"ee_delta": ArticulationExpert(), "ee_pose": PlanExpert()}  # by the task's action space; else the oracle
+
+
+def expert_for(spec: TaskSpec) -> Expert:
+    return EXPERTS.get(spec.action_space, PickPlaceOracle())
+
+
 def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = None, pipeline: str = "gensim",
                 variation: dict | None = None, final_frame_size: tuple[int, int] | None = None) -> Episode:
-    """The oracle through make_env(action_space="pick_place", record_low_level=True), stored as the low-level
-    episode the environment returned: the reset observation, then for each control step its 7-d action and the
-    observation it produced (the convention of simeval.episodes.store), plus the 14-d primitive actions with the
-    row where each starts. `variation` overrides the spec's knobs: {object name: {colors, count}} and
-    {"robot": {"home_noise": radians}} (what a generalization test varies)."""
+    """One suite episode solved by the task's expert (expert_for), recorded for the store: the reset observation,
+    then for each control step its action and the observation it produced (the convention of
+    simeval.episodes.store; the last row's action repeated as padding). A pick/place step is many control steps:
+    the environment returns them (record_low_level) and they are stored as such, with the 14-d primitives and the
+    row where each starts. `variation` overrides the spec's knobs ({object name: {colors, count, ...}},
+    {"robot": {"home_noise": radians}}: what a generalization test varies). A failed episode is returned like any
+    other, with success False; `final_view` (if asked) is rendered after the episode."""
     settings = settings or RecordSettings()
     variation = check_variation([spec], variation)
-    if spec.action_space == "ee_delta":
-        return run_controller_episode(spec, seed, settings, pipeline, variation, final_frame_size)
-    if spec.action_space == "ee_pose":
-        return run_plan_episode(spec, seed, settings, pipeline, variation, final_frame_size)
-    env = SimEnv(spec, "pick_place", variation, settings.image_size, settings.cameras,
-                 control_hz=settings.control_hz, record_low_level=True, scene_view_size=settings.scene_view_size,
-                 robot_masks=settings.robot_masks)
+    expert = expert_for(spec)
+    env = SimEnv(spec, expert.mode, variation, settings.image_size, settings.cameras,
+                 scene_view_size=settings.scene_view_size, robot_masks=settings.robot_masks,
+                 **expert.env_kwargs(settings))
     try:
         obs, info = env.reset(seed=seed)
         views = info.pop("scene_views")
         rows, progress, poses = [obs], [info["progress"]], [env.object_poses()]
         actions: list[np.ndarray] = []
-        hl_actions, hl_steps = [], []
-        policy = OraclePolicy()
+        high_level, high_level_steps = [], []
+        policy = expert.policy(settings)
         policy.reset(env)
         while True:
             action = policy(obs)
             if action is None:
                 break
-            hl_steps.append(len(actions))
-            hl_actions.append(action)
+            action = expert.to_env(action)
             obs, _, terminated, truncated, info = env.step(action)
-            low = info["low_level"]
-            actions += low["action"]
-            rows += low["obs"]
-            progress += low["progress"]
-            poses += low["object_poses"]
+            low = info.get("low_level")
+            if low is not None:  # a primitive: the control steps it took
+                high_level_steps.append(len(actions))
+                high_level.append(action)
+                actions += low["action"]
+                rows += low["obs"]
+                progress += low["progress"]
+                poses += low["object_poses"]
+            else:
+                actions.append(expert.stored(env, action))
+                rows.append(obs)
+                progress.append(info["progress"])
+                poses.append(env.object_poses())
             if terminated or truncated:
                 break
         success = info["success"]
-        final_view = env.world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
-        inst = env.inst
+        extra = expert.extra(env, policy, settings)
+        final_view = expert.final_view(env, final_frame_size) if final_frame_size else None
+        inst, hz = env.inst, env.control_hz
     finally:
         env.close()
-    t = len(actions)
-    if t == 0:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
-        raise RuntimeError(f"{spec.name} seed {seed}: the oracle made no move; is the task solved at start?")
-    prog = np.asarray(progress, np.float32)
-    return Episode(
-        pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
-        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in settings.cameras},
-        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
-        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
-        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
-        high_level_action=np.stack(hl_actions), high_level_step=np.asarray(hl_steps, np.int64), scene_views=views,
-        control_hz=settings.control_hz, source="simeval-suite", final_view=final_view,
-        action_space=joint_action_space(settings.control_hz),
-        high_level_space=pick_place_action_space(settings.control_hz), state_names=list(STATE_NAMES),
-        variation=variation, object_poses=np.stack(poses).astype(np.float32), robot_mask=robot_masks(rows, settings.cameras),
-        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                           for o in inst.objects}})
-
-
-def run_controller_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeline: str = "robogen",
-                           variation: dict | None = None,
-                           final_frame_size: tuple[int, int] | None = None) -> Episode:
-    """An ee_delta task (RoboGen-style) solved by the closed-loop articulation controller (simeval.sim.controllers,
-    action noise `settings.noise_std`) through make_env(action_space="ee_delta"), stored as its control steps:
-    the reset observation, then per step the 7-d action as the environment applied it and the observation it
-    produced; no high-level actions. The episode ends at success or the step limit. `final_view` (if asked) is
-    rendered after the episode with the suction off and the arm parked, so it shows the articulation; those moves
-    are not part of the recorded steps."""
-    from simeval.sim.action_spaces import EE_HIGH, EE_LOW, ee_delta_action_space
-    from simeval.sim.controllers import ArticulationController
-
-    env = SimEnv(spec, "ee_delta", variation, settings.image_size, settings.cameras,
-                 control_hz=settings.control_hz, scene_view_size=settings.scene_view_size,
-                 robot_masks=settings.robot_masks)
-    try:
-        obs, info = env.reset(seed=seed)
-        views = info.pop("scene_views")
-        rows, progress, poses = [obs], [info["progress"]], [env.object_poses()]
-        actions: list[np.ndarray] = []
-        policy = ArticulationController(settings.noise_std)
-        policy.reset(env)
-        while True:
-            action = policy(obs)
-            if action is None:
-                break
-            action = np.clip(np.asarray(action, np.float32), EE_LOW, EE_HIGH).astype(np.float32)
-            action[6] = np.float32(action[6] >= 0.5)  # stored as applied: replays bit for bit
-            obs, _, terminated, truncated, info = env.step(action)
-            actions.append(action)
-            rows.append(obs)
-            progress.append(info["progress"])
-            poses.append(env.object_poses())
-            if terminated or truncated:
-                break
-        success = info["success"]
-        joints_final = {o.id: [float(x) for x in _joint_fractions(env, o)] for o in env.inst.objects
-                        if o.id in env.inst.joints}
-        final_view = None
-        if final_frame_size:
-            env.arm.suction_off()
-            env.arm.park()
-            final_view = env.world.render(SCENE_VIEWS[0], final_frame_size)
-        inst = env.inst
-    finally:
-        env.close()
-    if not actions:
-        raise RuntimeError(f"{spec.name} seed {seed}: the controller made no move; is the task solved at start?")
+    if not actions:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
+        raise RuntimeError(f"{spec.name} seed {seed}: the {expert.name} made no move; is the task solved at start?")
+    fields = {"high_level_action": np.stack(high_level), "high_level_step": np.asarray(high_level_steps, np.int64),
+              "high_level_space": pick_place_action_space(hz)} if high_level else {}
     return _low_level_episode(
         spec, seed, pipeline, inst, settings.cameras, rows, actions, progress, poses, success=success, views=views,
-        final_view=final_view, control_hz=settings.control_hz,
-        action_space=ee_delta_action_space(settings.control_hz), state_names=STATE_NAMES, variation=variation,
-        extra={"initial_state": spec.initial_state, "noise_std": settings.noise_std,
-               "joint_fractions": {"initial": inst.joints, "final": joints_final}})
+        final_view=final_view, control_hz=hz, action_space=expert.action_space(hz),
+        state_names=expert.state_names(spec), variation=variation, extra=extra, **fields)
 
 
 def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
@@ -201,9 +262,9 @@ def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
 
 def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, rows: list, actions: list,
                        progress: list, poses: list, *, success: bool, views, final_view, control_hz: float,
-                       action_space: dict, state_names, variation: dict, extra: dict) -> Episode:
-    """The stored episode of a closed-loop rollout: `rows` = the reset observation then one per action (T + 1),
-    the last row's action repeated as padding (format 2, simeval.episodes.store)."""
+                       action_space: dict, state_names, variation: dict, extra: dict, **fields) -> Episode:
+    """The stored episode: `rows` = the reset observation then one per action (T + 1), the last row's action
+    repeated as padding (format 2, simeval.episodes.store); `fields`: more Episode fields (the high-level ones)."""
     t = len(actions)
     prog = np.asarray(progress, np.float32)
     return Episode(
@@ -216,55 +277,13 @@ def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, 
         action_space=action_space, state_names=list(state_names),
         variation=variation, object_poses=np.stack(poses).astype(np.float32), robot_mask=robot_masks(rows, cameras),
         extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                           for o in inst.objects}, **extra})
+                           for o in inst.objects}, **extra}, **fields)
 
 
 def _joint_fractions(env: SimEnv, obj) -> list[float]:
     from simeval.sim.articulated import joint_fraction
 
     return [joint_fraction(env.world.c, obj.body_ids[0], k) for k in range(len(env.inst.joints[obj.id]))]
-
-
-def run_plan_episode(spec: TaskSpec, seed: int, settings: RecordSettings, pipeline: str, variation: dict,
-                     final_frame_size: tuple[int, int] | None = None) -> Episode:
-    """An ee_pose task (the BBSEA suite): its plan (simeval.sim.primitives.PlanPolicy) through
-    make_env(action_space="ee_pose") at the task's 4 Hz, one stored row per control step: the reset observation,
-    then each 8-d action and the observation it produced. `settings.control_hz` does not apply (the rate is
-    the task's); the plan and the row where each primitive starts are kept in `extra`. A failed episode is
-    returned like any other, with success False."""
-    from simeval.sim.primitives import PlanPolicy
-
-    env = SimEnv(spec, "ee_pose", variation, settings.image_size, settings.cameras,
-                 scene_view_size=settings.scene_view_size, robot_masks=settings.robot_masks)
-    try:
-        obs, info = env.reset(seed=seed)
-        views = info.pop("scene_views")
-        rows, progress, poses, actions = [obs], [info["progress"]], [env.object_poses()], []
-        policy = PlanPolicy()
-        policy.reset(env)
-        while True:
-            action = policy(obs)
-            if action is None:
-                break
-            obs, _, terminated, truncated, info = env.step(action)
-            actions.append(np.asarray(env.arm.last_action, np.float32))  # as applied: replays bit for bit
-            rows.append(obs)
-            progress.append(info["progress"])
-            poses.append(env.object_poses())
-            if terminated or truncated:
-                break
-        success = info["success"]
-        final_view = env.world.render(SCENE_VIEWS[0], final_frame_size) if final_frame_size else None
-        inst, hz = env.inst, env.control_hz
-    finally:
-        env.close()
-    if not actions:
-        raise RuntimeError(f"{spec.name} seed {seed}: the plan made no move; is the task solved at start?")
-    return _low_level_episode(
-        spec, seed, pipeline, inst, settings.cameras, rows, actions, progress, poses, success=success, views=views,
-        final_view=final_view, control_hz=hz, action_space=ee_pose_action_space(hz),
-        state_names=state_names(spec.robot), variation=variation,
-        extra={"plan": [{p: n} for p, n in spec.plan], "plan_step": [int(x) for x in policy.plan_step]})
 
 
 # --- closed-loop evaluation ----------------------------------------------------------------------------------
