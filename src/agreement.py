@@ -4,7 +4,7 @@ import logging
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
 
@@ -14,27 +14,24 @@ log = logging.getLogger("agreement")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="agreement")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from hydra.utils import instantiate
-
     from simeval.agreement import agreement_rows, format_rows, load_score_tables, plot_figure3
     from simeval.errors import UserError
     from simeval.metrics.agreement import METRIC_VERSION
     from simeval.report.tables import write_table
-    from simeval.results import hydra_run_info, write_result
+    from simeval.results import RunFolder
 
     if not cfg.scores_path:
         raise UserError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
-    run = hydra_run_info()
-    out = Path(run["output_dir"])
+    run = RunFolder.of(cfg)
+    out = Path(run.output_dir)
     tables = load_score_tables(cfg.scores_path, human=cfg.human_column)  # validated: a UserError names file/row/column
     rows = agreement_rows(tables, cfg.human_column, n_boot=cfg.n_boot, seed=cfg.seed)
     header, body = format_rows(rows)
     write_table(out / "agreement", header, body, caption="Agreement of judges with human scores (95% bootstrap CIs).")
     figures = plot_figure3(rows, out / "figure3", tuple(cfg.figure_formats))
-    config = OmegaConf.to_container(cfg, resolve=True)
-    with instantiate(cfg.logger, _partial_=True)(run_dir=str(out), run_config=config) as logger:
-        write_result(out, metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed, config=config,
-                     choices=run["choices"], figures=[f.name for f in figures])  # relative to the run folder
+    with run.logger() as logger:
+        run.write(metric="agreement", version=METRIC_VERSION, values=rows, seed=cfg.seed,
+                  figures=[f.name for f in figures])  # relative to the run folder
         logger.log_metrics({f"{r['table']}/{r['pipeline']}/{r['judge']}": {"r_over_mae": r["r_over_mae"],
                                                                           "pearson": r["pearson"], "mae": r["mae"]}
                             for r in rows})

@@ -19,11 +19,9 @@ log = logging.getLogger("collect")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="collect")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from hydra.utils import instantiate
-
     from simeval.collect import WorkerDied, collect
     from simeval.episodes.store import EpisodeStore
-    from simeval.results import hydra_run_info, write_result
+    from simeval.results import RunFolder
     from simeval.sim.rollout import RecordSettings
     from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
     from simeval.sim.splits import heldout_of, load_heldout, split_tasks
@@ -59,10 +57,9 @@ def main(cfg: DictConfig) -> None:
     except WorkerDied as e:  # not the user's mistake (exit 2): a resumable failure of the machine
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(1) from None
-    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
-    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
-        write_result(run["output_dir"], metric="collect", version="1.0", values=summary, choices=run["choices"],
-                     config=config)
+    run = RunFolder.of(cfg)
+    with run.logger() as logger:
+        run.write(metric="collect", version="1.0", values=summary)
         logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})
     for task, t in summary["tasks"].items():
         log.info("%-32s %-11s %d/%d oracle successes", task, t["group"], t["success"], t["episodes"])

@@ -28,7 +28,6 @@ def _ranks(value, key: str) -> tuple[int, int] | None:
 def main(cfg: DictConfig) -> None:
     import torch
     from hydra.core.hydra_config import HydraConfig
-    from hydra.utils import instantiate
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.device import resolve_device
@@ -37,7 +36,7 @@ def main(cfg: DictConfig) -> None:
                                                    store_source, summary_line)
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import VERSION, WorldModelConfig
-    from simeval.results import hydra_run_info, write_result
+    from simeval.results import RunFolder
 
     require_whole_keys(cfg, {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
                              "eval.batch_size": 1})
@@ -66,14 +65,15 @@ def main(cfg: DictConfig) -> None:
     debug = f" debug={overlay}" if overlay != "none" else ""
     source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, cfg.pipeline.get("suite"), needed,
                           debug)
-    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
+    run = RunFolder.of(cfg)
+    config = run.config
     identity = dict(pipeline=cfg.pipeline.name, task_group=cfg.task_group, episodes=int(cfg.episodes),
                     preset=wm["name"], camera=cfg.camera, episodes_sha=data_fingerprint(source.infos),
                     settings={"world_model": wm, "eval": config["eval"], "eval_episodes": config["eval_episodes"]})
     if protocol != "paper":  # the paper protocol's identity is what it was, so earlier runs still match theirs
         identity.update(protocol=protocol, steps=cfg.protocol.steps)
         identity["settings"]["protocol"] = config["protocol"]
-    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
+    with run.logger() as logger:
         values = fit_and_evaluate(
             source, episodes_per_task=int(cfg.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
             eval_episodes=eval_ranks, protocol=protocol, steps=cfg.protocol.steps, horizon=cfg.protocol.horizon,
@@ -81,16 +81,15 @@ def main(cfg: DictConfig) -> None:
             heldout_episodes=heldout_ranks if protocol == "paper" else None, eval_seed=int(cfg.eval.seed),
             eval_context=int(cfg.eval.context), eval_batch_size=int(cfg.eval.batch_size),
             checkpoint_dir=cfg.checkpoint_dir, log_metrics=logger.log_metrics, progress=bool(cfg.progress),
-            videos=int(cfg.videos), video_dir=f"{run['output_dir']}/videos", device=device, compile=cfg.compile,
+            videos=int(cfg.videos), video_dir=f"{run.output_dir}/videos", device=device, compile=cfg.compile,
             how_to_get_more=lambda n: how_to_get_episodes(cfg.store, cfg.pipeline.name, cfg.task_group,
                                                           cfg.pipeline.get("suite"), n, debug))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {int(cfg.eval.context)} observed "
                 "frames (red separators: imagined)"))
-        path = write_result(run["output_dir"], metric="dynamics_diversity", version=VERSION, values=values,
-                            config=config, choices=run["choices"], seed=int(cfg.seed), identity=identity,
-                            overrides=run["overrides"])
+        path = run.write(metric="dynamics_diversity", version=VERSION, values=values, seed=int(cfg.seed),
+                         identity=identity, overrides=run.overrides)
         logger.log_metrics(headline(values))
     log.info("%s/%s episodes=%d [preset %s, device %s, protocol=%s]: %s", cfg.pipeline.name, cfg.task_group,
              cfg.episodes, wm["name"], device, protocol, summary_line(values))

@@ -18,13 +18,12 @@ VERSION = "1.0"
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     import torch
-    from hydra.utils import instantiate
 
     from simeval.models.device import resolve_device
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.experiment import resolve_action_space, run_splits
     from simeval.models.policy.random_baseline import RandomActions
-    from simeval.results import hydra_run_info, write_result
+    from simeval.results import RunFolder
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import group_and_heldout, split_tasks
 
@@ -53,8 +52,8 @@ def main(cfg: DictConfig) -> None:
                  else "no task of the group has an eval variation" if split == "eval" else "no trained task")
     plan = {split: pairs for split, pairs in plan.items() if pairs}
     require_folder("checkpoint_dir", cfg.checkpoint_dir)
-    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
-    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
+    run = RunFolder.of(cfg)
+    with run.logger() as logger:
         if chance:
             policy = RandomActions(resolve_action_space(model["action_space"], specs), model["cameras"],
                                    model["image_size"])
@@ -62,14 +61,14 @@ def main(cfg: DictConfig) -> None:
             settings_id = {"model": {**model, "action_space": policy.cfg.action_space}}
         else:
             policy, ckpt_dir, summary, values, settings_id = _train(cfg, model, specs, trained, logger, device,
-                                                                    config)
+                                                                    run.config)
         seeds = range(cfg.eval.seed_offset, cfg.eval.seed_offset + cfg.eval.seeds)
         rows = run_splits(policy, plan, seeds, cfg.eval.max_steps, f"{ckpt_dir}/rollouts.json", summary["steps"],
                           progress=bool(cfg.progress))
         values.update(tasks=rows, splits=ev.summarize(rows))
         if cfg.eval.videos and rows and not chance:
             values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], cfg.eval.max_steps,
-                                                        cfg.eval.video_camera, run["output_dir"])
+                                                        cfg.eval.video_camera, run.output_dir)
             for which, video in values["videos"].items():
                 _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
                 logger.log_video(f"rollout/{which}", video, caption=(
@@ -78,8 +77,7 @@ def main(cfg: DictConfig) -> None:
                     "heldout_tasks": heldout, "episodes_per_task": cfg.episodes_per_task,
                     "variations": {t: v for t, v in plan.get("eval", [])},
                     "eval_seeds": cfg.eval.seeds, "settings": settings_id}
-        path = write_result(run["output_dir"], metric="generalization", version=VERSION, values=values, seed=cfg.seed,
-                     choices=run["choices"], config=config, identity=identity)
+        path = run.write(metric="generalization", version=VERSION, values=values, seed=cfg.seed, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
     for s, v in values["splits"].items():
         sr = v["success"]

@@ -17,7 +17,7 @@ log = logging.getLogger("import_data")
 def main(cfg: DictConfig) -> None:
     from simeval.episodes.importers import IMPORTERS, image_size_option, import_into_store
     from simeval.episodes.store import EpisodeStore
-    from simeval.results import hydra_run_info, write_result
+    from simeval.results import RunFolder
 
     if cfg.format not in IMPORTERS:
         raise UserError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
@@ -30,9 +30,7 @@ def main(cfg: DictConfig) -> None:
     accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
                                 **{k: v for k, v in options.items() if k in accepted})
-    run = hydra_run_info()
-    write_result(run["output_dir"], metric="import", version="1.0", values=summary, choices=run["choices"],
-                 config=OmegaConf.to_container(cfg, resolve=True))
+    RunFolder.of(cfg).write(metric="import", version="1.0", values=summary)
     log.info("%s: %d written, %d already in %s", cfg.format, summary["written"], summary["skipped"], cfg.store)
 
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
 from simeval.errors import require_folder
@@ -23,11 +23,11 @@ def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
     from simeval.quality.run import run_quality
-    from simeval.results import hydra_run_info
+    from simeval.results import RunFolder
 
     require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included
     require_folder("cache_dir", cfg.cache_dir)
-    run, config = hydra_run_info(), OmegaConf.to_container(cfg, resolve=True)
+    run = RunFolder.of(cfg)
     judge = {}
     if cfg.judge.kind != "oracle":
         from simeval.judges import cache, ledger, prompts, runner
@@ -41,9 +41,9 @@ def main(cfg: DictConfig) -> None:
         if cfg.captioner.kind != "none":  # the captioner captions each view once; every judge repeat reuses it
             judge |= dict(captioner=instantiate(cfg.captioner.provider), caption_settings=runner.JudgeSettings(
                 1, cfg.max_reasks, cfg.captioner.concurrency, cfg.captioner.rate_limit_per_min, cfg.judge.replay))
-    meta = dict(config=config, choices=run["choices"], seed=cfg.seed, overrides=run["overrides"], label=cfg.label)
-    with instantiate(cfg.logger, _partial_=True)(run_dir=run["output_dir"], run_config=config) as logger:
-        out = run_quality(run["output_dir"], bundles_dir=cfg.bundles_dir, episodes=config["episodes"],
+    meta = dict(config=run.config, choices=run.choices, seed=cfg.seed, overrides=run.overrides, label=cfg.label)
+    with run.logger() as logger:
+        out = run_quality(run.output_dir, bundles_dir=cfg.bundles_dir, episodes=run.config["episodes"],
                           judge="oracle" if cfg.judge.kind == "oracle" else "model", metric=cfg.metric,
                           mode=cfg.scene_alignment_mode, n_frames=cfg.n_frames, dry_run=cfg.dry_run, logger=logger,
                           meta=meta, **judge)

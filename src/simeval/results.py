@@ -17,6 +17,7 @@ import os
 import subprocess
 import tempfile
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -174,6 +175,38 @@ def hydra_run_info() -> dict:
         "choices": {k: v for k, v in OmegaConf.to_container(hc.runtime.choices).items() if not k.startswith("hydra/")},
         "overrides": list(hc.overrides.task),
     }
+
+
+@dataclass
+class RunFolder:
+    """The skeleton every entrypoint shares: the current Hydra run's folder, config choices and overrides, and the
+    resolved config; `logger()` opens the configured logger there (`cfg.logger`, simeval.loggers), `write(...)`
+    writes its result.json with the config and choices filled in (write_result)."""
+
+    output_dir: str
+    choices: dict
+    overrides: list
+    config: dict
+    logger_cfg: Any = None
+
+    @classmethod
+    def of(cls, cfg) -> RunFolder:
+        from omegaconf import OmegaConf
+
+        info = hydra_run_info()
+        if not info:
+            raise RuntimeError("RunFolder.of: not inside a Hydra run (call the library functions directly instead)")
+        return cls(info["output_dir"], info["choices"], info["overrides"], OmegaConf.to_container(cfg, resolve=True),
+                   cfg.get("logger"))
+
+    def logger(self):
+        from hydra.utils import instantiate
+
+        return instantiate(self.logger_cfg, _partial_=True)(run_dir=self.output_dir, run_config=self.config)
+
+    def write(self, *, metric: str, version: str, values: Any, **fields: Any) -> Path:
+        return write_result(self.output_dir, metric=metric, version=version, values=values, config=self.config,
+                            choices=self.choices, **fields)
 
 
 def write_result(
