@@ -369,6 +369,40 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
     return out
 
 
+def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], margins=(0, 1, 2)) -> dict:
+    """Per level and robot-mask margin, the share of the kept pixels of the held-out episodes (seeds heldout[0]-1 to
+    heldout[1]-1) whose colour changed from the frame before (the moving-pixel rule of simeval.models.prediction,
+    on the data alone, no model): where the judged moving-pixel error has no reading, this says whether the
+    motion was there but inside the margin around the robot that the protocol leaves out."""
+    import h5py
+    import numpy as np
+
+    from simeval.episodes.dataset import grow_masks
+    from simeval.episodes.store import EpisodeStore
+    from simeval.models.prediction import MOTION_THRESHOLD
+    from simeval.sim.spec import SUITES_DIR, check_variation, load_suite
+
+    pipeline, task = dose.task
+    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    store = EpisodeStore(out / "control_episodes")
+    shares: dict = {}
+    for name, level in dose.levels.items():
+        variation = check_variation([spec], dose.variation(level))
+        moving, kept = dict.fromkeys(margins, 0), dict.fromkeys(margins, 0)
+        for seed in range(heldout[0] - 1, heldout[1]):
+            with h5py.File(store.path_for(pipeline, task, seed, variation), "r") as f:
+                rgb = f[f"obs/rgb/{dose.camera}"][:].astype(np.float32) / 255
+                robot = f[f"obs/robot_mask/{dose.camera}"][:]
+            changed = ((rgb[1:] - rgb[:-1]) ** 2).sum(-1) > MOTION_THRESHOLD
+            for m in margins:
+                grown = grow_masks(robot, m)
+                keep = ~grown[1:] & ~grown[:-1]
+                moving[m] += int((changed & keep).sum())
+                kept[m] += int(keep.sum())
+        shares[name] = {f"margin_{m}": {"moving_pixels": moving[m], "share": moving[m] / kept[m]} for m in margins}
+    return shares
+
+
 def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     """Against the dose's level, each with its interval and both baselines on the same pixels: the object-focused
     one-step error, the moving-pixel one-step error (where the runs summed it) and the full-frame one-step error;
@@ -470,7 +504,8 @@ def main(argv: list[str] | None = None) -> None:
               "episodes": args.episodes, "heldout": args.heldout, "tasks": args.tasks, "actions": args.actions,
               "exclude_robot_from_loss": args.exclude_robot_from_loss, "verdict": verdict, "rows": rows}
     if dose is not None:
-        result.update(task="/".join(dose.task), camera=dose.camera, knob=".".join(dose.knob), levels=dose.levels)
+        result.update(task="/".join(dose.task), camera=dose.camera, knob=".".join(dose.knob), levels=dose.levels,
+                      moving_share_by_margin=moving_share_by_margin(dose, args.out, tuple(args.heldout)))
         del result["tasks"], result["actions"]
     if args.control == "visual":  # passes when the full frame moves (interval off zero) and the object error far less
         v = result["verdict"]

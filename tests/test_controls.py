@@ -118,3 +118,36 @@ def test_a_dose_judged_by_moving_pixels_reads_their_ratio_of_sums_and_no_motion_
     verdict = dc.dose_verdict(still, levels, n_boot=50, primary="one_step_moving")
     assert not any(verdict["passes"].values())
     assert all(not np.isfinite(v[0]) for v in verdict["one_step_moving"]["by_level"].values())
+
+
+def test_moving_share_by_margin_counts_changed_pixels_outside_the_grown_robot_mask_by_hand(tmp_path):
+    """A dose with no reading says whether the motion was there but inside the margin around the robot: counted
+    here on hand-made frames (a 1-pixel block moving one pixel right beside a 1-pixel robot, and a far one)."""
+    import h5py
+
+    from dynamics_controls import DOSES, moving_share_by_margin
+    from simeval.episodes.store import EpisodeStore
+    from simeval.sim.spec import SUITES_DIR, check_variation, load_suite
+
+    dose = DOSES["dose_push"]
+    pipeline, task = dose.task
+    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    store = EpisodeStore(tmp_path / "control_episodes")
+    rgb = np.zeros((2, 8, 8, 3), np.uint8)
+    robot = np.zeros((2, 8, 8), bool)
+    robot[:, 0, 0] = True  # the robot's one pixel, the same in both frames
+    rgb[0, 0, 1] = rgb[1, 0, 2] = 255  # a block next to it moves right: pixels (0,1) and (0,2) change
+    rgb[0, 6, 6] = 255  # a far block vanishes: pixel (6,6) changes
+    for level in dose.levels.values():
+        path = store.path_for(pipeline, task, 0, check_variation([spec], dose.variation(level)))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(path, "w") as f:
+            f[f"obs/rgb/{dose.camera}"] = rgb
+            f[f"obs/robot_mask/{dose.camera}"] = robot
+    shares = moving_share_by_margin(dose, tmp_path, (1, 1))
+    # margin 0: 3 changed pixels, 63 kept; margin 1: (0,1) is inside the grown mask, 60 kept; margin 2: (0,1) and
+    # (0,2) are, 55 kept (a 3 x 3 corner of 64 cells)
+    expect = {"margin_0": (3, 63), "margin_1": (2, 60), "margin_2": (1, 55)}
+    for level in dose.levels:
+        for m, (moving, kept) in expect.items():
+            assert shares[level][m]["moving_pixels"] == moving and shares[level][m]["share"] == moving / kept
