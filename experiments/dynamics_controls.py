@@ -406,7 +406,7 @@ def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], marg
 def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     """Against the dose's level, each with its interval and both baselines on the same pixels: the object-focused
     one-step error, the moving-pixel one-step error (where the runs summed it) and the full-frame one-step error;
-    the panel of the dose's judged number says so. Saved without dates (simeval.report.figures.save_figure): the
+    the panel of the dose's judged number says so, and the title when it has no reading. Saved without dates (simeval.report.figures.save_figure): the
     same runs give the same bytes."""
     import matplotlib
 
@@ -423,7 +423,13 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     panels = [("one_step_object", 1e3, "per kept pixel and channel (x1e-3)", "object-focused one-step error"),
               ("one_step_moving", 1e3, "per moving pixel and channel (x1e-3)", "moving-pixel one-step error"),
               ("one_step", 1.0, "sum over pixels per frame", "full-frame one-step error (robot not trained on)")]
+    judged_label = next(p[3] for p in panels if p[0] == dose.metric)
     panels = [p for p in panels if all(np.isfinite(by_level[n].get(f"{p[0]}_{k}", np.nan)) for n in names)]
+    if dose.metric not in [p[0] for p in panels]:  # the judged number has no reading: say so, not only "NO"
+        from simeval.models.prediction import MIN_MOVING_PIXELS
+
+        title += (f"\njudged by the {judged_label}: no reading (fewer than {MIN_MOVING_PIXELS} kept pixels moved "
+                  "one step ahead at some level), so nothing passes")
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2))
     for ax, (name, scale, unit, label) in zip(np.atleast_1d(axes), panels):
         v = np.array([by_level[n][f"{name}_{k}"] for n in names]) * scale
