@@ -162,7 +162,10 @@ class Slurm:
                 _fail(f"--launcher slurm: `{tool}` is not on PATH (no SLURM client here); use --launcher local")
         queued = subprocess.run(["squeue", "-h", "-n", self.name, "-o", "%i"], capture_output=True, text=True)
         if queued.returncode != 0:
-            _fail(f"--launcher slurm: squeue failed: {(queued.stderr or queued.stdout).strip()[-300:]}")
+            said = [line.strip() for line in (queued.stderr or queued.stdout).splitlines() if line.strip()]
+            _fail("--launcher slurm: no SLURM controller answers here (squeue: "
+                  f"{said[-1] if said else queued.returncode}); run it on the cluster's login node, or point "
+                  "SLURM_CONF at its slurm.conf")
         if queued.stdout.split():
             _fail(f"jobs of this run ({out}) are still queued or running: {', '.join(queued.stdout.split())}; wait "
                   f"for them (squeue -n {self.name}) or cancel them (scancel -n {self.name}), then rerun")
@@ -281,7 +284,8 @@ def main(argv: list[str] | None = None) -> None:
             sel, collect = f"tasks=[{','.join(tasks)}]", None
             if "collect" in stages:
                 collect = stage([*entry("collect"), f"pipeline={pipeline}", sel, f"episodes={prof['episodes']}",
-                                 f"store={store}", *ov["collect"], f"hydra.run.dir={out / 'collect' / pipeline / group}"],
+                                 f"store={store}", *ov["collect"],
+                                 f"hydra.run.dir={out / 'collect' / pipeline / group}"],
                                 logs / f"collect_{pipeline}_{group}.log")
                 collected.append(collect)
             for k in prof["world_model_episodes"] if "table4" in stages else []:
@@ -307,7 +311,8 @@ def main(argv: list[str] | None = None) -> None:
     if "report" in stages:  # tables and figures from the result.json files only, as `make report` builds them
         tables, figures = out / "tables", out / "figures"
         stage([sys.executable, str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5,figure4,html",
-               f"--table4-runs={out / 'table4'}", f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
+               f"--table4-runs={out / 'table4'}",
+               f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
                f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
                f"--tables={tables}", f"--figures={figures}"], logs / "report.log", after=tuple(jobs), echo=True)
     launcher.finish()

@@ -83,3 +83,25 @@ def test_pipelines_without_a_suite_only_are_one_line_not_a_run_that_does_nothing
         "with one: bbsea, gensim, robogen. For your own pipeline, import its episodes with src/import_data.py and "
         "run the entrypoints on them"]
     assert not (tmp_path / "out").exists()
+
+
+def test_the_slurm_launcher_without_a_reachable_controller_is_one_line(tmp_path):
+    """squeue here fails as Debian's does on a machine with the client but no slurm.conf (stand-in scripts on PATH,
+    so the test does not depend on what this machine has installed)."""
+    import os
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for tool in ("sbatch", "sacct", "squeue"):
+        (bin_dir / tool).write_text("#!/bin/sh\necho 'squeue: error: resolve_ctls_from_dns_srv: res_nsearch error: "
+                                    "Unknown host' >&2\necho 'squeue: fatal: Could not establish a configuration "
+                                    "source' >&2\nexit 1\n")
+        (bin_dir / tool).chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
+    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines",
+                        "robogen", "--launcher", "slurm", "--out", str(tmp_path / "out")], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stderr.splitlines() == [
+        "error: --launcher slurm: no SLURM controller answers here (squeue: squeue: fatal: Could not establish a "
+        "configuration source); run it on the cluster's login node, or point SLURM_CONF at its slurm.conf"]
+    assert not (tmp_path / "out").exists()  # nothing submitted, nothing written
