@@ -100,3 +100,87 @@ def resolve_action_space(requested: str, specs) -> str:
         raise UserError(f"policy.model.action_space=native: the tasks use different action spaces "
                         f"({', '.join(f'{s.name}: {s.action_space}' for s in specs)}); name one")
     return native[0]
+
+
+def names(value) -> list[str] | None:
+    """A config's task list as names: None stays None, one string is one name (not its characters)."""
+    return None if value is None else [value] if isinstance(value, str) else list(value)
+
+
+def run_generalization(*, pipeline: str, suite_dir: Path, task_group: str, tasks, heldout_tasks, policy_name: str,
+                       model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
+                       episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
+                       progress: bool, run_dir: str, logger, config: Mapping | None = None) -> tuple[dict, dict]:
+    """The whole experiment of src/generalization.py without Hydra: the group's tasks and held-out ones
+    (simeval.sim.splits), the policy trained (or resumed, or reused) on the trained tasks' episodes, or the chance
+    baseline for policy_name="random", every (split, task) rolled out (cached), the best and worst videos. Returns
+    (values, identity) for result.json. `evaluation`: the eval section of conf/generalization.yaml (splits, seeds,
+    seed_offset, max_steps, variation, videos, video_camera, sampler_check); `config` is stored in the checkpoint."""
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.sim.splits import group_and_heldout, split_tasks
+
+    specs, heldout = group_and_heldout(suite_dir, task_group, tasks, names(heldout_tasks))
+    group = [s.name for s in specs]
+    trained = [t for t in group if t not in heldout]
+    chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
+    override = dict(evaluation["variation"]) if evaluation.get("variation") else None
+    plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
+            for split in names(evaluation["splits"])}  # split names and variation keys are checked before training
+    for split in [s for s, pairs in plan.items() if not pairs]:
+        log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
+                 else "no task of the group has an eval variation" if split == "eval" else "no trained task")
+    plan = {split: pairs for split, pairs in plan.items() if pairs}
+    model = dict(model)
+    if chance:
+        policy = RandomActions(resolve_action_space(model["action_space"], specs), model["cameras"],
+                               model["image_size"])
+        ckpt_dir, summary, values = f"{checkpoint_dir}/random", {"steps": 0}, {"training": None}
+        settings_id = {"model": {**model, "action_space": policy.cfg.action_space}}
+    else:
+        policy, ckpt_dir, summary, values, settings_id = train_on(
+            pipeline, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
+            val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config)
+    seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
+    rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
+                      progress=progress)
+    values.update(tasks=rows, splits=ev.summarize(rows))
+    if evaluation["videos"] and rows and not chance:
+        values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], evaluation["max_steps"],
+                                                    evaluation["video_camera"], run_dir)
+        for which, video in values["videos"].items():
+            _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
+            logger.log_video(f"rollout/{which}", video, caption=(
+                f"{which} task of the {split} split: {task} (seed {seeds[0]}, camera {evaluation['video_camera']})"))
+    identity = {"pipeline": pipeline, "task_group": task_group, "tasks": group, "policy": policy_name,
+                "heldout_tasks": heldout, "episodes_per_task": episodes_per_task,
+                "variations": {t: v for t, v in plan.get("eval", [])},
+                "eval_seeds": evaluation["seeds"], "settings": settings_id}
+    return values, identity
+
+
+def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
+             checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
+             device, progress: bool, config: Mapping | None):
+    """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
+    (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.data import PolicyDataset
+
+    pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
+    settings = TrainSettings(**dict(train), seed=seed)
+    train_eps, val_eps, metas = episodes_for(EpisodeStore(store), pipeline, trained, episodes_per_task,
+                                             val_episodes_per_task, pcfg.cameras)
+    data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    ckpt_dir = f"{checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), seed)}"
+    fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)
+    policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics,
+                                   extra={"config": dict(config or {})}, progress=progress, device=device)
+    values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
+                           "windows": len(data)}}
+    if sampler_check and val_eps:
+        val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+        values["sampler_check"] = ev.sampler_action_error(policy, val, {
+            "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
+    return policy, ckpt_dir, summary, values, {"model": vars(pcfg), "train": vars(settings)}
