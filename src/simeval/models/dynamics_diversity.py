@@ -233,7 +233,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
     if lo < k:
         have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
         fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
-               f"with more episodes: "
+               "with more episodes: "
                + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
                + f", then eval_episodes=[{k + 1},{k + 10}]")
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
@@ -469,3 +469,87 @@ def summary_line(values: dict) -> str:
             + (f"({100 * one['moving_share']:.2g}% of kept) one-step {milli(one['model']['moving_error_per_pixel'])} "
                f"x1e-3 (skill vs last frame {f(one['moving_skill_vs_last'])})" if one.get("moving_share") else "none")
             + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame"))
+
+
+def ranks_of(value, key: str) -> tuple[int, int] | None:
+    """A config's [first, last] 1-based inclusive episode numbers as 0-based (lo, hi), None for None; anything else
+    is a UserError naming `key`."""
+    if value is None:
+        return None
+    bounds = list(value) if isinstance(value, (list, tuple)) else [value]
+    if len(bounds) != 2 or not all(isinstance(b, int) and not isinstance(b, bool) for b in bounds):
+        raise UserError(f"{key}={value!r}: expected [first, last] episode numbers, e.g. {key}=[1,40]")
+    lo, hi = bounds
+    if not 1 <= lo <= hi:
+        raise UserError(f"{key}={list(value)}: expected [first, last] episode numbers, 1 <= first <= last")
+    return lo - 1, hi
+
+
+@dataclass(frozen=True)
+class DiversityRun:
+    """What one run of src/diversity.py measures, in plain values (conf/diversity.yaml's keys): `world_model` is
+    the preset ({name, model, train, window}), `protocol` the protocol section ({name, steps, horizon, lr, ...}),
+    `evaluation` the eval section ({seed, context, batch_size})."""
+
+    pipeline: str
+    task_group: str
+    camera: str
+    episodes: int
+    seed: int
+    world_model: dict
+    protocol: dict
+    evaluation: dict
+    eval_episodes: tuple[int, int] | None
+    heldout_episodes: tuple[int, int] | None
+
+    def check(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
+        """The model, training and window configs, with every protocol value checked before any data is read."""
+        model_cfg = WorldModelConfig.from_dict(self.world_model["model"])
+        train_cfg = TrainConfig.from_dict({**self.world_model["train"], "seed": int(self.seed)})
+        window = WindowSpec(**self.world_model["window"])
+        check_eval_context(int(self.evaluation["context"]), window)
+        if self.protocol["name"] == "heldout":
+            check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
+                                   self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)
+        return model_cfg, train_cfg, window
+
+    @property
+    def mask_margin(self) -> int:  # protocol=paper leaves it null: no robot masks in its score or loss
+        return self.protocol.get("mask_margin", 0) if self.protocol["name"] == "heldout" else 0
+
+    @property
+    def exclude_robot(self) -> bool:
+        return self.protocol.get("exclude_robot_from_loss", False) if self.protocol["name"] == "heldout" else False
+
+    def identity(self, source) -> dict:
+        """What the numbers are of (simeval.results.make_identity); the paper protocol's is what it always was, so
+        earlier runs still match theirs."""
+        ident = dict(pipeline=self.pipeline, task_group=self.task_group, episodes=int(self.episodes),
+                     preset=self.world_model["name"], camera=self.camera, episodes_sha=data_fingerprint(source.infos),
+                     settings={"world_model": self.world_model, "eval": self.evaluation,
+                               "eval_episodes": None if self.eval_episodes is None else
+                               [self.eval_episodes[0] + 1, self.eval_episodes[1]]})
+        if self.protocol["name"] != "paper":
+            ident.update(protocol=self.protocol["name"], steps=self.protocol["steps"])
+            ident["settings"]["protocol"] = self.protocol
+        return ident
+
+    def fit(self, source, *, checkpoint_dir, logger, device, compile: bool, videos: int, video_dir: str,
+            progress: bool, how_to_get_more=None) -> dict:
+        """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
+        model_cfg, train_cfg, window = self.check()
+        paper = self.protocol["name"] == "paper"
+        values = fit_and_evaluate(
+            source, episodes_per_task=int(self.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
+            eval_episodes=self.eval_episodes, protocol=self.protocol["name"], steps=self.protocol["steps"],
+            horizon=self.protocol["horizon"], lr=self.protocol["lr"], mask_margin=self.mask_margin,
+            exclude_robot_from_loss=self.exclude_robot, heldout_episodes=self.heldout_episodes if paper else None,
+            eval_seed=int(self.evaluation["seed"]), eval_context=int(self.evaluation["context"]),
+            eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
+            log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
+            compile=compile, how_to_get_more=how_to_get_more)
+        for task, video in values["videos"].items():
+            logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
+                f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "
+                "frames (red separators: imagined)"))
+        return values
