@@ -239,3 +239,24 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
         ok = sum(m["success"] for m in metas)
         tasks[s.name] = {"group": s.group, "episodes": len(metas), "success": ok, "rate": ok / len(metas)}
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped, "tasks": tasks}
+
+
+def plan_suite(suite_dir: Path, tasks: list[str] | str | None, group: str, split: str,
+               knobs: dict | None) -> tuple[list[TaskSpec], dict | None, dict[str, dict] | None]:
+    """What src/collect.py collects from a simeval suite: (specs, variation, task_variations) for `collect`. Split
+    `train` collects every selected task (held-out ones too: the world model's data) under `knobs`; `eval` and
+    `heldout` collect the tasks of that split (simeval.sim.splits), each under its own variation (`knobs` replace
+    the eval ones). The suite's splits.yaml is read for every split, so a broken one is an error at once."""
+    from simeval.sim.spec import load_suite, select_specs
+    from simeval.sim.splits import heldout_of, load_heldout, split_tasks
+
+    suite = load_suite(suite_dir)
+    specs = select_specs(suite, tasks, group)
+    heldout = heldout_of(specs, load_heldout(suite_dir, suite))
+    if split == "train":
+        return specs, knobs, None
+    pairs = split_tasks(specs, split, heldout, eval_override=knobs)
+    if not pairs:
+        raise UserError(f"variation={split}: none of the selected tasks ({', '.join(s.name for s in specs)}) is in "
+                        f"that split; see {suite_dir}/splits.yaml and the tasks' `variations:`")
+    return [s for s, _ in pairs], None, {s.name: v for s, v in pairs}
