@@ -162,7 +162,8 @@ class Slurm:
                 _fail(f"--launcher slurm: `{tool}` is not on PATH (no SLURM client here); use --launcher local")
         queued = subprocess.run(["squeue", "-h", "-n", self.name, "-o", "%i"], capture_output=True, text=True)
         if queued.returncode != 0:
-            said = [line.strip() for line in (queued.stderr or queued.stdout).splitlines() if line.strip()]
+            said = [line.strip().removeprefix("squeue: ") for line in (queued.stderr or queued.stdout).splitlines()
+                    if line.strip()]
             _fail("--launcher slurm: no SLURM controller answers here (squeue: "
                   f"{said[-1] if said else queued.returncode}); run it on the cluster's login node, or point "
                   "SLURM_CONF at its slurm.conf")

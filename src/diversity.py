@@ -37,7 +37,7 @@ def main(cfg: DictConfig) -> None:
                            ranks_of(conf["heldout_episodes"], "heldout_episodes"))
     torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
-    measure.check()  # a bad protocol.* value stops here, before the store is read
+    _ = measure.configs  # a bad protocol.* value stops here, before the store is read
     needed = max(int(cfg.episodes), (measure.eval_episodes or (0, 40))[1])  # protocol=paper's held-out: optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
     debug = f" debug={overlay}" if overlay != "none" else ""

@@ -102,6 +102,6 @@ def test_the_slurm_launcher_without_a_reachable_controller_is_one_line(tmp_path)
                         "robogen", "--launcher", "slurm", "--out", str(tmp_path / "out")], cwd=ROOT, env=env,
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and p.stderr.splitlines() == [
-        "error: --launcher slurm: no SLURM controller answers here (squeue: squeue: fatal: Could not establish a "
+        "error: --launcher slurm: no SLURM controller answers here (squeue: fatal: Could not establish a "
         "configuration source); run it on the cluster's login node, or point SLURM_CONF at its slurm.conf"]
     assert not (tmp_path / "out").exists()  # nothing submitted, nothing written

@@ -16,6 +16,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -502,8 +503,10 @@ class DiversityRun:
     eval_episodes: tuple[int, int] | None
     heldout_episodes: tuple[int, int] | None
 
-    def check(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
-        """The model, training and window configs, with every protocol value checked before any data is read."""
+    @cached_property
+    def configs(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
+        """The model, training and window configs, every protocol value checked (once; read it before any data is
+        read so a bad value stops there)."""
         model_cfg = WorldModelConfig.from_dict(self.world_model["model"])
         train_cfg = TrainConfig.from_dict({**self.world_model["train"], "seed": int(self.seed)})
         window = WindowSpec(**self.world_model["window"])
@@ -537,7 +540,7 @@ class DiversityRun:
     def fit(self, source, *, checkpoint_dir, logger, device, compile: bool, videos: int, video_dir: str,
             progress: bool, how_to_get_more=None) -> dict:
         """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
-        model_cfg, train_cfg, window = self.check()
+        model_cfg, train_cfg, window = self.configs
         paper = self.protocol["name"] == "paper"
         values = fit_and_evaluate(
             source, episodes_per_task=int(self.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,

@@ -9,6 +9,7 @@ its observation history)."""
 from __future__ import annotations
 
 import numbers
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -16,7 +17,8 @@ import numpy as np
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
-from simeval.sim.action_spaces import ee_pose_action_space, joint_action_space, pick_place_action_space
+from simeval.sim.action_spaces import (EE_HIGH, EE_LOW, ee_delta_action_space, ee_pose_action_space,
+                                       joint_action_space, pick_place_action_space)
 from simeval.sim.env import SimEnv, state_names
 from simeval.sim.oracle import next_primitive
 from simeval.sim.robot import STATE_NAMES
@@ -74,7 +76,7 @@ class OraclePolicy:
         return None if prim is None else prim.pose14(self.env.world)
 
 
-class Expert:
+class Expert(ABC):
     """How one kind of suite task is solved and stored: the only part in which recording differs between them.
     `run_episode` drives any expert through the same loop; an expert says which action space the environment runs
     in and its settings there, which policy solves the task, how an action is stored, what the episode keeps
@@ -87,8 +89,9 @@ class Expert:
     def env_kwargs(self, settings: RecordSettings) -> dict:
         return {"control_hz": settings.control_hz}
 
+    @abstractmethod
     def policy(self, settings: RecordSettings):
-        raise NotImplementedError
+        """The policy that solves the task: reset(env), then policy(obs) -> action or None when done."""
 
     def to_env(self, action) -> np.ndarray:
         """The action handed to env.step."""
@@ -129,12 +132,7 @@ class ArticulationExpert(Expert):
     not recorded)."""
 
     name, mode = "controller", "ee_delta"
-
-    @staticmethod
-    def action_space(control_hz: float) -> dict:
-        from simeval.sim.action_spaces import ee_delta_action_space
-
-        return ee_delta_action_space(control_hz)
+    action_space = staticmethod(ee_delta_action_space)
 
     def policy(self, settings: RecordSettings):
         from simeval.sim.controllers import ArticulationController
@@ -142,8 +140,6 @@ class ArticulationExpert(Expert):
         return ArticulationController(settings.noise_std)
 
     def to_env(self, action) -> np.ndarray:
-        from simeval.sim.action_spaces import EE_HIGH, EE_LOW
-
         action = np.clip(np.asarray(action, np.float32), EE_LOW, EE_HIGH).astype(np.float32)
         action[6] = np.float32(action[6] >= 0.5)
         return action
