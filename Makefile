@@ -20,7 +20,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 # Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
 
-.PHONY: help setup test table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches table5 report-table5
+.PHONY: help setup gensim-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
@@ -37,8 +37,14 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-test: setup ## run the test suite (what CI runs; the 25 slowest tests are listed at the end)
+test: setup gensim-env ## run the test suite (what CI runs; the 25 slowest tests are listed at the end)
 	$(PY) -m pytest -q --durations=25
+
+GENSIM_STAMP := $(VENV)/.gensim-installed
+gensim-env: $(GENSIM_STAMP) ## GenSim's own imports beside simeval's, for pipeline=gensim_own (requirements-gensim.txt)
+$(GENSIM_STAMP): requirements-gensim.txt $(STAMP)
+	$(PY) -m pip install -q -c requirements.txt -r requirements-gensim.txt
+	touch $(GENSIM_STAMP)
 
 HAVE_TASK_LISTS = $(strip $(GENSIM_DESCS)$(GENSIM_ROOT)$(ROBOGEN_TASKS)$(ROBOGEN_ROOT)$(BBSEA_TASKS)$(BBSEA_ROOT))
 table3: setup ## paper Table 3: sweep pipelines x embedding models, then write outputs/tables/table3.{csv,md,tex} (without the pipelines' task lists: the suites' own, under outputs/table3_suites/)

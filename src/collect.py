@@ -25,9 +25,11 @@ def main(cfg: DictConfig) -> None:
     from simeval.sim.rollout import RecordSettings
     from simeval.sim.spec import SUITES_DIR
 
+    require_whole_keys(cfg, {"episodes": 1, "seed_offset": 0})
+    if cfg.pipeline.get("native"):  # the pipeline's own code (GenSim's, from its checkout)
+        return collect_native(cfg)
     if not cfg.pipeline.get("suite"):
         raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
-    require_whole_keys(cfg, {"episodes": 1, "seed_offset": 0})
     run = RunFolder.of(cfg)
     specs, variation, per_task = plan_suite(SUITES_DIR / cfg.pipeline.suite, run.config["tasks"], cfg.task_group,
                                             cfg.variation.split, run.config["variation"]["knobs"])
@@ -47,6 +49,30 @@ def main(cfg: DictConfig) -> None:
     for task, t in summary["tasks"].items():
         log.info("%-32s %-11s %d/%d oracle successes", task, t["group"], t["success"], t["episodes"])
     log.info("%d new episodes, %d already in %s", len(summary["new"]), summary["skipped"], cfg.store)
+
+
+def collect_native(cfg: DictConfig) -> None:
+    from simeval.pipelines.gensim.native import collect_from_checkout
+    from simeval.results import RunFolder
+
+    run = RunFolder.of(cfg)
+    summary = collect_from_checkout(cfg.pipeline.root, run.config["pipeline"]["native"], run.config["tasks"],
+                                    cfg.task_group, range(cfg.seed_offset, cfg.seed_offset + cfg.episodes), cfg.store,
+                                    run.config["record"], pipeline=cfg.pipeline.name, workers=cfg.workers)
+    with run.logger() as logger:
+        run.write(metric="collect", version="1.0", values=summary)
+        logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})
+    for task, t in summary["tasks"].items():
+        log.info("%-40s %-11s %d/%d oracle successes%s", task, t["group"], t["success"], t["episodes"],
+                 f", {len(t['failed'])} failed (seeds {t['failed']})" if t["failed"] else "")
+    log.info("%d new GenSim episodes, %d already in %s, %d failed", len(summary["new"]), summary["skipped"],
+             cfg.store, len(summary["failed"]))
+    if summary["failed"] and not summary["new"] and not summary["skipped"]:
+        first = summary["failed"][0]
+        print(f"error: every GenSim episode failed; the first, {first['task']} seed {first['seed']}, raised "
+              f"{first['error']}" + (f" at {first['where']}" if first["where"] else "") + " (all of them: the log "
+              "and result.json)", file=sys.stderr)
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":

@@ -51,6 +51,15 @@ def _registry_names(init: Path) -> dict[str, str]:
     raise TaskSourceError(f"{init}: no `names = {{...}}` registry dict found")
 
 
+def registered_names(root: str | os.PathLike) -> list[str]:
+    """Every task name GenSim's registry gives (template keys, then generated files), grouped or not."""
+    root = Path(root).expanduser()
+    gen_dir = root / "cliport" / "generated_tasks"
+    generated = [py.stem.replace("_", "-") for py in sorted(gen_dir.glob("*.py")) if py.stem != "__init__"] \
+        if gen_dir.is_dir() else []
+    return [*_registry_names(root / "cliport" / "tasks" / "__init__.py"), *generated]
+
+
 def gensim_groups(name: str) -> list[str]:
     return [group for key, group in SUBSTRING_GROUPS.items() if key in name]
 

@@ -1,0 +1,282 @@
+"""Episodes from GenSim's own code: its task classes, `Environment` and oracle, run from the user's GenSim checkout
+(`pipeline.root`), one worker process per episode (simeval.pipelines.gensim.worker, which says how GenSim is loaded
+and what a stored row means), stored in simeval's episode store like any other episode.
+
+Why a process per episode: GenSim drives PyBullet's single global client and leaves state behind in it, prints to
+stdout, and its `movej` and settling loops stop on wall-clock timeouts; a process per episode keeps each episode's
+physics from the last one's and lets a hung episode be killed at `timeout_s` without losing the others.
+
+Failures are reported, never dropped: an episode whose GenSim code raises or times out is listed in the summary
+(task, seed, the error and where GenSim raised it) and logged in one line; the other episodes go on. Resumable:
+episodes already in the store are skipped. Workers die with the collector (PR_SET_PDEATHSIG), kill -9 included."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from simeval.episodes.episode import Episode
+from simeval.episodes.store import EpisodeStore, read_meta
+from simeval.errors import UserError, require_folder
+from simeval.sim.action_spaces import joint_action_space, pick_place_action_space
+from simeval.sim.robot import STATE_NAMES
+
+log = logging.getLogger(__name__)
+WORKER = Path(__file__).with_name("worker.py")
+CAMERAS = ("top", "front")  # top: GenSim's Oracle camera (the heightmap view: its depth range shows only what is
+# within ~0.3 m of the table, so the tool when it comes down, not the arm); front: its first RealSense D415 camera
+EXIT_TASK_RAISED, EXIT_UNUSABLE = 3, 4  # as in worker.py (which imports nothing of simeval)
+
+
+@dataclass(frozen=True)
+class GensimSettings:
+    """How GenSim's episodes are run: physics rate (GenSim's `hz`), one stored frame every `frame_every` physics
+    steps, the interpreter that runs the worker (None: this one), and the per-episode time limit."""
+
+    root: str
+    hz: int = 240
+    frame_every: int = 8
+    python: str | None = None
+    timeout_s: float = 600.0
+    mode: str = "train"  # GenSim's task.mode: train | val | test (its seen/unseen colour sets)
+    clock: str = "simulated"  # what GenSim's 5-second timeouts read: simulated (physics steps / hz) | wall
+
+    @property
+    def control_hz(self) -> float:
+        return self.hz / self.frame_every
+
+
+def check_checkout(root: str | os.PathLike | None) -> Path:
+    """`pipeline.root` as a GenSim checkout, or a UserError saying what is missing and how to fix it."""
+    if root is None or str(root).strip() == "":
+        raise UserError("pipeline.root is not set: give the folder of a GenSim checkout (liruiw/GenSim), e.g. "
+                        "pipeline.root=~/GenSim or GENSIM_ROOT=~/GenSim")
+    path = Path(str(root)).expanduser()
+    need = ["cliport/tasks/__init__.py", "cliport/environments/environment.py", "cliport/environments/assets"]
+    missing = [n for n in need if not (path / n).exists()]
+    if missing:
+        raise UserError(f"pipeline.root={root} is not a GenSim checkout ({missing[0]} not found): give the folder "
+                        "that holds GenSim's cliport/ (git clone https://github.com/liruiw/GenSim)")
+    return path.resolve()
+
+
+def check_settings(s: GensimSettings, control_hz: float) -> None:
+    for key, value in (("hz", s.hz), ("frame_every", s.frame_every)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise UserError(f"pipeline.native.{key} must be a whole number >= 1, got {value!r}")
+    if abs(s.control_hz - float(control_hz)) > 1e-9:
+        raise UserError(f"record.control_hz={control_hz:g} but GenSim's episodes are stored at pipeline.native.hz / "
+                        f"frame_every = {s.hz}/{s.frame_every} = {s.control_hz:g} Hz: make them agree")
+    if s.mode not in ("train", "val", "test"):
+        raise UserError(f"pipeline.native.mode must be train, val or test (GenSim's task.mode), got {s.mode!r}")
+    if s.clock not in ("simulated", "wall"):
+        raise UserError(f"pipeline.native.clock must be simulated or wall, got {s.clock!r}")
+    if not (isinstance(s.timeout_s, (int, float)) and s.timeout_s > 0):
+        raise UserError(f"pipeline.native.timeout_s must be a number of seconds > 0, got {s.timeout_s!r}")
+
+
+class EpisodeFailed(RuntimeError):
+    """GenSim's code raised, timed out, or could not be imported for one episode; `unusable`: nothing can run."""
+
+    def __init__(self, task: str, seed: int, error: str, where: str = "", unusable: bool = False) -> None:
+        self.task, self.seed, self.error, self.where, self.unusable = task, seed, error, where, unusable
+        super().__init__(f"{task} seed {seed}: {error}" + (f" (at {where})" if where else ""))
+
+
+def _die_with_parent() -> None:
+    """Popen preexec: the worker is killed when the collector dies, however it dies."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def run_worker(task: str, seed: int, settings: GensimSettings, image_size: tuple[int, int],
+               cameras: Sequence[str], scratch: Path) -> tuple[dict, dict]:
+    """Record one episode in a worker process; returns (arrays, meta) or raises EpisodeFailed."""
+    out = scratch / f"{task}_{seed}"
+    req = {"root": settings.root, "task": task, "seed": int(seed), "image_size": list(image_size),
+           "cameras": list(cameras), "hz": settings.hz, "frame_every": settings.frame_every, "mode": settings.mode,
+           "clock": settings.clock,
+           "out": str(out)}
+    req_path = scratch / f"{task}_{seed}.request.json"
+    req_path.write_text(json.dumps(req))
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONHASHSEED="0")
+    env.pop("PYTHONPATH", None)  # the worker imports GenSim and numpy only; simeval's path must not shadow them
+    cmd = [settings.python or sys.executable, str(WORKER), str(req_path)]
+    try:
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=settings.timeout_s, env=env,
+                              preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+    except subprocess.TimeoutExpired:
+        raise EpisodeFailed(task, seed, f"timed out after {settings.timeout_s:g} s (pipeline.native.timeout_s)") \
+            from None
+    except FileNotFoundError:
+        raise EpisodeFailed(task, seed, f"pipeline.native.python={settings.python}: no such interpreter",
+                            unusable=True) from None
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or [""])[-1]
+        try:
+            said = json.loads(last)
+        except json.JSONDecodeError:
+            said = {"error": f"the worker exited with status {proc.returncode}: {last or 'no message'}"}
+        raise EpisodeFailed(task, seed, said.get("error", "?"), said.get("where", ""),
+                            unusable=proc.returncode == EXIT_UNUSABLE)
+    with np.load(str(out) + ".npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    meta = json.loads(Path(str(out) + ".json").read_text())
+    for p in (Path(str(out) + ".npz"), Path(str(out) + ".json"), req_path):
+        p.unlink(missing_ok=True)
+    return arrays, meta
+
+
+def to_episode(arrays: dict, meta: dict, group: str, cameras: Sequence[str], settings: GensimSettings,
+               pipeline: str) -> Episode:
+    """The worker's output in the store's convention (row 0 the reset observation; the last row's action padding)."""
+    actions = arrays["action"]
+    if len(actions) == 0:
+        raise EpisodeFailed(meta["task"], meta["seed"], "no frame was recorded (the oracle made no move)")
+    t = len(actions)
+    progress = arrays["progress"].astype(np.float32)
+    hz = settings.control_hz
+    description = meta["docstring"] if meta["docstring"] is not None else "None"
+    extra = {"gensim": {k: meta[k] for k in ("lang_goal", "total_reward", "done", "primitives", "max_steps",
+                                                "physics_steps", "hz", "frame_every", "mode", "task_class",
+                                                "stood_in", "clock", "movej_timeouts")},
+             "checkout": Path(settings.root).name}
+    return Episode(
+        pipeline=pipeline, task=meta["task"], description=description, group=group, seed=int(meta["seed"]),
+        rgb={c: arrays[f"rgb/{c}"] for c in cameras}, state=arrays["state"],
+        action=np.concatenate([actions, actions[-1:]]), reward=np.r_[np.diff(progress), 0.0].astype(np.float32),
+        progress=progress, is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t,
+        success=bool(meta["success"]), high_level_action=arrays["high_level_action"],
+        high_level_step=arrays["high_level_step"], high_level_space=pick_place_action_space(hz), control_hz=hz,
+        source="gensim", action_space=joint_action_space(hz), state_names=list(STATE_NAMES),
+        robot_mask={c: arrays[f"robot_mask/{c}"].astype(bool) for c in cameras},
+        language=[meta["lang_goal"]] * (t + 1), extra=extra)
+
+
+def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeStore, settings: GensimSettings,
+                   image_size: tuple[int, int], cameras: Sequence[str] = CAMERAS, *, pipeline: str = "gensim_own",
+                   workers: int = 1, progress: bool = True) -> dict:
+    """Record `seeds` of each task ({name: group}) with GenSim's own code into `store`. Returns {"new": [...],
+    "skipped": n, "failed": [{task, seed, error, where}], "tasks": {task: {group, episodes, success, rate,
+    failed}}}. Raises UserError when GenSim cannot be imported at all (the first worker says why)."""
+    from tqdm import tqdm
+
+    unknown = [c for c in cameras if c not in CAMERAS]
+    if unknown:
+        raise UserError(f"record.cameras: GenSim's episodes have cameras {list(CAMERAS)}, not {unknown}")
+    require_folder("store", store.root)
+    store.remove_stale_temp_files()
+    todo = [(t, s) for t in tasks for s in seeds if not store.exists_intact(pipeline, t, s)]
+    skipped = len(tasks) * len(seeds) - len(todo)
+    new, failed = [], []
+    bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} workers)", unit="episode", disable=not progress)
+    with tempfile.TemporaryDirectory(prefix="simeval-gensim-") as scratch:
+
+        def one(task: str, seed: int) -> dict:
+            t0 = time.perf_counter()
+            arrays, meta = run_worker(task, seed, settings, image_size, cameras, Path(scratch))
+            ep = to_episode(arrays, meta, tasks[task], cameras, settings, pipeline)
+            path = store.write(ep)
+            return {"task": task, "seed": seed, "success": ep.success, "steps": ep.n_steps,
+                    "seconds": time.perf_counter() - t0, "gensim_seconds": meta["seconds"],
+                    "bytes": os.path.getsize(path)}
+
+        with ThreadPoolExecutor(max(1, workers)) as pool:  # threads only wait: each episode is its own process
+            futures = {pool.submit(one, t, s): (t, s) for t, s in todo}
+            try:
+                for f in as_completed(futures):
+                    try:
+                        new.append(f.result())
+                    except EpisodeFailed as e:
+                        if e.unusable:
+                            raise UserError(f"GenSim at {settings.root} cannot be used: {e.error}"
+                                            + (f" (at {e.where})" if e.where else "")
+                                            + "; set up its environment with `make gensim-env` (README, GenSim's "
+                                              "own code)") from None
+                        log.warning("GenSim %s seed %d failed, reported: %s%s", e.task, e.seed, e.error,
+                                    f" (at {e.where})" if e.where else "")
+                        failed.append({"task": e.task, "seed": e.seed, "error": e.error, "where": e.where})
+                    bar.update(1)
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+            finally:
+                bar.close()
+    out = {}
+    failed_by_task = {}
+    for f in failed:
+        failed_by_task.setdefault(f["task"], []).append(f["seed"])
+    for task, group in tasks.items():
+        metas = [read_meta(store.path_for(pipeline, task, s)) for s in seeds if store.exists(pipeline, task, s)]
+        ok = sum(m["success"] for m in metas)
+        out[task] = {"group": group, "episodes": len(metas), "success": ok,
+                     "rate": ok / len(metas) if metas else None, "failed": sorted(failed_by_task.get(task, []))}
+    return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped,
+            "failed": sorted(failed, key=lambda r: (r["task"], r["seed"])), "tasks": out}
+
+
+def plan_tasks(root: Path, tasks: list[str] | str | None, group: str) -> dict[str, str]:
+    """{task: group} from GenSim's registry (a static parse: simeval.tasks.gensim) by the authors' substring rule:
+    the tasks of `group` (or of every group for `all`), or the named `tasks` (any registered task; its group is
+    the first the rule gives, `ungrouped` for none)."""
+    from simeval.tasks.gensim import gensim_groups, load_gensim_checkout, registered_names
+    from simeval.tasks.records import TaskSourceError
+
+    try:
+        registry = load_gensim_checkout(root)
+    except TaskSourceError as e:
+        raise UserError(str(e)) from None
+    if tasks:
+        names = [tasks] if isinstance(tasks, str) else list(tasks)
+        known = set(registered_names(root))
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise UserError(f"tasks: {unknown} not in GenSim's registry at {root} (cliport/tasks/__init__.py "
+                            f"`names` and cliport/generated_tasks)")
+        if group != "all":
+            raise UserError("give tasks= or task_group=, not both (leave task_group=all with tasks=)")
+        return {n: (gensim_groups(n) or ["ungrouped"])[0] for n in names}
+    groups = sorted({t.group for t in registry})
+    if group != "all" and group not in groups:
+        raise UserError(f"task_group={group}: GenSim's groups (the authors' substring rule) are {', '.join(groups)}, "
+                        "or all")
+    picked: dict[str, str] = {}
+    for t in registry:
+        if group in ("all", t.group):
+            picked.setdefault(t.name, t.group)
+    return picked
+
+
+def collect_from_checkout(root, native: dict, tasks, group: str, seeds: Sequence[int], store, record: dict, *,
+                          pipeline: str = "gensim_own", workers: int = 0, progress: bool = True) -> dict:
+    """src/collect.py for a pipeline with `native:` settings: checks the checkout and settings, plans the tasks,
+    collects (collect_gensim). `record`: the collector's record settings (cameras, image_size, control_hz)."""
+    from simeval.sim.rollout import image_size_pair
+
+    path = check_checkout(root)
+    settings = GensimSettings(root=str(path), **native)
+    check_settings(settings, record.get("control_hz", settings.control_hz))
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+    cameras = record.get("cameras") or list(CAMERAS)
+    cameras = [cameras] if isinstance(cameras, str) else list(cameras)
+    return collect_gensim(plan_tasks(path, tasks, group), seeds, EpisodeStore(store), settings,
+                          image_size_pair(record.get("image_size"), "record.image_size"), cameras,
+                          pipeline=pipeline, workers=workers or os.cpu_count() or 1, progress=progress)

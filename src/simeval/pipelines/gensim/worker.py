@@ -1,0 +1,262 @@
+"""Record one episode of a GenSim task with GenSim's own code: its task class, its `Environment` and its oracle agent
+(`task.oracle(env)`), run as the authors ran them (cliport/demos.py: seeds `np.random.seed`, `random.seed`; the
+oracle's pick/place poses through `env.step`), with the PyBullet loop at `hz` and one frame every `frame_every`
+physics steps.
+
+Run as a separate process (simeval.pipelines.gensim.native starts it): GenSim drives PyBullet's one global client,
+imports its whole learning stack at package level and prints freely; none of that reaches simeval's process. This
+file needs only numpy and GenSim's own imports, so any interpreter that can run GenSim can run it:
+
+    python worker.py REQUEST.json        # writes REQUEST's `out` (.npz) and `out` + .json, or exits non-zero
+
+Exit status: 0 recorded; 3 GenSim's code raised (one JSON line on stderr: {"error": ..., "where": ...}); 4 the
+checkout or GenSim's imports are unusable (same JSON line). Nothing in the checkout is written: no bytecode files.
+
+Two things are done to load GenSim without changing it, and each is visible in the episode's `extra`:
+- `cliport` is loaded as a bare package: its `__init__.py` imports agents and models (pytorch_lightning, timm,
+  transformers), which recording never uses; every module recording does use is imported for real.
+- `torchvision` is given a stand-in module only when none is installed: `cliport/utils/utils.py` imports it at
+  module level and uses it nowhere (one reference, in a comment). Any attribute of the stand-in raises
+  ImportError, so a real use cannot pass silently.
+
+Convention of the recorded rows (the store's: row 0 is the reset observation, action t leads to row t + 1): a row
+every `frame_every` physics steps after `env.reset()`, during the joint moves and the settling after each
+primitive alike. Action t is the UR5's joint position target commanded last in those physics steps (GenSim's
+`movej` commands a new target every physics step, 0.01 rad further towards the goal, so 1 in `frame_every` of
+them is stored: an exact replay from the stored actions is impossible, see the README) and the suction state at
+row t + 1. A partial block of fewer than `frame_every` physics steps at the end is not stored."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import random
+import sys
+import time
+import traceback
+import types
+
+EXIT_TASK_RAISED, EXIT_UNUSABLE = 3, 4
+
+
+class _StandIn(types.ModuleType):
+    """What `import torchvision` gives when torchvision is not installed; every attribute use fails loudly."""
+
+    def __getattr__(self, name: str):
+        if name.startswith("__") and name.endswith("__"):
+            raise AttributeError(name)
+        raise ImportError(f"torchvision.{name}: torchvision is not installed, only a stand-in for GenSim's unused "
+                          "module-level import; install a torchvision built for this torch to use it")
+
+
+def load_gensim(root: str) -> dict:
+    """Import GenSim's task registry and Environment from `root`; returns what was stood in for."""
+    sys.dont_write_bytecode = True  # importing must not write __pycache__ into the user's checkout
+    package = os.path.join(root, "cliport")
+    if not os.path.isfile(os.path.join(package, "environments", "environment.py")):
+        raise FileNotFoundError(f"{root} is not a GenSim checkout: cliport/environments/environment.py not found")
+    stood_in = []
+    if "cliport" not in sys.modules:
+        bare = types.ModuleType("cliport")
+        bare.__path__ = [package]
+        sys.modules["cliport"] = bare
+        stood_in.append("cliport/__init__.py (agents, models)")
+    if importlib.util.find_spec("torchvision") is None:
+        sys.modules["torchvision"] = _StandIn("torchvision")
+        stood_in.append("torchvision")
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    from cliport import tasks  # noqa: F401  (registry: template and generated tasks)
+    from cliport.environments import environment  # noqa: F401
+    return {"stood_in": stood_in}
+
+
+class _TargetSpy:
+    """Stands in for the `pybullet` module inside GenSim's environment module only: every call goes to pybullet,
+    and the joint targets GenSim commands to the arm are remembered (PyBullet cannot report a motor's target)."""
+
+    def __init__(self, pybullet, arm_of):
+        self._p, self._arm_of, self.target = pybullet, arm_of, None
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+    def setJointMotorControlArray(self, *args, **kwargs):
+        body = kwargs.get("bodyIndex", args[0] if args else None)
+        if body == self._arm_of() and "targetPositions" in kwargs:
+            self.target = [float(x) for x in kwargs["targetPositions"]]
+        return self._p.setJointMotorControlArray(*args, **kwargs)
+
+
+class _SimulatedClock:
+    """Stands in for the `time` module inside GenSim's environment module only (clock="simulated"): `time()` is the
+    physics steps taken so far over `hz`. GenSim's joint moves and its settling loop stop after 5 s of wall-clock
+    time; on a loaded machine (or while frames are rendered inside the loop) that cut moves short and failed
+    episodes that succeed on an idle one. On this clock the same limits are 5 s of simulated time (1200 steps at
+    240 Hz), so an episode is the same on any machine under any load."""
+
+    def __init__(self, hz: int) -> None:
+        self.hz, self.steps = hz, 0
+
+    def time(self) -> float:
+        return self.steps / self.hz
+
+    def __getattr__(self, name):
+        return getattr(time, name)
+
+
+def _camera(config: dict, size: tuple[int, int]) -> dict:
+    """GenSim's camera config rendered at `size` with its field of view kept: GenSim's render_camera derives the
+    field of view from the image height and a focal length in pixels, so the focal length scales with the height."""
+    h0 = config["image_size"][0]
+    fx, _, cx, _, fy, cy, *rest = config["intrinsics"]
+    s = size[0] / h0
+    return dict(config, image_size=tuple(size), intrinsics=(fx * s, 0, cx * s, 0, fy * s, cy * s, *rest))
+
+
+def record(req: dict) -> dict:
+    """Run the episode `req` asks for; returns the arrays and the metadata (see the module docstring)."""
+    import numpy as np
+    import pybullet
+    from cliport import tasks
+    from cliport.environments import environment
+    from cliport.tasks import cameras as gensim_cameras
+
+    names = tasks.names
+    if req["task"] not in names:
+        raise KeyError(f"GenSim has no task {req['task']!r} in its registry (cliport/tasks/__init__.py `names` and "
+                       "cliport/generated_tasks)")
+    views = {"front": gensim_cameras.RealSenseD415.CONFIG[0], "top": gensim_cameras.Oracle.CONFIG[0]}
+    size = tuple(req["image_size"])
+    cams = {c: _camera(views[c], size) for c in req["cameras"]}
+    assets = os.path.join(req["root"], "cliport", "environments", "assets")
+
+    seed = int(req["seed"])
+    np.random.seed(seed)  # as cliport/demos.py seeds an episode
+    random.seed(seed)
+    task = names[req["task"]]()
+    task.mode = req.get("mode", "train")
+    env = environment.Environment(assets, disp=False, hz=int(req["hz"]),
+                                  record_cfg={"save_video": False, "blender_render": False})
+    spy = _TargetSpy(pybullet, lambda: getattr(env, "ur5", None))
+    environment.p = spy
+    clock = _SimulatedClock(int(req["hz"]))
+    if req.get("clock", "simulated") == "simulated":
+        environment.time = clock
+    timeouts = {"movej": 0}
+    original_movej = env.movej
+
+    def movej(*args, **kwargs):
+        timed_out = original_movej(*args, **kwargs)
+        timeouts["movej"] += bool(timed_out)
+        return timed_out
+
+    env.movej = movej
+    env.seed(seed)
+    env.set_task(task)
+    agent = task.oracle(env)
+
+    rows: dict[str, list] = {"state": [], "action": [], "progress": []}
+    for c in cams:
+        rows[f"rgb/{c}"], rows[f"robot_mask/{c}"] = [], []
+    live = {"on": False, "physics_steps": 0, "progress": 0.0}
+    original_step = env.step_simulation
+
+    def observe() -> None:
+        q = [pybullet.getJointState(env.ur5, j) for j in env.joints]
+        suction = float(bool(getattr(env.ee, "activated", False)))
+        holding = float(bool(env.ee.check_grasp())) if hasattr(env.ee, "check_grasp") else 0.0
+        rows["state"].append([s[0] for s in q] + [s[1] for s in q] + [suction, holding])
+        robot = {env.ur5, getattr(env.ee, "base", -1), getattr(env.ee, "body", -1)}
+        for c, config in cams.items():
+            color, _, segm = env.render_camera(config)
+            rows[f"rgb/{c}"].append(np.asarray(color, np.uint8))
+            rows[f"robot_mask/{c}"].append(np.isin(segm, list(robot)))
+        rows["progress"].append(live["progress"])
+
+    def act() -> None:
+        target = spy.target if spy.target is not None else [float(x) for x in env.homej]
+        rows["action"].append(target + [float(bool(getattr(env.ee, "activated", False)))])
+
+    def stepped() -> None:
+        original_step()
+        clock.steps += 1
+        if live["on"]:
+            live["physics_steps"] += 1
+            if live["physics_steps"] % int(req["frame_every"]) == 0:
+                act()
+                observe()
+
+    env.step_simulation = stepped
+    t0 = time.perf_counter()
+    obs = env.reset()
+    info = env.info
+    lang_goal = info.get("lang_goal", "")
+    live["on"] = True
+    observe()
+    high_level, high_level_step, languages = [], [], [lang_goal]
+    total_reward, done, primitives = 0.0, False, 0
+    for _ in range(task.max_steps):
+        action = agent.act(obs, info)
+        if action is None:
+            break
+        high_level_step.append(len(rows["action"]))
+        pose0, pose1 = action["pose0"], action["pose1"]
+        high_level.append([*pose0[0], *pose0[1], *pose1[0], *pose1[1]])
+        obs, reward, done, info = env.step(action)
+        primitives += 1
+        total_reward += float(reward)
+        live["progress"] = total_reward
+        if rows["progress"]:
+            rows["progress"][-1] = total_reward  # GenSim scores a primitive once its objects settle: the last row
+        languages.append(info.get("lang_goal", lang_goal))
+        if done:
+            break
+    live["on"] = False
+    arrays = {k: np.asarray(v) for k, v in rows.items()}
+    arrays["state"] = arrays["state"].astype(np.float32)
+    arrays["action"] = arrays["action"].astype(np.float32).reshape(-1, 7)
+    arrays["progress"] = arrays["progress"].astype(np.float32)
+    arrays["high_level_action"] = np.asarray(high_level, np.float32).reshape(-1, 14)
+    arrays["high_level_step"] = np.asarray(high_level_step, np.int64)
+    meta = {"task": req["task"], "seed": seed, "mode": task.mode, "lang_goal": lang_goal, "lang_goals": languages,
+            "total_reward": total_reward, "success": total_reward >= 0.99, "done": bool(done),
+            "primitives": primitives, "max_steps": int(task.max_steps), "physics_steps": live["physics_steps"],
+            "hz": int(req["hz"]), "frame_every": int(req["frame_every"]), "seconds": time.perf_counter() - t0,
+            "task_class": type(task).__name__, "docstring": type(task).__doc__,
+            "clock": req.get("clock", "simulated"), "movej_timeouts": timeouts["movej"]}
+    return {"arrays": arrays, "meta": meta}
+
+
+def _fail(code: int, error: BaseException, where: str) -> None:
+    frames = traceback.extract_tb(error.__traceback__)
+    place = next((f"{f.filename}:{f.lineno}" for f in reversed(frames)), "")
+    print(json.dumps({"error": f"{type(error).__name__}: {error}", "where": place, "stage": where}), file=sys.stderr)
+    raise SystemExit(code)
+
+
+def main(argv: list[str]) -> None:
+    with open(argv[1], encoding="utf-8") as f:
+        req = json.load(f)
+    try:
+        loaded = load_gensim(req["root"])
+    except Exception as e:  # noqa: BLE001  (any import failure of the user's checkout is reported, not raised)
+        _fail(EXIT_UNUSABLE, e, "import")
+    try:
+        out = record(req)
+    except Exception as e:  # noqa: BLE001  (GenSim's own code raised: the parent reports it per episode)
+        _fail(EXIT_TASK_RAISED, e, "episode")
+    import numpy as np
+
+    out["meta"].update(loaded)
+    tmp = req["out"] + ".part.npz"
+    np.savez(tmp, **out["arrays"])
+    with open(req["out"] + ".json.part", "w", encoding="utf-8") as f:
+        json.dump(out["meta"], f)
+    os.replace(tmp, req["out"] + ".npz")
+    os.replace(req["out"] + ".json.part", req["out"] + ".json")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -1,0 +1,178 @@
+"""GenSim's own code (pipeline=gensim_own): episodes recorded by GenSim's task classes, Environment and oracle from
+the GenSim checkout beside this one (../shared/gensim, what a user's `pipeline.root` points at), through
+src/collect.py, then read by src/diversity.py. Skipped with one line where that checkout is not beside."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from simeval.episodes.store import EpisodeStore, read_episode
+
+ROOT = Path(__file__).resolve().parents[1]
+GENSIM = ROOT.parent / "shared" / "gensim"
+TASK = "place-red-in-green"
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "0"}
+
+pytestmark = pytest.mark.skipif(not (GENSIM / "cliport").is_dir(), reason="../shared/gensim is not beside this checkout")
+
+
+def _collect(tmp: Path, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "src" / "collect.py"), "pipeline=gensim_own",
+                           f"pipeline.root={GENSIM}", f"hydra.run.dir={tmp / 'run'}", *args], cwd=tmp, env=ENV,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _tree(root: Path) -> dict[str, float]:
+    return {str(p.relative_to(root)): p.stat().st_mtime for p in root.rglob("*")}
+
+
+@pytest.fixture(scope="module")
+def own_store(tmp_path_factory) -> Path:
+    """Three episodes of GenSim's place-red-in-green (seeds 0-2, 32x32 frames) collected from the checkout."""
+    tmp = tmp_path_factory.mktemp("gensim_own")
+    before = _tree(GENSIM / "cliport")
+    r = _collect(tmp, f"tasks=[{TASK}]", "debug=tiny", "episodes=3", "workers=2", f"store={tmp / 'store'}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _tree(GENSIM / "cliport") == before, "collecting wrote into the user's GenSim checkout"
+    return tmp / "store"
+
+
+def test_episodes_come_from_gensims_own_oracle_in_the_stores_convention(own_store):
+    store = EpisodeStore(own_store)
+    paths = store.paths("gensim_own", TASK)
+    assert [p.name for p in paths] == [f"episode_{s:06d}.h5" for s in range(3)]
+    for p in paths:
+        ep = read_episode(p)
+        g = ep.extra["gensim"]
+        assert ep.source == "gensim" and ep.group == "placement" and g["task_class"] == "PlaceRedInGreen"
+        assert ep.success == (g["total_reward"] >= 0.99) and g["clock"] == "simulated"
+        # 240 Hz physics, a frame every 8th step: the rows are the reset frame plus one per 8 physics steps
+        assert ep.control_hz == 30.0 and ep.n_steps == 1 + g["physics_steps"] // 8
+        assert ep.action_space["kind"] == "joint_pos+suction" and ep.action.shape == (ep.n_steps, 7)
+        assert ep.rgb["front"].shape == (ep.n_steps, 32, 32, 3) and ep.state.shape == (ep.n_steps, 14)
+        # the high-level action is the oracle's pick/place pose pair, starting at the row where it was given
+        assert ep.high_level_action.shape == (g["primitives"], 14) and ep.high_level_step[0] == 0
+        assert np.all(np.diff(ep.high_level_step) > 0)
+        # GenSim's step reward accumulates into progress; the episode ends at its total
+        assert ep.progress[0] == 0 and ep.progress[-1] == pytest.approx(g["total_reward"])
+        assert ep.reward.sum() == pytest.approx(g["total_reward"])
+        # the arm's pixels are masked in every front frame; the heightmap camera sees only what comes within ~0.3 m
+        # of the table: not the arm at home (row 0), the tool while it is down at the objects
+        top = ep.robot_mask["top"].any(axis=(1, 2))
+        assert ep.robot_mask["front"].any(axis=(1, 2)).all() and not top[0] and top.any()
+        assert ep.robot_mask["top"].mean() < ep.robot_mask["front"].mean()
+        # the stored action is the last joint target GenSim commanded; the arm follows it: the next row's joints
+        # lie near it (GenSim moves the target 0.01 rad per physics step, so within 8 steps' worth)
+        moving = np.abs(np.diff(ep.state[:, :6], axis=0)).max(axis=1) > 1e-3
+        lag = np.abs(ep.action[:-1, :6] - ep.state[1:, :6]).max(axis=1)
+        assert moving.sum() > 10 and np.median(lag[moving]) < 0.08
+        # the suction turns on during the pick and is what the state reports
+        assert ep.action[:, 6].max() == 1.0 and np.array_equal(ep.action[:-1, 6], ep.state[1:, 12])
+    assert sum(read_episode(p).success for p in paths) >= 2  # GenSim's oracle on this task (3/3 when written)
+
+
+def test_the_same_seed_gives_the_same_episode_on_any_load(own_store, tmp_path):
+    """GenSim's 5 s move timeouts read simulated time: an episode recorded while two others run at once (the
+    fixture's 2 workers on 2 cores) equals one recorded alone, bit for bit."""
+    r = _collect(tmp_path, f"tasks=[{TASK}]", "debug=tiny", "episodes=1", "seed_offset=1", "workers=1",
+                 f"store={tmp_path / 'store'}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    alone = read_episode(EpisodeStore(tmp_path / "store").path_for("gensim_own", TASK, 1))
+    shared = read_episode(EpisodeStore(own_store).path_for("gensim_own", TASK, 1))
+    for key in ("state", "action", "progress"):
+        assert np.array_equal(getattr(alone, key), getattr(shared, key)), key
+    assert np.array_equal(alone.rgb["front"], shared.rgb["front"])
+
+
+def test_a_rerun_resumes_and_dynamics_diversity_reads_the_episodes(own_store, tmp_path):
+    r = _collect(tmp_path, f"tasks=[{TASK}]", "debug=tiny", "episodes=3", f"store={own_store}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "0 new GenSim episodes, 3 already" in r.stdout + r.stderr
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim_own", "debug=tiny",
+                        "task_group=placement", f"store={own_store}", f"checkpoint_dir={tmp_path / 'ck'}",
+                        "progress=false", "threads=1", "episodes=2", "eval_episodes=[3,3]", "videos=0",
+                        f"hydra.run.dir={tmp_path / 'wm'}"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    result = json.loads((tmp_path / "wm" / "result.json").read_text())
+    assert result["identity"]["pipeline"] == "gensim_own"
+    one_step = result["values"]["prediction"]["summary"]["one_step"]
+    assert one_step["frames"] > 0 and np.isfinite(one_step["model"]["error_per_pixel"])
+
+
+def _error_line(r: subprocess.CompletedProcess) -> str:
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    return lines[-1]
+
+
+def test_a_folder_that_is_not_a_gensim_checkout_is_one_line(tmp_path):
+    (tmp_path / "notgensim").mkdir()
+    r = _collect(tmp_path, f"pipeline.root={tmp_path / 'notgensim'}", f"store={tmp_path / 'store'}")
+    line = _error_line(r)
+    assert "is not a GenSim checkout" in line and "cliport" in line
+
+
+def test_an_unknown_task_and_a_mismatched_rate_are_one_line(tmp_path):
+    line = _error_line(_collect(tmp_path, "tasks=[no-such-task]", f"store={tmp_path / 'store'}"))
+    assert "no-such-task" in line and "registry" in line
+    line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "pipeline.native.frame_every=6",
+                                f"store={tmp_path / 'store'}"))
+    assert "record.control_hz=30" in line and "240/6" in line
+    line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "pipeline.native.python=/nonexistent/python",
+                                f"store={tmp_path / 'store'}"))
+    assert "/nonexistent/python" in line and "make gensim-env" in line
+
+
+def _checkout_with_a_raising_task(tmp: Path) -> Path:
+    """A GenSim checkout of links to ../shared/gensim plus one generated task whose reset raises (the checkout
+    itself is not touched). generated_tasks/__init__.py lists the folder it really lies in, so it is copied."""
+    root = tmp / "gensim"
+    (root / "cliport" / "generated_tasks").mkdir(parents=True)
+    for entry in (GENSIM / "cliport").iterdir():
+        if entry.name != "generated_tasks":
+            (root / "cliport" / entry.name).symlink_to(entry)
+    for entry in (GENSIM / "cliport" / "generated_tasks").iterdir():
+        if entry.suffix == ".py" and entry.name != "__init__.py":
+            (root / "cliport" / "generated_tasks" / entry.name).symlink_to(entry)
+    shutil.copy(GENSIM / "cliport" / "generated_tasks" / "__init__.py", root / "cliport" / "generated_tasks")
+    (root / "cliport" / "generated_tasks" / "place_nothing_raising.py").write_text(
+        "from cliport.tasks.task import Task\n\n\nclass PlaceNothingRaising(Task):\n"
+        "    \"\"\"A task whose reset fails.\"\"\"\n\n    def reset(self, env):\n"
+        "        raise ValueError('this task cannot be reset')\n")
+    return root
+
+
+def test_a_gensim_task_that_raises_is_reported_not_dropped(tmp_path):
+    root = _checkout_with_a_raising_task(tmp_path)
+    r = _collect(tmp_path, f"pipeline.root={root}", "tasks=[place-nothing-raising]", "episodes=1",
+                 f"store={tmp_path / 'store'}", timeout=300)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    line = r.stderr.splitlines()[-1]  # what raised, and where in the task's code
+    assert "ValueError: this task cannot be reset" in line and "place_nothing_raising.py:8" in line
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["values"]["failed"] == [{"task": "place-nothing-raising", "seed": 0,
+                                           "error": "ValueError: this task cannot be reset",
+                                           "where": result["values"]["failed"][0]["where"]}]
+    assert result["values"]["tasks"]["place-nothing-raising"]["failed"] == [0]
+
+
+def test_the_torchvision_stand_in_refuses_any_use():
+    sys.path.insert(0, str(ROOT / "src" / "simeval" / "pipelines" / "gensim"))
+    try:
+        import worker
+    finally:
+        sys.path.pop(0)
+    stand_in = worker._StandIn("torchvision")
+    with pytest.raises(ImportError, match="stand-in"):
+        stand_in.transforms  # noqa: B018
+    with pytest.raises(AttributeError):
+        stand_in.__file__  # noqa: B018  (introspection sees a plain missing attribute, as for any module)
