@@ -15,6 +15,8 @@ export PYTHONUNBUFFERED := 1
 #   make table3 GENSIM_DESCS=/path/gensim_descs.yaml ROBOGEN_ROOT=/path/RoboGen BBSEA_ROOT=/path/bbsea_output
 GENSIM_DESCS ?= $(wildcard ../shared/data/gensim_descs_grouped.yaml)
 ROBOGEN_TASKS ?= $(wildcard ../shared/data/robogen_tasks.yaml)
+# GenSim's own code (pipeline=gensim_own, its benchmark and figure): a checkout, GENSIM_ROOT or ../shared/gensim beside
+GENSIM_CHECKOUT ?= $(or $(GENSIM_ROOT),$(wildcard ../shared/gensim))
 export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROOT
 
 # Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
@@ -84,6 +86,7 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/world_model_bench.py
 	$(PY) experiments/benchmarks/heldout_sweep_bench.py
 	$(PY) experiments/benchmarks/robot_loss_bench.py
+	$(if $(GENSIM_CHECKOUT),$(MAKE) --no-print-directory gensim-env && $(PY) experiments/benchmarks/gensim_own_bench.py --root $(GENSIM_CHECKOUT),@echo "note: no GenSim checkout (GENSIM_ROOT=...), so gensim_own_bench.py is skipped")
 
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer

@@ -56,9 +56,12 @@ def collect_native(cfg: DictConfig) -> None:
     from simeval.results import RunFolder
 
     run = RunFolder.of(cfg)
-    summary = collect_from_checkout(cfg.pipeline.root, run.config["pipeline"]["native"], run.config["tasks"],
-                                    cfg.task_group, range(cfg.seed_offset, cfg.seed_offset + cfg.episodes), cfg.store,
-                                    run.config["record"], pipeline=cfg.pipeline.name, workers=cfg.workers)
+    try:
+        summary = collect_from_checkout(cfg.pipeline.root, run.config["pipeline"]["native"], run.config["tasks"],
+                                        cfg.task_group, range(cfg.seed_offset, cfg.seed_offset + cfg.episodes),
+                                        cfg.store, run.config["record"], pipeline=cfg.pipeline.name, workers=cfg.workers)
+    except KeyboardInterrupt:  # the episodes stored so far are kept; the same command resumes
+        raise SystemExit(130) from None
     with run.logger() as logger:
         run.write(metric="collect", version="1.0", values=summary)
         logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})

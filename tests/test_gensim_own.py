@@ -176,3 +176,42 @@ def test_the_torchvision_stand_in_refuses_any_use():
         stand_in.transforms  # noqa: B018
     with pytest.raises(AttributeError):
         stand_in.__file__  # noqa: B018  (introspection sees a plain missing attribute, as for any module)
+
+
+def _workers_of(store: Path) -> list[int]:
+    """Pids of worker processes whose request lies in this store's scratch folders."""
+    out = []
+    for proc in Path("/proc").iterdir():
+        try:
+            cmd = (proc / "cmdline").read_bytes().decode(errors="replace")
+        except OSError:
+            continue
+        if "worker.py" in cmd and str(store) in cmd:
+            out.append(int(proc.name))
+    return out
+
+
+def test_kill_9_of_the_collector_takes_its_gensim_workers_and_the_rerun_resumes(tmp_path):
+    import signal
+    import time
+
+    store = tmp_path / "store"
+    args = [sys.executable, str(ROOT / "src" / "collect.py"), "pipeline=gensim_own", f"pipeline.root={GENSIM}",
+            f"tasks=[{TASK}]", "debug=tiny", "episodes=1", "workers=1", f"store={store}",
+            f"hydra.run.dir={tmp_path / 'run'}"]
+    collector = subprocess.Popen(args, cwd=tmp_path, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not _workers_of(store) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _workers_of(store), "no GenSim worker started"
+    collector.send_signal(signal.SIGKILL)
+    collector.wait()
+    deadline = time.monotonic() + 10
+    while _workers_of(store) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _workers_of(store), "a GenSim worker outlived its collector"
+    assert list(store.glob(".gensim-work-*")), "the killed collector's scratch folder is left for the rerun"
+    r = subprocess.run(args, cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert EpisodeStore(store).exists_intact("gensim_own", TASK, 0)
+    assert not list(store.glob(".gensim-work-*"))  # the dead collector's scratch is removed, and the rerun's own

@@ -8,17 +8,16 @@ physics from the last one's and lets a hung episode be killed at `timeout_s` wit
 
 Failures are reported, never dropped: an episode whose GenSim code raises or times out is listed in the summary
 (task, seed, the error and where GenSim raised it) and logged in one line; the other episodes go on. Resumable:
-episodes already in the store are skipped. Workers die with the collector (PR_SET_PDEATHSIG), kill -9 included."""
+episodes already in the store are skipped. Workers die with the collector, kill -9 included (worker.py)."""
 
 from __future__ import annotations
 
 import json
 import logging
 import os
-import signal
+import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -38,6 +37,19 @@ WORKER = Path(__file__).with_name("worker.py")
 CAMERAS = ("top", "front")  # top: GenSim's Oracle camera (the heightmap view: its depth range shows only what is
 # within ~0.3 m of the table, so the tool when it comes down, not the arm); front: its first RealSense D415 camera
 EXIT_TASK_RAISED, EXIT_UNUSABLE = 3, 4  # as in worker.py (which imports nothing of simeval)
+SCRATCH_PREFIX = ".gensim-work-"  # <store>/.gensim-work-<collector pid>/: the workers' outputs before they are stored
+
+
+def _remove_stale_scratch(root: Path) -> None:
+    """Scratch folders of collectors that no longer run (killed with -9: nothing else skips the cleanup)."""
+    for folder in root.glob(f"{SCRATCH_PREFIX}*"):
+        pid = folder.name.removeprefix(SCRATCH_PREFIX)
+        try:
+            os.kill(int(pid), 0)
+        except (ValueError, ProcessLookupError):
+            shutil.rmtree(folder, ignore_errors=True)
+        except PermissionError:  # another user's live collector
+            pass
 
 
 @dataclass(frozen=True)
@@ -95,40 +107,38 @@ class EpisodeFailed(RuntimeError):
         super().__init__(f"{task} seed {seed}: {error}" + (f" (at {where})" if where else ""))
 
 
-def _die_with_parent() -> None:
-    """Popen preexec: the worker is killed when the collector dies, however it dies."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 def run_worker(task: str, seed: int, settings: GensimSettings, image_size: tuple[int, int],
-               cameras: Sequence[str], scratch: Path) -> tuple[dict, dict]:
-    """Record one episode in a worker process; returns (arrays, meta) or raises EpisodeFailed."""
+               cameras: Sequence[str], scratch: Path, live: set | None = None) -> tuple[dict, dict]:
+    """Record one episode in a worker process; returns (arrays, meta) or raises EpisodeFailed. `live`: a set the
+    running process is kept in, so a collector that is stopped can kill it at once."""
     out = scratch / f"{task}_{seed}"
     req = {"root": settings.root, "task": task, "seed": int(seed), "image_size": list(image_size),
            "cameras": list(cameras), "hz": settings.hz, "frame_every": settings.frame_every, "mode": settings.mode,
-           "clock": settings.clock,
-           "out": str(out)}
+           "clock": settings.clock, "out": str(out), "parent": os.getpid()}
     req_path = scratch / f"{task}_{seed}.request.json"
     req_path.write_text(json.dumps(req))
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONHASHSEED="0")
     env.pop("PYTHONPATH", None)  # the worker imports GenSim and numpy only; simeval's path must not shadow them
     cmd = [settings.python or sys.executable, str(WORKER), str(req_path)]
     try:
-        proc = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=settings.timeout_s, env=env,
-                              preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
-    except subprocess.TimeoutExpired:
-        raise EpisodeFailed(task, seed, f"timed out after {settings.timeout_s:g} s (pipeline.native.timeout_s)") \
-            from None
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     except FileNotFoundError:
         raise EpisodeFailed(task, seed, f"pipeline.native.python={settings.python}: no such interpreter",
                             unusable=True) from None
+    if live is not None:
+        live.add(proc)
+    try:
+        _, stderr = proc.communicate(timeout=settings.timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise EpisodeFailed(task, seed, f"timed out after {settings.timeout_s:g} s (pipeline.native.timeout_s)") \
+            from None
+    finally:
+        if live is not None:
+            live.discard(proc)
     if proc.returncode != 0:
-        last = (proc.stderr.strip().splitlines() or [""])[-1]
+        last = (stderr.strip().splitlines() or [""])[-1]
         try:
             said = json.loads(last)
         except json.JSONDecodeError:
@@ -186,11 +196,15 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
     skipped = len(tasks) * len(seeds) - len(todo)
     new, failed = [], []
     bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} workers)", unit="episode", disable=not progress)
-    with tempfile.TemporaryDirectory(prefix="simeval-gensim-") as scratch:
+    _remove_stale_scratch(store.root)
+    scratch = store.root / f"{SCRATCH_PREFIX}{os.getpid()}"
+    scratch.mkdir(exist_ok=True)
+    live: set = set()  # running worker processes
+    try:
 
         def one(task: str, seed: int) -> dict:
             t0 = time.perf_counter()
-            arrays, meta = run_worker(task, seed, settings, image_size, cameras, Path(scratch))
+            arrays, meta = run_worker(task, seed, settings, image_size, cameras, scratch, live)
             ep = to_episode(arrays, meta, tasks[task], cameras, settings, pipeline)
             path = store.write(ep)
             return {"task": task, "seed": seed, "success": ep.success, "steps": ep.n_steps,
@@ -213,12 +227,16 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
                                     f" (at {e.where})" if e.where else "")
                         failed.append({"task": e.task, "seed": e.seed, "error": e.error, "where": e.where})
                     bar.update(1)
-            except BaseException:
+            except BaseException:  # Ctrl-C, or GenSim unusable: stop the workers now, keep what is stored
                 for f in futures:
                     f.cancel()
+                for proc in list(live):
+                    proc.kill()
                 raise
             finally:
                 bar.close()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     out = {}
     failed_by_task = {}
     for f in failed:
