@@ -41,14 +41,14 @@ def main(cfg: DictConfig) -> None:
     needed = max(int(cfg.episodes), (measure.eval_episodes or (0, 40))[1])  # protocol=paper's held-out: optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
     debug = f" debug={overlay}" if overlay != "none" else ""
-    suite = cfg.pipeline.get("suite")
-    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, suite, needed, debug)
+    suite, native = cfg.pipeline.get("suite"), bool(cfg.pipeline.get("native"))
+    source = store_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera, suite, needed, debug, native)
     identity = measure.identity(source)
     with run.logger() as logger:
         values = measure.fit(source, checkpoint_dir=cfg.checkpoint_dir, logger=logger, device=device,
                              compile=cfg.compile, videos=int(cfg.videos), video_dir=f"{run.output_dir}/videos",
                              progress=bool(cfg.progress), how_to_get_more=lambda n: how_to_get_episodes(
-                                 cfg.store, cfg.pipeline.name, cfg.task_group, suite, n, debug))
+                                 cfg.store, cfg.pipeline.name, cfg.task_group, suite, n, debug, native))
         path = run.write(metric="dynamics_diversity", version=VERSION, values=values, seed=int(cfg.seed),
                          identity=identity, overrides=run.overrides)
         logger.log_metrics(headline(values))

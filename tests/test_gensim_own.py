@@ -215,3 +215,29 @@ def test_kill_9_of_the_collector_takes_its_gensim_workers_and_the_rerun_resumes(
     assert r.returncode == 0, r.stderr[-2000:]
     assert EpisodeStore(store).exists_intact("gensim_own", TASK, 0)
     assert not list(store.glob(".gensim-work-*"))  # the dead collector's scratch is removed, and the rerun's own
+
+
+def test_gensims_own_task_as_a_gymnasium_env_follows_its_oracle_to_the_recorded_episode(own_store):
+    """GenSimEnv (pick/place steps through GenSim's env.step in a worker) driven by GenSim's oracle: the same
+    pick/place poses as the recorded episode of the same seed, the same reward, success, observations in its space."""
+    from simeval.pipelines.gensim.env import GensimEnv
+    from simeval.pipelines.gensim.native import GensimSettings
+
+    recorded = read_episode(EpisodeStore(own_store).path_for("gensim_own", TASK, 0))
+    env = GensimEnv(TASK, GensimSettings(root=str(GENSIM)), image_size=(32, 32))
+    try:
+        obs, info = env.reset(seed=0)
+        assert env.observation_space.contains(obs) and info["progress"] == 0 and not info["success"]
+        actions = []
+        while (action := env.oracle_action()) is not None:
+            actions.append(action)
+            obs, _, terminated, truncated, info = env.step(action)
+            assert env.observation_space.contains(obs)
+            if terminated or truncated:
+                break
+        assert np.allclose(np.stack(actions), recorded.high_level_action, atol=1e-6)
+        assert info["progress"] == pytest.approx(recorded.progress[-1]) and info["success"] == recorded.success
+        assert terminated and not truncated
+    finally:
+        env.close()
+    assert env._proc is None

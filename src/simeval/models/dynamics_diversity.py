@@ -382,10 +382,14 @@ def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, s
 
 
 def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int,
-                        extra: str = "") -> str:
+                        extra: str = "", native: bool = False) -> str:
     """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
     reads, not to its own default), or, for a pipeline without a simeval suite, how to import them. `extra`:
-    overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match)."""
+    overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match).
+    `native`: the pipeline's own code records its episodes (pipeline.native, e.g. GenSim's from a checkout)."""
+    if native:
+        return (f"collect them with the pipeline's own code: python src/collect.py pipeline={pipeline} "
+                f"pipeline.root=<checkout> task_group={group} episodes={episodes} store={store}{extra}")
     if not suite:
         return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
                 "store with src/import_data.py")
@@ -400,7 +404,7 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
-                 episodes_needed: int = 40, collect_extra: str = ""):
+                 episodes_needed: int = 40, collect_extra: str = "", native: bool = False):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
     (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
     `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
@@ -414,12 +418,12 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     try:
         paths = store_paths_for(store, pipeline, group)
     except EpisodeFormatError as e:
-        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra)
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, native)
         raise UserError(f"{e}; collecting again moves it aside and makes it anew: {how.removeprefix('collect them: ')}"
                         ) from None
     except UserError as e:
-        raise UserError(f"{e}; {how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra)}"
-                        ) from None
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, native)
+        raise UserError(f"{e}; {how}") from None
     return StoreSource(paths, camera)
 
 

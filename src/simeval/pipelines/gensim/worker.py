@@ -7,7 +7,8 @@ Run as a separate process (simeval.pipelines.gensim.native starts it): GenSim dr
 imports its whole learning stack at package level and prints freely; none of that reaches simeval's process. This
 file needs only numpy and GenSim's own imports, so any interpreter that can run GenSim can run it:
 
-    python worker.py REQUEST.json        # writes REQUEST's `out` (.npz) and `out` + .json, or exits non-zero
+    python worker.py REQUEST.json          # writes REQUEST's `out` (.npz) and `out` + .json, or exits non-zero
+    python worker.py --serve REQUEST.json  # closed loop: commands on stdin, replies on stdout (see `serve`)
 
 Exit status: 0 recorded; 3 GenSim's code raised (one JSON line on stderr: {"error": ..., "where": ...}); 4 the
 checkout or GenSim's imports are unusable (same JSON line). Nothing in the checkout is written: no bytecode files.
@@ -115,125 +116,199 @@ def _camera(config: dict, size: tuple[int, int]) -> dict:
     return dict(config, image_size=tuple(size), intrinsics=(fx * s, 0, cx * s, 0, fy * s, cy * s, *rest))
 
 
-def record(req: dict) -> dict:
-    """Run the episode `req` asks for; returns the arrays and the metadata (see the module docstring)."""
-    import numpy as np
-    import pybullet
-    from cliport import tasks
-    from cliport.environments import environment
-    from cliport.tasks import cameras as gensim_cameras
+class Session:
+    """One GenSim task in one Environment, hooked for recording: `reset(seed)` as cliport/demos.py starts an
+    episode, `primitive(action)` runs one pick/place through `env.step`, `observe()` renders the cameras at the
+    requested size. While `recording`, a row (action, then observation) is kept every `frame_every` physics steps."""
 
-    names = tasks.names
-    if req["task"] not in names:
-        raise KeyError(f"GenSim has no task {req['task']!r} in its registry (cliport/tasks/__init__.py `names` and "
-                       "cliport/generated_tasks)")
-    views = {"front": gensim_cameras.RealSenseD415.CONFIG[0], "top": gensim_cameras.Oracle.CONFIG[0]}
-    size = tuple(req["image_size"])
-    cams = {c: _camera(views[c], size) for c in req["cameras"]}
-    assets = os.path.join(req["root"], "cliport", "environments", "assets")
+    def __init__(self, req: dict) -> None:
+        import pybullet
+        from cliport import tasks
+        from cliport.environments import environment
+        from cliport.tasks import cameras as gensim_cameras
 
-    seed = int(req["seed"])
-    np.random.seed(seed)  # as cliport/demos.py seeds an episode
-    random.seed(seed)
-    task = names[req["task"]]()
-    task.mode = req.get("mode", "train")
-    env = environment.Environment(assets, disp=False, hz=int(req["hz"]),
-                                  record_cfg={"save_video": False, "blender_render": False})
-    spy = _TargetSpy(pybullet, lambda: getattr(env, "ur5", None))
-    environment.p = spy
-    clock = _SimulatedClock(int(req["hz"]))
-    if req.get("clock", "simulated") == "simulated":
-        environment.time = clock
-    timeouts = {"movej": 0}
-    original_movej = env.movej
+        if req["task"] not in tasks.names:
+            raise KeyError(f"GenSim has no task {req['task']!r} in its registry (cliport/tasks/__init__.py `names` "
+                           "and cliport/generated_tasks)")
+        self.req, self.p = req, pybullet
+        views = {"front": gensim_cameras.RealSenseD415.CONFIG[0], "top": gensim_cameras.Oracle.CONFIG[0]}
+        self.cams = {c: _camera(views[c], tuple(req["image_size"])) for c in req["cameras"]}
+        self.task = tasks.names[req["task"]]()
+        self.task.mode = req.get("mode", "train")
+        assets = os.path.join(req["root"], "cliport", "environments", "assets")
+        self.env = env = environment.Environment(assets, disp=False, hz=int(req["hz"]),
+                                                 record_cfg={"save_video": False, "blender_render": False})
+        self.spy = _TargetSpy(pybullet, lambda: getattr(env, "ur5", None))
+        environment.p = self.spy
+        self.clock = _SimulatedClock(int(req["hz"]))
+        if req.get("clock", "simulated") == "simulated":
+            environment.time = self.clock
+        self.movej_timeouts, self.recording, self.physics_steps = 0, False, 0
+        self.rows: dict[str, list] = {}
+        original_movej, original_step = env.movej, env.step_simulation
 
-    def movej(*args, **kwargs):
-        timed_out = original_movej(*args, **kwargs)
-        timeouts["movej"] += bool(timed_out)
-        return timed_out
+        def movej(*args, **kwargs):
+            timed_out = original_movej(*args, **kwargs)
+            self.movej_timeouts += bool(timed_out)
+            return timed_out
 
-    env.movej = movej
-    env.seed(seed)
-    env.set_task(task)
-    agent = task.oracle(env)
+        def stepped() -> None:
+            original_step()
+            self.clock.steps += 1
+            if self.recording:
+                self.physics_steps += 1
+                if self.physics_steps % int(req["frame_every"]) == 0:
+                    self._keep_action()
+                    self._keep(self.observe())
 
-    rows: dict[str, list] = {"state": [], "action": [], "progress": []}
-    for c in cams:
-        rows[f"rgb/{c}"], rows[f"robot_mask/{c}"] = [], []
-    live = {"on": False, "physics_steps": 0, "progress": 0.0}
-    original_step = env.step_simulation
+        env.movej, env.step_simulation = movej, stepped
 
-    def observe() -> None:
-        q = [pybullet.getJointState(env.ur5, j) for j in env.joints]
+    def reset(self, seed: int):
+        import numpy as np
+
+        np.random.seed(seed)  # as cliport/demos.py seeds an episode, just before env.reset
+        random.seed(seed)
+        self.env.seed(seed)
+        self.env.set_task(self.task)
+        obs = self.env.reset()
+        self.agent = self.task.oracle(self.env)
+        self.total_reward, self.done, self.primitives, self.physics_steps = 0.0, False, 0, 0
+        self.movej_timeouts = 0
+        self.rows = {"state": [], "action": [], "progress": [],
+                     **{f"{k}/{c}": [] for c in self.cams for k in ("rgb", "robot_mask")}}
+        return obs, self.env.info
+
+    def observe(self) -> dict:
+        import numpy as np
+
+        env, p = self.env, self.p
+        q = [p.getJointState(env.ur5, j) for j in env.joints]
         suction = float(bool(getattr(env.ee, "activated", False)))
         holding = float(bool(env.ee.check_grasp())) if hasattr(env.ee, "check_grasp") else 0.0
-        rows["state"].append([s[0] for s in q] + [s[1] for s in q] + [suction, holding])
-        robot = {env.ur5, getattr(env.ee, "base", -1), getattr(env.ee, "body", -1)}
-        for c, config in cams.items():
+        robot = [env.ur5, getattr(env.ee, "base", -1), getattr(env.ee, "body", -1)]
+        out = {"state": np.asarray([s[0] for s in q] + [s[1] for s in q] + [suction, holding], np.float32),
+               "rgb": {}, "robot_mask": {}}
+        for c, config in self.cams.items():
             color, _, segm = env.render_camera(config)
-            rows[f"rgb/{c}"].append(np.asarray(color, np.uint8))
-            rows[f"robot_mask/{c}"].append(np.isin(segm, list(robot)))
-        rows["progress"].append(live["progress"])
+            out["rgb"][c] = np.asarray(color, np.uint8)
+            out["robot_mask"][c] = np.isin(segm, robot)
+        return out
 
-    def act() -> None:
-        target = spy.target if spy.target is not None else [float(x) for x in env.homej]
-        rows["action"].append(target + [float(bool(getattr(env.ee, "activated", False)))])
+    def _keep(self, obs: dict) -> None:
+        self.rows["state"].append(obs["state"])
+        for c in self.cams:
+            self.rows[f"rgb/{c}"].append(obs["rgb"][c])
+            self.rows[f"robot_mask/{c}"].append(obs["robot_mask"][c])
+        self.rows["progress"].append(self.total_reward)
 
-    def stepped() -> None:
-        original_step()
-        clock.steps += 1
-        if live["on"]:
-            live["physics_steps"] += 1
-            if live["physics_steps"] % int(req["frame_every"]) == 0:
-                act()
-                observe()
+    def _keep_action(self) -> None:
+        target = self.spy.target if self.spy.target is not None else [float(x) for x in self.env.homej]
+        self.rows["action"].append(target + [float(bool(getattr(self.env.ee, "activated", False)))])
 
-    env.step_simulation = stepped
+    def primitive(self, action: dict):
+        """One pick/place ({pose0: (xyz, xyzw), pose1: ...}) through GenSim's env.step."""
+        obs, reward, done, info = self.env.step(action)
+        self.primitives += 1
+        self.total_reward += float(reward)
+        self.done = bool(done)
+        if self.recording and self.rows["progress"]:
+            self.rows["progress"][-1] = self.total_reward  # GenSim scores a primitive once it settles: the last row
+        return obs, float(reward), bool(done), info
+
+
+def record(req: dict) -> dict:
+    """Record the episode `req` asks for with GenSim's oracle; returns the arrays and the metadata (see the module
+    docstring)."""
+    import numpy as np
+
+    session = Session(req)
+    seed = int(req["seed"])
     t0 = time.perf_counter()
-    obs = env.reset()
-    info = env.info
+    obs, info = session.reset(seed)
     lang_goal = info.get("lang_goal", "")
-    live["on"] = True
-    observe()
+    session.recording = True
+    session._keep(session.observe())
     high_level, high_level_step, languages = [], [], [lang_goal]
-    total_reward, done, primitives = 0.0, False, 0
-    for _ in range(task.max_steps):
-        action = agent.act(obs, info)
+    for _ in range(session.task.max_steps):
+        action = session.agent.act(obs, info)
         if action is None:
             break
-        high_level_step.append(len(rows["action"]))
-        pose0, pose1 = action["pose0"], action["pose1"]
-        high_level.append([*pose0[0], *pose0[1], *pose1[0], *pose1[1]])
-        obs, reward, done, info = env.step(action)
-        primitives += 1
-        total_reward += float(reward)
-        live["progress"] = total_reward
-        if rows["progress"]:
-            rows["progress"][-1] = total_reward  # GenSim scores a primitive once its objects settle: the last row
+        high_level_step.append(len(session.rows["action"]))
+        high_level.append(_pose_vector(action))
+        obs, _, done, info = session.primitive(action)
         languages.append(info.get("lang_goal", lang_goal))
         if done:
             break
-    live["on"] = False
-    arrays = {k: np.asarray(v) for k, v in rows.items()}
-    arrays["state"] = arrays["state"].astype(np.float32)
+    session.recording = False
+    arrays = {k: np.asarray(v) for k, v in session.rows.items()}
+    arrays["state"] = arrays["state"].astype(np.float32).reshape(-1, 14)
     arrays["action"] = arrays["action"].astype(np.float32).reshape(-1, 7)
     arrays["progress"] = arrays["progress"].astype(np.float32)
     arrays["high_level_action"] = np.asarray(high_level, np.float32).reshape(-1, 14)
     arrays["high_level_step"] = np.asarray(high_level_step, np.int64)
+    task = session.task
     meta = {"task": req["task"], "seed": seed, "mode": task.mode, "lang_goal": lang_goal, "lang_goals": languages,
-            "total_reward": total_reward, "success": total_reward >= 0.99, "done": bool(done),
-            "primitives": primitives, "max_steps": int(task.max_steps), "physics_steps": live["physics_steps"],
-            "hz": int(req["hz"]), "frame_every": int(req["frame_every"]), "seconds": time.perf_counter() - t0,
-            "task_class": type(task).__name__, "docstring": type(task).__doc__,
-            "clock": req.get("clock", "simulated"), "movej_timeouts": timeouts["movej"]}
+            "total_reward": session.total_reward, "success": session.total_reward >= 0.99, "done": session.done,
+            "primitives": session.primitives, "max_steps": int(task.max_steps),
+            "physics_steps": session.physics_steps, "hz": int(req["hz"]), "frame_every": int(req["frame_every"]),
+            "seconds": time.perf_counter() - t0, "task_class": type(task).__name__, "docstring": type(task).__doc__,
+            "clock": req.get("clock", "simulated"), "movej_timeouts": session.movej_timeouts}
     return {"arrays": arrays, "meta": meta}
 
 
-def _fail(code: int, error: BaseException, where: str) -> None:
+def _where(error: BaseException) -> str:
     frames = traceback.extract_tb(error.__traceback__)
-    place = next((f"{f.filename}:{f.lineno}" for f in reversed(frames)), "")
-    print(json.dumps({"error": f"{type(error).__name__}: {error}", "where": place, "stage": where}), file=sys.stderr)
+    return next((f"{f.filename}:{f.lineno}" for f in reversed(frames)), "")
+
+
+def _fail(code: int, error: BaseException, where: str) -> None:
+    print(json.dumps({"error": f"{type(error).__name__}: {error}", "where": _where(error), "stage": where}),
+          file=sys.stderr)
     raise SystemExit(code)
+
+
+def _pose_pair(action) -> dict:
+    """A 14-d pick/place vector as GenSim's action: {pose0: (xyz, xyzw), pose1: (xyz, xyzw)}."""
+    a = [float(x) for x in action]
+    return {"pose0": (a[0:3], a[3:7]), "pose1": (a[7:10], a[10:14])}
+
+
+def _pose_vector(action: dict) -> list[float]:
+    return [*action["pose0"][0], *action["pose0"][1], *action["pose1"][0], *action["pose1"][1]]
+
+
+def serve(req: dict, commands, replies) -> None:
+    """Closed loop: answer ("reset", seed), ("step", 14-d action), ("oracle",) and ("close",) on `commands`, each
+    with ("ok", ...) or ("error", message, where) on `replies` (multiprocessing connections over the pipes)."""
+    session = Session(req)
+    state: dict = {}
+
+    def small(info: dict) -> dict:
+        return {"success": session.total_reward >= 0.99, "progress": session.total_reward, "done": session.done,
+                "lang_goal": info.get("lang_goal", ""), "max_steps": int(session.task.max_steps)}
+
+    while True:
+        try:
+            command, *args = commands.recv()
+        except EOFError:
+            return
+        try:
+            if command == "close":
+                replies.send(("ok",))
+                return
+            if command == "reset":
+                state["obs"], state["info"] = session.reset(int(args[0]))
+                replies.send(("ok", session.observe(), small(state["info"])))
+            elif command == "step":
+                state["obs"], reward, done, state["info"] = session.primitive(_pose_pair(args[0]))
+                replies.send(("ok", session.observe(), reward, done, small(state["info"])))
+            elif command == "oracle":
+                action = session.agent.act(state["obs"], state["info"])
+                replies.send(("ok", None if action is None else _pose_vector(action)))
+            else:
+                replies.send(("error", f"unknown command {command!r}", ""))
+        except Exception as e:  # noqa: BLE001  (GenSim's code raised: the parent reports it)
+            replies.send(("error", f"{type(e).__name__}: {e}", _where(e)))
 
 
 def _die_with_parent(parent: int | None) -> None:
@@ -252,13 +327,26 @@ def _die_with_parent(parent: int | None) -> None:
 
 
 def main(argv: list[str]) -> None:
-    with open(argv[1], encoding="utf-8") as f:
+    serving = argv[1] == "--serve"
+    with open(argv[-1], encoding="utf-8") as f:
         req = json.load(f)
     _die_with_parent(req.get("parent"))
+    if serving:  # the replies go on the real stdout; GenSim's prints to stdout go to stderr instead
+        from multiprocessing.connection import Connection
+
+        replies = Connection(os.dup(1), readable=False)
+        os.dup2(2, 1)
+        commands = Connection(os.dup(0), writable=False)
     try:
         loaded = load_gensim(req["root"])
     except Exception as e:  # noqa: BLE001  (any import failure of the user's checkout is reported, not raised)
         _fail(EXIT_UNUSABLE, e, "import")
+    if serving:
+        try:
+            serve(req, commands, replies)
+        except Exception as e:  # noqa: BLE001  (the task could not even be set up)
+            replies.send(("error", f"{type(e).__name__}: {e}", _where(e)))
+        return
     try:
         out = record(req)
     except Exception as e:  # noqa: BLE001  (GenSim's own code raised: the parent reports it per episode)
