@@ -7,7 +7,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
-from simeval.errors import UserError, require_folder
+from simeval.errors import require_folder
 
 log = logging.getLogger("generalization")
 VERSION = "1.0"
@@ -20,8 +20,8 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.models.device import resolve_device
     from simeval.models.policy.experiment import run_generalization
+    from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
-    from simeval.sim.spec import SUITES_DIR
 
     require_whole_keys(cfg, {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
                              "eval.seed_offset": 0, "torch_threads": 1, "eval.max_steps": 1},
@@ -29,14 +29,13 @@ def main(cfg: DictConfig) -> None:
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
-    if not cfg.pipeline.get("suite"):
-        raise UserError(f"pipeline={cfg.pipeline.name} has no simeval suite yet (pipeline.suite is null)")
     require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)
     conf = run.config
+    pipeline = pipeline_from_config(conf["pipeline"])  # its suite, or its own code (GenSim's from a checkout)
     with run.logger() as logger:
         values, identity = run_generalization(
-            pipeline=cfg.pipeline.name, suite_dir=SUITES_DIR / cfg.pipeline.suite, task_group=cfg.task_group,
+            pipeline=pipeline, task_group=cfg.task_group,
             tasks=conf["tasks"], heldout_tasks=conf["heldout_tasks"], policy_name=cfg.policy.name,
             model=conf["policy"]["model"], train=conf["policy"]["train"], seed=cfg.seed, store=cfg.store,
             checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,

@@ -21,7 +21,9 @@ GENSIM = ROOT.parent / "shared" / "gensim"
 TASK = "place-red-in-green"
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "HYDRA_FULL_ERROR": "0"}
 
-pytestmark = pytest.mark.skipif(not (GENSIM / "cliport").is_dir(), reason="../shared/gensim is not beside this checkout")
+# GenSim's episodes take 10-30 s each on 2 busy cores (its own three 480x640 renders per primitive included)
+pytestmark = [pytest.mark.skipif(not (GENSIM / "cliport").is_dir(), reason="../shared/gensim is not beside this checkout"),
+              pytest.mark.timeout(900)]
 
 
 def _collect(tmp: Path, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
@@ -241,3 +243,32 @@ def test_gensims_own_task_as_a_gymnasium_env_follows_its_oracle_to_the_recorded_
     finally:
         env.close()
     assert env._proc is None
+
+
+def test_generalization_trains_on_gensims_own_episodes_and_rolls_out_in_its_own_env(own_store, tmp_path):
+    """src/generalization.py pipeline=gensim_own: a (tiny) pick/place policy trained on GenSim's own episodes, rolled
+    out through GenSim's own environment on the train split and on GenSim's test-time mode (the eval split)."""
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), "pipeline=gensim_own",
+                        f"pipeline.root={GENSIM}", "debug=tiny", "task_group=placement", f"tasks=[{TASK}]",
+                        f"store={own_store}", f"checkpoint_dir={tmp_path / 'ck'}", "eval.splits=[train,eval]",
+                        "eval.videos=false", "progress=false", "logger=none", f"hydra.run.dir={tmp_path / 'run'}"],
+                       cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["identity"]["pipeline"] == "gensim_own"
+    assert result["identity"]["variations"] == {TASK: {"mode": "test"}}
+    assert result["identity"]["settings"]["model"]["action_space"] == "pick_place"  # the recorded primitives
+    rows = {(t["task"], t["split"]): t for t in result["values"]["tasks"]}
+    assert set(rows) == {(TASK, "train"), (TASK, "eval")}
+    for row in rows.values():  # one rollout each, ended by GenSim (its done) or the task's max_steps
+        (episode,) = row["episodes"]
+        assert 1 <= episode["steps"] <= 10 and 0.0 <= episode["progress"] <= 1.0
+    assert result["values"]["training"]["trained_tasks"] == [TASK]
+
+
+def test_a_pipeline_with_neither_suite_nor_own_code_cannot_be_evaluated_closed_loop(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), "pipeline=custom",
+                        f"hydra.run.dir={tmp_path / 'run'}", f"checkpoint_dir={tmp_path / 'ck'}"], cwd=tmp_path,
+                       env=ENV, capture_output=True, text=True, timeout=300)
+    line = _error_line(r)
+    assert "pipeline=custom" in line and "pipeline.native" in line

@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 
 
 def _make_env(task: str, action_space: str, variation, image_size, cameras, max_steps):
+    """simeval's own suites' environment (simeval.sim.make_env); a pipeline with its own gives `make_env=`."""
     from simeval.sim import make_env
 
     kwargs = {"max_steps": max_steps} if max_steps else {}
@@ -40,10 +41,13 @@ def _make_env(task: str, action_space: str, variation, image_size, cameras, max_
 
 def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, split: str = "train",
                  variation: Mapping | None = None, max_steps: int | None = None, keep_frames: bool = False,
-                 video_camera: str | None = None, scheduler: str | None = None, steps: int | None = None) -> dict:
+                 video_camera: str | None = None, scheduler: str | None = None, steps: int | None = None,
+                 make_env=None) -> dict:
+    """`make_env(task, action_space, variation, image_size, cameras, max_steps)`: the pipeline's environment
+    (simeval.pipelines.base.Pipeline.make_env); default simeval's suites'."""
     cfg = policy.cfg
     cams = list(dict.fromkeys([*cfg.cameras, *([video_camera] if video_camera else [])]))
-    env = _make_env(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
+    env = (make_env or _make_env)(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
     # a trained policy acts through receding-horizon chunks; a baseline (random_baseline.RandomActions) brings its own
     runner = policy.runner(env) if hasattr(policy, "runner") else RecedingHorizonRunner(policy, scheduler=scheduler,
                                                                                          steps=steps)
@@ -106,7 +110,7 @@ def sampler_action_error(policy: DiffusionPolicy, dataset, samplers: Mapping[str
 
 
 def best_and_worst_videos(policy: DiffusionPolicy, rows: Sequence[Mapping], seed: int, max_steps: int | None,
-                          camera: str, out_dir: str | os.PathLike) -> dict:
+                          camera: str, out_dir: str | os.PathLike, make_env=None) -> dict:
     """Roll out the best and the worst task (by success rate, then mean progress) of the first split again at
     `seed` with frames kept, and write `videos/<best|worst>_<split>_<task>.mp4`. Returns {which: path}."""
     split = rows[0]["split"]
@@ -118,6 +122,6 @@ def best_and_worst_videos(policy: DiffusionPolicy, rows: Sequence[Mapping], seed
             out["best"] = out["worst"]  # one task only
             continue
         rec = rollout_task(policy, row["task"], [seed], split=split, variation=row.get("variation") or None,
-                           max_steps=max_steps, keep_frames=True, video_camera=camera)
+                           max_steps=max_steps, keep_frames=True, video_camera=camera, make_env=make_env)
         out[which] = str(write_video(rec["frames"][seed], Path(out_dir) / "videos" / f"{which}_{split}_{row['task']}.mp4"))
     return out

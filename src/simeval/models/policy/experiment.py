@@ -60,9 +60,10 @@ def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, see
 
 def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds: Sequence[int],
                max_steps: int | None, cache_file: str | os.PathLike, policy_step: int,
-               progress: bool = False) -> list[dict]:
-    """plan: {split: [(task, variation), ...]} (simeval.sim.splits.split_tasks); every (split, task) is rolled out
-    on `seeds`, its row cached in `cache_file` so a killed evaluation resumes. Each row records its variation."""
+               progress: bool = False, make_env=None) -> list[dict]:
+    """plan: {split: [(task, variation), ...]} (Pipeline.split_tasks); every (split, task) is rolled out on `seeds`
+    (in `make_env`'s environments: the pipeline's), its row cached in `cache_file` so a killed evaluation resumes.
+    Each row records its variation."""
     from simeval.models.policy.evaluate import rollout_task
 
     cache_file = Path(cache_file)
@@ -78,7 +79,8 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
         key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler], sort_keys=True)
         if key not in cache:
-            cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps)
+            cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps,
+                                      make_env=make_env)
             atomic_write_text(cache_file, dumps_strict(cache))
         rows.append({**cache[key], "variation": var})
         if bar is not None:
@@ -107,25 +109,23 @@ def names(value) -> list[str] | None:
     return None if value is None else [value] if isinstance(value, str) else list(value)
 
 
-def run_generalization(*, pipeline: str, suite_dir: Path, task_group: str, tasks, heldout_tasks, policy_name: str,
+def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
                        model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
                        episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
                        progress: bool, run_dir: str, logger, config: Mapping | None = None) -> tuple[dict, dict]:
-    """The whole experiment of src/generalization.py without Hydra: the group's tasks and held-out ones
-    (simeval.sim.splits), the policy trained (or resumed, or reused) on the trained tasks' episodes, or the chance
+    """The whole experiment of src/generalization.py without Hydra, for `pipeline` (simeval.pipelines.base.Pipeline:
+    a simeval suite or a pipeline's own code): the group's tasks and held-out ones, the policy trained (or resumed, or reused) on the trained tasks' episodes, or the chance
     baseline for policy_name="random", every (split, task) rolled out (cached), the best and worst videos. Returns
     (values, identity) for result.json. `evaluation`: the eval section of conf/generalization.yaml (splits, seeds,
     seed_offset, max_steps, variation, videos, video_camera, sampler_check); `config` is stored in the checkpoint."""
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.random_baseline import RandomActions
-    from simeval.sim.splits import group_and_heldout, split_tasks
-
-    specs, heldout = group_and_heldout(suite_dir, task_group, tasks, names(heldout_tasks))
+    specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
     override = dict(evaluation["variation"]) if evaluation.get("variation") else None
-    plan = {split: [(s.name, v) for s, v in split_tasks(specs, split, heldout, eval_override=override)]
+    plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
             for split in names(evaluation["splits"])}  # split names and variation keys are checked before training
     for split in [s for s, pairs in plan.items() if not pairs]:
         log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
@@ -139,20 +139,20 @@ def run_generalization(*, pipeline: str, suite_dir: Path, task_group: str, tasks
         settings_id = {"model": {**model, "action_space": policy.cfg.action_space}}
     else:
         policy, ckpt_dir, summary, values, settings_id = train_on(
-            pipeline, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
+            pipeline.name, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
             val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config)
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
-                      progress=progress)
+                      progress=progress, make_env=pipeline.make_env)
     values.update(tasks=rows, splits=ev.summarize(rows))
     if evaluation["videos"] and rows and not chance:
         values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], evaluation["max_steps"],
-                                                    evaluation["video_camera"], run_dir)
+                                                    evaluation["video_camera"], run_dir, pipeline.make_env)
         for which, video in values["videos"].items():
             _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
             logger.log_video(f"rollout/{which}", video, caption=(
                 f"{which} task of the {split} split: {task} (seed {seeds[0]}, camera {evaluation['video_camera']})"))
-    identity = {"pipeline": pipeline, "task_group": task_group, "tasks": group, "policy": policy_name,
+    identity = {"pipeline": pipeline.name, "task_group": task_group, "tasks": group, "policy": policy_name,
                 "heldout_tasks": heldout, "episodes_per_task": episodes_per_task,
                 "variations": {t: v for t, v in plan.get("eval", [])},
                 "eval_seeds": evaluation["seeds"], "settings": settings_id}

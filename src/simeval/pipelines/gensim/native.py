@@ -37,6 +37,7 @@ WORKER = Path(__file__).with_name("worker.py")
 CAMERAS = ("top", "front")  # top: GenSim's Oracle camera (the heightmap view: its depth range shows only what is
 # within ~0.3 m of the table, so the tool when it comes down, not the arm); front: its first RealSense D415 camera
 EXIT_TASK_RAISED, EXIT_UNUSABLE = 3, 4  # as in worker.py (which imports nothing of simeval)
+GENSIM_EVAL_VARIATION = {"mode": "test"}  # the eval split: GenSim's own test-time task mode (its unseen colours)
 SCRATCH_PREFIX = ".gensim-work-"  # <store>/.gensim-work-<collector pid>/: the workers' outputs before they are stored
 
 
@@ -298,3 +299,4 @@ def collect_from_checkout(root, native: dict, tasks, group: str, seeds: Sequence
     return collect_gensim(plan_tasks(path, tasks, group), seeds, EpisodeStore(store), settings,
                           image_size_pair(record.get("image_size"), "record.image_size"), cameras,
                           pipeline=pipeline, workers=workers or os.cpu_count() or 1, progress=progress)
+

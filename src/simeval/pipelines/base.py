@@ -1,0 +1,66 @@
+"""What the closed-loop experiments need of a pipeline, whatever runs its tasks: its task groups and held-out tasks,
+the tasks and variations each evaluation split rolls out, and an environment for a task. Two kinds so far:
+simeval's own suites (`SuitePipeline`, PyBullet re-creations) and a pipeline's own code
+(simeval.pipelines.gensim.pipeline.GensimOwnPipeline: GenSim's tasks run from a checkout).
+simeval.pipelines.registry.pipeline_from_config picks one from a `conf/pipeline/<name>.yaml`.
+
+Task objects only need `.name`, `.group` and `.action_space` (simeval.sim.spec.TaskSpec has them; `NativeTask` for
+tasks simeval has no spec of)."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class NativeTask:
+    name: str
+    group: str
+    action_space: str  # as TaskSpec.action_space: the space its episodes are recorded in ("pick_place" here)
+
+
+class Pipeline(ABC):
+    name: str
+
+    @abstractmethod
+    def group_and_heldout(self, task_group: str, tasks=None, heldout: list[str] | None = None) -> tuple[list, list[str]]:
+        """The tasks of `task_group` (or the named `tasks` among them) and the held-out names among them."""
+
+    @abstractmethod
+    def split_tasks(self, specs: list, split: str, heldout: list[str], *, eval_override: dict | None = None
+                    ) -> list[tuple[object, dict]]:
+        """[(task, variation)] that evaluation split `split` (train | eval | heldout) rolls out."""
+
+    @abstractmethod
+    def make_env(self, task: str, action_space: str, variation: Mapping, image_size: Sequence[int],
+                 cameras: Sequence[str], max_steps: int | None):
+        """A Gymnasium env of `task` observed as simeval's (obs["rgb"][camera], obs["state"]; info["success"],
+        info["progress"])."""
+
+
+class SuitePipeline(Pipeline):
+    """simeval's own PyBullet suite at `suite_dir` (simeval.sim): specs, splits.yaml, make_env."""
+
+    def __init__(self, name: str, suite_dir: Path) -> None:
+        self.name, self.suite_dir = name, Path(suite_dir)
+
+    def group_and_heldout(self, task_group, tasks=None, heldout=None):
+        from simeval.sim.splits import group_and_heldout
+
+        return group_and_heldout(self.suite_dir, task_group, tasks, heldout)
+
+    def split_tasks(self, specs, split, heldout, *, eval_override=None):
+        from simeval.sim.splits import split_tasks
+
+        return split_tasks(specs, split, heldout, eval_override=eval_override)
+
+    def make_env(self, task, action_space, variation, image_size, cameras, max_steps):
+        from simeval.sim import make_env
+
+        kwargs = {"max_steps": max_steps} if max_steps else {}
+        return make_env(task, action_space=action_space, variation=dict(variation or {}),
+                        image_size=tuple(image_size), cameras=tuple(cameras), **kwargs)
+
