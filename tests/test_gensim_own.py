@@ -272,3 +272,19 @@ def test_a_pipeline_with_neither_suite_nor_own_code_cannot_be_evaluated_closed_l
                        env=ENV, capture_output=True, text=True, timeout=300)
     line = _error_line(r)
     assert "pipeline=custom" in line and "pipeline.native" in line
+
+
+def test_the_oracle_table_reports_failed_tasks_beside_solved_ones():
+    sys.path.insert(0, str(ROOT / "experiments"))
+    try:
+        from gensim_own_oracle import table
+    finally:
+        sys.path.pop(0)
+    values = {"new": [{"task": "a", "seconds": 10.0}, {"task": "a", "seconds": 20.0}],
+              "failed": [{"task": "b", "seed": 0, "error": "timed out after 300 s", "where": ""}],
+              "tasks": {"a": {"group": "placement", "episodes": 2, "success": 2, "rate": 1.0, "failed": []},
+                        "b": {"group": "placement", "episodes": 0, "success": 0, "rate": None, "failed": [0]}}}
+    lines, summary = table(values)
+    assert "| placement | a | 2 | 2 | 0 | 15 |" in lines
+    assert "| placement | b | 0 | 0 | 1: timed out after 300 s |  |" in lines
+    assert summary["groups"]["placement"] == {"tasks": 2, "solved": ["a"], "failed": ["b"]}
