@@ -288,3 +288,8 @@ def test_the_oracle_table_reports_failed_tasks_beside_solved_ones():
     assert "| placement | a | 2 | 2 | 0 | 15 |" in lines
     assert "| placement | b | 0 | 0 | 1: timed out after 300 s |  |" in lines
     assert summary["groups"]["placement"] == {"tasks": 2, "solved": ["a"], "failed": ["b"]}
+
+
+def test_resuming_into_a_store_recorded_at_another_size_is_refused(own_store, tmp_path):
+    line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "episodes=1", f"store={own_store}"))
+    assert "record.image_size=[32, 32]" in line and "[64, 64]" in line

@@ -162,7 +162,7 @@ def _prepare_store(root: Path) -> None:
     require_folder("store", root)
 
 
-def _check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:
+def check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:
     """An episode already stored counts as done only if it was recorded as `settings` asks (in the task's
     action-space `kind`). ee_pose tasks (the BBSEA suite) record at their own 4 Hz, whatever record.control_hz."""
     stored = read_recording(path)
@@ -212,7 +212,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     for s in specs:
         for seed in seeds:
             if store.exists_intact(pipeline, s.name, seed, var_of[s.name]):
-                _check_recorded_like(store.path_for(pipeline, s.name, seed, var_of[s.name]), settings,
+                check_recorded_like(store.path_for(pipeline, s.name, seed, var_of[s.name]), settings,
                                      {"ee_delta": EE_DELTA_KIND, "ee_pose": EE_POSE_KIND}.get(s.action_space, JOINT_KIND))
             else:
                 todo.append((s, seed))

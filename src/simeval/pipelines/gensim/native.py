@@ -193,7 +193,17 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
         raise UserError(f"record.cameras: GenSim's episodes have cameras {list(CAMERAS)}, not {unknown}")
     require_folder("store", store.root)
     store.remove_stale_temp_files()
-    todo = [(t, s) for t in tasks for s in seeds if not store.exists_intact(pipeline, t, s)]
+    from simeval.collect import check_recorded_like
+    from simeval.sim.rollout import RecordSettings
+
+    recorded_as = RecordSettings(cameras=tuple(cameras), image_size=image_size, control_hz=settings.control_hz)
+    todo = []
+    for t in tasks:
+        for s in seeds:
+            if store.exists_intact(pipeline, t, s):  # kept only if recorded as this run asks (else a UserError)
+                check_recorded_like(store.path_for(pipeline, t, s), recorded_as)
+            else:
+                todo.append((t, s))
     skipped = len(tasks) * len(seeds) - len(todo)
     new, failed = [], []
     bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} workers)", unit="episode", disable=not progress)
