@@ -7,12 +7,13 @@ descriptions say. Writes outputs/figures/contact_sheet_<suite>.png.
 
 from __future__ import annotations
 
-import argparse
 import textwrap
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,7 +35,7 @@ def main() -> None:
     from simeval.sim.spec import SUITES_DIR
     from simeval.sim.splits import SPLITS_FILE
 
-    ap = argparse.ArgumentParser()
+    ap = OneLineParser()
     ap.add_argument("--suite", default="gensim")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--size", type=int, default=200)

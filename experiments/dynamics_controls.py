@@ -56,6 +56,8 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from simeval.cli import OneLineParser
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -195,9 +197,9 @@ def run_all(args) -> list[dict]:
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.results import atomic_write_text
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
+    from simeval.results import atomic_write_text
 
     torch.set_num_threads(args.threads)
     wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{args.preset}.yaml").read_text())
@@ -453,7 +455,7 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
 def main(argv: list[str] | None = None) -> None:
     import yaml
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    ap = OneLineParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("control", choices=sorted(CONDITIONS))
     ap.add_argument("--preset", default="cpu", help="world_model preset (conf/world_model/<name>.yaml)")
@@ -486,10 +488,9 @@ def main(argv: list[str] | None = None) -> None:
     if max(args.episodes) >= args.heldout[0]:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
+    from simeval.errors import UserError
     from simeval.report.table4_heldout import build, plot, write
     from simeval.results import dumps_strict
-
-    from simeval.errors import UserError
 
     try:
         records = run_all(args)

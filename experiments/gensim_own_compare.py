@@ -8,12 +8,12 @@ does not can be seen. GenSim's episode comes from its own code in the checkout (
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from simeval.cli import OneLineParser
 from simeval.pipelines.gensim.native import GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import SUITES_DIR, load_suite
@@ -27,7 +27,7 @@ def shared_tasks(root: Path) -> list:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--root", required=True, help="a GenSim checkout")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--size", type=int, default=128)

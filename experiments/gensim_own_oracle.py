@@ -13,11 +13,11 @@ the tasks and failures (its summary covers the whole store) and every run its ep
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from simeval.cli import OneLineParser
 from simeval.errors import UserError
 from simeval.report.tables import refuse_committed
 
@@ -52,7 +52,7 @@ def table(values: dict) -> tuple[list[str], dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="run folders of src/collect.py pipeline=gensim_own runs (result.json)")
     ap.add_argument("--out", default="outputs/tables/gensim_own_oracle")
     ap.add_argument("--overwrite", action="store_true", help="replace a committed table")

@@ -21,7 +21,6 @@ Debian binaries a cluster runs.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import signal
@@ -30,6 +29,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 PACKAGES = ("slurm-wlm", "slurmdbd", "munge", "mariadb-server")
 BINARIES = ("munged", "munge", "unmunge", "slurmctld", "slurmd", "slurmdbd", "sbatch", "sinfo", "sacct", "sacctmgr",
@@ -214,7 +215,7 @@ def _kill_steps_of(conf: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("action", choices=["up", "down"])
     ap.add_argument("--dir", default="/tmp/simeval-slurm", help="where the cluster's files live")
     a = ap.parse_args(argv)

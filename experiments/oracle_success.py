@@ -15,11 +15,12 @@ nothing about generalization.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,7 +74,7 @@ def main() -> None:
     from simeval.report.tables import write_table
     from simeval.sim.spec import SUITES_DIR
 
-    ap = argparse.ArgumentParser()
+    ap = OneLineParser()
     ap.add_argument("--suite", default="gensim")
     ap.add_argument("--seeds", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
@@ -118,7 +119,7 @@ def main() -> None:
     names = [p.stem for p in paths] if args.tasks else sorted({t for t, _ in episodes})
     rows = table_rows(episodes, names, args.seeds)
     counts = sorted({int(r[2].split("/")[1]) for r in rows})
-    over = f"{counts[0]} seeds" if len(counts) == 1 else f"seeds 0..n-1 (n per task in the Success column)"
+    over = f"{counts[0]} seeds" if len(counts) == 1 else "seeds 0..n-1 (n per task in the Success column)"
     header = ["Group", "Task", "Success", "Rate", "Mean progress", "Mean steps", "s/episode", "Failed seeds"]
     split = " under each task's eval variation (seeds 100000 + i)" if args.split == "eval" else ""
     notes = [f"Oracle success over {over} per task ({args.suite} suite){split}; per-episode results in "

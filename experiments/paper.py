@@ -37,7 +37,6 @@ memory, CPUs, time, account).
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import os
 import shlex
@@ -49,6 +48,8 @@ import time
 from pathlib import Path
 
 import yaml
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES = ROOT / "experiments" / "profiles"
@@ -231,7 +232,7 @@ def entry(name: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--profile", default="quick")
     ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
     ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")

@@ -13,11 +13,12 @@ typed independently (`../shared/data/human_eval_tables.json`).
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import sys
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "src" / "simeval" / "report" / "paper_human_eval.json"
@@ -78,7 +79,7 @@ def extract(tex: str) -> dict[str, list[dict]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("tex", help="the paper's LaTeX source")
     ap.add_argument("--out", default=str(DEFAULT_OUT))
     a = ap.parse_args(argv)

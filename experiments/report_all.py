@@ -20,9 +20,10 @@ with status 2 after the remaining steps.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,7 +121,7 @@ TITLES = {"table3": "Table 3", "table4": "Table 4", "table5": "Table 5", "figure
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default=",".join(STEPS), help=f"comma-separated steps of {', '.join(STEPS)}")
     ap.add_argument("--table3-runs", default="outputs/table3/runs")
     ap.add_argument("--table4-runs", default="outputs")

@@ -8,10 +8,11 @@ Writes outputs/tables/world_model_control.json and outputs/figures/world_model_c
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +54,7 @@ def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_acti
     for m in METRICS:
         per_seed = []
         for seed in seeds:
-            get = lambda g, k: next(r[m] for r in rows if r["seed"] == seed and r["group"] == g and r["episodes"] == k)  # noqa: E731
+            get = lambda g, k: next(r[m] for r in rows if r["seed"] == seed and r["group"] == g and r["episodes"] == k)
             lo, hi = min(episodes), max(episodes)
             per_seed.append({"seed": seed,
                              "higher_at_few": get("diverse", lo) > get("shared", lo),
@@ -91,7 +92,7 @@ def plot(result: dict, path: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="tiny")
     ap.add_argument("--epochs", type=int, default=None)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])

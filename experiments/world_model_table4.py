@@ -17,15 +17,16 @@ here); the runs under --root still have to exist, and a cell they have replaces 
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
+
+from simeval.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="Paper Table 4 (world-model eval error at 10/20/40 training episodes per "
+    ap = OneLineParser(description="Paper Table 4 (world-model eval error at 10/20/40 training episodes per "
                                              "task group) from dynamics_diversity result.json files, with a figure.")
     ap.add_argument("--root", default=str(ROOT / "outputs"), help="folder searched for result.json files")
     ap.add_argument("--preset", default=None, help="only runs of this world_model preset")

@@ -8,18 +8,18 @@ version resampled Kendall's tau with a hand-written O(n^2) loop per resample, 9 
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
+from common import machine, save
 
-from common import machine, save  # noqa: E402
+from simeval.cli import OneLineParser
 
 REFERENCE_KENDALL_ONLY_S = 9.0
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=100, help="tasks (pairs of human and model scores)")
     ap.add_argument("--boot", type=int, default=2000, help="bootstrap resamples")
     ap.add_argument("--repeats", type=int, default=5)

@@ -24,21 +24,22 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import machine, save
 
-from common import machine, save  # noqa: E402
-
-
-from simeval.collect import collect  # noqa: E402
-from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_meta  # noqa: E402
-from simeval.sim.objects import make_object  # noqa: E402
-import simeval.sim.panda as panda  # noqa: E402
-import simeval.sim.robot as robot  # noqa: E402
-from simeval.sim.robot import Arm  # noqa: E402
-from simeval.sim.rollout import RecordSettings, run_episode  # noqa: E402
-from simeval.sim.articulated import set_joint_fraction  # noqa: E402
-from simeval.sim.env import find_task  # noqa: E402
-from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance  # noqa: E402
-from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World  # noqa: E402
+from simeval.cli import OneLineParser
+from simeval.collect import collect
+from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_meta
+from simeval.sim import (
+    panda,
+    robot,
+)
+from simeval.sim.articulated import set_joint_fraction
+from simeval.sim.env import find_task
+from simeval.sim.objects import make_object
+from simeval.sim.robot import Arm
+from simeval.sim.rollout import RecordSettings, run_episode
+from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance
+from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World
 
 BBSEA_TASKS = ["bbsea-block-in-bin", "bbsea-stack-three-blocks", "bbsea-open-drawer-put-block",
                "bbsea-put-block-in-drawer-and-close"]  # two per group of the BBSEA suite (--suite bbsea)
@@ -137,9 +138,8 @@ def bbsea_main() -> None:
 
 
 def main() -> None:
-    import argparse
 
-    ap = argparse.ArgumentParser()
+    ap = OneLineParser()
     ap.add_argument("--suite", choices=("gensim", "bbsea"), default="gensim")
     if ap.parse_args().suite == "bbsea":
         return bbsea_main()

@@ -15,7 +15,6 @@ One process at a time (no parallel workers), so the ratios are per core. Writes 
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ from pathlib import Path
 
 from common import machine, save
 
+from simeval.cli import OneLineParser
 from simeval.pipelines.gensim.native import WORKER, GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.spec import SUITES_DIR, load_spec
@@ -40,7 +40,7 @@ def import_seconds(root: Path) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--root", required=True)
     ap.add_argument("--seeds", type=int, default=3)
     args = ap.parse_args()

@@ -14,13 +14,13 @@ paper is measured in this one run; absolute seconds depend on the machine and it
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import time
 
+from common import ROOT, machine, save
 
-from common import ROOT, machine, save  # noqa: E402
+from simeval.cli import OneLineParser
 
 # (pipeline/group: tasks, mean rows per episode), from the committed Table 4 runs (README, Dynamics diversity)
 GROUPS = {"bbsea/drawer": (7, 40), "bbsea/table": (9, 40), "robogen/table_top": (6, 45), "robogen/ground": (7, 45),
@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> None:
     from simeval.models.training import collate, epoch_batches, evaluate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=30)
     a = ap.parse_args(argv)

@@ -15,12 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from common import ROOT, machine, save
 
-from common import ROOT, machine, save  # noqa: E402
-
-
-from simeval.devserver import LoopbackOpenAI  # noqa: E402
-from simeval.judges.providers import Image  # noqa: E402
+from simeval.devserver import LoopbackOpenAI
+from simeval.judges.providers import Image
 
 LATENCY_S, CONCURRENCY, RATE_PER_MIN, TASKS, REPEATS = 0.3, 16, 6000, 20, 5
 

@@ -20,17 +20,18 @@ import argparse
 import time
 
 import numpy as np
+from common import machine, save
 
-from common import machine, save  # noqa: E402
-
-
-import simeval.sim.env as env_mod  # noqa: E402
-import simeval.sim.objects as objects  # noqa: E402
-import simeval.sim.robot as robot  # noqa: E402
-from simeval.sim.env import make_env  # noqa: E402
-from simeval.sim.oracle import next_primitive  # noqa: E402
-from simeval.sim.spec import SUITES_DIR, load_spec  # noqa: E402
-from simeval.sim.world import PILE_SOLVER_RESIDUAL, World  # noqa: E402
+import simeval.sim.env as env_mod
+from simeval.cli import OneLineParser
+from simeval.sim import (
+    objects,
+    robot,
+)
+from simeval.sim.env import make_env
+from simeval.sim.oracle import next_primitive
+from simeval.sim.spec import SUITES_DIR, load_spec
+from simeval.sim.world import PILE_SOLVER_RESIDUAL, World
 
 TASKS = ["sweep-pile-into-zone", "sweep-two-piles", "sweep-pile-into-matching-zone"]
 CONFIGS = {  # (solver residual for pile worlds, particles in maximal coordinates, blade height)
@@ -74,7 +75,7 @@ def run(task: str, seed: int, primitives: int) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--primitives", type=int, default=5)
     args = ap.parse_args()

@@ -10,19 +10,17 @@ reference are only meaningful on cpu.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
 import torch
 import yaml
+from common import ROOT, device_info, machine, save
 
-from common import ROOT, device_info, machine, save  # noqa: E402
-
-
-from simeval.errors import UserError  # noqa: E402
-from simeval.models.device import resolve_device  # noqa: E402
-from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig  # noqa: E402
+from simeval.cli import OneLineParser
+from simeval.errors import UserError
+from simeval.models.device import resolve_device
+from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig
 
 REFERENCE = {"train_step_s": 0.32, "chunk_s": 0.11}  # official U-Net at the cpu settings, batch 64 / 16 steps
 
@@ -93,7 +91,7 @@ def _cond_dim(policy: DiffusionPolicy) -> int:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", nargs="+", default=["tiny", "cpu", "authors_gensim", "official"])
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's, all cores)")
     ap.add_argument("--repeats", type=int, default=5)

@@ -10,11 +10,11 @@ read; seconds depend on the machine and its load (recorded).
 
 from __future__ import annotations
 
-import argparse
 import time
 
+from common import ROOT, machine, save
 
-from common import ROOT, machine, save  # noqa: E402
+from simeval.cli import OneLineParser
 
 
 def main() -> None:
@@ -27,7 +27,7 @@ def main() -> None:
     from simeval.models.training import collate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=22)
     ap.add_argument("--repeats", type=int, default=2)

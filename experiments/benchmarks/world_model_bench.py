@@ -12,13 +12,13 @@ is CPU work either way.
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import time
 
+from common import ROOT, device_info, machine, save, world_model_batch
 
-from common import ROOT, device_info, machine, save, world_model_batch  # noqa: E402
+from simeval.cli import OneLineParser
 
 REFERENCE_STEP_S = {"paper": 5.65, "cpu": 0.24}
 STEPS = {"tiny": 20, "cpu": 10, "paper": 4}
@@ -103,7 +103,7 @@ def bench_reading(seconds: float = 8.0) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", nargs="+", default=["tiny", "cpu", "paper"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-reading", action="store_true")

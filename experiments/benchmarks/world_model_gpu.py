@@ -17,13 +17,13 @@ fraction of its wall time is bound by launching them from Python (the RSSM's ste
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import sys
 import time
 
+from common import ROOT, device_info, machine, save, world_model_batch
 
-from common import ROOT, device_info, machine, save, world_model_batch  # noqa: E402
+from simeval.cli import OneLineParser
 
 
 def load_baseline(path: str):
@@ -107,7 +107,7 @@ def kernel_time(model_cls, cfg, batch, device) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", nargs="+", default=["cpu", "paper"])
     ap.add_argument("--window", type=int, nargs="+", default=None,
                     help="window lengths to time (default: each preset's own)")

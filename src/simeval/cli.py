@@ -12,6 +12,7 @@ Every entrypoint is written as::
 
 from __future__ import annotations
 
+import argparse
 import functools
 import os
 import sys
@@ -414,3 +415,11 @@ def launch(main: Callable[[], Any]) -> None:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush would raise once more
         sys.exit(1)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse for the experiment scripts, with a user error as one line (exit 2) instead of the usage block:
+    `--help` still prints the usage."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        _fail(f"{self.prog}: {message} (see --help)")
