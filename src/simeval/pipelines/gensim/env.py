@@ -32,7 +32,7 @@ class GensimEnv(gym.Env):
                  cameras: Sequence[str] = CAMERAS, max_steps: int | None = None) -> None:
         self.task, self.settings, self.cameras = task, settings, tuple(cameras)
         self.image_size = (int(image_size[0]), int(image_size[1]))
-        self.max_steps = max_steps  # None: GenSim's task.max_steps, as demos.py
+        self.max_steps = max_steps  # a cap below GenSim's task.max_steps (which always holds, as in demos.py)
         h, w = self.image_size
         self.observation_space = gym.spaces.Dict({
             "rgb": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}),
@@ -94,8 +94,8 @@ class GensimEnv(gym.Env):
         obs, reward, done, info = self._call("step", action.tolist())
         self._steps += 1
         terminated = bool(info["success"] or done)
-        limit = self.max_steps if self.max_steps is not None else info.get("max_steps")
-        truncated = bool(not terminated and limit is not None and self._steps >= limit)
+        limits = [m for m in (self.max_steps, info.get("max_steps")) if m is not None]  # GenSim's cap holds too
+        truncated = bool(not terminated and limits and self._steps >= min(limits))
         return self._obs(obs), reward, terminated, truncated, info
 
     def oracle_action(self) -> np.ndarray | None:
