@@ -121,6 +121,11 @@ def test_a_folder_that_is_not_a_gensim_checkout_is_one_line(tmp_path):
     r = _collect(tmp_path, f"pipeline.root={tmp_path / 'notgensim'}", f"store={tmp_path / 'store'}")
     line = _error_line(r)
     assert "is not a GenSim checkout" in line and "cliport" in line
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "collect.py"), "pipeline=gensim_own",
+                        f"hydra.run.dir={tmp_path / 'run2'}", f"store={tmp_path / 'store'}"], cwd=tmp_path,
+                       env={**ENV, "GENSIM_ROOT": str(tmp_path / "notgensim")}, capture_output=True, text=True,
+                       timeout=300)
+    assert "(from GENSIM_ROOT) is not a GenSim checkout" in _error_line(r)  # which setting to fix
 
 
 def test_an_unknown_task_and_a_mismatched_rate_are_one_line(tmp_path):

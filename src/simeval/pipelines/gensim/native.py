@@ -80,8 +80,9 @@ def check_checkout(root: str | os.PathLike | None) -> Path:
     need = ["cliport/tasks/__init__.py", "cliport/environments/environment.py", "cliport/environments/assets"]
     missing = [n for n in need if not (path / n).exists()]
     if missing:
-        raise UserError(f"pipeline.root={root} is not a GenSim checkout ({missing[0]} not found): give the folder "
-                        "that holds GenSim's cliport/ (git clone https://github.com/liruiw/GenSim)")
+        source = " (from GENSIM_ROOT)" if os.environ.get("GENSIM_ROOT") == str(root) else ""
+        raise UserError(f"pipeline.root={root}{source} is not a GenSim checkout ({missing[0]} not found): give the "
+                        "folder that holds GenSim's cliport/ (git clone https://github.com/liruiw/GenSim)")
     return path.resolve()
 
 
