@@ -298,3 +298,13 @@ def test_the_oracle_table_reports_failed_tasks_beside_solved_ones():
 def test_resuming_into_a_store_recorded_at_another_size_is_refused(own_store, tmp_path):
     line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "episodes=1", f"store={own_store}"))
     assert "record.image_size=[32, 32]" in line and "[64, 64]" in line
+
+
+def test_the_collect_hint_repeats_the_stores_frame_size(own_store, tmp_path):
+    """The store holds 32x32 episodes: the command diversity suggests must ask for that size, or the collector
+    (which never mixes sizes in one store) would refuse it."""
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=gensim_own",
+                        "task_group=placement", f"store={own_store}", f"hydra.run.dir={tmp_path / 'run'}"],
+                       cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
+    line = _error_line(r)
+    assert "episodes=50" in line and "'record.image_size=[32,32]'" in line

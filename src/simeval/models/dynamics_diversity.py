@@ -386,7 +386,10 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
     """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
     reads, not to its own default), or, for a pipeline without a simeval suite, how to import them. `extra`:
     overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match).
-    `native`: the pipeline's own code records its episodes (pipeline.native, e.g. GenSim's from a checkout)."""
+    `native`: the pipeline's own code records its episodes (pipeline.native, e.g. GenSim's from a checkout).
+    Episodes of the pipeline already in the store at another frame size than the collector's default make the
+    command say that size too (record.image_size=...), since the collector refuses to mix sizes in one store."""
+    extra += _stored_size_override(store, pipeline, extra)
     if native:
         return (f"collect them with the pipeline's own code: python src/collect.py pipeline={pipeline} "
                 f"pipeline.root=<checkout> task_group={group} episodes={episodes} store={store}{extra}")
@@ -401,6 +404,21 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
         return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"
     return (f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
             f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
+
+
+def _stored_size_override(store: str | Path, pipeline: str, extra: str) -> str:
+    """` record.image_size=[H,W]` when the store's first episode of `pipeline` was recorded at a size other than
+    conf/collect.yaml's 64x64 and `extra` does not already settle it (a debug overlay or the key itself)."""
+    from simeval.episodes.store import EpisodeStore, read_recording
+
+    if "debug=" in extra or "record.image_size" in extra:
+        return ""
+    try:
+        first = next(iter(EpisodeStore(store).paths(pipeline)), None)
+        size = read_recording(first)["record.image_size"] if first is not None else None
+    except (UserError, OSError):  # a damaged file is reported by the caller's own error
+        return ""
+    return f" 'record.image_size=[{size[0]},{size[1]}]'" if size and list(size) != [64, 64] else ""
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
