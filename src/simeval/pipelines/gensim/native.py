@@ -189,14 +189,14 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
     failed}}}. Raises UserError when GenSim cannot be imported at all (the first worker says why)."""
     from tqdm import tqdm
 
+    from simeval.collect import check_recorded_like
+    from simeval.sim.rollout import RecordSettings
+
     unknown = [c for c in cameras if c not in CAMERAS]
     if unknown:
         raise UserError(f"record.cameras: GenSim's episodes have cameras {list(CAMERAS)}, not {unknown}")
     require_folder("store", store.root)
     store.remove_stale_temp_files()
-    from simeval.collect import check_recorded_like
-    from simeval.sim.rollout import RecordSettings
-
     recorded_as = RecordSettings(cameras=tuple(cameras), image_size=image_size, control_hz=settings.control_hz)
     todo = []
     for t in tasks:
@@ -298,16 +298,15 @@ def collect_from_checkout(root, native: dict, tasks, group: str, seeds: Sequence
                           pipeline: str = "gensim_own", workers: int = 0, progress: bool = True) -> dict:
     """src/collect.py for a pipeline with `native:` settings: checks the checkout and settings, plans the tasks,
     collects (collect_gensim). `record`: the collector's record settings (cameras, image_size, control_hz)."""
-    from simeval.sim.rollout import image_size_pair
+    from simeval.sim.rollout import RecordSettings
 
     path = check_checkout(root)
     settings = GensimSettings(root=str(path), **native)
-    check_settings(settings, record.get("control_hz", settings.control_hz))
+    recording = RecordSettings(**record)  # the suites' checks of record.* (cameras, sizes, rate), one place
+    check_settings(settings, recording.control_hz)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
-    cameras = record.get("cameras") or list(CAMERAS)
-    cameras = [cameras] if isinstance(cameras, str) else list(cameras)
     return collect_gensim(plan_tasks(path, tasks, group), seeds, EpisodeStore(store), settings,
-                          image_size_pair(record.get("image_size"), "record.image_size"), cameras,
-                          pipeline=pipeline, workers=workers or os.cpu_count() or 1, progress=progress)
+                          recording.image_size, recording.cameras, pipeline=pipeline,
+                          workers=workers or os.cpu_count() or 1, progress=progress)
 
