@@ -21,7 +21,14 @@ from typing import ClassVar
 import gymnasium as gym
 import numpy as np
 
-from simeval.pipelines.gensim.native import CAMERAS, WORKER, EpisodeFailed, GensimSettings
+from simeval.pipelines.gensim.native import (
+    CAMERAS,
+    WORKER,
+    EpisodeFailed,
+    GensimSettings,
+    worker_environment,
+    worker_request,
+)
 from simeval.sim.action_spaces import POSE_HIGH, POSE_LOW
 
 
@@ -47,16 +54,13 @@ class GensimEnv(gym.Env):
         from multiprocessing.connection import Connection
 
         self._scratch = tempfile.mkdtemp(prefix="simeval-gensim-env-")
-        req = {"root": self.settings.root, "task": self.task, "image_size": list(self.image_size),
-               "cameras": list(self.cameras), "hz": self.settings.hz, "frame_every": self.settings.frame_every,
-               "mode": self.settings.mode, "clock": self.settings.clock, "parent": os.getpid()}
+        req = worker_request(self.settings, self.task, self.image_size, self.cameras)
         path = Path(self._scratch) / "request.json"
         path.write_text(json.dumps(req))
-        env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONHASHSEED="0")
-        env.pop("PYTHONPATH", None)
         self._stderr = open(Path(self._scratch) / "stderr.txt", "w+")  # noqa: SIM115  (closed in close())
         self._proc = subprocess.Popen([self.settings.python or sys.executable, str(WORKER), "--serve", str(path)],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, env=env)
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
+                                      env=worker_environment())
         self._send = Connection(os.dup(self._proc.stdin.fileno()), readable=False)
         self._recv = Connection(os.dup(self._proc.stdout.fileno()), writable=False)
 

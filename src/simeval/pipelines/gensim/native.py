@@ -109,21 +109,33 @@ class EpisodeFailed(RuntimeError):
         super().__init__(f"{task} seed {seed}: {error}" + (f" (at {where})" if where else ""))
 
 
+def worker_request(settings: GensimSettings, task: str, image_size: Sequence[int], cameras: Sequence[str],
+                   **more) -> dict:
+    """What a worker (recording or serving) is asked to run; `more`: seed and out for a recording."""
+    return {"root": settings.root, "task": task, "image_size": list(image_size), "cameras": list(cameras),
+            "hz": settings.hz, "frame_every": settings.frame_every, "mode": settings.mode, "clock": settings.clock,
+            "parent": os.getpid(), **more}
+
+
+def worker_environment() -> dict:
+    """The worker's environment: no bytecode written into the checkout, fixed hashing, and no PYTHONPATH (the worker
+    imports GenSim and numpy only; simeval's path must not shadow them)."""
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONHASHSEED="0")
+    env.pop("PYTHONPATH", None)
+    return env
+
+
 def run_worker(task: str, seed: int, settings: GensimSettings, image_size: tuple[int, int],
                cameras: Sequence[str], scratch: Path, live: set | None = None) -> tuple[dict, dict]:
     """Record one episode in a worker process; returns (arrays, meta) or raises EpisodeFailed. `live`: a set the
     running process is kept in, so a collector that is stopped can kill it at once."""
     out = scratch / f"{task}_{seed}"
-    req = {"root": settings.root, "task": task, "seed": int(seed), "image_size": list(image_size),
-           "cameras": list(cameras), "hz": settings.hz, "frame_every": settings.frame_every, "mode": settings.mode,
-           "clock": settings.clock, "out": str(out), "parent": os.getpid()}
     req_path = scratch / f"{task}_{seed}.request.json"
-    req_path.write_text(json.dumps(req))
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONHASHSEED="0")
-    env.pop("PYTHONPATH", None)  # the worker imports GenSim and numpy only; simeval's path must not shadow them
+    req_path.write_text(json.dumps(worker_request(settings, task, image_size, cameras, seed=int(seed), out=str(out))))
     cmd = [settings.python or sys.executable, str(WORKER), str(req_path)]
     try:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=worker_environment())
     except FileNotFoundError:
         raise EpisodeFailed(task, seed, f"pipeline.native.python={settings.python}: no such interpreter",
                             unusable=True) from None
