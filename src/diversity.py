@@ -25,8 +25,9 @@ def main(cfg: DictConfig) -> None:
 
     require_whole_keys(cfg, {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
                              "eval.batch_size": 1})
-    if not isinstance(cfg.compile, bool):
-        raise UserError(f"compile={'null' if cfg.compile is None else repr(cfg.compile)}: expected true or false")
+    for key in ("compile", "capture"):
+        if not isinstance(cfg[key], bool):
+            raise UserError(f"{key}={'null' if cfg[key] is None else repr(cfg[key])}: expected true or false")
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)
@@ -37,6 +38,9 @@ def main(cfg: DictConfig) -> None:
                            ranks_of(conf["heldout_episodes"], "heldout_episodes"))
     torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
+    if cfg.capture and device.type != "cuda":
+        raise UserError(f"capture=true: a CUDA graph needs a GPU, and device={cfg.device} is {device}; use "
+                        "capture=false")
     _ = measure.configs  # a bad protocol.* value stops here, before the store is read
     needed = max(int(cfg.episodes), (measure.eval_episodes or (0, 40))[1])  # protocol=paper's held-out: optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's
@@ -46,7 +50,8 @@ def main(cfg: DictConfig) -> None:
     identity = measure.identity(source)
     with run.logger() as logger:
         values = measure.fit(source, checkpoint_dir=cfg.checkpoint_dir, logger=logger, device=device,
-                             compile=cfg.compile, videos=int(cfg.videos), video_dir=f"{run.output_dir}/videos",
+                             compile=cfg.compile, capture=cfg.capture, videos=int(cfg.videos),
+                             video_dir=f"{run.output_dir}/videos",
                              progress=bool(cfg.progress), how_to_get_more=lambda n: how_to_get_episodes(
                                  cfg.store, cfg.pipeline.name, cfg.task_group, suite, n, debug, native))
         path = run.write(metric="dynamics_diversity", version=VERSION, values=values, seed=int(cfg.seed),

@@ -222,7 +222,7 @@ def test_compiled_steps_train_to_the_eager_numbers_in_the_same_checkpoint(tmp_pa
     steps = compiled["train"]["steps"]
     assert again["train"]["compile"] is False and again["train"]["steps"] == steps
     assert again["train"]["segments"] == compiled["train"]["segments"] == [
-        {"steps": [0, steps], "device": "cpu", "compile": True}]
+        {"steps": [0, steps], "device": "cpu", "compile": True, "capture": False}]
     assert again["eval"]["image_error"] == pytest.approx(compiled["eval"]["image_error"], rel=1e-5)
 
 

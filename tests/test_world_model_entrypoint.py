@@ -145,6 +145,15 @@ def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip() == "error: compile='fast': expected true or false", r.stderr[-2000:]
 
 
+def test_capture_is_true_or_false_and_needs_a_gpu_one_line_each(tmp_path):
+    r = run("debug=tiny", "capture=yes", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip() == "error: capture='yes': expected true or false", r.stderr[-2000:]
+    r = run("debug=tiny", "capture=true", "device=cpu", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip() == ("error: capture=true: a CUDA graph needs a GPU, and device=cpu "
+                                                      "is cpu; use capture=false"), r.stderr[-2000:]
+    assert not (tmp_path / "store").exists()  # refused before any data is read
+
+
 def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tasks():
     """Hand-made episodes: task a's training episodes have 30 and 41 rows, b's 25 and 28, c's 50 of which only the
     20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window; the

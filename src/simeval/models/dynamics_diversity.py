@@ -96,7 +96,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
                      log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
                      videos: int = 0, video_dir: str | Path | None = None,
-                     device: str | torch.device | None = "auto", compile: bool = False,
+                     device: str | torch.device | None = "auto", compile: bool = False, capture: bool = False,
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
                      steps: int | None = None, horizon: int | None = None, lr: float | None = None,
                      mask_margin: int = 0, exclude_robot_from_loss: bool = False,
@@ -110,7 +110,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
     so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
     `train.segments` how each part of the training ran (simeval.models.training.train). `compile`: compile the
-    model's steps (WorldModel.compile_steps; for a GPU), likewise not part of the key. `how_to_get_more(n)`:
+    model's steps (WorldModel.compile_steps; for a GPU), `capture`: train with the whole step as one CUDA graph
+    (simeval.models.captured; CUDA only), both likewise not part of the key. `how_to_get_more(n)`:
     what a UserError about too few episodes per task tells the user to run (how_to_get_episodes).
 
     `protocol`: "paper" (the paper's Table 4 quantity: the posterior reconstruction averaged over `eval_episodes`,
@@ -136,7 +137,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context,
             eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
-            progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile,
+            progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile, capture=capture,
             how_to_get_more=how_to_get_more, evaluate_only=evaluate_only)
     setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
                      checkpoint_dir, how_to_get_more)
@@ -156,7 +157,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
     with WorldModel.compile_failures_named(compile):  # training, and the evaluations' new shapes compiled too
         summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                        progress=progress, device=device, compile=compile)
+                        progress=progress, device=device, compile=compile, capture=capture)
         main_eval, eval_ds = run_eval(*eval_episodes)
         values = {"eval": main_eval, "heldout": None, "videos": {}}
         clips = (prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
@@ -168,7 +169,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      min(counts.values()))
     values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                         for task, frames in clips.items()}
-    values["train"] = setup.train_summary(summary, device, compile)
+    values["train"] = setup.train_summary(summary, device, compile, capture)
     values["model"] = setup.model_summary()
     values["tasks"] = sorted(counts)
     values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
@@ -225,7 +226,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                               exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
                               eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
-                              how_to_get_more, evaluate_only: bool = False) -> dict:
+                              capture: bool, how_to_get_more, evaluate_only: bool = False) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.models.prediction import evaluate_prediction, task_mean_images
 
@@ -277,7 +278,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
     means = task_mean_images(source, setup.train_mask, model_cfg.image_size)
     with WorldModel.compile_failures_named(compile):
         summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
-                        log_metrics=log_metrics, progress=progress, device=device, compile=compile)
+                        log_metrics=log_metrics, progress=progress, device=device, compile=compile,
+                        capture=capture)
         started = time.perf_counter()
         prediction = evaluate_prediction(setup.model, step_ds, eval_ds, means, context, seed=eval_seed,
                                          batch_size=eval_batch_size, progress=progress)
@@ -293,7 +295,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
               "prediction": prediction,
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
-              "train": setup.train_summary(summary, device, compile), "model": setup.model_summary(),
+              "train": setup.train_summary(summary, device, compile, capture), "model": setup.model_summary(),
               "tasks": sorted(set(setup.tasks)),
               "checkpoint": str(setup.checkpoint) if setup.checkpoint is not None else None}
     return values
@@ -318,11 +320,12 @@ class _Setup:
         return {"parameters": self.model.n_parameters(), "state_dim": self.model.state_dim,
                 "action_dim": self.model.action_dim, "action_space": self.train_ds.action_space.get("kind")}
 
-    def train_summary(self, summary: dict, device, compile: bool) -> dict:
+    def train_summary(self, summary: dict, device, compile: bool, capture: bool) -> dict:
         return {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
                 "frames": summary["frames"], "episodes": int(self.train_mask.sum()),
                 "windows_per_epoch": int(len(self.train_ds.windows(0))), "last": summary["last"],
-                "device": str(device), "compile": bool(compile), "segments": summary["segments"]}
+                "device": str(device), "compile": bool(compile), "capture": bool(capture),
+                "segments": summary["segments"]}
 
 
 def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
@@ -560,7 +563,7 @@ class DiversityRun:
         return ident
 
     def fit(self, source, *, checkpoint_dir, logger, device, compile: bool, videos: int, video_dir: str,
-            progress: bool, how_to_get_more=None) -> dict:
+            progress: bool, how_to_get_more=None, capture: bool = False) -> dict:
         """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
         model_cfg, train_cfg, window = self.configs
         paper = self.protocol["name"] == "paper"
@@ -572,7 +575,7 @@ class DiversityRun:
             eval_seed=int(self.evaluation["seed"]), eval_context=int(self.evaluation["context"]),
             eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
             log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
-            compile=compile, how_to_get_more=how_to_get_more)
+            compile=compile, capture=capture, how_to_get_more=how_to_get_more)
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "

@@ -10,8 +10,8 @@ its last checkpoint takes the same steps as one never interrupted (on the same m
 Device (`device`: auto, cpu, cuda, cuda:N; simeval.models.device): the model, Adam's state and each batch live
 there; the random draws come from the CPU generators above and are moved, so they do not depend on the device.
 Checkpoints hold CPU tensors and not the device: a run started on a GPU resumes on a CPU machine and vice versa.
-`compile` (WorldModel.compile_steps) is, like the device, how a run computes and not what: it is not part of a
-checkpoint either.
+`compile` (WorldModel.compile_steps) and `capture` (the whole step as one CUDA graph: simeval.models.captured) are,
+like the device, how a run computes and not what: they are not part of a checkpoint either.
 
 Evaluation (`evaluate`): the model observes each evaluation window with posterior samples from a generator seeded
 with `seed` and reports, averaged over all valid evaluation frames:
@@ -131,18 +131,22 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
 
 def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None = None, meta: dict | None = None,
           log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
-          device: str | torch.device | None = "auto", compile: bool = False) -> dict:
+          device: str | torch.device | None = "auto", compile: bool = False, capture: bool = False) -> dict:
     """Train in place on `device` (the model is moved there; with `compile`, its steps are compiled: see
     WorldModel.compile_steps); return {steps, epochs, seconds, frames, segments, last:
     metrics}, where seconds and frames count the whole training, the parts before a resume included, and segments
-    says how each part was trained: [{steps: [first, end), device, compile}] (device and compile None for a part
+    says how each part was trained: [{steps: [first, end), device, compile, capture}] (None for what a part
     written before checkpoints recorded them). With
     `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device) matches, and
     save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint (the config
     that made it)."""
     from tqdm.auto import tqdm
 
+    from simeval.models.captured import CapturedTrainStep
+
     device = resolve_device(device)
+    if capture and device.type != "cuda":
+        raise UserError(f"capture=true needs a CUDA device (device resolved to {device}); run with capture=false")
     model.to(device)  # before Adam is made: its state is created beside the parameters
     if compile:
         model.compile_steps()
@@ -170,7 +174,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     first_step = step
 
     def trained_by() -> list[dict]:
-        here = {"steps": [first_step, step], "device": str(device), "compile": bool(compile)}
+        here = {"steps": [first_step, step], "device": str(device), "compile": bool(compile), "capture": bool(capture)}
         return segments + ([here] if step > first_step else [])
 
     def save(e: int, b: int, finished: bool = False) -> None:
@@ -183,6 +187,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
                                          "segments": trained_by()})
 
     model.train()
+    captured = CapturedTrainStep(model, opt, cfg.clip) if capture else None
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
     started = None  # (clock, step) where this process started training: the pace is measured from there
@@ -203,12 +208,15 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
                        disable=not progress, leave=False)
             for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
-                loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
-                                        generator=step_generator(cfg.seed, step))
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
-                opt.step()
+                if captured is not None:  # it copies the batch into its graph's inputs itself
+                    last = captured(to_torch(batch), step_generator(cfg.seed, step))
+                else:
+                    loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
+                                            generator=step_generator(cfg.seed, step))
+                    opt.zero_grad(set_to_none=True)
+                    loss.backward()
+                    last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
+                    opt.step()
                 step += 1
                 done_in_epoch += 1
                 frames += int(batch["mask"].sum())

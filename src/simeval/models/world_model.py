@@ -311,16 +311,23 @@ class RSSM(nn.Module):
         return post, prior
 
     def observe(self, embed: torch.Tensor, prev_action: torch.Tensor, is_first: torch.Tensor, state=None,
-                generator=None) -> tuple[dict, dict]:
+                generator=None, noise: torch.Tensor | None = None,
+                resets: list[bool] | None = None) -> tuple[dict, dict]:
         """Posterior and prior states over a window: each a dict of (B, T, ...). The window's latent noise is drawn
-        at once and its resets read from the device once, so a GPU runs the window without waiting on the host."""
+        at once and its resets read from the device once, so a GPU runs the window without waiting on the host.
+        `noise`: the window's (T, 2, B, S, K) uniforms (`uniforms`), else drawn from `generator`. `resets`: per step,
+        whether to blend in the initial state where is_first is set (else read from is_first); a step told True
+        where no row resets computes the same values, since the blend is then x * 1 + init * 0 (what a CUDA graph,
+        which cannot read the device mid-capture, relies on: simeval.models.captured)."""
         b, t = embed.shape[:2]
         if state is None:
             state = self.initial(b)
         posts, priors = [], []
         deter_weight, embed_weight = self.split_obs_layer()
-        noise = self.uniforms(t, 2, b, generator, embed.device)
-        resets = is_first.any(0).tolist()
+        if noise is None:
+            noise = self.uniforms(t, 2, b, generator, embed.device)
+        if resets is None:
+            resets = is_first.any(0).tolist()
         # unbind, not [:, i]: one gradient for the whole window instead of a zero-filled full-size one per step
         steps = zip(F.linear(embed, embed_weight).unbind(1), prev_action.unbind(1), is_first.unbind(1), noise, resets)
         for share, action, first, uniform, reset in steps:
@@ -406,13 +413,14 @@ class WorldModel(nn.Module):
         image = batch["image"]
         return image.float() / 255.0 if image.dtype == torch.uint8 else image
 
-    def step_errors(self, batch: dict, generator=None) -> dict[str, torch.Tensor]:
+    def step_errors(self, batch: dict, generator=None, noise: torch.Tensor | None = None,
+                    resets: list[bool] | None = None) -> dict[str, torch.Tensor]:
         """Per-step (B, T) terms of the loss: image_se (squared error summed over pixels and channels, images in
         [0, 1]; a batch that carries `robot_mask` (B, T, H, W) leaves those pixels out), state_se (summed over dimensions, symlog space), kl_dyn = KL[sg(q) || p], kl_rep = KL[q || sg(p)]
-        (their values are equal; the two differ only in where gradients flow)."""
+        (their values are equal; the two differ only in where gradients flow). `noise`, `resets`: RSSM.observe's."""
         image = self._images(batch)
         post, prior = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
-                                        generator=generator)
+                                        generator=generator, noise=noise, resets=resets)
         feat = self.rssm.features(post)
         se = (self.image_decoder(feat) - image).pow(2)
         robot = batch.get("robot_mask")
@@ -428,16 +436,22 @@ class WorldModel(nn.Module):
         return out
 
     def loss(self, batch: dict, generator=None) -> tuple[torch.Tensor, dict[str, float]]:
+        loss, names, values = self.loss_terms(batch, generator)
+        # one copy to the host for all of them: on a GPU each float() would wait for the device
+        return loss, dict(zip(names, values.tolist()))
+
+    def loss_terms(self, batch: dict, generator=None, noise: torch.Tensor | None = None,
+                   resets: list[bool] | None = None) -> tuple[torch.Tensor, list[str], torch.Tensor]:
+        """The training loss and its terms (names, one detached tensor of their batch means) left on the device."""
         c = self.cfg
-        e = self.step_errors(batch, generator)
+        e = self.step_errors(batch, generator, noise, resets)
         mask = batch["mask"].to(e["image_se"].dtype)
         n = mask.sum().clamp_min(1.0)
         per_step = (c.image_scale * e["image_se"] + c.state_scale * e["state_se"]
                     + c.dyn_scale * e["kl_dyn"].clamp_min(c.free_nats) + c.rep_scale * e["kl_rep"].clamp_min(c.free_nats))
         loss = (per_step * mask).sum() / n
-        names = [*e, "loss"]  # one copy to the host for all of them: on a GPU each float() would wait for the device
-        values = torch.stack([*((v.detach() * mask).sum() / n for v in e.values()), loss.detach()]).tolist()
-        return loss, dict(zip(names, values))
+        values = torch.stack([*((v.detach() * mask).sum() / n for v in e.values()), loss.detach()])
+        return loss, [*e, "loss"], values
 
     def _open_loop(self, image: torch.Tensor, batch: dict, context: int, generator=None) -> tuple[dict, dict]:
         """Posterior states of the first `context` steps and the prior states imagined after them from the actions
