@@ -90,10 +90,61 @@ def test_a_job_asking_more_than_any_node_has_is_refused_at_submission(slurm, tmp
     assert queue.strip() == ""  # nothing pending
 
 
+def _episode_arrays(store: Path) -> dict:
+    import h5py
+
+    out = {}
+    for path in sorted(store.rglob("episode_*.h5")):
+        with h5py.File(path, "r") as f:
+            f.visititems(lambda name, obj, p=path: out.__setitem__(f"{p.relative_to(store)}:{name}", obj[()])
+                         if isinstance(obj, h5py.Dataset) else None)
+    return out
+
+
+@pytest.mark.timeout(900)  # two short sweeps twice: here (~30 s) and on the cluster
+def test_collect_and_policy_sweeps_run_as_slurm_jobs_and_match_the_local_runs(slurm, tmp_path):
+    """The other two entrypoint kinds as sweeps of SLURM jobs: a collection over two tasks (two jobs writing one
+    store) and a tiny policy over two seeds trained on what it collected. Every job's result, every stored array and
+    the policies' losses equal those of the same sweeps run here with Hydra's basic launcher."""
+    def sweeps(where: str, launch: list[str], env: dict) -> tuple[list, list, dict]:
+        root = tmp_path / where
+        root.mkdir()
+
+        def run(script: str, *args: str) -> subprocess.CompletedProcess:
+            return subprocess.run([sys.executable, str(ROOT / "src" / script), *args], cwd=root, env=env,
+                                  capture_output=True, text=True, timeout=600)
+
+        c = run("collect.py", "pipeline=gensim", "debug=tiny", "episodes=2", "workers=1", f"store={root / 'store'}",
+                f"hydra.sweep.dir={root / 'collect'}", *launch, "-m", "tasks=[stack-two-blocks],[place-red-in-green]")
+        assert c.returncode == 0, c.stderr[-3000:]
+        p = run("generalization.py", "pipeline=gensim", "debug=tiny", f"store={root / 'store'}", "task_group=stacking",
+                "tasks=[stack-two-blocks]", "heldout_tasks=[]", "eval.splits=[]", "eval.sampler_check=false",
+                "torch_threads=1", f"checkpoint_dir={root / 'ck'}", "progress=false",
+                f"hydra.sweep.dir={root / 'policy'}", *launch, "-m", "seed=0,1")
+        assert p.returncode == 0, p.stderr[-3000:]
+        collected = [json.loads((root / "collect" / str(i) / "result.json").read_text())["values"] for i in range(2)]
+        trained = [json.loads((root / "policy" / str(i) / "result.json").read_text())["values"]["training"]
+                   for i in range(2)]
+        return ([{"tasks": v["tasks"], "new": [(e["task"], e["seed"], e["success"], e["steps"]) for e in v["new"]]}
+                 for v in collected],
+                [(t["steps"], t["windows"], t["final_loss"]) for t in trained], _episode_arrays(root / "store"))
+
+    local = sweeps("local", [], {k: v for k, v in slurm.items() if k != "SLURM_CONF"})
+    on_cluster = sweeps("slurm", [*LAUNCH, "hydra.launcher.mem_gb=2"], slurm)
+    assert on_cluster[0] == local[0] and on_cluster[1] == local[1]
+    assert sorted({k.split("/")[1] for k in on_cluster[2]}) == ["place-red-in-green", "stack-two-blocks"]
+    assert on_cluster[2].keys() == local[2].keys()
+    for key, array in local[2].items():
+        assert (on_cluster[2][key] == array).all(), key
+    assert len(list((tmp_path / "slurm" / "collect" / ".submitit").glob("*_0"))) == 1  # ran as SLURM array jobs
+    assert on_cluster[1][0][2] != on_cluster[1][1][2]  # two seeds, two trainings
+
+
 # A tiny world-model sweep long enough to be interrupted: 1 training window per epoch, one step per epoch
 TRAINING = ["pipeline=gensim", "debug=tiny", "threads=1", "progress=false", "task_group=diverse", "protocol=paper",
             "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0", "world_model.train.epochs=800",
             "world_model.train.checkpoint_every=50"]
+RESUMED = r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)"  # its step: group 1
 
 
 @pytest.fixture(scope="module")
@@ -114,16 +165,21 @@ def _training_sweep(env: dict, tmp: Path, store: Path, *overrides: str, slurm: b
         return subprocess.Popen(cmd, cwd=tmp, env={**env, "OMP_NUM_THREADS": "1"}, stdout=out, stderr=err)
 
 
+def _release_requeued(env: dict) -> None:
+    """SLURM holds a requeued job for 2 minutes (Reason=BeginTime) before it may start again, which would only make
+    a test slow: start it now."""
+    for line in subprocess.run(["squeue", "-h", "-o", "%i %r"], env=env, capture_output=True,
+                               text=True).stdout.splitlines():
+        job, reason = line.split(maxsplit=1)
+        if reason == "BeginTime":
+            subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], env=env, capture_output=True)
+
+
 def _wait(proc: subprocess.Popen, env: dict, tmp: Path, timeout: float = 600) -> tuple[int, str]:
-    """Wait for the sweep, releasing its requeued jobs at once: SLURM holds a requeued job for 2 minutes
-    (Reason=BeginTime) before it may start again, which would only make the test slow."""
+    """Wait for the sweep, releasing its requeued jobs at once."""
     deadline = time.time() + timeout
     while proc.poll() is None and time.time() < deadline:
-        for line in subprocess.run(["squeue", "-h", "-o", "%i %r"], env=env, capture_output=True,
-                                   text=True).stdout.splitlines():
-            job, reason = line.split(maxsplit=1)
-            if reason == "BeginTime":
-                subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], env=env, capture_output=True)
+        _release_requeued(env)
         time.sleep(0.5)
     if proc.poll() is None:
         proc.kill()
@@ -163,7 +219,7 @@ def test_a_job_at_its_time_limit_is_requeued_and_resumes_at_the_step_it_stopped(
     assert rc == 0, err[-3000:]
     log = _job_logs(tmp_path)
     stopped = re.findall(r"preempted at step (\d+): checkpoint saved", log)
-    resumed = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)", log)
+    resumed = re.findall(RESUMED, log)
     assert stopped and resumed == stopped, log[-4000:]  # every stop resumed at its own step, none from step 0
     assert "this job is timed-out" in log  # SLURM's time-limit signal, not one the test sent
     assert _values(tmp_path) == uninterrupted
@@ -187,9 +243,53 @@ def test_a_cancelled_job_resumes_from_its_checkpoint_when_the_sweep_is_run_again
         "command again: finished runs are kept and a training resumes from its last checkpoint")
     rc, err = _wait(_training_sweep(slurm, tmp_path, training_store), slurm, tmp_path)  # the same command again
     assert rc == 0, err[-3000:]
-    [step] = re.findall(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (\d+)\)",
-                        _job_logs(tmp_path))
+    [step] = re.findall(RESUMED, _job_logs(tmp_path))
     assert int(step) >= 100  # the last periodic checkpoint before the kill (every 50 steps), not step 0
+    assert _values(tmp_path) == uninterrupted
+
+
+def _epochs_done(log: str) -> int:
+    return max(map(int, re.findall(r"epoch (\d+)/800 done", log)), default=0)
+
+
+@pytest.mark.timeout(900)  # each waits for a training sweep of ~1 min (more on a busy machine)
+def test_a_preempted_then_requeued_job_resumes_each_time_and_ends_as_the_uninterrupted_run(slurm, tmp_path,
+                                                                                          training_store,
+                                                                                          uninterrupted):
+    """Two interruptions of one running job. A preemption: SLURM's preemption signal (USR2, sent here with `scancel
+    --signal`, far from the time limit), on which the training checkpoints at the step it is in and submitit
+    requeues the job itself (a preemption does not count against max_num_timeout); it resumes at that step. Then an
+    administrator's `scontrol requeue`, which gives no signal to checkpoint on (SIGTERM, which submitit ignores, and
+    SIGKILL 5 s later): the job comes back and resumes from its last checkpoint (saved at every epoch's end; here
+    an epoch is one step), past the step it had reached when requeued. It ends with the numbers of the run never
+    interrupted."""
+    proc = _training_sweep(slurm, tmp_path, training_store)
+
+    def wait_for(done, what: str) -> str:
+        deadline = time.time() + 300
+        while True:
+            log = _job_logs(tmp_path) if (tmp_path / "sweep" / ".submitit").is_dir() else ""
+            if done(log):
+                return log
+            assert proc.poll() is None and time.time() < deadline, f"{what}: {log[-3000:]}"
+            _release_requeued(slurm)
+            time.sleep(0.2)
+
+    wait_for(lambda log: _epochs_done(log) >= 120, "the first 120 steps")
+    [job] = subprocess.run(["squeue", "-h", "-o", "%i"], env=slurm, capture_output=True, text=True).stdout.split()
+    subprocess.run(["scancel", "--signal=USR2", job], env=slurm, check=True)
+    log = wait_for(lambda log: len(re.findall(RESUMED, log)) == 1, "the resume after the preemption")
+    [stopped] = map(int, re.findall(r"preempted at step (\d+): checkpoint saved", log))
+    assert "this job is preempted" in log and re.findall(RESUMED, log) == [str(stopped)]
+    wait_for(lambda log: len(re.findall(RESUMED, log)) == 1 and _epochs_done(log.split("resumed from")[-1]) >= 220,
+             "100 steps after the resume")
+    subprocess.run(["scontrol", "requeue", job], env=slurm, check=True)
+    rc, err = _wait(proc, slurm, tmp_path)
+    assert rc == 0, err[-3000:]
+    log = _job_logs(tmp_path)
+    first, second = map(int, re.findall(RESUMED, log))
+    assert first == stopped and second >= 220  # its last checkpoint (each epoch's end), not the preemption's
+    assert len(re.findall(r"preempted at step", log)) == 1  # the requeue gave nothing to checkpoint on
     assert _values(tmp_path) == uninterrupted
 
 
