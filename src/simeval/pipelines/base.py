@@ -2,7 +2,9 @@
 the tasks and variations each evaluation split rolls out, and an environment for a task. Two kinds so far:
 simeval's own suites (`SuitePipeline`, PyBullet re-creations) and a pipeline's own code
 (simeval.pipelines.gensim.pipeline.GensimOwnPipeline: GenSim's tasks run from a checkout).
-simeval.pipelines.registry.pipeline_from_config picks one from a `conf/pipeline/<name>.yaml`.
+simeval.pipelines.registry picks the class from a `conf/pipeline/<name>.yaml` (pipeline_class) and builds one
+(pipeline_from_config). Collection goes through the class too (`Pipeline.collect`), so src/collect.py knows no
+pipeline by name: a new pipeline is a class here, its `kind` in the registry and its yaml.
 
 Task objects only need `.name`, `.group` and `.action_space` (simeval.sim.spec.TaskSpec has them; `NativeTask` for
 tasks simeval has no spec of)."""
@@ -25,6 +27,20 @@ class NativeTask:
 class Pipeline(ABC):
     name: str
 
+    @classmethod
+    @abstractmethod
+    def from_config(cls, pipeline: Mapping) -> Pipeline:
+        """The pipeline a `conf/pipeline/<name>.yaml` (as a plain mapping) describes; a UserError when it is unusable."""
+
+    @classmethod
+    @abstractmethod
+    def collect(cls, pipeline: Mapping, *, tasks, task_group: str, seeds: Sequence[int], store, record: Mapping,
+                variation: Mapping, workers: int) -> dict:
+        """src/collect.py's work for this pipeline: oracle episodes of the selected tasks for `seeds` into `store`,
+        recorded with `record` (conf/collect.yaml's record.*) under `variation` (variation.split, variation.knobs).
+        Returns {new: [...], skipped, tasks: {task: {group, episodes, success, rate, ...}}, failed?: [...]}.
+        A classmethod, so a collector checks its own settings in its own order before anything else is built."""
+
     @abstractmethod
     def group_and_heldout(self, task_group: str, tasks=None, heldout: list[str] | None = None) -> tuple[list, list[str]]:
         """The tasks of `task_group` (or the named `tasks` among them) and the held-out names among them."""
@@ -46,6 +62,23 @@ class SuitePipeline(Pipeline):
 
     def __init__(self, name: str, suite_dir: Path) -> None:
         self.name, self.suite_dir = name, Path(suite_dir)
+
+    @classmethod
+    def from_config(cls, pipeline):
+        from simeval.sim.spec import SUITES_DIR
+
+        return cls(pipeline["name"], SUITES_DIR / pipeline["suite"])
+
+    @classmethod
+    def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
+        from simeval.collect import collect, plan_suite
+        from simeval.episodes.store import EpisodeStore
+        from simeval.sim.rollout import RecordSettings
+
+        suite_dir = cls.from_config(pipeline).suite_dir
+        specs, common, per_task = plan_suite(suite_dir, tasks, task_group, variation["split"], variation["knobs"])
+        return collect(specs, seeds, EpisodeStore(store), RecordSettings(**record), pipeline=pipeline["name"],
+                       workers=workers, variation=common, task_variations=per_task)
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         from simeval.sim.splits import group_and_heldout

@@ -1,4 +1,6 @@
-"""Which Pipeline (simeval.pipelines.base) a `conf/pipeline/<name>.yaml` describes."""
+"""Which Pipeline (simeval.pipelines.base) a `conf/pipeline/<name>.yaml` describes: its `kind`, or, where it names
+none, its own code when it has `native:` settings (GenSim's checkout, the one such kind so far) else its simeval
+suite. A new kind of pipeline is one entry in KINDS."""
 
 from __future__ import annotations
 
@@ -7,15 +9,22 @@ from collections.abc import Mapping
 from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
-from simeval.sim.spec import SUITES_DIR
+
+KINDS: dict[str, type[Pipeline]] = {"suite": SuitePipeline, "gensim_checkout": GensimOwnPipeline}
+
+
+def pipeline_class(pipeline: Mapping, needs: str = "closed-loop evaluation") -> type[Pipeline]:
+    """The Pipeline class of a pipeline config; a UserError naming the key when it has none (`needs`: what for)."""
+    kind = pipeline.get("kind") or ("gensim_checkout" if pipeline.get("native") else
+                                    "suite" if pipeline.get("suite") else None)
+    if kind is None:
+        raise UserError(f"pipeline={pipeline['name']} has no simeval suite (pipeline.suite is null) and no code of "
+                        f"its own to run (pipeline.native): {needs} needs one")
+    if kind not in KINDS:
+        raise UserError(f"pipeline.kind={kind!r}: expected one of {', '.join(sorted(KINDS))}")
+    return KINDS[kind]
 
 
 def pipeline_from_config(pipeline: Mapping) -> Pipeline:
-    """The Pipeline a `conf/pipeline/<name>.yaml` describes: its own code where it has `native:` settings, else its
-    simeval suite; a UserError when it has neither."""
-    if pipeline.get("native"):
-        return GensimOwnPipeline.from_config(pipeline)
-    if pipeline.get("suite"):
-        return SuitePipeline(pipeline["name"], SUITES_DIR / pipeline["suite"])
-    raise UserError(f"pipeline={pipeline['name']} has no simeval suite (pipeline.suite is null) and no code of its "
-                    "own to run (pipeline.native): closed-loop evaluation needs one")
+    """The Pipeline a `conf/pipeline/<name>.yaml` describes (pipeline_class), built from it."""
+    return pipeline_class(pipeline).from_config(pipeline)

@@ -36,6 +36,13 @@ class GensimOwnPipeline(Pipeline):
         check_settings(settings, settings.control_hz)
         return cls(pipeline["name"], settings, pipeline.get("heldout"))
 
+    @classmethod
+    def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
+        from simeval.pipelines.gensim.native import collect_from_checkout
+
+        return collect_from_checkout(pipeline.get("root"), dict(pipeline["native"]), tasks, task_group, seeds, store,
+                                     dict(record), pipeline=pipeline["name"], workers=workers)
+
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         group = plan_tasks(Path(self.settings.root), None, task_group)
         specs = [NativeTask(n, g, "pick_place") for n, g in group.items()]

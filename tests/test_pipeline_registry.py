@@ -1,0 +1,48 @@
+"""simeval.pipelines.registry: which Pipeline class a `conf/pipeline/<name>.yaml` selects (its `kind`, else its
+own code where it has `native:` settings, else its simeval suite), and the one-line errors where it selects none;
+src/collect.py goes through it, so a pipeline without a collector is refused there in one line."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from simeval.errors import UserError
+from simeval.pipelines.base import SuitePipeline
+from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.registry import KINDS, pipeline_class, pipeline_from_config
+from simeval.sim.spec import SUITES_DIR
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_a_suite_pipeline_and_a_native_one_get_their_classes():
+    built = pipeline_from_config({"name": "bbsea", "suite": "bbsea"})
+    assert isinstance(built, SuitePipeline) and built.suite_dir == SUITES_DIR / "bbsea" and built.name == "bbsea"
+    assert pipeline_class({"name": "gensim_own", "suite": None, "native": {"hz": 240}}) is GensimOwnPipeline
+    assert pipeline_class({"name": "x", "kind": "suite", "suite": "gensim", "native": {"hz": 240}}) is SuitePipeline
+    assert set(KINDS) == {"suite", "gensim_checkout"}
+
+
+def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
+    with pytest.raises(UserError) as e:
+        pipeline_class({"name": "custom", "suite": None}, needs="collection")
+    assert str(e.value) == ("pipeline=custom has no simeval suite (pipeline.suite is null) and no code of its own to "
+                            "run (pipeline.native): collection needs one")
+    with pytest.raises(UserError) as e:
+        pipeline_class({"name": "mine", "kind": "metaworld"})
+    assert str(e.value) == "pipeline.kind='metaworld': expected one of gensim_checkout, suite"
+
+
+def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "collect.py"), "pipeline=custom", f"store={tmp_path / 's'}",
+                        f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, capture_output=True, text=True,
+                       env={**os.environ, "HYDRA_FULL_ERROR": "0"}, timeout=300, check=False)
+    assert r.returncode == 2 and r.stderr.strip() == (
+        "error: pipeline=custom has no simeval suite (pipeline.suite is null) and no code of its own to run "
+        "(pipeline.native): collection needs one"), r.stderr[-2000:]
+    assert not (tmp_path / "s").exists()
