@@ -37,8 +37,9 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(1) from None
     with run.logger() as logger:
-        run.write(metric="collect", version="1.0", values=summary)
+        path = run.write(metric="collect", version="1.0", values=summary)
         logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})
+    log.info("wrote %s", path)
     failed = summary.get("failed")  # collectors that report failed episodes instead of stopping (GenSim's code)
     for task, t in summary["tasks"].items():
         log.info("%-40s %-11s %d/%d oracle successes%s", task, t["group"], t["success"], t["episodes"],

@@ -39,8 +39,9 @@ def main(cfg: DictConfig) -> None:
     torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     if cfg.capture and device.type != "cuda":
-        raise UserError(f"capture=true: a CUDA graph needs a GPU, and device={cfg.device} is {device}; use "
-                        "capture=false")
+        from simeval.models.captured import capture_needs_cuda
+
+        raise capture_needs_cuda(f"device={cfg.device} resolves to {device} here")
     _ = measure.configs  # a bad protocol.* value stops here, before the store is read
     needed = max(int(cfg.episodes), (measure.eval_episodes or (0, 40))[1])  # protocol=paper's held-out: optional
     overlay = HydraConfig.get().runtime.choices.get("debug") or "none"  # its recording settings must match the run's

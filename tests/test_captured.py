@@ -71,10 +71,10 @@ def test_capture_without_a_gpu_is_one_line():
     model = tiny()
     with pytest.raises(UserError) as e:
         CapturedTrainStep(model, torch.optim.Adam(model.parameters()), clip=1000.0, capture=True)
-    assert str(e.value) == ("capture=true needs the model on a CUDA device (it is on cpu); run with capture=false or "
+    assert str(e.value) == ("capture=true needs a CUDA GPU (the model is on cpu); use capture=false or "
                             "device=cuda")
-    with pytest.raises(UserError, match=r"^capture=true needs a CUDA device \(device resolved to cpu\); run with "
-                                        r"capture=false$"):
+    with pytest.raises(UserError, match=r"^capture=true needs a CUDA GPU \(the device is cpu\); use "
+                                        r"capture=false or device=cuda$"):
         train(tiny(), dataset(), TrainConfig(epochs=1, batch_size=4), progress=False, device="cpu", capture=True)
 
 

@@ -36,6 +36,11 @@ def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
     with pytest.raises(UserError) as e:
         pipeline_class({"name": "mine", "kind": "metaworld"})
     assert str(e.value) == "pipeline.kind='metaworld': expected one of gensim_checkout, suite"
+    for config, needs in (({"name": "custom", "kind": "suite", "suite": None}, "pipeline.suite"),
+                          ({"name": "gensim", "kind": "gensim_checkout", "suite": "gensim"}, "pipeline.native")):
+        with pytest.raises(UserError) as e:
+            pipeline_class(config)
+        assert str(e.value) == f"pipeline.kind={config['kind']} needs {needs} (pipeline={config['name']} sets none)"
 
 
 def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
@@ -46,3 +51,9 @@ def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
         "error: pipeline=custom has no simeval suite (pipeline.suite is null) and no code of its own to run "
         "(pipeline.native): collection needs one"), r.stderr[-2000:]
     assert not (tmp_path / "s").exists()
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "collect.py"), "pipeline=gensim", "pipeline.kind=nope",
+                        f"store={tmp_path / 's'}", f"hydra.run.dir={tmp_path / 'run2'}"], cwd=tmp_path,
+                       capture_output=True, text=True, env={**os.environ, "HYDRA_FULL_ERROR": "0"}, timeout=300,
+                       check=False)
+    assert r.returncode == 2 and r.stderr.strip() == ("error: pipeline.kind='nope': expected one of gensim_checkout, "
+                                                      "suite"), r.stderr[-2000:]

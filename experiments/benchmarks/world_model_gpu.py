@@ -26,6 +26,7 @@ fraction of its wall time is bound by launching them from Python (the RSSM's ste
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import json
 import sys
@@ -199,7 +200,7 @@ def agreement(cfg, batches: list[dict], steps: int, device) -> dict:
 
 
 def main() -> None:
-    ap = OneLineParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--presets", nargs="+", default=["cpu", "paper"])
     ap.add_argument("--window", type=int, nargs="+", default=None,
                     help="window lengths to time (default: each preset's own)")

@@ -1,7 +1,7 @@
 """A world-model training step's forward and backward pass captured as CUDA graphs and replayed (`capture=true`).
 
 Why: at the batch sizes of the paper (8 windows) a step on a GPU is bound by launching kernels from Python, not by
-the GPU: a `paper` step launches ~6,100 small kernels whose GPU time is ~11-13% of its wall time on an H100 or
+the GPU: a `paper` step launches ~6,100 small kernels whose GPU time is ~11-14% of its wall time on an H100 or
 H200, and torch.compile (compile=true) removes only part of that (experiments/benchmarks/world_model_gpu.py). A
 CUDA graph launches the whole forward and backward pass and the gradient clipping as one unit, so a step costs
 about the kernels' own time. torch.compile(mode="reduce-overhead") would also use CUDA graphs, but only around what
@@ -32,6 +32,11 @@ import torch
 from simeval.errors import UserError
 from simeval.models.device import to_device
 
+def capture_needs_cuda(where: str) -> UserError:
+    """The one error for capture=true without a GPU; `where`: what the device was, e.g. "device=auto resolves to cpu"."""
+    return UserError(f"capture=true needs a CUDA GPU ({where}); use capture=false or device=cuda")
+
+
 WARMUP_STEPS = 3  # eager steps on a side stream before the first capture: cuDNN's and cuBLAS's lazy set-up
 
 
@@ -46,8 +51,7 @@ class CapturedTrainStep:
                  max_graphs: int = 4) -> None:
         device = next(model.parameters()).device
         if capture and device.type != "cuda":
-            raise UserError(f"capture=true needs the model on a CUDA device (it is on {device}); run with "
-                            f"capture=false or device=cuda")
+            raise capture_needs_cuda(f"the model is on {device}")
         self.model, self.opt, self.clip, self.capture, self.device = model, opt, clip, capture, device
         self.params = [p for group in opt.param_groups for p in group["params"]]
         self.max_graphs = max_graphs

@@ -142,11 +142,11 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     that made it)."""
     from tqdm.auto import tqdm
 
-    from simeval.models.captured import CapturedTrainStep
+    from simeval.models.captured import CapturedTrainStep, capture_needs_cuda
 
     device = resolve_device(device)
     if capture and device.type != "cuda":
-        raise UserError(f"capture=true needs a CUDA device (device resolved to {device}); run with capture=false")
+        raise capture_needs_cuda(f"the device is {device}")
     model.to(device)  # before Adam is made: its state is created beside the parameters
     if compile:
         model.compile_steps()

@@ -25,7 +25,8 @@ class NativeTask:
 
 
 class Pipeline(ABC):
-    name: str
+    name: str  # the pipeline's name (conf/pipeline/<name>.yaml's `name`), set by from_config
+    requires: tuple[str, ...] = ()  # keys its pipeline config must set (the registry checks them first)
 
     @classmethod
     @abstractmethod
@@ -59,6 +60,8 @@ class Pipeline(ABC):
 
 class SuitePipeline(Pipeline):
     """simeval's own PyBullet suite at `suite_dir` (simeval.sim): specs, splits.yaml, make_env."""
+
+    requires = ("suite",)
 
     def __init__(self, name: str, suite_dir: Path) -> None:
         self.name, self.suite_dir = name, Path(suite_dir)

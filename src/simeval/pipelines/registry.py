@@ -22,6 +22,10 @@ def pipeline_class(pipeline: Mapping, needs: str = "closed-loop evaluation") -> 
                         f"its own to run (pipeline.native): {needs} needs one")
     if kind not in KINDS:
         raise UserError(f"pipeline.kind={kind!r}: expected one of {', '.join(sorted(KINDS))}")
+    missing = [f"pipeline.{key}" for key in KINDS[kind].requires if not pipeline.get(key)]
+    if missing:
+        raise UserError(f"pipeline.kind={kind} needs {' and '.join(missing)} (pipeline={pipeline['name']} sets "
+                        "none)")
     return KINDS[kind]
 
 

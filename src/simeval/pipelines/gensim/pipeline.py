@@ -26,6 +26,8 @@ class GensimOwnPipeline(Pipeline):
 
 
 
+    requires = ("native",)
+
     def __init__(self, name: str, settings: GensimSettings, heldout: Mapping[str, list[str]] | None = None) -> None:
         self.name, self.settings, self.heldout = name, settings, dict(heldout or {})
 
