@@ -19,7 +19,7 @@ log = logging.getLogger("collect")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="collect")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.collect import WorkerDied
+    from simeval.collect import WorkerDied, log_summary
     from simeval.pipelines.registry import pipeline_class
     from simeval.results import RunFolder
 
@@ -40,17 +40,9 @@ def main(cfg: DictConfig) -> None:
         path = run.write(metric="collect", version="1.0", values=summary)
         logger.log_metrics({"oracle_success": {t: v["rate"] for t, v in summary["tasks"].items()}})
     log.info("wrote %s", path)
-    failed = summary.get("failed")  # collectors that report failed episodes instead of stopping (GenSim's code)
-    for task, t in summary["tasks"].items():
-        log.info("%-40s %-11s %d/%d oracle successes%s", task, t["group"], t["success"], t["episodes"],
-                 f", {len(t['failed'])} failed (seeds {t['failed']})" if t.get("failed") else "")
-    log.info("%d new episodes, %d already in %s%s", len(summary["new"]), summary["skipped"], cfg.store,
-             "" if failed is None else f", {len(failed)} failed")
-    if failed and not summary["new"] and not summary["skipped"]:
-        first = failed[0]
-        print(f"error: every episode failed; the first, {first['task']} seed {first['seed']}, raised "
-              f"{first['error']}" + (f" at {first['where']}" if first["where"] else "") + " (all of them: the log "
-              "and result.json)", file=sys.stderr)
+    failure = log_summary(summary, cfg.store)
+    if failure is not None:
+        print(f"error: {failure}", file=sys.stderr)
         raise SystemExit(1)
 
 

@@ -10,7 +10,6 @@ from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
 from simeval.errors import require_folder
 
 log = logging.getLogger("generalization")
-VERSION = "1.0"
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="generalization")
@@ -19,7 +18,7 @@ def main(cfg: DictConfig) -> None:
     import torch
 
     from simeval.models.device import resolve_device
-    from simeval.models.policy.experiment import run_generalization
+    from simeval.models.policy.experiment import RESULT_VERSION, log_splits, run_generalization
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
 
@@ -41,12 +40,9 @@ def main(cfg: DictConfig) -> None:
             checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
             val_episodes_per_task=cfg.val_episodes_per_task, evaluation=conf["eval"], device=device,
             progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf)
-        path = run.write(metric="generalization", version=VERSION, values=values, seed=cfg.seed, identity=identity)
+        path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
-    for s, v in values["splits"].items():
-        sr = v["success"]
-        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", s, sr["k"], sr["n"], sr["rate"],
-                 *sr["ci"], v["mean_progress"])
+    log_splits(values)
     log.info("wrote %s", path)
 
 

@@ -260,3 +260,19 @@ def plan_suite(suite_dir: Path, tasks: list[str] | str | None, group: str, split
         raise UserError(f"variation={split}: none of the selected tasks ({', '.join(s.name for s in specs)}) is in "
                         f"that split; see {suite_dir}/splits.yaml and the tasks' `variations:`")
     return [s for s, _ in pairs], None, {s.name: v for s, v in pairs}
+
+
+def log_summary(summary: dict, store) -> str | None:
+    """Log what a collection did (per task, then the totals) and return the error line for a run in which every
+    episode failed (collectors that report failures instead of stopping: GenSim's code), else None."""
+    failed = summary.get("failed")
+    for task, t in summary["tasks"].items():
+        log.info("%-40s %-11s %d/%d oracle successes%s", task, t["group"], t["success"], t["episodes"],
+                 f", {len(t['failed'])} failed (seeds {t['failed']})" if t.get("failed") else "")
+    log.info("%d new episodes, %d already in %s%s", len(summary["new"]), summary["skipped"], store,
+             "" if failed is None else f", {len(failed)} failed")
+    if not failed or summary["new"] or summary["skipped"]:
+        return None
+    first = failed[0]
+    return (f"every episode failed; the first, {first['task']} seed {first['seed']}, raised {first['error']}"
+            + (f" at {first['where']}" if first["where"] else "") + " (all of them: the log and result.json)")

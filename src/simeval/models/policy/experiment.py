@@ -23,6 +23,7 @@ from simeval.errors import UserError
 from simeval.results import atomic_write_text, dumps_strict
 
 log = logging.getLogger(__name__)
+RESULT_VERSION = "1.0"  # of the generalization result.json (src/generalization.py)
 PLAIN = re.compile(r"episode_(\d+)\.h5")
 
 
@@ -184,3 +185,11 @@ def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Ma
         values["sampler_check"] = ev.sampler_action_error(policy, val, {
             "ddpm": ("ddpm", pcfg.num_train_timesteps), "ddim": ("ddim", pcfg.num_inference_steps)})
     return policy, ckpt_dir, summary, values, {"model": vars(pcfg), "train": vars(settings)}
+
+
+def log_splits(values: Mapping) -> None:
+    """One line per evaluated split: success k/n with its interval, and mean progress."""
+    for split, v in values["splits"].items():
+        sr = v["success"]
+        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", split, sr["k"], sr["n"], sr["rate"],
+                 *sr["ci"], v["mean_progress"])
