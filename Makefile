@@ -22,7 +22,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 # Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
 
-.PHONY: help setup gensim-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench clean clean-caches table5 report-table5
+.PHONY: help setup gensim-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
@@ -87,6 +87,9 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/heldout_sweep_bench.py
 	$(PY) experiments/benchmarks/robot_loss_bench.py
 	$(if $(GENSIM_CHECKOUT),$(MAKE) --no-print-directory gensim-env && $(PY) experiments/benchmarks/gensim_own_bench.py --root $(GENSIM_CHECKOUT),@echo "note: no GenSim checkout (GENSIM_ROOT=...), so gensim_own_bench.py is skipped")
+
+bench-slurm: setup ## the quick paper chain here and as SLURM jobs on a local one-node cluster (root), outputs/bench/slurm_chain.json
+	$(PY) experiments/benchmarks/slurm_chain_bench.py
 
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
