@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -10,6 +11,7 @@ from simeval.metrics.text_diversity import DiversityInputError, diversity_summar
 from simeval.tasks import ALL_GROUPS, Task, groups_of, select_group
 
 EACH = "each"
+log = logging.getLogger(__name__)
 
 
 def _is_int(value) -> bool:
@@ -74,3 +76,10 @@ def text_diversity_by_group(
                 raise DiversityInputError(f"task_group '{group}': {e}") from e
             out[group] = {"n": len(members), "error": str(e)}
     return out
+
+
+def log_groups(values: dict, pipeline: str, embedding: str) -> None:
+    """One line per group of a text-diversity run: its task count and Div (or why it has none)."""
+    for group, v in values.items():
+        log.info("%s/%s [%s] n=%d div=%s", pipeline, group, embedding, v["n"],
+                 f"{v['div']:.4f}" if "div" in v else v.get("error"))

@@ -29,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import statistics
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -46,6 +46,19 @@ CELL_KEYS = ("metric", "pipeline", "embedding")
 COVERAGE_KEYS = ("task_group",)
 REPEAT_KEYS = ("seed",)
 TIDY_DECIMALS = 6
+
+
+def run_record(pipeline: str, source, task_group, embedding: Mapping, metrics: Mapping, seed, overrides) -> dict:
+    """What src/text_diversity.py writes beside its values: metric, version, seed, overrides, and the `identity` the
+    report merges runs by (see the module docstring; tasks_sha is filled in once the tasks are loaded)."""
+    from simeval.metrics.text_diversity import METRIC_VERSION
+
+    backend = embedding["backend"]
+    identity = {"pipeline": pipeline, "source": source, "tasks_sha": None, "task_group": task_group,
+                "embedding": embedding["name"], "model": backend.get("model_id") or backend.get("model"),
+                "settings": metrics}
+    return {"metric": "text_diversity", "version": METRIC_VERSION, "seed": seed, "overrides": overrides,
+            "pipeline": pipeline, "embedding": embedding["name"], "identity": identity}
 
 
 def tasks_fingerprint(tasks: Iterable) -> str:
