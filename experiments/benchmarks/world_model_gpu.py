@@ -68,7 +68,7 @@ def time_variant(model_cls, cfg, batch, steps: int, device, variant: str) -> dic
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=variant == "bf16")
     captured = CapturedTrainStep(model, opt, 1000.0) if "capture" in variant else None
-    host_batch = pinned(batch)  # captured steps copy it in, as in train(): their times include that copy
+    host_batch = pinned(batch) if captured is not None else None  # copied in per step as in train(): timed too
 
     def step(i: int) -> float:
         if captured is not None:

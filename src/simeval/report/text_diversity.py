@@ -34,7 +34,7 @@ from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.metrics.agreement import kendall_tau_b
-from simeval.metrics.text_diversity import STATISTICS
+from simeval.metrics.text_diversity import METRIC_VERSION, STATISTICS
 from simeval.report.paper_groups import paper_group
 from simeval.results import identity_difference, record_identity
 
@@ -51,8 +51,6 @@ TIDY_DECIMALS = 6
 def run_record(pipeline: str, source, task_group, embedding: Mapping, metrics: Mapping, seed, overrides) -> dict:
     """What src/text_diversity.py writes beside its values: metric, version, seed, overrides, and the `identity` the
     report merges runs by (see the module docstring; tasks_sha is filled in once the tasks are loaded)."""
-    from simeval.metrics.text_diversity import METRIC_VERSION
-
     backend = embedding["backend"]
     identity = {"pipeline": pipeline, "source": source, "tasks_sha": None, "task_group": task_group,
                 "embedding": embedding["name"], "model": backend.get("model_id") or backend.get("model"),

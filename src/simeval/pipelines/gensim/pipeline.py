@@ -24,8 +24,6 @@ class GensimOwnPipeline(Pipeline):
     pick/place action (simeval.pipelines.gensim.env.GensimEnv). The `eval` split is GenSim's own test-time
     variation: the same tasks in task.mode "test" (its held-out colours, where a task has them)."""
 
-
-
     requires = ("native",)
 
     def __init__(self, name: str, settings: GensimSettings, heldout: Mapping[str, list[str]] | None = None) -> None:
