@@ -22,7 +22,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 # Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
 
-.PHONY: help setup gensim-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
+.PHONY: help setup gensim-env metaworld-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
@@ -39,8 +39,14 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-test: setup gensim-env ## run the test suite (what CI runs; the 25 slowest tests are listed at the end)
+test: setup gensim-env metaworld-env ## run the test suite (what CI runs; the 25 slowest tests are listed at the end)
 	$(PY) -m pytest -q --durations=25
+
+METAWORLD_STAMP := $(VENV)/.metaworld-installed
+metaworld-env: $(METAWORLD_STAMP) ## Meta-World and MuJoCo beside simeval's pins, for pipeline=metaworld (requirements-metaworld.txt)
+$(METAWORLD_STAMP): requirements-metaworld.txt $(STAMP)
+	$(PY) -m pip install -q -c requirements.txt -r requirements-metaworld.txt
+	touch $(METAWORLD_STAMP)
 
 GENSIM_STAMP := $(VENV)/.gensim-installed
 gensim-env: $(GENSIM_STAMP) ## GenSim's own imports beside simeval's, for pipeline=gensim_own (requirements-gensim.txt)

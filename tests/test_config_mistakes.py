@@ -32,7 +32,7 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
 
 
 @pytest.mark.parametrize("args, expected", [
-    (["pipeline=nope"], "pipeline=nope: no conf/pipeline/nope.yaml; valid: bbsea, custom, gensim, gensim_own, robogen"),
+    (["pipeline=nope"], "pipeline=nope: no conf/pipeline/nope.yaml; valid: bbsea, custom, gensim, gensim_own, metaworld, robogen"),
     (["-m", "world_model=cpu,nope"], "world_model=nope: no conf/world_model/nope.yaml; valid: cpu, paper, tiny"),
     (["episodes=abc"], "episodes must be a whole number >= 1, got 'abc'"),
     (["episodes=1.5"], "episodes must be a whole number >= 1, got 1.5"),

@@ -141,7 +141,7 @@ def test_config_errors_are_clear_and_fast(tmp_path):
                                                                                                "BBSEA_TASKS": ""})
     assert res.returncode != 0 and "pipeline.tasks_path" in res.stderr
     res = run("text_diversity.py", "--help")
-    assert res.returncode == 0 and "pipeline: bbsea, custom, gensim, gensim_own, robogen" in res.stdout
+    assert res.returncode == 0 and "pipeline: bbsea, custom, gensim, gensim_own, metaworld, robogen" in res.stdout
 
 
 @pytest.mark.timeout(900)  # two real embedding models over 6 sweep jobs: ~90 s on 2 busy cores; its sweep may take 900

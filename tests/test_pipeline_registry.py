@@ -14,6 +14,7 @@ import pytest
 from simeval.errors import UserError
 from simeval.pipelines.base import SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 from simeval.pipelines.registry import KINDS, pipeline_class, pipeline_from_config
 from simeval.sim.spec import SUITES_DIR
 
@@ -25,7 +26,8 @@ def test_a_suite_pipeline_and_a_native_one_get_their_classes():
     assert isinstance(built, SuitePipeline) and built.suite_dir == SUITES_DIR / "bbsea" and built.name == "bbsea"
     assert pipeline_class({"name": "gensim_own", "suite": None, "native": {"hz": 240}}) is GensimOwnPipeline
     assert pipeline_class({"name": "x", "kind": "suite", "suite": "gensim", "native": {"hz": 240}}) is SuitePipeline
-    assert set(KINDS) == {"suite", "gensim_checkout"}
+    assert pipeline_class({"name": "metaworld", "kind": "metaworld", "suite": None}) is MetaworldPipeline
+    assert set(KINDS) == {"suite", "gensim_checkout", "metaworld"}
 
 
 def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
@@ -34,8 +36,8 @@ def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
     assert str(e.value) == ("pipeline=custom has no simeval suite (pipeline.suite is null) and no code of its own to "
                             "run (pipeline.native): collection needs one")
     with pytest.raises(UserError) as e:
-        pipeline_class({"name": "mine", "kind": "metaworld"})
-    assert str(e.value) == "pipeline.kind='metaworld': expected one of gensim_checkout, suite"
+        pipeline_class({"name": "mine", "kind": "mujoco"})
+    assert str(e.value) == "pipeline.kind='mujoco': expected one of gensim_checkout, metaworld, suite"
     for config, needs in (({"name": "custom", "kind": "suite", "suite": None}, "pipeline.suite"),
                           ({"name": "gensim", "kind": "gensim_checkout", "suite": "gensim"}, "pipeline.native")):
         with pytest.raises(UserError) as e:
@@ -56,4 +58,4 @@ def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
                        capture_output=True, text=True, env={**os.environ, "HYDRA_FULL_ERROR": "0"}, timeout=300,
                        check=False)
     assert r.returncode == 2 and r.stderr.strip() == ("error: pipeline.kind='nope': expected one of gensim_checkout, "
-                                                      "suite"), r.stderr[-2000:]
+                                                      "metaworld, suite"), r.stderr[-2000:]

@@ -75,14 +75,19 @@ def _collect_one(spec_path: str, seed: int, store_root: str, settings: dict, pip
                  variations: dict[str, dict] | None = None) -> dict:
     """Record and store one episode; `variations` maps task names to their (checked) variations."""
     spec = load_spec(spec_path)
-    if _started is not None:
-        _started.put((os.getpid(), spec.name, seed))
+    announce_episode(spec.name, seed)
     t0 = time.perf_counter()
     ep = run_episode(spec, seed, RecordSettings(**settings), pipeline=pipeline,
                      variation=(variations or {}).get(spec.name, {}))
     path = EpisodeStore(store_root).write(ep)
     return {"task": spec.name, "seed": seed, "success": ep.success, "steps": ep.n_steps,
             "seconds": time.perf_counter() - t0, "bytes": os.path.getsize(path)}
+
+
+def announce_episode(task: str, seed: int) -> None:
+    """In a worker of run_episodes: which episode it starts, so a worker that dies is named by its episode."""
+    if _started is not None:
+        _started.put((os.getpid(), task, seed))
 
 
 class _Stopped(SystemExit):
@@ -126,7 +131,20 @@ def _dead_worker_message(procs: dict, started, new: list, store_root: str) -> st
     return f"a collection worker died {which}{how}; {kept} in {store_root}: run the same command again to resume"
 
 
-def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
+def run_episodes(one, jobs, args: tuple, workers: int, new: list, bar) -> None:
+    """`one(key, seed, *args) -> dict` for each (key, seed) of `jobs`, appended to `new` as each finishes: here when
+    workers == 1 or there is one job, else in `workers` processes that die with the caller (kill -9 included).
+    `one` is a module-level function that calls announce_episode first; args[0] is the store's root (named in the
+    message when a worker dies). A failed episode stops the run with its error; finished ones stay in `new`."""
+    if workers == 1 or len(jobs) <= 1:
+        for key, seed in jobs:
+            new.append(one(key, seed, *args))
+            bar.update(1)
+    else:
+        _run_pool(one, jobs, min(workers, len(jobs)), args, new, bar)
+
+
+def _run_pool(one, jobs, workers: int, args: tuple, new: list, bar) -> None:
     import multiprocessing as mp
 
     on_main_thread = threading.current_thread() is threading.main_thread()
@@ -136,7 +154,7 @@ def _run_pool(todo, workers: int, args: tuple, new: list, bar) -> None:
     pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_die_with_parent,
                                initargs=(os.getpid(), started))
     try:
-        futures = [pool.submit(_collect_one, s.source, seed, *args) for s, seed in todo]
+        futures = [pool.submit(one, key, seed, *args) for key, seed in jobs]
         procs = dict(getattr(pool, "_processes", None) or {})  # a broken pool forgets its processes: keep them
         for f in as_completed(futures):
             try:
@@ -221,12 +239,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     args = (str(store.root), asdict(settings), pipeline, var_of)
     bar = tqdm(total=len(todo), desc=f"collecting ({workers} workers)", unit="episode", disable=not progress)
     try:
-        if workers == 1 or len(todo) <= 1:
-            for s, seed in todo:
-                new.append(_collect_one(s.source, seed, *args))
-                bar.update(1)
-        else:
-            _run_pool(todo, min(workers, len(todo)), args, new, bar)
+        run_episodes(_collect_one, [(s.source, seed) for s, seed in todo], args, workers, new, bar)
     except (KeyboardInterrupt, _Stopped):
         log.warning("collection stopped: %d new episodes kept in %s; run the same command again to resume",
                     len(new), store.root)

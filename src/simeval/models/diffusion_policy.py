@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
 SCHEDULERS = ("ddpm", "ddim")
 SAMPLING_FIELDS = ("inference_scheduler", "num_inference_steps")  # inference only: not part of a checkpoint's identity
-POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place")
+POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place", "metaworld")
 
 
 @dataclass
@@ -56,7 +56,7 @@ class PolicyConfig:
 
     # native (the task group's own: joint for GenSim-style, ee_delta for RoboGen-style, ee_pose for BBSEA-style
     # tasks; resolved by simeval.models.policy.experiment.resolve_action_space) | joint | ee_delta | ee_pose (one
-    # action per control step) | pick_place (14-d poses, one per primitive)
+    # action per control step) | pick_place (14-d poses, one per primitive) | metaworld (Meta-World's 4-d action)
     action_space: str = "joint"
     cameras: list = field(default_factory=lambda: ["top"])
     image_size: list = field(default_factory=lambda: [64, 64])

@@ -9,8 +9,10 @@ from collections.abc import Mapping
 from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 
-KINDS: dict[str, type[Pipeline]] = {"suite": SuitePipeline, "gensim_checkout": GensimOwnPipeline}
+KINDS: dict[str, type[Pipeline]] = {"suite": SuitePipeline, "gensim_checkout": GensimOwnPipeline,
+                                    "metaworld": MetaworldPipeline}
 
 
 def pipeline_class(pipeline: Mapping, needs: str = "closed-loop evaluation") -> type[Pipeline]:

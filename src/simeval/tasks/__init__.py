@@ -82,6 +82,14 @@ SOURCES: dict[str, list[Source]] = {
 }
 
 
+# pipelines with episodes but no task texts of their own: why, and what to do instead
+NO_TASK_TEXTS = {
+    "metaworld": "Meta-World's package ships no task descriptions (its tasks are named, not described): text "
+                 "diversity does not apply to it",
+    "gensim_own": "its task texts are GenSim's own: run pipeline=gensim with pipeline.root= the same checkout",
+}
+
+
 def source_hint(pipeline: str) -> str:
     parts = []
     for s in (x for x in SOURCES[pipeline] if x.auto):
@@ -93,6 +101,8 @@ def source_hint(pipeline: str) -> str:
 def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
     """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path, suite,
     text_template, group_aliases (the keys of the pipeline config)."""
+    if pipeline in NO_TASK_TEXTS:
+        raise TaskSourceError(f"pipeline={pipeline} has no task texts to load: {NO_TASK_TEXTS[pipeline]}")
     if pipeline not in SOURCES:
         raise TaskSourceError(f"unknown pipeline '{pipeline}'; known: {', '.join(SOURCES)}")
     candidates = SOURCES[pipeline]

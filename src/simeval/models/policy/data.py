@@ -1,8 +1,8 @@
 """Training windows for the Diffusion Policy, held in memory (a task group at 64x64 is a few hundred MB at most).
 
     PolicyDataset(episodes, ...): per episode the observation before each action (image per camera, state) and the
-        action. `action_space` joint, ee_delta or ee_pose: every control step (the stored episode must have been
-        recorded in that action space); `"pick_place"`: one step per primitive (the 14-d
+        action. `action_space` joint, ee_delta, ee_pose or metaworld (Meta-World's own 4-d action): every control
+        step (the stored episode must have been recorded in that action space); `"pick_place"`: one step per primitive (the 14-d
         pose and the observation where the primitive starts, `high_level_step`).
     sample(batch_size, generator) -> {"rgb": {cam: (B, To, H, W, 3) uint8}, "state": (B, To, S), "action": (B, Tp, A)}
 
@@ -29,7 +29,7 @@ from torch.nn import functional as F
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
 
-LOW_LEVEL = ("joint", "ee_delta", "ee_pose")  # one stored action per control step
+LOW_LEVEL = ("joint", "ee_delta", "ee_pose", "metaworld")  # one stored action per control step
 ACTION_SPACES = (*LOW_LEVEL, "pick_place")
 
 
@@ -50,7 +50,10 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
         raise UserError(f"{ep.task} seed {ep.seed}: no camera {missing} in the stored episode (has {sorted(ep.rgb)});"
                         f" set policy.cameras to stored ones or collect with record.cameras including them")
     if action_space in LOW_LEVEL:  # the store's rows 0..T-1 with the action taken after each; row T (the final
-        from simeval.sim.env import ACTION_SPACES as KINDS  # observation) has only padding for an action
+        from simeval.pipelines.metaworld.native import ACTION_KIND as METAWORLD_KIND  # observation) has only
+        from simeval.sim.env import ACTION_SPACES as SUITE_KINDS  # padding for an action
+
+        KINDS = {**SUITE_KINDS, "metaworld": METAWORLD_KIND}
 
         stored = (ep.action_space or {}).get("kind")  # None: an episode built in memory, not read from a store
         if stored is not None and stored != KINDS[action_space]:
