@@ -16,6 +16,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from simeval.errors import UserError
+
 
 @dataclass(frozen=True)
 class NativeTask:
@@ -56,6 +58,42 @@ class Pipeline(ABC):
                  cameras: Sequence[str], max_steps: int | None):
         """A Gymnasium env of `task` observed as simeval's (obs["rgb"][camera], obs["state"]; info["success"],
         info["progress"])."""
+
+
+def select_tasks(group: Mapping[str, str], task_group: str, tasks, configured: Mapping[str, list[str]],
+                 heldout: list[str] | None, action_space: str, source: str) -> tuple[list[NativeTask], list[str]]:
+    """Pipeline.group_and_heldout for a pipeline's own tasks: `group` ({name: group}) narrowed to `tasks`, and the
+    held-out ones: `heldout` as given, else `configured[task_group]` (its config's list, which may name tasks not
+    selected). `source` names the task registry in messages ("GenSim's", "Meta-World's")."""
+    specs = [NativeTask(n, g, action_space) for n, g in group.items()]
+    if tasks:
+        names = [tasks] if isinstance(tasks, str) else list(tasks)
+        stray = sorted(set(names) - set(group))
+        if stray:
+            raise UserError(f"tasks={names}: {stray} not in {source} task_group={task_group} ({sorted(group)})")
+        specs = [s for s in specs if s.name in names]
+    names = [s.name for s in specs]
+    held = [h for h in configured.get(task_group, []) if h in names] if heldout is None else list(heldout)
+    stray = sorted(set(held) - set(names))
+    if stray:
+        raise UserError(f"heldout_tasks={held}: {stray} not in the selected tasks {names}")
+    if held and set(held) == set(names):
+        raise UserError(f"heldout_tasks={held}: must be some but not all of {names}: nothing would be left to "
+                        "train on")
+    return specs, held
+
+
+def split_by_heldout(specs: list, split: str, heldout: list[str], variation: Mapping) -> list[tuple[object, dict]]:
+    """Pipeline.split_tasks for a pipeline whose `eval` split is its trained tasks under one `variation` (none: an
+    empty split): train = the tasks not held out, heldout = the held-out ones."""
+    if split not in ("train", "eval", "heldout"):
+        raise UserError(f"eval.splits: split '{split}' is not one of train, eval, heldout")
+    if split == "heldout":
+        return [(s, {}) for s in specs if s.name in heldout]
+    trained = [s for s in specs if s.name not in heldout]
+    if split == "train":
+        return [(s, {}) for s in trained]
+    return [(s, dict(variation)) for s in trained] if variation else []
 
 
 class SuitePipeline(Pipeline):

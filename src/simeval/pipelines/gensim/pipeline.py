@@ -7,7 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.pipelines.base import NativeTask, Pipeline
+from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
 from simeval.pipelines.gensim.env import GensimEnv
 from simeval.pipelines.gensim.native import (
     GENSIM_EVAL_VARIATION,
@@ -45,37 +45,14 @@ class GensimOwnPipeline(Pipeline):
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         group = plan_tasks(Path(self.settings.root), None, task_group)
-        specs = [NativeTask(n, g, "pick_place") for n, g in group.items()]
-        if tasks:
-            names = [tasks] if isinstance(tasks, str) else list(tasks)
-            stray = sorted(set(names) - set(group))
-            if stray:
-                raise UserError(f"tasks={names}: {stray} not in GenSim's task_group={task_group} ({sorted(group)})")
-            specs = [s for s in specs if s.name in names]
-        names = [s.name for s in specs]
-        held = list(self.heldout.get(task_group, [])) if heldout is None else list(heldout)
-        held = [h for h in held if h in names] if heldout is None else held  # a config list may name other tasks
-        stray = sorted(set(held) - set(names))
-        if stray:
-            raise UserError(f"heldout_tasks={held}: {stray} not in the selected tasks {names}")
-        if held and set(held) == set(names):
-            raise UserError(f"heldout_tasks={held}: must be some but not all of {names}: nothing would be left to "
-                            "train on")
-        return specs, held
+        return select_tasks(group, task_group, tasks, self.heldout, heldout, "pick_place", "GenSim's")
 
     def split_tasks(self, specs, split, heldout, *, eval_override=None):
-        if split not in ("train", "eval", "heldout"):
-            raise UserError(f"eval.splits: split '{split}' is not one of train, eval, heldout")
-        if split == "heldout":
-            return [(s, {}) for s in specs if s.name in heldout]
-        trained = [s for s in specs if s.name not in heldout]
-        if split == "train":
-            return [(s, {}) for s in trained]
         variation = dict(eval_override or GENSIM_EVAL_VARIATION)
-        if set(variation) - {"mode"} or variation.get("mode") not in ("train", "val", "test"):
+        if split == "eval" and (set(variation) - {"mode"} or variation.get("mode") not in ("train", "val", "test")):
             raise UserError(f"eval.variation={variation}: GenSim's own tasks vary by {{mode: train | val | test}} "
                             "(task.mode: its seen / unseen colour sets) only")
-        return [(s, variation) for s in trained]
+        return split_by_heldout(specs, split, heldout, variation)
 
     def make_env(self, task, action_space, variation, image_size, cameras, max_steps):
         if action_space != "pick_place":

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, replace
 
 from simeval.errors import UserError, require_folder
-from simeval.pipelines.base import NativeTask, Pipeline
+from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
 from simeval.pipelines.metaworld.native import ACTION_KIND, GROUPS, MetaworldSettings
 
 ACTION_SPACE = "metaworld"  # the policy's name for ACTION_KIND (simeval.models.policy.data)
@@ -96,31 +96,13 @@ class MetaworldPipeline(Pipeline):
             task_group = next(iter(GROUPS))
         if task_group not in GROUPS:
             raise UserError(f"task_group={task_group}: Meta-World's groups here are {', '.join(GROUPS)}")
-        names = list(GROUPS[task_group])
-        if tasks:
-            chosen = [tasks] if isinstance(tasks, str) else list(tasks)
-            stray = sorted(set(chosen) - set(names))
-            if stray:
-                raise UserError(f"tasks={chosen}: {stray} not in Meta-World's task_group={task_group} ({names})")
-            names = [n for n in names if n in chosen]
-        held = list(self.heldout.get(task_group, [])) if heldout is None else list(heldout)
-        held = [h for h in held if h in names] if heldout is None else held
-        stray = sorted(set(held) - set(names))
-        if stray:
-            raise UserError(f"heldout_tasks={held}: {stray} not in the selected tasks {names}")
-        return [NativeTask(n, task_group, ACTION_SPACE) for n in names], held
+        return select_tasks(dict.fromkeys(GROUPS[task_group], task_group), task_group, tasks, self.heldout, heldout,
+                            ACTION_SPACE, "Meta-World's")
 
     def split_tasks(self, specs, split, heldout, *, eval_override=None):
-        if split not in ("train", "eval", "heldout"):
-            raise UserError(f"eval.splits: split '{split}' is not one of train, eval, heldout")
-        if split == "heldout":
-            return [(s, {}) for s in specs if s.name in heldout]
-        trained = [s for s in specs if s.name not in heldout]
-        if split == "train":
-            return [(s, {}) for s in trained]
         variation = dict(self.eval_variation if eval_override is None else eval_override)
         check_variation(variation, "eval.variation")
-        return [(s, variation) for s in trained] if variation else []
+        return split_by_heldout(specs, split, heldout, variation)
 
     def make_env(self, task, action_space, variation, image_size, cameras, max_steps):
         from simeval.pipelines.metaworld.env import MetaworldEnv
