@@ -15,7 +15,7 @@ from simeval.errors import UserError
 from simeval.pipelines.base import SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
-from simeval.pipelines.registry import KINDS, pipeline_class, pipeline_from_config
+from simeval.pipelines.registry import KINDS, own_code_args, pipeline_class, pipeline_from_config
 from simeval.sim.spec import SUITES_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,3 +59,18 @@ def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
                        check=False)
     assert r.returncode == 2 and r.stderr.strip() == ("error: pipeline.kind='nope': expected one of gensim_checkout, "
                                                       "metaworld, suite"), r.stderr[-2000:]
+
+
+def test_a_missing_episode_message_names_the_collect_command_of_the_pipelines_own_code(tmp_path):
+    assert own_code_args({"name": "gensim_own", "kind": "gensim_checkout", "native": {"hz": 240}}) == \
+        " pipeline.root=<checkout>"
+    assert own_code_args({"name": "metaworld", "kind": "metaworld"}) == ""
+    assert own_code_args({"name": "bbsea", "kind": "suite", "suite": "bbsea"}) is None
+    assert own_code_args({"name": "custom", "kind": None, "suite": None}) is None
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "pipeline=metaworld",
+                        f"store={tmp_path / 'store'}", f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path,
+                       capture_output=True, text=True, env={**os.environ, "HYDRA_FULL_ERROR": "0"}, timeout=300,
+                       check=False)
+    assert r.returncode == 2 and r.stderr.strip().endswith(
+        f"collect them with the pipeline's own code: python src/collect.py pipeline=metaworld task_group=ml10 "
+        f"episodes=50 store={tmp_path / 'store'}"), r.stderr[-2000:]

@@ -74,6 +74,14 @@ def require_whole_keys(cfg: Any, lows: dict[str, int], optional: tuple[str, ...]
             require_whole(key, value, low=low)
 
 
+def require_bool_keys(cfg: Any, keys: tuple[str, ...]) -> None:
+    """Each of `keys` true or false, else a UserError naming the key and its value (null included)."""
+    for key in keys:
+        value = cfg[key]
+        if not isinstance(value, bool):
+            raise UserError(f"{key}={'null' if value is None else repr(value)}: expected true or false")
+
+
 def refuse_secrets_on_command_line(argv: list[str]) -> None:
     """Stop before Hydra writes the overrides to `.hydra/`: a key typed as a value would be stored in clear."""
     for key, why in key_shaped_overrides(argv[1:]):

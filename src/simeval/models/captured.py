@@ -41,6 +41,16 @@ def capture_needs_cuda(where: str) -> UserError:
     return UserError(f"capture=true needs a CUDA GPU ({where}); use capture=false or device=cuda")
 
 
+def training_device(device: str, capture: bool) -> torch.device:
+    """resolve_device(device) (a bad value or a missing GPU is a UserError), and capture=true refused off CUDA."""
+    from simeval.models.device import resolve_device
+
+    resolved = resolve_device(device)
+    if capture and resolved.type != "cuda":
+        raise capture_needs_cuda(f"device={device} resolves to {resolved} here")
+    return resolved
+
+
 WARMUP_STEPS = 3  # eager steps on a side stream before the first capture: cuDNN's and cuBLAS's lazy set-up
 
 

@@ -14,7 +14,7 @@ import logging
 import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -385,17 +385,19 @@ def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, s
 
 
 def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int,
-                        extra: str = "", native: bool = False) -> str:
+                        extra: str = "", own_code: str | None = None) -> str:
     """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
     reads, not to its own default), or, for a pipeline without a simeval suite, how to import them. `extra`:
     overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match).
-    `native`: the pipeline's own code records its episodes (pipeline.native, e.g. GenSim's from a checkout).
+    `own_code`: for a pipeline whose own code records its episodes (GenSim's checkout, Meta-World), the arguments
+    its collect command needs beyond pipeline= (simeval.pipelines.registry.own_code_args: " pipeline.root=<checkout>"
+    for GenSim's); None for a simeval suite.
     Episodes of the pipeline already in the store at another frame size than the collector's default make the
     command say that size too (record.image_size=...), since the collector refuses to mix sizes in one store."""
     extra += _stored_size_override(store, pipeline, extra)
-    if native:
-        return (f"collect them with the pipeline's own code: python src/collect.py pipeline={pipeline} "
-                f"pipeline.root=<checkout> task_group={group} episodes={episodes} store={store}{extra}")
+    if own_code is not None:
+        return (f"collect them with the pipeline's own code: python src/collect.py pipeline={pipeline}{own_code} "
+                f"task_group={group} episodes={episodes} store={store}{extra}")
     if not suite:
         return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
                 "store with src/import_data.py")
@@ -425,7 +427,7 @@ def _stored_size_override(store: str | Path, pipeline: str, extra: str) -> str:
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
-                 episodes_needed: int = 40, collect_extra: str = "", native: bool = False):
+                 episodes_needed: int = 40, collect_extra: str = "", own_code: str | None = None):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
     (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
     `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
@@ -439,13 +441,23 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     try:
         paths = store_paths_for(store, pipeline, group)
     except EpisodeFormatError as e:
-        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, native)
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, own_code)
         raise UserError(f"{e}; collecting again moves it aside and makes it anew: {how.removeprefix('collect them: ')}"
                         ) from None
     except UserError as e:
-        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, native)
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, own_code)
         raise UserError(f"{e}; {how}") from None
     return StoreSource(paths, camera)
+
+
+def episode_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+                   own_code: str | None, episodes_needed: int, debug_overlay: str = "none"):
+    """(store_source's episodes, how_to_get_more(n): the command that collects n per task): what src/diversity.py
+    reads, and tells a user to run when there are too few. `debug_overlay`: the run's debug= choice, which the
+    collect command repeats (its recording settings must match the run's)."""
+    extra = f" debug={debug_overlay}" if debug_overlay != "none" else ""
+    source = store_source(store, pipeline, group, camera, suite, episodes_needed, extra, own_code)
+    return source, lambda n: how_to_get_episodes(store, pipeline, group, suite, n, extra, own_code)
 
 
 def load_model(checkpoint: str | Path, device: str | torch.device | None = "auto") -> tuple[WorldModel, dict]:
@@ -528,6 +540,13 @@ class DiversityRun:
     eval_episodes: tuple[int, int] | None
     heldout_episodes: tuple[int, int] | None
 
+    @classmethod
+    def from_config(cls, conf: Mapping) -> DiversityRun:
+        """The run conf/diversity.yaml describes (as a plain mapping: the run's resolved config)."""
+        return cls(conf["pipeline"]["name"], conf["task_group"], conf["camera"], int(conf["episodes"]),
+                   int(conf["seed"]), conf["world_model"], conf["protocol"], conf["eval"],
+                   ranks_of(conf["eval_episodes"], "eval_episodes"), ranks_of(conf["heldout_episodes"], "heldout_episodes"))
+
     @cached_property
     def configs(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
         """The model, training and window configs, every protocol value checked (once; read it before any data is
@@ -540,6 +559,18 @@ class DiversityRun:
             check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
                                    self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)
         return model_cfg, train_cfg, window
+
+    @property
+    def episodes_needed(self) -> int:
+        """Episodes per task the run reads: its training ones and its evaluated ones (protocol=paper's held-out
+        episodes are optional, so they do not count). Checks every setting first (configs)."""
+        _ = self.configs
+        return max(int(self.episodes), (self.eval_episodes or (0, 40))[1])
+
+    def describe(self, device, values: dict) -> str:
+        """The run's one-line result for the log."""
+        return (f"{self.pipeline}/{self.task_group} episodes={self.episodes} [preset {self.world_model['name']}, "
+                f"device {device}, protocol={self.protocol['name']}]: {summary_line(values)}")
 
     @property
     def mask_margin(self) -> int:  # protocol=paper leaves it null: no robot masks in its score or loss

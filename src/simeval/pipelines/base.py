@@ -29,6 +29,7 @@ class NativeTask:
 class Pipeline(ABC):
     name: str  # the pipeline's name (conf/pipeline/<name>.yaml's `name`), set by from_config
     requires: tuple[str, ...] = ()  # keys its pipeline config must set (the registry checks them first)
+    collect_args: str = ""  # what its src/collect.py command needs beyond pipeline= (said where episodes are missing)
 
     @classmethod
     @abstractmethod

@@ -34,3 +34,13 @@ def pipeline_class(pipeline: Mapping, needs: str = "closed-loop evaluation") -> 
 def pipeline_from_config(pipeline: Mapping) -> Pipeline:
     """The Pipeline a `conf/pipeline/<name>.yaml` describes (pipeline_class), built from it."""
     return pipeline_class(pipeline).from_config(pipeline)
+
+
+def own_code_args(pipeline: Mapping) -> str | None:
+    """For a pipeline whose own code records its episodes: what its collect command needs beyond pipeline= (its
+    class's `collect_args`, e.g. GenSim's checkout); None for a simeval suite or a pipeline with nothing to run."""
+    try:
+        cls = pipeline_class(pipeline)
+    except UserError:
+        return None
+    return None if cls is SuitePipeline else cls.collect_args

@@ -25,6 +25,7 @@ class GensimOwnPipeline(Pipeline):
     variation: the same tasks in task.mode "test" (its held-out colours, where a task has them)."""
 
     requires = ("native",)
+    collect_args = " pipeline.root=<checkout>"
 
     def __init__(self, name: str, settings: GensimSettings, heldout: Mapping[str, list[str]] | None = None) -> None:
         self.name, self.settings, self.heldout = name, settings, dict(heldout or {})
