@@ -6,7 +6,6 @@ Exit status: 0 when at least one task was scored; 1 when the run ran but every t
 import json
 import logging
 import sys
-from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
@@ -22,7 +21,7 @@ log = logging.getLogger("quality")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.quality.run import run_quality
+    from simeval.quality.run import model_judge, run_quality
     from simeval.results import RunFolder
 
     require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included
@@ -30,17 +29,9 @@ def main(cfg: DictConfig) -> None:
     run = RunFolder.of(cfg)
     judge = {}
     if cfg.judge.kind != "oracle":
-        from simeval.judges import cache, ledger, prompts, runner
-
-        judge = dict(provider=instantiate(cfg.judge.provider),
-                     ledger=ledger.Ledger(ledger.Prices(**cfg.judge.prices), cfg.budget_usd),
-                     templates={k: prompts.load_template(v) for k, v in cfg.prompts.items()},
-                     cache=cache.JudgeCache(Path(cfg.cache_dir) / "judge_calls.sqlite"),
-                     settings=runner.JudgeSettings(cfg.repeats, cfg.max_reasks, cfg.judge.concurrency,
-                                                   cfg.judge.rate_limit_per_min, cfg.judge.replay))
-        if cfg.captioner.kind != "none":  # the captioner captions each view once; every judge repeat reuses it
-            judge |= dict(captioner=instantiate(cfg.captioner.provider), caption_settings=runner.JudgeSettings(
-                1, cfg.max_reasks, cfg.captioner.concurrency, cfg.captioner.rate_limit_per_min, cfg.judge.replay))
+        captioner = instantiate(cfg.captioner.provider) if cfg.captioner.kind != "none" else None
+        judge = model_judge(instantiate(cfg.judge.provider), captioner, run.config["judge"], run.config["captioner"],
+                            run.config["prompts"], cfg.cache_dir, cfg.budget_usd, cfg.repeats, cfg.max_reasks)
     meta = dict(config=run.config, choices=run.choices, seed=cfg.seed, overrides=run.overrides, label=cfg.label)
     with run.logger() as logger:
         out = run_quality(run.output_dir, bundles_dir=cfg.bundles_dir, episodes=run.config["episodes"],

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -285,6 +286,25 @@ def log_task_table(logger, result_path: Path) -> None:
         logger.log_table("quality/tasks", *quality_task_table(rec))
     except Exception as e:  # noqa: BLE001 (any drawing failure: the scores are safe in result.json)
         log.warning("quality/tasks table not logged: %s: %s", type(e).__name__, e)
+
+
+def model_judge(provider, captioner, judge: Mapping, captioner_settings: Mapping, prompts: Mapping[str, str],
+                cache_dir: str | os.PathLike, budget_usd: float | None, repeats: int, max_reasks: int) -> dict:
+    """run_quality's keyword arguments for a model judge (not the oracle): `provider` (and `captioner`, None for
+    none: it captions each view once and every judge repeat reuses it) with conf/quality.yaml's `judge` and
+    `captioner` sections as plain mappings (prices, concurrency, rate_limit_per_min, replay), the prompt template
+    files by name, the call cache in `cache_dir` and a cost ledger stopped at `budget_usd`."""
+    from simeval.judges import cache, ledger, prompts as prompt_files, runner
+
+    out = {"provider": provider, "ledger": ledger.Ledger(ledger.Prices(**judge["prices"]), budget_usd),
+           "templates": {k: prompt_files.load_template(v) for k, v in prompts.items()},
+           "cache": cache.JudgeCache(Path(cache_dir) / "judge_calls.sqlite"),
+           "settings": runner.JudgeSettings(repeats, max_reasks, judge["concurrency"], judge["rate_limit_per_min"],
+                                            judge["replay"])}
+    if captioner is not None:
+        out |= {"captioner": captioner, "caption_settings": runner.JudgeSettings(
+            1, max_reasks, captioner_settings["concurrency"], captioner_settings["rate_limit_per_min"], judge["replay"])}
+    return out
 
 
 def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | None = None,
