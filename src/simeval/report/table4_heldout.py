@@ -273,7 +273,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
 
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
-    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.6))
+    # legends below the panels: inside, the first panel's covered its own baselines' lines
+    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.2 + 0.45 * len(rows)),
+                             layout="constrained")
     ax1, ax2, ax3 = axes[:3]
     for r, color in zip(rows, [f"C{i}" for i in range(10)]):
         ks = [int(c) for c in r["counts"].split("/")]
@@ -308,9 +310,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax.set_xticks(ks, [str(k) for k in ks])
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlim(min(ks) / 1.3, max(ks) * 1.3)
-        ax.legend(fontsize=6.5, framealpha=0.8)
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
     return out
