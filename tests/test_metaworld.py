@@ -206,6 +206,22 @@ def test_mistakes_give_one_line(tmp_path, args, env, expect):
     assert len(lines) == 1 and expect in lines[0] and "Traceback" not in r.stderr, r.stderr[-2000:]
 
 
+def test_collect_takes_the_held_out_tasks_alone_and_generalization_names_a_store_that_is_a_file(mw_store, tmp_path):
+    r = _run("collect", tmp_path, "tasks=[drawer-open-v3]", "variation=heldout", "episodes=1", "workers=1",
+             "record.image_size=[32,32]", f"store={mw_store}")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert EpisodeStore(mw_store).exists("metaworld", "drawer-open-v3", 100000)
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    r = _run("generalization", tmp_path, "debug=tiny", f"store={afile}", "tasks=[reach-v3,drawer-open-v3]")
+    assert r.returncode == 2 and r.stderr.strip() == (f"error: store={afile}: is a file, not a folder; give the "
+                                                      "episode store's folder (default outputs/episodes)")
+    r = _run("generalization", tmp_path, "debug=tiny", f"store={mw_store}", "tasks=[reach-v3,drawer-open-v3]",
+             "policy.model.action_space=joint", f"checkpoint_dir={tmp_path / 'ckpt'}")
+    assert r.returncode == 2 and r.stderr.strip().endswith("set policy.model.action_space=native (the tasks' own: "
+                                                           "metaworld)"), r.stderr[-2000:]
+
+
 def test_text_diversity_says_meta_world_has_no_task_texts(tmp_path):
     r = _run("text_diversity", tmp_path)
     assert r.returncode == 2 and "ships no task descriptions" in r.stderr and "Traceback" not in r.stderr

@@ -57,9 +57,10 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
 
         stored = (ep.action_space or {}).get("kind")  # None: an episode built in memory, not read from a store
         if stored is not None and stored != KINDS[action_space]:
+            native = {kind: name for name, kind in KINDS.items()}.get(stored, stored)
             raise UserError(f"{ep.task} seed {ep.seed}: its actions were recorded as {stored!r}, the policy's "
                             f"action_space={action_space} needs {KINDS[action_space]!r}; set policy.model."
-                            f"action_space=native (the tasks' own) or collect in that action space")
+                            f"action_space=native (the tasks' own: {native})")
         idx = np.arange(ep.n_actions)
         action = np.asarray(ep.action, np.float32)[: ep.n_actions]
     else:

@@ -30,6 +30,9 @@ PLAIN = re.compile(r"episode_(\d+)\.h5")
 def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str]):
     if k < 1:
         raise UserError(f"episodes_per_task must be >= 1, got {k}")
+    if store.root.exists() and not store.root.is_dir():
+        raise UserError(f"store={store.root}: is a file, not a folder; give the episode store's folder "
+                        "(default outputs/episodes)")
     train, val, metas = [], [], []
     # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
     plain = {task: [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)] for task in tasks}
@@ -37,8 +40,9 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
     if short:  # name every short task at once, so the collect command given fixes them all
         counts = ", ".join(f"{t} has {len(plain[t])}" for t in short)
         raise UserError(f"store {store.root}: fewer than episodes_per_task={k} episodes ({counts}); collect them "
-                        f"with: python src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] "
-                        f"episodes={k + val_k} store={store.root}")
+                        f"(the {k} to train on" + (f" and val_episodes_per_task={val_k}" if val_k else "") + ") with: "
+                        f"python src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] episodes={k + val_k} "
+                        f"store={store.root}")
     for task in tasks:
         paths = plain[task]
         paths = sorted(paths, key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))  # by seed

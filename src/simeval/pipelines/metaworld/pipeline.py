@@ -49,9 +49,10 @@ class MetaworldPipeline(Pipeline):
         from simeval.sim.rollout import RecordSettings
 
         self = cls.from_config(pipeline)
-        specs, held = self.group_and_heldout(task_group, tasks)
+        specs, _ = self.group_and_heldout(task_group, tasks, heldout=[])  # collecting only held-out tasks is fine
         split = variation["split"]
         if split != "train":
+            held = [n for n in self.heldout.get(specs[0].group, []) if n in {s.name for s in specs}]
             pairs = self.split_tasks(specs, split, held, eval_override=variation["knobs"])
             if not pairs:
                 raise UserError(f"variation={split}: none of the selected Meta-World tasks is in that split")
@@ -78,7 +79,8 @@ class MetaworldPipeline(Pipeline):
         new: list[dict] = []
         workers = workers or os.cpu_count() or 1
         args = (str(epstore.root), asdict(settings), asdict(recording), self.name, {s.name: s.group for s in specs})
-        bar = tqdm(total=len(todo), desc=f"Meta-World episodes ({workers} workers)", unit="episode")
+        bar = tqdm(total=len(todo), desc=f"Meta-World episodes ({workers} worker{'s' if workers > 1 else ''})",
+                   unit="episode", disable=not todo)
         try:
             run_episodes(collect_one, todo, args, workers, new, bar)
         finally:
