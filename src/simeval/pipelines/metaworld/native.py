@@ -51,7 +51,7 @@ _POSE = ("x", "y", "z", "qx", "qy", "qz", "qw")
 _FRAME = ("hand_x", "hand_y", "hand_z", "gripper_open",
           *(f"obj1_{k}" for k in _POSE), *(f"obj2_{k}" for k in _POSE))
 STATE_NAMES = (*_FRAME, *(f"prev_{k}" for k in _FRAME), "goal_x", "goal_y", "goal_z")
-MAX_STEPS = 200  # the experts finish the ML10 tasks in 40-150 steps (Meta-World's own limit is 500)
+MAX_STEPS = 200  # ML10's experts: 727 of 750 seeds succeed within it (Meta-World's own limit: 500)
 ROBOT_ROOT_BODY = "base"
 
 
