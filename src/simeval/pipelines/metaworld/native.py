@@ -15,8 +15,8 @@
                                                   of the row's state; reward[t] = progress[t+1] - progress[t]
 
 Rendering: MUJOCO_GL defaults to egl (Mesa's EGL renders offscreen on a CPU). `render_quality: fast` turns off
-multisampling, shadows and reflections: 18x cheaper per frame on this CPU's software GL (0.168 -> 0.0095 s at
-64x64, measured), the same scene with flatter light; `full` renders as Meta-World's own models say.
+multisampling, shadows and reflections: one 64x64 colour render 18x cheaper on this CPU's software GL (0.168 ->
+0.0095 s), a recorded row 5.8-7.3x (outputs/bench/metaworld.json); the same scene with flatter light; `full` renders as Meta-World's own models say.
 """
 
 from __future__ import annotations
