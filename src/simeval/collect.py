@@ -90,6 +90,13 @@ def announce_episode(task: str, seed: int) -> None:
         _started.put((os.getpid(), task, seed))
 
 
+def worker_count(workers) -> int:
+    """collect's `workers=`: 0 (one per CPU core) or a positive number of processes, as a count; else a UserError."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+    return workers or os.cpu_count() or 1
+
+
 class _Stopped(SystemExit):
     """SIGTERM reached the collector: leave with the conventional status 128 + signal, workers terminated."""
 
@@ -213,8 +220,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     episode collected again."""
     from tqdm import tqdm
 
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+    workers = worker_count(workers)
     if variation and task_variations:
         raise UserError("give a variation for every task or one per task (task_variations), not both")
     variation = check_variation(list(specs), variation)
@@ -223,7 +229,6 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     bad_seed = next((s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0), None)
     if bad_seed is not None:
         raise UserError(f"seeds must be whole numbers >= 0 (seed_offset >= 0), got seed {bad_seed!r}")
-    workers = workers or os.cpu_count() or 1
     _prepare_store(store.root)
     store.remove_stale_temp_files()
     todo = []

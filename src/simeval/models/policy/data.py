@@ -49,9 +49,10 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
     if missing:
         raise UserError(f"{ep.task} seed {ep.seed}: no camera {missing} in the stored episode (has {sorted(ep.rgb)});"
                         f" set policy.cameras to stored ones or collect with record.cameras including them")
-    if action_space in LOW_LEVEL:  # the store's rows 0..T-1 with the action taken after each; row T (the final
-        from simeval.pipelines.metaworld.native import ACTION_KIND as METAWORLD_KIND  # observation) has only
-        from simeval.sim.env import ACTION_SPACES as SUITE_KINDS  # padding for an action
+    if action_space in LOW_LEVEL:
+        # the store's rows 0..T-1 with the action taken after each (row T, the final observation, has padding)
+        from simeval.pipelines.metaworld.native import ACTION_KIND as METAWORLD_KIND
+        from simeval.sim.env import ACTION_SPACES as SUITE_KINDS
 
         KINDS = {**SUITE_KINDS, "metaworld": METAWORLD_KIND}
 

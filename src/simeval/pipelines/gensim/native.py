@@ -310,15 +310,15 @@ def collect_from_checkout(root, native: dict, tasks, group: str, seeds: Sequence
                           pipeline: str = "gensim_own", workers: int = 0, progress: bool = True) -> dict:
     """src/collect.py for a pipeline with `native:` settings: checks the checkout and settings, plans the tasks,
     collects (collect_gensim). `record`: the collector's record settings (cameras, image_size, control_hz)."""
+    from simeval.collect import worker_count
     from simeval.sim.rollout import RecordSettings
 
     path = check_checkout(root)
     settings = GensimSettings(root=str(path), **native)
     recording = RecordSettings(**record)  # the suites' checks of record.* (cameras, sizes, rate), one place
     check_settings(settings, recording.control_hz)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+    workers = worker_count(workers)
     return collect_gensim(plan_tasks(path, tasks, group), seeds, EpisodeStore(store), settings,
                           recording.image_size, recording.cameras, pipeline=pipeline,
-                          workers=workers or os.cpu_count() or 1, progress=progress)
+                          workers=workers, progress=progress)
 

@@ -9,7 +9,6 @@ train/test split)."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 
@@ -43,7 +42,7 @@ class MetaworldPipeline(Pipeline):
     def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
         from tqdm import tqdm
 
-        from simeval.collect import check_recorded_like, run_episodes
+        from simeval.collect import check_recorded_like, run_episodes, worker_count
         from simeval.episodes.store import EpisodeStore, read_meta
         from simeval.pipelines.metaworld.native import CONTROL_HZ, check_rendering, collect_one
         from simeval.sim.rollout import RecordSettings
@@ -62,8 +61,7 @@ class MetaworldPipeline(Pipeline):
         check_variation(knobs, "variation.knobs")
         settings = replace(self.settings, **knobs)
         recording = RecordSettings(**{**record, "control_hz": CONTROL_HZ})  # Meta-World records at its own 80 Hz
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-            raise UserError(f"workers must be 0 (one per CPU core) or a positive number of processes, got {workers!r}")
+        workers = worker_count(workers)
         check_rendering()
         epstore = EpisodeStore(store)
         require_folder("store", epstore.root)
@@ -77,7 +75,6 @@ class MetaworldPipeline(Pipeline):
                 else:
                     todo.append((s.name, seed))
         new: list[dict] = []
-        workers = workers or os.cpu_count() or 1
         args = (str(epstore.root), asdict(settings), asdict(recording), self.name, {s.name: s.group for s in specs})
         bar = tqdm(total=len(todo), desc=f"Meta-World episodes ({workers} worker{'s' if workers > 1 else ''})",
                    unit="episode", disable=not todo)
