@@ -142,8 +142,8 @@ table4-heldout: setup ## Table 4 under protocol=heldout: collect 50 episodes/tas
 	  $(PY) src/diversity.py pipeline=$$p task_group=$$g progress=false -m episodes=10,20,40 seed=$(SEEDS) || exit 1; done
 	$(MAKE) --no-print-directory report-table4-heldout
 
-report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
-	$(PY) experiments/world_model_table4.py --protocol heldout $(if $(OVERWRITE),--overwrite)
+report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (KEEP=outputs/tables/table4_heldout.csv: keep the committed rows of groups without runs here; OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
+	$(PY) experiments/world_model_table4.py --protocol heldout $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
 
 controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png)
 	$(PY) experiments/dynamics_controls.py dynamics --episodes 10 40

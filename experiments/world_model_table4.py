@@ -12,7 +12,9 @@ outputs/figures/table4_heldout.png. Neither protocol replaces tables or figures 
 unless --overwrite.
 `--keep outputs/tables/table4.csv` (repeatable) extends an earlier table: its cells that the runs under --root lack
 are kept (how the committed table gathers groups run on different machines, whose result.json files are not all
-here); the runs under --root still have to exist, and a cell they have replaces the kept one.
+here); the runs under --root still have to exist, and a cell they have replaces the kept one. With --protocol
+heldout (`--keep outputs/tables/table4_heldout.csv`) the unit is a row, one sweep's counts: a group with runs under
+--root replaces its kept row whole (its intervals are drawn over all its counts together).
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ def main(argv: list[str] | None = None) -> None:
     figure = a.figure or str(ROOT / "outputs" / "figures" / f"{name}.png")
     try:
         if a.protocol == "heldout":
-            done = rebuild_table4_heldout(a.root, out, figure, overwrite=a.overwrite)
+            done = rebuild_table4_heldout(a.root, out, figure, keep=a.keep, overwrite=a.overwrite)
         else:
             try:
                 episodes = [int(x) for x in a.episodes.split(",")]

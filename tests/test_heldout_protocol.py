@@ -318,6 +318,23 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     assert (tmp_path / "sweep" / "table4_heldout.md").read_text() == md
     assert (tmp_path / "sweep" / "table4_heldout.png").read_bytes() == (tmp_path / "t.png").read_bytes()
     assert f"sweep table and figure: {tmp_path / 'sweep' / 'table4_heldout.csv'}" in r.stdout
+    # --keep: the committed table's rows (sweeps whose result.json files are elsewhere) beside this sweep's row
+    committed = ROOT / "outputs" / "tables" / "table4_heldout.csv"
+    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
+                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--figure", str(tmp_path / "t.png"),
+                        "--keep", str(committed)], capture_output=True, text=True, timeout=300, check=False)
+    assert t.returncode == 0, t.stderr
+    kept_md = out.with_suffix(".md").read_text()
+    assert "gensim | diverse | tiny (40) | 2 | 2 |" in kept_md
+    for line in (ROOT / "outputs" / "tables" / "table4_heldout.md").read_text().splitlines()[2:]:
+        if line.startswith("|"):
+            assert line in kept_md  # every committed row, unchanged
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
+                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--keep", str(bad)],
+                       capture_output=True, text=True, timeout=300, check=False)
+    assert t.returncode == 2 and "not a held-out Table 4 CSV" in t.stderr and "Traceback" not in t.stderr
     # episodes that would be trained on and evaluated: one line, exit 2, before any training
     r = _diversity(*common, "episodes=5", cwd=tmp_path)
     assert r.returncode == 2 and "would train on evaluated episodes" in r.stderr and "Traceback" not in r.stderr
@@ -477,6 +494,27 @@ def test_moving_sums_of_a_model_that_draws_one_constant_image_computed_by_hand()
     np.testing.assert_allclose(out["one_step/model/moving"].numpy(), (model_se * moving).sum((1, 2, 3)), rtol=1e-5)
     np.testing.assert_allclose(out["one_step/mean/moving"].numpy(), ((o[:, 1:] ** 2).sum(-1) * moving).sum((1, 2, 3)),
                                rtol=1e-5)
+
+
+def test_a_kept_table_reads_back_as_the_rows_that_wrote_it_and_fresh_rows_replace_whole_rows(tmp_path):
+    """The committed held-out Table 4 read from its CSV and written again gives the same bytes (CSV and Markdown);
+    a fresh row of a kept group replaces that row whole, the other kept rows stay, in build's order."""
+    from simeval.report.table4_heldout import merge, read_rows, write
+
+    committed = ROOT / "outputs" / "tables" / "table4_heldout"
+    kept = read_rows(committed.with_suffix(".csv"))
+    written = write(kept, tmp_path / "again")
+    assert written["csv"].read_bytes() == committed.with_suffix(".csv").read_bytes()
+    assert written["md"].read_bytes() == committed.with_suffix(".md").read_bytes()
+    first = kept[0]
+    fresh = {**first, "one_step_object_10": 123.0}
+    merged = merge(kept, [fresh, {**first, "pipeline": "zzz"}])
+    assert len(merged) == len(kept) + 1 and merged[0]["one_step_object_10"] == 123.0
+    assert merged[1:len(kept)] == kept[1:]
+    assert [(r["pipeline"], r["group"]) for r in merged] == sorted((r["pipeline"], r["group"]) for r in merged)
+    with pytest.raises(UserError, match=r"line 2, column steps: 'x' is not a number"):
+        (tmp_path / "broken.csv").write_text("counts,group,pipeline,preset,steps\n10,g,p,cpu,x\n")
+        read_rows(tmp_path / "broken.csv")
 
 
 def test_the_table_reads_records_made_before_the_moving_pixels_were_summed(tmp_path):

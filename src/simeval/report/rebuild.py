@@ -3,7 +3,7 @@
 `python -m simeval.report.table5`) and `make report` call.
 
     rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
-    rebuild_table4_heldout(root, out, figure, overwrite=False) -> Rebuilt
+    rebuild_table4_heldout(root, out, figure, keep=(), overwrite=False) -> Rebuilt
     rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt   (simeval.report.table5)
 Each reads every result.json of its metric under `root` (none: a UserError saying what makes them), refuses to
 replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
@@ -59,10 +59,11 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
-def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *,
+def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *, keep=(),
                            overwrite: bool = False, overwrite_flag: str = "--overwrite") -> Rebuilt:
     from simeval.report import table4_heldout
 
+    kept = [table4_heldout.read_rows(path) for path in keep]  # read first: a bad file fails before any work
     records = [r for r in read_results(root, metric=table4_heldout.METRIC)
                if (r.get("identity") or {}).get("protocol") == "heldout"]
     if not records:
@@ -71,6 +72,8 @@ def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path
     out, figure = Path(out), Path(figure)
     refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag)
     rows = table4_heldout.build(records)
+    for rows_of_file in kept:  # the rows merged so far win: the first file that has a row gives it
+        rows = table4_heldout.merge(rows_of_file, rows)
     written = table4_heldout.write(rows, out)
     table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
     return Rebuilt([*written.values(), figure], written["md"].read_text())
@@ -89,8 +92,8 @@ def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
                               keep=spec.get("keep") or (), overwrite=overwrite,
                               flags={"episodes": "report.episodes", "overwrite": flag})
     if kind == "table4_heldout":
-        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], overwrite=overwrite,
-                                      overwrite_flag=flag)
+        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
+                                      overwrite=overwrite, overwrite_flag=flag)
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
                               keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag)

@@ -23,6 +23,7 @@ pixels the model never learned; without masks the two are the same frames (per p
 
     rows = build(read_results(root, "dynamics_diversity"))
     write(rows, "outputs/tables/table4_heldout")      # .csv (every number), .md
+    rows = merge(read_rows("outputs/tables/table4_heldout.csv"), rows)   # keep the rows run on other machines
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from simeval.errors import UserError
 from simeval.metrics import resample
 from simeval.models.prediction import MIN_MOVING_PIXELS
 from simeval.report.table4 import one_setting
-from simeval.report.tables import to_csv, to_markdown
+from simeval.report.tables import read_csv, to_csv, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
@@ -167,6 +168,54 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
                     reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
         rows.append(row)
     return rows
+
+
+ROW_KEY = ("pipeline", "group", "preset", "steps")
+TEXT_COLUMNS = ("pipeline", "group", "preset", "counts")
+
+
+def read_rows(path: str | Path) -> list[dict]:
+    """The rows of a table `write` made, from its CSV, as `build` returns them (for `merge`): an empty cell is a
+    number the row's runs did not record (runs made before it was summed), so it stays absent, as in `build`."""
+    lines = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
+    if len(lines) < 2 or not {*TEXT_COLUMNS, *ROW_KEY} <= set(lines[0]):
+        raise UserError(f"{path}: not a held-out Table 4 CSV (written by experiments/world_model_table4.py "
+                        "--protocol heldout): " + ("no rows" if len(lines) < 2 else "its header lacks "
+                                                   + ",".join(sorted({*TEXT_COLUMNS, *ROW_KEY} - set(lines[0])))))
+    header = lines[0]
+    rows = []
+    for i, cells in enumerate(lines[1:], start=2):
+        if len(cells) != len(header):
+            raise UserError(f"{path}, line {i}: {len(cells)} cells, expected {len(header)}")
+        row = {}
+        for column, text in zip(header, cells):
+            if text == "":
+                if column == "steps":
+                    row[column] = None
+                continue
+            try:
+                row[column] = (text if column in TEXT_COLUMNS else
+                               {"True": True, "False": False}[text] if column.startswith("robot_mask_") else
+                               int(text) if column == "steps" or column.startswith(("runs_", "heldout_episodes_"))
+                               else float(text))
+            except (KeyError, ValueError):
+                raise UserError(f"{path}, line {i}, column {column}: {text!r} is not a "
+                                + ("True/False" if column.startswith("robot_mask_") else "number")) from None
+        rows.append(row)
+    return rows
+
+
+def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
+    """`fresh` rows (from result.json files) beside the `kept` rows (an earlier table's, read_rows) that have no
+    fresh row of the same (pipeline, group, preset, steps): a table extended with sweeps made on another machine or
+    in an earlier checkout, whose result.json files are not here. A row is one sweep's whole set of counts, with
+    intervals drawn jointly over them (the paired falls), so a fresh row replaces a kept one whole, never a cell."""
+    def key(r):
+        return tuple(str(r.get(c)) for c in ROW_KEY)
+
+    merged = {key(r): r for r in kept}
+    merged.update({key(r): r for r in fresh})
+    return [merged[k] for k in sorted(merged)]
 
 
 def _ci(row: dict, name: str, digits: int) -> str:
