@@ -182,11 +182,6 @@ def _run_pool(one, jobs, workers: int, args: tuple, new: list, bar) -> None:
             signal.signal(signal.SIGTERM, previous)
 
 
-def _prepare_store(root: Path) -> None:
-    """Make the store's folder, or stop with one line naming `store` (a file, a place that cannot hold one)."""
-    require_folder("store", root)
-
-
 def check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_KIND) -> None:
     """An episode already stored counts as done only if it was recorded as `settings` asks (in the task's
     action-space `kind`). ee_pose tasks (the BBSEA suite) record at their own 4 Hz, whatever record.control_hz."""
@@ -206,6 +201,42 @@ def check_recorded_like(path: Path, settings: RecordSettings, kind: str = JOINT_
             raise UserError(f"{path} was recorded with {key}={show(have)}, this run asks for {show(want)}; stored "
                             f"episodes are kept, not overwritten: give another store= for these settings (or "
                             f"collect with the stored ones)")
+
+
+def missing_episodes(store: EpisodeStore, pipeline: str, variation_of: dict[str, dict | None], seeds: Sequence[int],
+                     recorded_as: RecordSettings, kind_of: dict[str, str]) -> list[tuple[str, int]]:
+    """The (task, seed) pairs of `variation_of`'s tasks ({task: its variation, or None}) that `store` lacks, after
+    making the store's folder (one line naming `store` where it cannot be one) and clearing temp files left by a
+    killed run. An episode already stored counts as done only if recorded as `recorded_as` asks in its task's
+    action-space kind (`kind_of`, check_recorded_like); an unreadable one is moved aside and collected again (the
+    store's exists_intact). Every collector (the suites, GenSim's own code, Meta-World) resumes through here."""
+    require_folder("store", store.root)
+    store.remove_stale_temp_files()
+    todo = []
+    for task, varied in variation_of.items():
+        for seed in seeds:
+            if store.exists_intact(pipeline, task, seed, varied):
+                check_recorded_like(store.path_for(pipeline, task, seed, varied), recorded_as, kind_of[task])
+            else:
+                todo.append((task, seed))
+    return todo
+
+
+def stored_summary(store: EpisodeStore, pipeline: str, group_of: dict[str, str], seeds: Sequence[int],
+                   variation_of: dict[str, dict | None] | None = None, failed: Sequence[dict] | None = None) -> dict:
+    """{task: {group, episodes, success, rate[, failed]}} over the episodes of `seeds` in the store (earlier runs'
+    included): what a collector reports at its end. `failed` ({task, seed, ...} of episodes a collector reported
+    instead of stopping: GenSim's code) adds each task's failed seeds; rate is None for a task with none stored."""
+    out = {}
+    for task, group in group_of.items():
+        varied = (variation_of or {}).get(task)
+        metas = [read_meta(store.path_for(pipeline, task, seed, varied)) for seed in seeds
+                 if store.exists(pipeline, task, seed, varied)]
+        ok = sum(m["success"] for m in metas)
+        out[task] = {"group": group, "episodes": len(metas), "success": ok, "rate": ok / len(metas) if metas else None}
+        if failed is not None:
+            out[task]["failed"] = sorted(f["seed"] for f in failed if f["task"] == task)
+    return out
 
 
 def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore, settings: RecordSettings,
@@ -229,33 +260,23 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     bad_seed = next((s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0), None)
     if bad_seed is not None:
         raise UserError(f"seeds must be whole numbers >= 0 (seed_offset >= 0), got seed {bad_seed!r}")
-    _prepare_store(store.root)
-    store.remove_stale_temp_files()
-    todo = []
-    for s in specs:
-        for seed in seeds:
-            if store.exists_intact(pipeline, s.name, seed, var_of[s.name]):
-                check_recorded_like(store.path_for(pipeline, s.name, seed, var_of[s.name]), settings,
-                                     {"ee_delta": EE_DELTA_KIND, "ee_pose": EE_POSE_KIND}.get(s.action_space, JOINT_KIND))
-            else:
-                todo.append((s, seed))
+    kinds = {"ee_delta": EE_DELTA_KIND, "ee_pose": EE_POSE_KIND}
+    todo = missing_episodes(store, pipeline, var_of, seeds, settings,
+                            {s.name: kinds.get(s.action_space, JOINT_KIND) for s in specs})
     skipped = len(specs) * len(seeds) - len(todo)
     new: list[dict] = []
     args = (str(store.root), asdict(settings), pipeline, var_of)
+    source_of = {s.name: s.source for s in specs}
     bar = tqdm(total=len(todo), desc=f"collecting ({workers} workers)", unit="episode", disable=not progress)
     try:
-        run_episodes(_collect_one, [(s.source, seed) for s, seed in todo], args, workers, new, bar)
+        run_episodes(_collect_one, [(source_of[name], seed) for name, seed in todo], args, workers, new, bar)
     except (KeyboardInterrupt, _Stopped):
         log.warning("collection stopped: %d new episodes kept in %s; run the same command again to resume",
                     len(new), store.root)
         raise
     finally:
         bar.close()
-    tasks = {}
-    for s in specs:  # the summary covers the whole store for these seeds, earlier runs included
-        metas = [read_meta(store.path_for(pipeline, s.name, seed, var_of[s.name])) for seed in seeds]
-        ok = sum(m["success"] for m in metas)
-        tasks[s.name] = {"group": s.group, "episodes": len(metas), "success": ok, "rate": ok / len(metas)}
+    tasks = stored_summary(store, pipeline, {s.name: s.group for s in specs}, seeds, var_of)
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped, "tasks": tasks}
 
 

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from simeval.episodes.episode import Episode
-from simeval.episodes.store import EpisodeStore, read_meta
-from simeval.errors import UserError, require_folder
+from simeval.episodes.store import EpisodeStore
+from simeval.errors import UserError
 from simeval.sim.action_spaces import joint_action_space, pick_place_action_space
 from simeval.sim.robot import STATE_NAMES
 
@@ -201,22 +201,15 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
     failed}}}. Raises UserError when GenSim cannot be imported at all (the first worker says why)."""
     from tqdm import tqdm
 
-    from simeval.collect import check_recorded_like
+    from simeval.collect import missing_episodes, stored_summary
+    from simeval.sim.action_spaces import JOINT_KIND
     from simeval.sim.rollout import RecordSettings
 
     unknown = [c for c in cameras if c not in CAMERAS]
     if unknown:
         raise UserError(f"record.cameras: GenSim's episodes have cameras {list(CAMERAS)}, not {unknown}")
-    require_folder("store", store.root)
-    store.remove_stale_temp_files()
     recorded_as = RecordSettings(cameras=tuple(cameras), image_size=image_size, control_hz=settings.control_hz)
-    todo = []
-    for t in tasks:
-        for s in seeds:
-            if store.exists_intact(pipeline, t, s):  # kept only if recorded as this run asks (else a UserError)
-                check_recorded_like(store.path_for(pipeline, t, s), recorded_as)
-            else:
-                todo.append((t, s))
+    todo = missing_episodes(store, pipeline, dict.fromkeys(tasks), seeds, recorded_as, dict.fromkeys(tasks, JOINT_KIND))
     skipped = len(tasks) * len(seeds) - len(todo)
     new, failed = [], []
     bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} workers)", unit="episode", disable=not progress)
@@ -261,15 +254,7 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
                 bar.close()
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    out = {}
-    failed_by_task = {}
-    for f in failed:
-        failed_by_task.setdefault(f["task"], []).append(f["seed"])
-    for task, group in tasks.items():
-        metas = [read_meta(store.path_for(pipeline, task, s)) for s in seeds if store.exists(pipeline, task, s)]
-        ok = sum(m["success"] for m in metas)
-        out[task] = {"group": group, "episodes": len(metas), "success": ok,
-                     "rate": ok / len(metas) if metas else None, "failed": sorted(failed_by_task.get(task, []))}
+    out = stored_summary(store, pipeline, tasks, seeds, failed=failed)
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped,
             "failed": sorted(failed, key=lambda r: (r["task"], r["seed"])), "tasks": out}
 

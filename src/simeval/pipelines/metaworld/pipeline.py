@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 
-from simeval.errors import UserError, require_folder
+from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
 from simeval.pipelines.metaworld.native import ACTION_KIND, GROUPS, MetaworldSettings
 
@@ -42,8 +42,8 @@ class MetaworldPipeline(Pipeline):
     def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
         from tqdm import tqdm
 
-        from simeval.collect import check_recorded_like, run_episodes, worker_count
-        from simeval.episodes.store import EpisodeStore, read_meta
+        from simeval.collect import missing_episodes, run_episodes, stored_summary, worker_count
+        from simeval.episodes.store import EpisodeStore
         from simeval.pipelines.metaworld.native import CONTROL_HZ, check_rendering, collect_one
         from simeval.sim.rollout import RecordSettings
 
@@ -64,16 +64,9 @@ class MetaworldPipeline(Pipeline):
         workers = worker_count(workers)
         check_rendering()
         epstore = EpisodeStore(store)
-        require_folder("store", epstore.root)
-        epstore.remove_stale_temp_files()
         varied = {"hand_init_noise": settings.hand_init_noise} if settings.hand_init_noise else {}
-        todo = []
-        for s in specs:
-            for seed in seeds:
-                if epstore.exists_intact(self.name, s.name, seed, varied):
-                    check_recorded_like(epstore.path_for(self.name, s.name, seed, varied), recording, ACTION_KIND)
-                else:
-                    todo.append((s.name, seed))
+        todo = missing_episodes(epstore, self.name, dict.fromkeys((s.name for s in specs), varied), seeds, recording,
+                                dict.fromkeys((s.name for s in specs), ACTION_KIND))
         new: list[dict] = []
         args = (str(epstore.root), asdict(settings), asdict(recording), self.name, {s.name: s.group for s in specs})
         bar = tqdm(total=len(todo), desc=f"Meta-World episodes ({workers} worker{'s' if workers > 1 else ''})",
@@ -82,13 +75,9 @@ class MetaworldPipeline(Pipeline):
             run_episodes(collect_one, todo, args, workers, new, bar)
         finally:
             bar.close()
-        out = {}
-        for s in specs:
-            metas = [read_meta(epstore.path_for(self.name, s.name, seed, varied)) for seed in seeds]
-            ok = sum(m["success"] for m in metas)
-            out[s.name] = {"group": s.group, "episodes": len(metas), "success": ok, "rate": ok / len(metas)}
         return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": len(specs) * len(seeds) - len(todo),
-                "tasks": out}
+                "tasks": stored_summary(epstore, self.name, {s.name: s.group for s in specs}, seeds,
+                                        dict.fromkeys((s.name for s in specs), varied))}
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         if task_group == "all":
