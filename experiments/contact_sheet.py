@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
     from simeval.sim.rollout import RecordSettings, run_episode
-    from simeval.sim.spec import load_spec
+    from simeval.sim.tasks.spec import load_spec
 
     path, seed, size = args
     spec = load_spec(path)
@@ -32,8 +32,8 @@ def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
 def main() -> None:
     from PIL import Image, ImageDraw
 
-    from simeval.sim.spec import SUITES_DIR
-    from simeval.sim.splits import SPLITS_FILE
+    from simeval.sim.tasks.spec import SUITES_DIR
+    from simeval.sim.tasks.splits import SPLITS_FILE
 
     ap = OneLineParser()
     ap.add_argument("--suite", default="gensim")

@@ -129,7 +129,7 @@ def dose_sources(dose: Dose, size: int, episodes: int, out: Path, workers: int) 
     from simeval.episodes.dataset import StoreSource
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.rollout import RecordSettings
-    from simeval.sim.spec import SUITES_DIR, load_suite
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
 
     pipeline, task = dose.task
     spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
@@ -382,7 +382,7 @@ def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], marg
     from simeval.episodes.dataset import grow_masks
     from simeval.episodes.store import EpisodeStore
     from simeval.models.prediction import MOTION_THRESHOLD
-    from simeval.sim.spec import SUITES_DIR, check_variation, load_suite
+    from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite
 
     pipeline, task = dose.task
     spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)

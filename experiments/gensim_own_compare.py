@@ -16,7 +16,7 @@ import numpy as np
 from simeval.cli import OneLineParser
 from simeval.pipelines.gensim.native import GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_suite
+from simeval.sim.tasks.spec import SUITES_DIR, load_suite
 from simeval.tasks.gensim import registered_names
 
 

@@ -32,7 +32,7 @@ EVAL_SEED_OFFSET = 100000  # conf/variation/eval.yaml
 
 def one(args):
     from simeval.sim.rollout import RecordSettings, run_episode
-    from simeval.sim.spec import load_spec
+    from simeval.sim.tasks.spec import load_spec
 
     path, seed, split = args
     spec = load_spec(path)
@@ -72,7 +72,7 @@ def table_rows(episodes: dict[tuple[str, int], dict], tasks: list[str], seeds: i
 
 def main() -> None:
     from simeval.report.tables import write_table
-    from simeval.sim.spec import SUITES_DIR
+    from simeval.sim.tasks.spec import SUITES_DIR
 
     ap = OneLineParser()
     ap.add_argument("--suite", default="gensim")

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import yaml
 
+from simeval.sim.core.articulated import joint_limits
 from simeval.sim.env import make_env
-from simeval.sim.articulated import joint_limits
-from simeval.sim.goals import task_progress
-from simeval.sim.primitives import PlanPolicy
+from simeval.sim.experts.bbsea import PlanPolicy
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance
+from simeval.sim.tasks.goals import task_progress
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance
 
 SUITE_DIR = SUITES_DIR / "bbsea"
 SUITE = {s.name: s for s in load_suite(SUITE_DIR)}
@@ -115,7 +115,7 @@ def test_failed_episode_is_kept_and_flagged(tmp_path):
     data["name"], data["plan"] = "bbsea-block-in-bin-pick-only", [{"pick": "block"}]  # never lets go: fails
     spec_path = tmp_path / "pick-only.yaml"
     spec_path.write_text(yaml.safe_dump(data))
-    from simeval.sim.spec import load_spec
+    from simeval.sim.tasks.spec import load_spec
 
     spec = load_spec(spec_path)
     store = EpisodeStore(tmp_path / "store")

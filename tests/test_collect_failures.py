@@ -13,7 +13,7 @@ import pytest
 from simeval.collect import collect
 from simeval.episodes.store import EpisodeStore, read_meta
 from simeval.sim.rollout import RecordSettings
-from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}

@@ -16,7 +16,7 @@ from simeval.episodes.importers import IMPORTERS, import_into_store
 from simeval.episodes.store import EpisodeStore
 from simeval.errors import UserError
 from simeval.sim.rollout import RecordSettings
-from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}

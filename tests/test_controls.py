@@ -124,10 +124,10 @@ def test_moving_share_by_margin_counts_changed_pixels_outside_the_grown_robot_ma
     """A dose with no reading says whether the motion was there but inside the margin around the robot: counted
     here on hand-made frames (a 1-pixel block moving one pixel right beside a 1-pixel robot, and a far one)."""
     import h5py
-
     from dynamics_controls import DOSES, moving_share_by_margin
+
     from simeval.episodes.store import EpisodeStore
-    from simeval.sim.spec import SUITES_DIR, check_variation, load_suite
+    from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite
 
     dose = DOSES["dose_push"]
     pipeline, task = dose.task

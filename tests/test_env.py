@@ -10,7 +10,7 @@ import pytest
 from simeval.errors import UserError
 from simeval.sim import OraclePolicy, make_env, rollout_policy
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_suite
+from simeval.sim.tasks.spec import SUITES_DIR, load_suite
 
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
 
@@ -83,8 +83,9 @@ def test_a_ravens_style_identity_pick_rotation_places_the_object_at_its_target()
     """Ravens' oracle picks with an identity rotation and places with the relative one: the same convention."""
     ep = run_episode(SUITE["put-block-in-zone"], 4, RecordSettings(cameras=(), scene_view_size=(8, 8)))
     (a,) = ep.high_level_action
-    from simeval.sim.world import yaw_of
     import pybullet as p
+
+    from simeval.sim.core.world import yaw_of
 
     turn = yaw_of(a[10:14]) - yaw_of(a[3:7])
     ravens = np.r_[a[:3], 0, 0, 0, 1, a[7:10], p.getQuaternionFromEuler([0, 0, turn])].astype(np.float32)

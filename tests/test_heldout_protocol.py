@@ -204,8 +204,8 @@ def test_object_error_excludes_the_masked_pixels():
 def test_robot_mask_is_exactly_the_pixels_the_robot_covers(task):
     """The recorded mask against an independent measurement: render the same state with every visual shape of the
     robot's bodies made transparent; the pixels that change are the robot's."""
+    from simeval.sim.core.world import OBS_CAMERAS
     from simeval.sim.env import SimEnv
-    from simeval.sim.world import OBS_CAMERAS
 
     env = SimEnv(task, robot_masks=True)
     try:
@@ -234,8 +234,8 @@ def test_robot_mask_is_exactly_the_pixels_the_robot_covers(task):
 
 def test_collected_episodes_store_robot_masks(tmp_path):
     from simeval.episodes.store import read_episode
-    from simeval.sim.rollout import RecordSettings, run_episode
     from simeval.sim.env import find_task
+    from simeval.sim.rollout import RecordSettings, run_episode
 
     ep = run_episode(find_task("stack-two-blocks"), 0, RecordSettings(cameras=("front",), image_size=(32, 32)))
     assert set(ep.robot_mask) == {"front"} and ep.robot_mask["front"].shape == (ep.n_steps, 32, 32)
@@ -397,8 +397,8 @@ def test_exclude_robot_from_loss_trains_on_masks_where_episodes_have_them():
 
 
 def test_pose_range_shrinks_poses_towards_one_anchor_layout():
-    from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, sample_instance
-    from simeval.sim.world import WORKSPACE
+    from simeval.sim.core.world import WORKSPACE
+    from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, sample_instance
 
     spec = next(s for s in load_suite(SUITES_DIR / "gensim") if s.name == "put-blocks-in-matching-zones")
 

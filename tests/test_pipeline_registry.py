@@ -16,7 +16,7 @@ from simeval.pipelines.base import SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 from simeval.pipelines.registry import KINDS, own_code_args, pipeline_class, pipeline_from_config
-from simeval.sim.spec import SUITES_DIR
+from simeval.sim.tasks.spec import SUITES_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,8 +9,15 @@ import torch
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
-from simeval.models.diffusion_policy import (DiffusionPolicy, PolicyConfig, RecedingHorizonRunner, TrainSettings,
-                                             make_ema, normalize_pose14_quaternions, train_policy)
+from simeval.models.diffusion_policy import (
+    DiffusionPolicy,
+    PolicyConfig,
+    RecedingHorizonRunner,
+    TrainSettings,
+    make_ema,
+    normalize_pose14_quaternions,
+    train_policy,
+)
 from simeval.models.policy.data import PolicyDataset
 
 TINY = dict(image_size=[32, 32], crop=28, encoder_width=8, keypoints=8, feature_dim=16, stem_pool=False, horizon=8,
@@ -187,7 +194,7 @@ def test_config_mistakes_name_the_key():
 
 def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_refused():
     from simeval.models.policy.experiment import resolve_action_space
-    from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
 
     robogen = select_specs(load_suite(SUITES_DIR / "robogen"), None, "table_top")
     bbsea = select_specs(load_suite(SUITES_DIR / "bbsea"), None, "drawer")

@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 from simeval.episodes.episode import Episode
 from simeval.episodes.store import EpisodeStore
 from simeval.sim.action_spaces import joint_action_space
-from simeval.sim.spec import SUITES_DIR, load_suite, select_specs
+from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 GROUP = "piles"  # the smallest group of the suite (3 tasks)

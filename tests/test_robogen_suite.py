@@ -6,15 +6,16 @@ import warnings
 
 import numpy as np
 import pytest
+
 from simeval.errors import UserError
 from simeval.sim import make_env
 from simeval.sim.action_spaces import EE_DELTA_KIND, EE_MAX_TRANSLATION
-from simeval.sim.articulated import ARTICULATED, joint_fraction, set_joint_fraction
-from simeval.sim.controllers import ArticulationController
-from simeval.sim.goals import task_progress
+from simeval.sim.core.articulated import ARTICULATED, joint_fraction, set_joint_fraction
+from simeval.sim.experts.robogen import ArticulationController
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec
-from simeval.sim.splits import load_heldout
+from simeval.sim.tasks.goals import task_progress
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec
+from simeval.sim.tasks.splits import load_heldout
 
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "robogen")}
 HUMAN_STUDY = ["open-laptop", "change-lamp-direction", "flush-the-toilet", "extend-display-screen",

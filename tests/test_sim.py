@@ -14,7 +14,7 @@ import pytest
 
 from simeval.episodes.store import EpisodeStore, read_episode
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, SpecError, load_suite, parse_spec, sample_instance
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, parse_spec, sample_instance
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
@@ -211,6 +211,6 @@ def test_malformed_specs_are_spec_errors_not_crashes(data, match, tmp_path):
         parse_spec(data, "t.yaml")
     (tmp_path / "empty.yaml").write_text("")
     with pytest.raises(SpecError, match="empty.yaml: a task spec is a mapping"):
-        from simeval.sim.spec import load_spec
+        from simeval.sim.tasks.spec import load_spec
 
         load_spec(tmp_path / "empty.yaml")

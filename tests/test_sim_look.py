@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from simeval.sim.objects import COLORS, make_object
-from simeval.sim.robot import PARK, Arm, render_urdf
-from simeval.sim.spec import SUITES_DIR, SpecError, load_suite, sample_instance
-from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, TILE_RGB, World
+from simeval.sim.core.objects import COLORS, make_object
+from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, TILE_RGB, World
+from simeval.sim.robots.xarm import PARK, Arm, render_urdf
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, sample_instance
 
 SUITE = load_suite(SUITES_DIR / "gensim")
 MARGIN = 0.05  # of the frame's width/height: 3 pixels at 64x64
@@ -141,7 +141,7 @@ def test_objects_render_in_their_colours():
     """A block of each colour, rendered from the top camera on the tile, looks nearest its own colour."""
     with World() as w:
         rng = np.random.default_rng(0)
-        from simeval.sim.objects import SimObject
+        from simeval.sim.core.objects import SimObject
 
         for name in COLORS:
             obj = make_object(w.c, SimObject("b", 0, "block", name, (0.06, 0.06, 0.04)), np.array([0.46, 0.0]), 0.0,

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from simeval.sim.spec import SUITES_DIR, SpecError, load_suite, sample_instance, task_seed
+from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, sample_instance, task_seed
 
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
 
@@ -67,10 +67,10 @@ def test_variation_counts_must_match_the_text():
 
 
 # --- section 5: success as strict as the text (situations built by pose, no oracle) --------------------------
-from simeval.sim import goals as G  # noqa: E402
-from simeval.sim.objects import make_object  # noqa: E402
-from simeval.sim.robot import Arm  # noqa: E402
-from simeval.sim.world import TABLE_Z, World  # noqa: E402
+from simeval.sim.core.objects import make_object  # noqa: E402
+from simeval.sim.core.world import TABLE_Z, World  # noqa: E402
+from simeval.sim.robots.xarm import Arm  # noqa: E402
+from simeval.sim.tasks import goals as G  # noqa: E402
 
 
 class Scene:

@@ -6,12 +6,19 @@ import h5py
 import numpy as np
 import pytest
 
-from simeval.episodes.store import (EpisodeFormatError, EpisodeStore, WindowSpec, iter_windows, read_episode,
-                                    read_meta, write_episode)
+from simeval.episodes.store import (
+    EpisodeFormatError,
+    EpisodeStore,
+    WindowSpec,
+    iter_windows,
+    read_episode,
+    read_meta,
+    write_episode,
+)
 from simeval.errors import UserError
 from simeval.sim.env import make_env
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_suite
+from simeval.sim.tasks.spec import SUITES_DIR, load_suite
 
 SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
 SMALL = RecordSettings(cameras=("top",), image_size=(24, 24), scene_view_size=(16, 16))

@@ -33,13 +33,13 @@ from simeval.sim import (
     panda,
     robot,
 )
-from simeval.sim.articulated import set_joint_fraction
+from simeval.sim.core.articulated import set_joint_fraction
+from simeval.sim.core.objects import make_object
+from simeval.sim.core.world import OBS_CAMERAS, TABLE_Z, World
 from simeval.sim.env import find_task
-from simeval.sim.objects import make_object
-from simeval.sim.robot import Arm
+from simeval.sim.robots.xarm import Arm
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_spec, sample_instance
-from simeval.sim.world import OBS_CAMERAS, TABLE_Z, World
+from simeval.sim.tasks.spec import SUITES_DIR, load_spec, sample_instance
 
 BBSEA_TASKS = ["bbsea-block-in-bin", "bbsea-stack-three-blocks", "bbsea-open-drawer-put-block",
                "bbsea-put-block-in-drawer-and-close"]  # two per group of the BBSEA suite (--suite bbsea)

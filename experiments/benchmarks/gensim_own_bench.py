@@ -26,7 +26,7 @@ from common import machine, save
 from simeval.cli import OneLineParser
 from simeval.pipelines.gensim.native import WORKER, GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_spec
+from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 
 TASKS = ("place-red-in-green", "stack-block-pyramid")  # in GenSim's registry and in simeval's suite
 

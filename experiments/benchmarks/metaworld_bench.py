@@ -26,7 +26,7 @@ from simeval.pipelines.metaworld.native import (
     record_episode,
 )
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import SUITES_DIR, load_spec
+from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 
 TASKS = ("reach-v3", "push-v3", "door-open-v3")
 

@@ -28,10 +28,10 @@ from simeval.sim import (
     objects,
     robot,
 )
+from simeval.sim.core.world import PILE_SOLVER_RESIDUAL, World
 from simeval.sim.env import make_env
-from simeval.sim.oracle import next_primitive
-from simeval.sim.spec import SUITES_DIR, load_spec
-from simeval.sim.world import PILE_SOLVER_RESIDUAL, World
+from simeval.sim.experts.gensim import next_primitive
+from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 
 TASKS = ["sweep-pile-into-zone", "sweep-two-piles", "sweep-pile-into-matching-zone"]
 CONFIGS = {  # (solver residual for pile worlds, particles in maximal coordinates, blade height)
@@ -100,7 +100,7 @@ def main() -> None:
             "control_steps": n,
             "ms_per_step": round(1e3 * sum(r["seconds"] for r in rs) / n, 2),
             "physics_ms_per_step": round(1e3 * sum(r["physics_s"] for r in rs) / n, 2),
-            # the table's top is at -1 mm (world.py); below that a particle sinks into it
+            # the table's top is at -1 mm (sim/core/world.py); below that a particle sinks into it
             "max_penetration_mm": round(1e3 * max(0.0, -1e-3 + half - min(r["min_z"] for r in rs)), 2),
         }
     save("pile", {"machine": machine(), "seeds": args.seeds, "primitives": args.primitives, "tasks": TASKS,

@@ -34,7 +34,7 @@ from simeval.episodes.store import EpisodeStore, read_meta, read_recording
 from simeval.errors import UserError, require_folder
 from simeval.sim.action_spaces import EE_DELTA_KIND, EE_POSE_HZ, EE_POSE_KIND, JOINT_KIND
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.spec import TaskSpec, check_variation, load_spec, variation_for
+from simeval.sim.tasks.spec import TaskSpec, check_variation, load_spec, variation_for
 
 log = logging.getLogger(__name__)
 PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
@@ -246,7 +246,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
 
     `variation` ({object: {colors, count}, robot: {home_noise}}) applies to every task that has the objects
     it names; naming an object none of `specs` has is an error. `task_variations` ({task: variation}, e.g. each
-    task's own `eval` variation, simeval.sim.splits) gives tasks their own instead; give one or the other.
+    task's own `eval` variation, simeval.sim.tasks.splits) gives tasks their own instead; give one or the other.
     An unreadable file already in the store is moved aside (`<name>.corrupt-<time>`, with a warning) and its
     episode collected again."""
     from tqdm import tqdm
@@ -284,10 +284,10 @@ def plan_suite(suite_dir: Path, tasks: list[str] | str | None, group: str, split
                knobs: dict | None) -> tuple[list[TaskSpec], dict | None, dict[str, dict] | None]:
     """What src/collect.py collects from a simeval suite: (specs, variation, task_variations) for `collect`. Split
     `train` collects every selected task (held-out ones too: the world model's data) under `knobs`; `eval` and
-    `heldout` collect the tasks of that split (simeval.sim.splits), each under its own variation (`knobs` replace
+    `heldout` collect the tasks of that split (simeval.sim.tasks.splits), each under its own variation (`knobs` replace
     the eval ones). The suite's splits.yaml is read for every split, so a broken one is an error at once."""
-    from simeval.sim.spec import load_suite, select_specs
-    from simeval.sim.splits import heldout_of, load_heldout, split_tasks
+    from simeval.sim.tasks.spec import load_suite, select_specs
+    from simeval.sim.tasks.splits import heldout_of, load_heldout, split_tasks
 
     suite = load_suite(suite_dir)
     specs = select_specs(suite, tasks, group)

@@ -22,8 +22,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.episodes.dataset import (WindowDataset, WindowSpec, build_index, epoch_offset, episode_ranks, rank_mask,
-                                      require_ranks, window_starts)
+from simeval.episodes.dataset import (
+    WindowDataset,
+    WindowSpec,
+    build_index,
+    episode_ranks,
+    epoch_offset,
+    rank_mask,
+    require_ranks,
+    window_starts,
+)
 from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
@@ -401,7 +409,7 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
     if not suite:
         return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
                 "store with src/import_data.py")
-    from simeval.sim.spec import SUITES_DIR, load_suite
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
 
     groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
     into = f" store={store}{extra}"

@@ -6,7 +6,7 @@ simeval.pipelines.registry picks the class from a `conf/pipeline/<name>.yaml` (p
 (pipeline_from_config). Collection goes through the class too (`Pipeline.collect`), so src/collect.py knows no
 pipeline by name: a new pipeline is a class here, its `kind` in the registry and its yaml.
 
-Task objects only need `.name`, `.group` and `.action_space` (simeval.sim.spec.TaskSpec has them; `NativeTask` for
+Task objects only need `.name`, `.group` and `.action_space` (simeval.sim.tasks.spec.TaskSpec has them; `NativeTask` for
 tasks simeval has no spec of)."""
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ class SuitePipeline(Pipeline):
 
     @classmethod
     def from_config(cls, pipeline):
-        from simeval.sim.spec import SUITES_DIR
+        from simeval.sim.tasks.spec import SUITES_DIR
 
         return cls(pipeline["name"], SUITES_DIR / pipeline["suite"])
 
@@ -123,12 +123,12 @@ class SuitePipeline(Pipeline):
                        workers=workers, variation=common, task_variations=per_task)
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
-        from simeval.sim.splits import group_and_heldout
+        from simeval.sim.tasks.splits import group_and_heldout
 
         return group_and_heldout(self.suite_dir, task_group, tasks, heldout)
 
     def split_tasks(self, specs, split, heldout, *, eval_override=None):
-        from simeval.sim.splits import split_tasks
+        from simeval.sim.tasks.splits import split_tasks
 
         return split_tasks(specs, split, heldout, eval_override=eval_override)
 

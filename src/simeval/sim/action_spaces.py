@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simeval.sim.robot import JOINT_ACTION_NAMES, JOINT_LOWER, JOINT_UPPER
+from simeval.sim.robots.xarm import JOINT_ACTION_NAMES, JOINT_LOWER, JOINT_UPPER
 
 JOINT_KIND, PICK_PLACE_KIND, EE_POSE_KIND = "joint_pos+suction", "pick_place_14d", "ee_pose+gripper"
 EE_POSE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
@@ -56,7 +56,7 @@ def ee_delta_action_space(control_hz: float) -> dict:
 
 
 def ee_pose_action_space(control_hz: float = EE_POSE_HZ) -> dict:
-    """The Panda's absolute end-effector target per control step (simeval.sim.panda): grasp-point position,
+    """The Panda's absolute end-effector target per control step (simeval.sim.robots.panda): grasp-point position,
     orientation, gripper command."""
     return {"kind": EE_POSE_KIND, "dims": list(EE_POSE_NAMES), "units": ["m"] * 3 + ["quat_xyzw"] * 4 + ["closed=1/open=0"],
             "control_hz": float(control_hz), "low": EE_POSE_LOW.tolist(), "high": EE_POSE_HIGH.tolist(),

@@ -7,8 +7,8 @@
 
 Observations: {"rgb": {camera: (H, W, 3) uint8}, "state": float32} -- the state follows the task's robot (spec
 field `robot`; names in `state_names(robot)`): xarm6 (14): 6 joint positions (rad), 6 joint velocities (rad/s), the
-suction command in force (0/1) and whether an object is held (0/1) (simeval.sim.robot.STATE_NAMES); panda (16):
-7 joint positions, 7 velocities, the gripper opening (m) and the gripper command (simeval.sim.panda.STATE_NAMES).
+suction command in force (0/1) and whether an object is held (0/1) (simeval.sim.robots.xarm.STATE_NAMES); panda (16):
+7 joint positions, 7 velocities, the gripper opening (m) and the gripper command (simeval.sim.robots.panda.STATE_NAMES).
 `info` carries `progress` (partial progress in [0, 1], the mean over the task's goals) and `success` (every goal
 done); the reward is the change in progress; `terminated` is success; `truncated` is the step limit.
 
@@ -43,7 +43,7 @@ Action spaces (`ACTION_SPACES`; each stored episode records the one it was recor
 
   ee_pose         kind `ee_pose+gripper` (Panda tasks), 8-d at the control rate (4 Hz by default, BBSEA's): the
                   absolute grasp-point target [x, y, z (m), qx, qy, qz, qw, gripper (>= 0.5 closed)], reached
-                  within the step (simeval.sim.panda). A step that ends the episode parks the arm as above.
+                  within the step (simeval.sim.robots.panda). A step that ends the episode parks the arm as above.
 A task's native action space is its spec's `action_space` (default joint); `make_env(task)` uses it.
 
 With `record_low_level=True` a pick_place step also returns, in info["low_level"], every control step it took:
@@ -61,20 +61,40 @@ from collections.abc import Sequence
 import numpy as np
 
 from simeval.errors import UserError
-from simeval.sim.geometry import still
-from simeval.sim.goals import task_progress
-from simeval.sim.objects import make_object
-from simeval.sim.action_spaces import (EE_DELTA_KIND, EE_HIGH, EE_LOW, EE_POSE_HIGH, EE_POSE_HZ,  # noqa: F401
-                                       EE_POSE_KIND, EE_POSE_LOW, JOINT_KIND, PICK_PLACE_KIND, POSE_HIGH, POSE_LOW,
-                                       ee_delta_action_space, ee_pose_action_space, joint_action_space,
-                                       pick_place_action_space)
-from simeval.sim.articulated import set_joint_fraction
-from simeval.sim.robot import JOINT_LIMIT_MARGIN, JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
-from simeval.sim.spec import (SUITES_DIR, TaskSpec, check_variation, load_suite, sample_instance,
-                             scene_seed, task_seed)
-from simeval.sim.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
+from simeval.sim.action_spaces import (  # noqa: F401
+    EE_DELTA_KIND,
+    EE_HIGH,
+    EE_LOW,
+    EE_POSE_HIGH,
+    EE_POSE_HZ,
+    EE_POSE_KIND,
+    EE_POSE_LOW,
+    JOINT_KIND,
+    PICK_PLACE_KIND,
+    POSE_HIGH,
+    POSE_LOW,
+    ee_delta_action_space,
+    ee_pose_action_space,
+    joint_action_space,
+    pick_place_action_space,
+)
+from simeval.sim.core.articulated import set_joint_fraction
+from simeval.sim.core.geometry import still
+from simeval.sim.core.objects import make_object
+from simeval.sim.core.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
+from simeval.sim.robots.xarm import JOINT_LIMIT_MARGIN, JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
+from simeval.sim.tasks.goals import task_progress
+from simeval.sim.tasks.spec import (
+    SUITES_DIR,
+    TaskSpec,
+    check_variation,
+    load_suite,
+    sample_instance,
+    scene_seed,
+    task_seed,
+)
 
-# state bounds: the joint limits with a margin (JOINT_LIMIT_MARGIN, simeval.sim.robot), |velocity| <= 100 rad/s
+# state bounds: the joint limits with a margin (JOINT_LIMIT_MARGIN, simeval.sim.robots.xarm), |velocity| <= 100 rad/s
 # (PyBullet's default maximum joint velocity), flags in [0, 1]
 STATE_LOW = np.array([x - JOINT_LIMIT_MARGIN for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
 STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
@@ -88,7 +108,7 @@ EE_STEPS_PER_PRIMITIVE = 150  # ee_delta's default step limit: 5 s at 30 Hz per 
 def state_names(robot: str = "xarm6") -> tuple[str, ...]:
     """The names of the state dimensions of `robot` (a spec's `robot` field)."""
     if robot == "panda":
-        from simeval.sim.panda import STATE_NAMES as PANDA_STATE_NAMES
+        from simeval.sim.robots.panda import STATE_NAMES as PANDA_STATE_NAMES
 
         return PANDA_STATE_NAMES
     return STATE_NAMES
@@ -153,7 +173,8 @@ class SimEnv(_gym().Env):
         self.max_steps = int(max_steps or (self.spec_task.max_primitives * per))
         h, w = self.image_size
         if robot == "panda":
-            from simeval.sim.panda import STATE_HIGH as state_high, STATE_LOW as state_low
+            from simeval.sim.robots.panda import STATE_HIGH as state_high
+            from simeval.sim.robots.panda import STATE_LOW as state_low
         else:
             state_low, state_high = STATE_LOW, STATE_HIGH
         self.observation_space = spaces.Dict({
@@ -297,7 +318,7 @@ class SimEnv(_gym().Env):
         piles = any(o.shape == "pile" for o in self.inst.objects)
         self.world = World(self.control_hz, solver_residual=PILE_SOLVER_RESIDUAL if piles else None)
         if spec.robot == "panda":
-            from simeval.sim.panda import Panda
+            from simeval.sim.robots.panda import Panda
 
             self.arm = Panda(self.world, home_noise, rng)
         else:

@@ -17,13 +17,19 @@ import numpy as np
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
-from simeval.sim.action_spaces import (EE_HIGH, EE_LOW, ee_delta_action_space, ee_pose_action_space,
-                                       joint_action_space, pick_place_action_space)
+from simeval.sim.action_spaces import (
+    EE_HIGH,
+    EE_LOW,
+    ee_delta_action_space,
+    ee_pose_action_space,
+    joint_action_space,
+    pick_place_action_space,
+)
+from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS
 from simeval.sim.env import SimEnv, state_names
-from simeval.sim.oracle import next_primitive
-from simeval.sim.robot import STATE_NAMES
-from simeval.sim.spec import TaskSpec, check_variation
-from simeval.sim.world import OBS_CAMERAS, SCENE_VIEWS
+from simeval.sim.experts.gensim import next_primitive
+from simeval.sim.robots.xarm import STATE_NAMES
+from simeval.sim.tasks.spec import TaskSpec, check_variation
 
 
 @dataclass
@@ -62,7 +68,7 @@ def image_size_pair(value, key: str) -> tuple[int, int]:
 
 
 class OraclePolicy:
-    """The replanning oracle (simeval.sim.oracle) as a policy for action_space="pick_place": each call plans the
+    """The replanning oracle (simeval.sim.experts.gensim) as a policy for action_space="pick_place": each call plans the
     next primitive from the simulator's state and returns its 14-d pose; None when every goal is done."""
 
     def reset(self, env: SimEnv) -> None:
@@ -126,7 +132,7 @@ class PickPlaceOracle(Expert):
 
 
 class ArticulationExpert(Expert):
-    """RoboGen-style ee_delta tasks: the closed-loop articulation controller (simeval.sim.controllers, action
+    """RoboGen-style ee_delta tasks: the closed-loop articulation controller (simeval.sim.experts.robogen, action
     noise settings.noise_std), one 7-d action per control step, clipped and with a binary suction as applied.
     The final view is taken with the suction off and the arm parked, so it shows the articulation (those moves are
     not recorded)."""
@@ -135,7 +141,7 @@ class ArticulationExpert(Expert):
     action_space = staticmethod(ee_delta_action_space)
 
     def policy(self, settings: RecordSettings):
-        from simeval.sim.controllers import ArticulationController
+        from simeval.sim.experts.robogen import ArticulationController
 
         return ArticulationController(settings.noise_std)
 
@@ -157,7 +163,7 @@ class ArticulationExpert(Expert):
 
 
 class PlanExpert(Expert):
-    """BBSEA-style ee_pose tasks: the task's plan (simeval.sim.primitives.PlanPolicy) at the task's own 4 Hz
+    """BBSEA-style ee_pose tasks: the task's plan (simeval.sim.experts.bbsea.PlanPolicy) at the task's own 4 Hz
     (`settings.control_hz` does not apply), one 8-d action per control step; the plan and the row where each
     primitive starts are kept in `extra`."""
 
@@ -168,7 +174,7 @@ class PlanExpert(Expert):
         return {}
 
     def policy(self, settings: RecordSettings):
-        from simeval.sim.primitives import PlanPolicy
+        from simeval.sim.experts.bbsea import PlanPolicy
 
         return PlanPolicy()
 
@@ -277,7 +283,7 @@ def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, 
 
 
 def _joint_fractions(env: SimEnv, obj) -> list[float]:
-    from simeval.sim.articulated import joint_fraction
+    from simeval.sim.core.articulated import joint_fraction
 
     return [joint_fraction(env.world.c, obj.body_ids[0], k) for k in range(len(env.inst.joints[obj.id]))]
 

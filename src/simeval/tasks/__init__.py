@@ -35,7 +35,7 @@ class Source:
 
 def load_suite_tasks(pipeline: str, suite: str, text_template: str = "{description}") -> list[Task]:
     """simeval's own PyBullet suite: one task per spec, its description rendered for seed 0."""
-    from simeval.sim.spec import SUITES_DIR, load_suite, sample_instance
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, sample_instance
 
     out = []
     for spec in load_suite(SUITES_DIR / suite):

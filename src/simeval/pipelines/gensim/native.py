@@ -30,7 +30,7 @@ from simeval.episodes.episode import Episode
 from simeval.episodes.store import EpisodeStore
 from simeval.errors import UserError
 from simeval.sim.action_spaces import joint_action_space, pick_place_action_space
-from simeval.sim.robot import STATE_NAMES
+from simeval.sim.robots.xarm import STATE_NAMES
 
 log = logging.getLogger(__name__)
 WORKER = Path(__file__).with_name("worker.py")

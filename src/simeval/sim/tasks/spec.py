@@ -21,15 +21,15 @@ one-to-one assignment, "one ball into each zone"), stack (`what`: names, each re
 `where` instance, index-matched: instance i at offset i), pile_in_zone (`fraction` of the pile's particles in the
 zone). `upright: true` on a goal also requires its objects to stand upright (where the text says upright or stand).
 
-Articulated objects (simeval.sim.articulated: laptop, lamp, display, faucet, drawer, oven, window, toilet,
+Articulated objects (simeval.sim.core.articulated: laptop, lamp, display, faucet, drawer, oven, window, toilet,
 dishwasher, table_doors) take `on_table: true` (stands on a wooden table board) and `joint_init` (the initial
 position of each of its joints as a fraction of the joint's limits, 0 = closed/lower, 1 = open/upper; one number for
 every joint or a list, one per joint). Goal type joint_range: `{type: joint_range, what: <object>, range: [lo, hi]}`
 (optionally `joint: k`, the k-th non-fixed joint, default 0) -- done when the joint's fraction is within [lo, hi].
 
 Panda tasks (the BBSEA suite) add `robot: panda`, `action_space: ee_pose` and a `plan`, the task's primitives in
-order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.primitives). Their
-fixtures (simeval.sim.fixtures: drawer_cabinet, bin, button) are URDF bodies too; the jointed ones (drawer_cabinet,
+order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.experts.bbsea). Their
+fixtures (simeval.sim.core.fixtures: drawer_cabinet, bin, button) are URDF bodies too; the jointed ones (drawer_cabinet,
 button) take `joint_init` and joint_range goals like articulated objects; in_container also takes bins and
 drawer cabinets as `where`. The `size` knob ([x, y, z] m) resizes every instance of an object.
 
@@ -66,15 +66,15 @@ from types import SimpleNamespace
 import numpy as np
 import yaml
 
-from simeval.sim.articulated import ARTICULATED, n_joints
-from simeval.sim.objects import COLORS, SHAPES, SimObject
-from simeval.sim.world import WORKSPACE
 from simeval.errors import UserError
+from simeval.sim.core.articulated import ARTICULATED, n_joints
+from simeval.sim.core.objects import COLORS, SHAPES, SimObject
+from simeval.sim.core.world import WORKSPACE
 
 GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone", "joint_range")
 ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta", "ee_pose")  # a task's native action space (simeval.sim.env)
-ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robot.Arm, simeval.sim.panda.Panda
-FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.fixtures with one joint (joint_init, joint_range)
+ROBOTS = ("xarm6", "panda")  # the spec field `robot`: simeval.sim.robots.xarm.Arm, simeval.sim.robots.panda.Panda
+FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.core.fixtures with one joint (joint_init, joint_range)
 JOINTED = ARTICULATED + FIXTURE_JOINTED
 LOOSE = ("block", "cylinder", "sphere", "pile")  # the `friction` knob's shapes: free on the table (a pile: every particle)
 INITIAL_STATES = ("random", "fixed")
@@ -126,10 +126,10 @@ class TaskSpec:
     source: str = ""
     action_space: str = "joint"  # native action space of make_env
     initial_state: str = "random"  # random | fixed (RoboGen: every episode from the scene of seed 0)
-    # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.splits)
+    # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.tasks.splits)
     variations: dict[str, dict] = field(default_factory=dict)
     robot: str = "xarm6"
-    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.primitives
+    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.experts.bbsea
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -256,7 +256,7 @@ def joint_count(obj) -> int:
 
 def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
     """`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]` -> [(primitive, object name)]."""
-    from simeval.sim.primitives import PRIMITIVES  # the primitives' names live with their code
+    from simeval.sim.experts.bbsea import PRIMITIVES  # the primitives' names live with their code
 
     if not isinstance(plan, list):
         raise SpecError(f"{where}: plan must be a list of {{primitive: object}}, got {plan!r}")
@@ -311,14 +311,14 @@ def load_spec(path: str | os.PathLike) -> TaskSpec:
 
 def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     folder = Path(folder)
-    # splits.yaml names the groups' held-out tasks (simeval.sim.splits); every other YAML file is a task
+    # splits.yaml names the groups' held-out tasks (simeval.sim.tasks.splits); every other YAML file is a task
     specs = [load_spec(p) for p in sorted(folder.glob("*.yaml")) if p.name != "splits.yaml"]
     if not specs:
         raise SpecError(f"{folder}: no task specs (*.yaml)")
     return specs
 
 
-SUITES_DIR = Path(__file__).resolve().parent / "suites"
+SUITES_DIR = Path(__file__).resolve().parents[1] / "suites"
 
 
 def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:

@@ -9,7 +9,7 @@ Conventions (the object's `size` is its outer extents x, y, z in its own frame):
   bin     an open box: floor and four walls, WALL thick.
   button  a housing with a cap on a prismatic joint pressed down by BUTTON_TRAVEL; it stays pressed (friction).
 The articulation of each (joint 0, its only joint) is what the `joint_range` goal measures, as a fraction of its
-limits (simeval.sim.articulated.joint_fraction): 0 closed / not pressed, 1 open / pressed; `joint_init` sets it. Files go to the temp folder, named by a hash of their
+limits (simeval.sim.core.articulated.joint_fraction): 0 closed / not pressed, 1 open / pressed; `joint_init` sets it. Files go to the temp folder, named by a hash of their
 text (written once per parameter set, atomically, so parallel workers never read a half-written file).
 """
 
@@ -110,7 +110,7 @@ def button_urdf(size, rgba) -> str:
 
 
 def _write(text: str, kind: str) -> str:
-    from simeval.sim.urdf_files import write_temp_urdf
+    from simeval.sim.core.urdf_files import write_temp_urdf
 
     return write_temp_urdf(text, kind)
 

@@ -4,7 +4,7 @@ configurable Gaussian action noise produces the solutions instead).
 
 It re-plans every control step from the live simulation (privileged state, as the pick-and-place oracle does):
 for the first unfinished joint_range goal it approaches the grip point of the goal's link from above (the grip
-point whose normal points most upwards, simeval.sim.articulated.grip_points), descends with the suction on until
+point whose normal points most upwards, simeval.sim.core.articulated.grip_points), descends with the suction on until
 the cup seizes the link, then drags the seized point along the joint's arc (revolute) or axis (prismatic) a little
 per step towards the middle of the goal range; holding the wrong thing, or a finished link while another goal
 remains, it releases and lifts. Actions are 7-d ee_delta (simeval.sim.env): the translation is the next waypoint
@@ -20,8 +20,8 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.sim.action_spaces import EE_HIGH, EE_LOW, EE_MAX_TRANSLATION
-from simeval.sim.articulated import grip_points, joint_axis_world, joint_fraction, joint_limits, link_frame
-from simeval.sim.goals import unit_status
+from simeval.sim.core.articulated import grip_points, joint_axis_world, joint_fraction, joint_limits, link_frame
+from simeval.sim.tasks.goals import unit_status
 
 APPROACH_HEIGHT = 0.05  # m above the grip point before the descent
 DESCENT_STEP = 0.005  # m per step in the last part of the descent (a gentle contact)

@@ -8,12 +8,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from simeval.sim.articulated import ARTICULATED  # articulated objects: simeval.sim.articulated
-from simeval.sim.colors import COLORS
+from simeval.sim.core.articulated import ARTICULATED  # articulated objects: simeval.sim.core.articulated
+from simeval.sim.core.colors import COLORS
 
 OUTLINE = 0.004  # width (m) of the lighter border drawn around zones and lines, as Ravens' zones are outlined
 SHAPES = ("block", "cylinder", "sphere", "bowl", "zone", "line", "pile")
-FIXTURES = ("drawer_cabinet", "bin", "button")  # the BBSEA suite's fixtures (simeval.sim.fixtures)
+FIXTURES = ("drawer_cabinet", "bin", "button")  # the BBSEA suite's fixtures (simeval.sim.core.fixtures)
 SHAPES = SHAPES + ARTICULATED + FIXTURES
 FLAT = ("zone", "line")  # drawn on the table, no collision
 BOWL_WALL = 0.006  # thickness of a bowl's wall: its inner radius is size[0] / 2 - BOWL_WALL
@@ -31,7 +31,7 @@ class SimObject:
     color: str
     size: tuple[float, float, float]  # full extents x, y, z (bowl: outer diameter, diameter, height)
     body_ids: list[int] = field(default_factory=list)  # one body, or many for a pile
-    on_table: bool = False  # articulated objects: stands on a wooden table board (simeval.sim.articulated)
+    on_table: bool = False  # articulated objects: stands on a wooden table board (simeval.sim.core.articulated)
 
     @property
     def id(self) -> str:
@@ -81,11 +81,11 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
     elif obj.shape in FLAT:
         obj.body_ids = [_flat(c, obj, x, y, yaw, table_z)]
     elif obj.shape in ARTICULATED:
-        from simeval.sim.articulated import make_articulated
+        from simeval.sim.core.articulated import make_articulated
 
         obj.body_ids = [make_articulated(c, obj, x, y, yaw, table_z)]
     elif obj.shape in FIXTURES:
-        from simeval.sim.fixtures import make_fixture
+        from simeval.sim.core.fixtures import make_fixture
 
         obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z)]
     elif obj.shape == "pile":

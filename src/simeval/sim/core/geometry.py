@@ -1,7 +1,7 @@
 """Geometry of the live simulation that any motion or goal code reads: poses, rest, contact, containment.
 
-No task spec is read here (simeval.sim.goals turns a task's goals into progress with these; the experts in
-simeval.sim.oracle and simeval.sim.primitives aim with them), so goal checks and motion code share one definition
+No task spec is read here (simeval.sim.tasks.goals turns a task's goals into progress with these; the experts in
+simeval.sim.experts.gensim and simeval.sim.experts.bbsea aim with them), so goal checks and motion code share one definition
 of "at rest" or "inside" without importing each other."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from simeval.sim.objects import BOWL_WALL, SimObject
-from simeval.sim.world import TABLE_Z, World, yaw_of
+from simeval.sim.core.objects import BOWL_WALL, SimObject
+from simeval.sim.core.world import TABLE_Z, World, yaw_of
 
 XY_TOL = 0.02  # an object counts at a target when its centre is within this of it (or inside a zone)
 # at rest: no point of the object faster than this (|v| + r |w|, r its half-diagonal). A bounce after a release
@@ -90,9 +90,9 @@ def in_bowl(world: World, obj: SimObject, bowl: SimObject, tol: float = 0.003) -
 
 
 def in_container(world: World, obj: SimObject, target: SimObject) -> bool:
-    """Inside a bowl, or inside a bin's or a drawer's box (simeval.sim.fixtures)."""
+    """Inside a bowl, or inside a bin's or a drawer's box (simeval.sim.core.fixtures)."""
     if target.shape in ("bin", "drawer_cabinet"):
-        from simeval.sim.fixtures import inside
+        from simeval.sim.core.fixtures import inside
 
         return inside(world.c, pose(world, obj)[0], target.body_ids[0], target.shape, target.size)
     return in_bowl(world, obj, target)

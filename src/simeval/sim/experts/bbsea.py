@@ -1,7 +1,7 @@
 """BBSEA's primitive actions as generators of `ee_pose` targets, and a task's plan (a list of them) as a policy.
 
 A task spec's `plan` is what BBSEA's LLM decomposition produces: `[{open_drawer: drawer}, {pick: block},
-{place_in: drawer}]`. Each primitive is a generator that yields 8-d ee_pose actions (simeval.sim.panda) one
+{place_in: drawer}]`. Each primitive is a generator that yields 8-d ee_pose actions (simeval.sim.robots.panda) one
 control step (4 Hz) at a time; it is closed loop: poses are read from the simulator when the primitive starts
 and again before each contact (grasp, release, push), and pick and push retry (at most RETRIES times) when the
 state after them shows they failed. Motions are straight lines of at most STEP_M per control step, the hand yaw
@@ -25,9 +25,9 @@ import math
 
 import numpy as np
 
-from simeval.sim.geometry import height, in_zone, pose
-from simeval.sim.objects import SimObject
-from simeval.sim.world import TABLE_Z
+from simeval.sim.core.geometry import height, in_zone, pose
+from simeval.sim.core.objects import SimObject
+from simeval.sim.core.world import TABLE_Z
 
 STEP_M = 0.05  # longest straight-line move per control step (m): 0.2 m/s at 4 Hz
 SLOW_M = 0.02  # near contact
@@ -52,7 +52,7 @@ class Context:
         return self.inst.by_name(name)[0]
 
     def action(self) -> np.ndarray:
-        from simeval.sim.panda import down_quat
+        from simeval.sim.robots.panda import down_quat
 
         return np.r_[self.pos, down_quat(self.yaw), self.grip].astype(np.float32)
 
@@ -143,7 +143,7 @@ def place_at(ctx: Context, name: str):
 
 
 def place_in(ctx: Context, name: str):
-    from simeval.sim.fixtures import WALL, drawer_drop_point, yaw_of_body
+    from simeval.sim.core.fixtures import WALL, drawer_drop_point, yaw_of_body
 
     target = ctx.obj(name)
     c, body = ctx.world.c, target.body_ids[0]
@@ -199,8 +199,8 @@ def _drawer_target(ctx: Context, name: str, opening: bool) -> float:
 
 
 def _slide_drawer(ctx: Context, name: str, fraction: float):
-    from simeval.sim.articulated import joint_limits
-    from simeval.sim.fixtures import handle_point, yaw_of_body
+    from simeval.sim.core.articulated import joint_limits
+    from simeval.sim.core.fixtures import handle_point, yaw_of_body
 
     drawer = ctx.obj(name)
     c, body = ctx.world.c, drawer.body_ids[0]
@@ -234,7 +234,7 @@ def close_drawer(ctx: Context, name: str):
 
 
 def press(ctx: Context, name: str):
-    from simeval.sim.fixtures import BUTTON_TRAVEL
+    from simeval.sim.core.fixtures import BUTTON_TRAVEL
 
     button = ctx.obj(name)
     p, _ = pose(ctx.world, button)

@@ -8,7 +8,7 @@ action space (simeval.sim.action_spaces.ee_pose_action_space):
 One `apply` is one control step (4 Hz by default, BBSEA's rate): inverse kinematics of the target once, then the
 joint targets move from where the joints are to the solution over the first 3/4 of the physics substeps (a smooth
 ramp) and hold for the rest, so the hand reaches the target within the step as BBSEA's controller did, as long as
-targets are a few centimetres apart (the primitives in simeval.sim.primitives keep them so).
+targets are a few centimetres apart (the primitives in simeval.sim.experts.bbsea keep them so).
 
 Grasping: the fingers close with a bounded force; PyBullet's friction grasps of small boxes slip under the Panda's
 mesh fingers, so when the gripper is commanded closed and both fingers touch the same body (link), that body is
@@ -27,8 +27,8 @@ import math
 
 import numpy as np
 
-from simeval.sim.robot import JOINT_LIMIT_MARGIN
-from simeval.sim.world import TABLE_Z, World
+from simeval.sim.core.world import TABLE_Z, World
+from simeval.sim.robots.xarm import JOINT_LIMIT_MARGIN
 
 PANDA_URDF = "franka_panda/panda.urdf"
 # what the Panda is drawn with: "collision" (its collision meshes, ~50x fewer bytes than the visual OBJs: TinyRenderer
@@ -61,7 +61,7 @@ STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 
 
 def render_urdf(mesh: str = "collision") -> str:
     """The Panda's URDF for loading: pybullet_data's as it is (`visual`), or a copy (written once per process
-    in the temp folder) whose visual geometry is the collision meshes (`collision`), as simeval.sim.robot does
+    in the temp folder) whose visual geometry is the collision meshes (`collision`), as simeval.sim.robots.xarm does
     for the xArm6. Physics is the same either way (collision geometry is untouched)."""
     import os
 
@@ -76,7 +76,7 @@ def render_urdf(mesh: str = "collision") -> str:
         text = f.read()
     text = text.replace("package://meshes/visual/", "package://meshes/collision/")
     text = text.replace("package://meshes/", os.path.join(os.path.dirname(src), "meshes") + os.sep)
-    from simeval.sim.urdf_files import write_temp_urdf
+    from simeval.sim.core.urdf_files import write_temp_urdf
 
     return write_temp_urdf(text, "panda-render")
 

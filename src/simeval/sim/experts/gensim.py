@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.sim.geometry import height, in_bowl, in_zone, offset_target, pose, still
-from simeval.sim.goals import container_assignment, stack_chain, unit_status
-from simeval.sim.objects import BOWL_WALL, SimObject
-from simeval.sim.robot import SAFE_Z, Arm  # noqa: F401 (SAFE_Z: re-exported)
-from simeval.sim.spec import Instance
-from simeval.sim.world import TABLE_Z, WORKSPACE, World
+from simeval.sim.core.geometry import height, in_bowl, in_zone, offset_target, pose, still
+from simeval.sim.core.objects import BOWL_WALL, SimObject
+from simeval.sim.core.world import TABLE_Z, WORKSPACE, World
+from simeval.sim.robots.xarm import SAFE_Z, Arm  # noqa: F401 (SAFE_Z: re-exported)
+from simeval.sim.tasks.goals import container_assignment, stack_chain, unit_status
+from simeval.sim.tasks.spec import Instance
 
 
 def _wrap(yaw: float, period: float) -> float:

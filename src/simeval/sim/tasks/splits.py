@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from simeval.sim.spec import SpecError, TaskSpec
+from simeval.sim.tasks.spec import SpecError, TaskSpec
 
 SPLITS = ("train", "eval", "heldout")
 SPLITS_FILE = "splits.yaml"
@@ -78,7 +78,7 @@ def split_tasks(specs: list[TaskSpec], split: str, heldout: list[str], *,
     if split == "train":
         return [(s, {}) for s in trained]
     if eval_override:
-        from simeval.sim.spec import check_variation, variation_for
+        from simeval.sim.tasks.spec import check_variation, variation_for
 
         checked = check_variation(trained, eval_override)
         return [(s, variation_for(s, checked)) for s in trained]
@@ -89,7 +89,7 @@ def group_and_heldout(suite_dir: str | os.PathLike, task_group: str, tasks: list
                       heldout: list[str] | None = None) -> tuple[list[TaskSpec], list[str]]:
     """The tasks of `task_group` in the suite at `suite_dir` (or the named `tasks` among them) and the held-out
     ones among those: `heldout` if given, else the suite's splits.yaml. Some, not all, may be held out."""
-    from simeval.sim.spec import load_suite, select_specs
+    from simeval.sim.tasks.spec import load_suite, select_specs
 
     suite = load_suite(suite_dir)
     specs = select_specs(suite, None, task_group)

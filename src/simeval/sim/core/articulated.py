@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from simeval.sim.colors import COLORS
+from simeval.sim.core.colors import COLORS
 
 ARTICULATED = ("laptop", "lamp", "display", "faucet", "drawer", "oven", "window", "toilet", "dishwasher",
                "table_doors")
@@ -238,8 +238,8 @@ def _with_board(d: Design, size) -> Design:
 
 
 def write_urdf(text: str) -> str:
-    """The URDF in the temp folder, once per distinct text (simeval.sim.urdf_files)."""
-    from simeval.sim.urdf_files import write_temp_urdf
+    """The URDF in the temp folder, once per distinct text (simeval.sim.core.urdf_files)."""
+    from simeval.sim.core.urdf_files import write_temp_urdf
 
     return write_temp_urdf(text, "artic")
 

@@ -13,11 +13,26 @@ import math
 
 import numpy as np
 
-from simeval.sim.geometry import (STACK_Z_TOL, XY_TOL, height, in_container, in_zone, offset_target, placed, pose,
-                                  radius, resting, still, supported, touching, upright)
-from simeval.sim.objects import SimObject
-from simeval.sim.spec import GoalSpec, Instance
-from simeval.sim.world import TABLE_Z, World
+from simeval.sim.core.geometry import (
+    STACK_Z_TOL,
+    XY_TOL,
+    height,
+    in_container,
+    in_zone,
+    offset_target,
+    placed,
+    pose,
+    radius,
+    resting,
+    still,
+    supported,
+    touching,
+    upright,
+)
+from simeval.sim.core.objects import SimObject
+from simeval.sim.core.world import TABLE_Z, World
+from simeval.sim.tasks.spec import GoalSpec, Instance
+
 
 def held_bodies(world: World, inst: Instance) -> set[int]:
     """Bodies of the instance attached to or touched by the robot (suction constraint, spatula, arm links):
@@ -155,7 +170,7 @@ def pile_fractions(world: World, inst: Instance, goal: GoalSpec, held: set[int] 
 def joint_range_progress(world: World, inst: Instance, goal: GoalSpec, obj: SimObject) -> float:
     """joint_range: 1 when the joint's fraction of its limits is within the goal's range; otherwise how far it has
     moved from its initial fraction towards the range (the share of the way), clipped to [0, 1]."""
-    from simeval.sim.articulated import joint_fraction
+    from simeval.sim.core.articulated import joint_fraction
 
     lo, hi = goal.range
     f = joint_fraction(world.c, obj.body_ids[0], goal.joint)

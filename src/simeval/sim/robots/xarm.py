@@ -18,7 +18,7 @@ import re
 
 import numpy as np
 
-from simeval.sim.world import TABLE_Z, World
+from simeval.sim.core.world import TABLE_Z, World
 
 HOME = (0.0, -0.35, -0.9, 0.0, 1.25, 0.0)  # joints: tool above the workspace, pointing down
 # joints: out of every camera's view of the workspace at the end of an episode (see Arm.park): the base turned
@@ -68,7 +68,7 @@ def render_urdf(mesh: str = "collision") -> str:
     text = re.sub(r"package://xarm_description/meshes/xarm6/visual/(\w+)\.stl",
                   r"package://xarm_description/meshes/xarm6/collision/\1_vhacd.obj", text)
     text = text.replace("package://xarm_description/", meshes)
-    from simeval.sim.urdf_files import write_temp_urdf
+    from simeval.sim.core.urdf_files import write_temp_urdf
 
     return write_temp_urdf(text, "xarm6-render")
 
@@ -295,7 +295,7 @@ class Arm:
         """Ravens' pick-and-place: above the pick point, down until the cup touches, suction on, up, over the
         place point at its yaw, down until the pick point is at the place position, suction off, up. Returns
         whether something was picked."""
-        from simeval.sim.world import yaw_of
+        from simeval.sim.core.world import yaw_of
 
         a = np.asarray(pose14, np.float64)
         p0, yaw0, p1, yaw1 = a[0:3], yaw_of(a[3:7]), a[7:10], yaw_of(a[10:14])
