@@ -164,6 +164,19 @@ class World:
         seg = self.c.getCameraImage(w, h, view, proj, renderer=self.p.ER_TINY_RENDERER)[4]
         return np.asarray(seg, dtype=np.int64).reshape(h, w)
 
+    def weld(self, parent: int, parent_link: int, parent_frame, child: int, child_link: int, child_frame,
+             max_force: float = 200) -> int:
+        """A fixed constraint holding `child` (its link's frame `child_frame`, (position, xyzw)) where it is
+        relative to `parent`'s link (frame `parent_frame`): how both robots grasp, the xArm6's suction cup and the
+        Panda's hand. Returns the constraint id."""
+        c = self.c
+        inv_p, inv_o = c.invertTransform(*parent_frame)
+        rel_p, rel_o = c.multiplyTransforms(inv_p, inv_o, *child_frame)
+        grasp = c.createConstraint(parent, parent_link, child, child_link, c.JOINT_FIXED, [0, 0, 0], rel_p,
+                                   [0, 0, 0], rel_o, [0, 0, 0, 1])
+        c.changeConstraint(grasp, maxForce=max_force)
+        return grasp
+
     def close(self) -> None:
         try:
             self.c.disconnect()

@@ -207,18 +207,9 @@ class Panda:
         if hit is None:
             return
         body, link = hit
-        hs = c.getLinkState(self.body, HAND_LINK)
-        hp, ho = hs[0], hs[1]  # the hand link's centre of mass frame: constraint frames are relative to it
-        if link == -1:
-            op, oo = c.getBasePositionAndOrientation(body)
-        else:
-            ls = c.getLinkState(body, link)
-            op, oo = ls[0], ls[1]
-        inv_p, inv_o = c.invertTransform(hp, ho)
-        rel_p, rel_o = c.multiplyTransforms(inv_p, inv_o, op, oo)
-        self.grasp = c.createConstraint(self.body, HAND_LINK, body, link, c.JOINT_FIXED, [0, 0, 0], rel_p,
-                                        [0, 0, 0], rel_o, [0, 0, 0, 1])
-        c.changeConstraint(self.grasp, maxForce=200)
+        hand = c.getLinkState(self.body, HAND_LINK)[:2]  # its centre of mass frame: constraints are relative to it
+        held = c.getBasePositionAndOrientation(body) if link == -1 else c.getLinkState(body, link)[:2]
+        self.grasp = self.w.weld(self.body, HAND_LINK, hand, body, link, held)
         self.held = hit
 
     def _release(self) -> None:

@@ -238,13 +238,8 @@ class Arm:
         if link >= 0 and c.getJointInfo(other, link)[2] != c.JOINT_FIXED:
             self._attach_link(other, link)
             return
-        tp, to = c.getBasePositionAndOrientation(self.tool)
-        op, oo = c.getBasePositionAndOrientation(other)
-        inv_p, inv_o = c.invertTransform(tp, to)
-        rel_p, rel_o = c.multiplyTransforms(inv_p, inv_o, op, oo)
-        self.grasp = c.createConstraint(self.tool, -1, other, -1, c.JOINT_FIXED, [0, 0, 0], rel_p, [0, 0, 0],
-                                        rel_o, [0, 0, 0, 1])
-        c.changeConstraint(self.grasp, maxForce=200)
+        self.grasp = self.w.weld(self.tool, -1, c.getBasePositionAndOrientation(self.tool), other, -1,
+                                 c.getBasePositionAndOrientation(other))
         self.held = other
 
     def _attach_link(self, body: int, link: int) -> None:
