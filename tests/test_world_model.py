@@ -317,7 +317,7 @@ def test_killed_run_resumes_from_its_checkpoint_and_matches_an_uninterrupted_run
 def test_a_checkpoint_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path):
     """A group sharing a checkpoint folder on a cluster must be able to read what a job wrote (policy checkpoints
     are written by the same function)."""
-    from simeval.models.training import save_checkpoint
+    from simeval.models.checkpoints import save_checkpoint
 
     old = os.umask(0o002)
     try:

@@ -38,10 +38,10 @@ from torch import nn
 from torch.nn import functional as F
 
 from simeval.errors import UserError, require_whole
+from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
-from simeval.models.preemption import PreemptionPoint
-from simeval.models.training import save_checkpoint
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
+from simeval.models.preemption import PreemptionPoint
 
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
@@ -271,12 +271,8 @@ def make_ema(policy: nn.Module, settings: TrainSettings):
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
-    path = Path(path)
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except (OSError, RuntimeError, EOFError) as e:
-        raise UserError(f"{path}: not a readable policy checkpoint ({e})") from e
-    if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "policy_config" not in ckpt:
+    ckpt = read_checkpoint(path, "policy")
+    if ckpt.get("version") != CHECKPOINT_VERSION or "policy_config" not in ckpt:
         raise UserError(f"{path}: not a simeval policy checkpoint of version {CHECKPOINT_VERSION}")
     return ckpt
 
@@ -330,7 +326,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
             return
         ema_model = copy.deepcopy(policy)
         ema.copy_to(ema_model.parameters())
-        # temp file + rename (training.save_checkpoint): a kill never leaves half a checkpoint
+        # temp file + rename (checkpoints.save_checkpoint): a kill never leaves half a checkpoint
         save_checkpoint(ckpt_path, {
             "version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
             "train": dataclasses.asdict(settings), "state_dim": policy.state_dim, "action_dim": policy.action_dim,

@@ -36,9 +36,9 @@ import numpy as np
 import torch
 
 from simeval.errors import UserError, require_whole
+from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.preemption import PreemptionPoint
-from simeval.results import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -110,20 +110,8 @@ def step_generator(seed: int, step: int) -> torch.Generator:
     return torch.Generator().manual_seed(int(np.random.default_rng([seed, step, 13]).integers(2**62)))
 
 
-def save_checkpoint(path: str | os.PathLike, payload: dict) -> Path:
-    """torch.save through simeval.results.atomic_path: a kill never leaves half a checkpoint, and the file gets the
-    umask's mode."""
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
-    return Path(path)
-
-
 def load_checkpoint(path: str | os.PathLike) -> dict:
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:  # noqa: BLE001 - any unreadable file is the same user-facing problem
-        raise UserError(f"{path}: not a readable world-model checkpoint ({type(e).__name__}: {e}); delete it to "
-                        f"start over") from e
+    ck = read_checkpoint(path, "world-model")
     if ck.get("format") != CHECKPOINT_FORMAT:
         raise UserError(f"{path}: checkpoint format {ck.get('format')!r}, this version reads {CHECKPOINT_FORMAT}")
     return ck
