@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -78,6 +79,40 @@ def test_front_camera_is_gensims():
     assert cam.fov == pytest.approx(56.145, abs=1e-3)
     assert next(iter(OBS_CAMERAS)) == "front"
     assert SCENE_VIEWS[0].eye == cam.eye and SCENE_VIEWS[0].target == cam.target
+
+
+GENSIM_CAMERAS = Path(__file__).resolve().parents[2] / "shared" / "gensim" / "cliport" / "tasks" / "cameras.py"
+
+
+@pytest.mark.skipif(not GENSIM_CAMERAS.is_file(), reason="../shared/gensim is not beside this checkout")
+def test_front_camera_draws_ravens_workspace_where_gensims_own_camera_does():
+    """GenSim's front camera from GenSim's own file (RealSenseD415.CONFIG[0], loaded from the checkout) through the
+    recipe of GenSim's Environment.render_camera (view from the rotation's look and up vectors, vertical fov from
+    the focal length, at a square size with the focal length scaled as the gensim_own worker renders it): the
+    corners of Ravens' workspace (x 0.25-0.75, y -0.5-0.5) and the robot's base land on the same pixels as with
+    simeval's front camera, so the cameras are one; what differs in the side-by-side figure is what is drawn."""
+    import importlib.util
+
+    import pybullet as p
+
+    spec = importlib.util.spec_from_file_location("gensim_cameras", GENSIM_CAMERAS)
+    gensim_cameras = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gensim_cameras)
+    config = gensim_cameras.RealSenseD415.CONFIG[0]
+    size = 128
+    rotm = np.array(p.getMatrixFromQuaternion(config["rotation"])).reshape(3, 3)
+    look, up = rotm @ [0, 0, 1], rotm @ [0, -1, 0]
+    focal = config["intrinsics"][0] * size / config["image_size"][0]
+    fov = math.degrees(2 * math.atan(size / 2 / focal))
+    view = np.array(p.computeViewMatrix(config["position"], np.add(config["position"], look), up)).reshape(4, 4).T
+    proj = np.array(p.computeProjectionMatrixFOV(fov, 1.0, *config["zrange"])).reshape(4, 4).T
+    points = np.array([[0.25, -0.5, 0], [0.25, 0.5, 0], [0.75, -0.5, 0], [0.75, 0.5, 0], [0, 0, 0], [0.5, 0.2, 0.1]])
+    clip = (proj @ view @ np.c_[points, np.ones(len(points))].T).T
+    ndc = clip[:, :2] / clip[:, 3:]
+    gensim_px = np.stack([(ndc[:, 0] + 1) / 2 * size, (1 - ndc[:, 1]) / 2 * size], axis=1)
+    ours, _ = OBS_CAMERAS["front"].project(points, (size, size))
+    assert np.allclose(ours, gensim_px, atol=0.05), np.c_[ours, gensim_px]
+    assert ours[0, 1] == pytest.approx(64, abs=0.5)  # Ravens' far edge at mid-height, as in GenSim's own frames
 
 
 def _arm_fraction(w: World, arm: Arm, cam, size=(64, 64)) -> float:
