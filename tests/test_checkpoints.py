@@ -24,9 +24,16 @@ def test_a_truncated_or_foreign_file_is_one_error_naming_the_model(tmp_path):
     with pytest.raises(UserError, match=r"list\.pt: not a policy checkpoint \(it holds a list\)"):
         diffusion_policy.load_checkpoint(listed)
     # readable, but the other model's: each model checks its own format
-    with pytest.raises(UserError, match="not a simeval policy checkpoint of version"):
+    with pytest.raises(UserError, match=r"not a simeval policy checkpoint of version \d+ \(version None\)"):
         diffusion_policy.load_checkpoint(whole)
+    world_model_like = save_checkpoint(tmp_path / "wm.pt", {"format": training.CHECKPOINT_FORMAT, "meta": {}})
+    with pytest.raises(UserError, match=r"not a simeval policy checkpoint .*\(a world-model checkpoint\)"):
+        diffusion_policy.load_checkpoint(world_model_like)
     policy_like = save_checkpoint(tmp_path / "p.pt", {"version": diffusion_policy.CHECKPOINT_VERSION,
                                                        "policy_config": {}})
-    with pytest.raises(UserError, match="checkpoint format None, this version reads"):
+    with pytest.raises(UserError, match=r"p\.pt: not a world-model checkpoint of format \d+ \(a policy checkpoint\)"):
         training.load_checkpoint(policy_like)
+    with pytest.raises(UserError, match=r"whole\.pt: not a world-model checkpoint of format \d+ \(format 99\)"):
+        training.load_checkpoint(save_checkpoint(tmp_path / "whole.pt", {"format": 99}))
+    with pytest.raises(UserError, match=r"gone\.pt: no such world-model checkpoint file"):
+        training.load_checkpoint(tmp_path / "gone.pt")

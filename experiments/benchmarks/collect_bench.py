@@ -29,14 +29,11 @@ from common import machine, save
 from simeval.cli import OneLineParser
 from simeval.collect import collect
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_meta
-from simeval.sim import (
-    panda,
-    robot,
-)
 from simeval.sim.core.articulated import set_joint_fraction
 from simeval.sim.core.objects import make_object
 from simeval.sim.core.world import OBS_CAMERAS, TABLE_Z, World
 from simeval.sim.env import find_task
+from simeval.sim.robots import panda, xarm
 from simeval.sim.robots.xarm import Arm
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.spec import SUITES_DIR, load_spec, sample_instance
@@ -70,13 +67,13 @@ def render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) 
 
 def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[float, int]:
     spec = find_task(spec_name)
-    default, robot.RENDER_MESH = robot.RENDER_MESH, mesh  # run_episode builds its own Arm: set its default
+    default, xarm.RENDER_MESH = xarm.RENDER_MESH, mesh  # run_episode builds its own Arm: set its default
     try:
         t0 = time.perf_counter()
         ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)))
         return ep.n_steps / (time.perf_counter() - t0), ep.n_steps
     finally:
-        robot.RENDER_MESH = default
+        xarm.RENDER_MESH = default
 
 
 def bbsea_render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
@@ -145,7 +142,7 @@ def main() -> None:
         return bbsea_main()
     out: dict = {"benchmark": "collect", "machine": machine(),
                  "cameras": list(CAMERAS), "per_size": {}}
-    out["render_mesh_default"] = robot.RENDER_MESH
+    out["render_mesh_default"] = xarm.RENDER_MESH
     for size in ((64, 64), (128, 128)):
         per_mesh = {}
         for mesh in MESHES:

@@ -4,7 +4,7 @@ Configurations (each a set of module settings, switched in this process, everyth
 - before: Bullet's solver residual (1e-7: all 50 iterations), particles as one-link multibodies, blade at 4 mm;
 - physics: the new physics only (World's solver_residual = PILE_SOLVER_RESIDUAL, particles as rigid bodies),
   blade at 4 mm: the same oracle, so the same kind of pushes;
-- after: the new physics and the blade at 1 mm (robot.BLADE_Z): the current code.
+- after: the new physics and the blade at 1 mm (xarm.BLADE_Z): the current code.
 For each, the oracle runs the first `--primitives` pushes of seeds 0..`--seeds`-1 of each pile task through
 make_env (no cameras, low-level steps recorded as collection does: progress and poses every control step);
 configurations alternate seed by seed so that a change in the machine's load hits them alike. Reported per
@@ -24,20 +24,18 @@ from common import machine, save
 
 import simeval.sim.env as env_mod
 from simeval.cli import OneLineParser
-from simeval.sim import (
-    objects,
-    robot,
-)
+from simeval.sim.core import objects
 from simeval.sim.core.world import PILE_SOLVER_RESIDUAL, World
 from simeval.sim.env import make_env
 from simeval.sim.experts.gensim import next_primitive
+from simeval.sim.robots import xarm
 from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 
 TASKS = ["sweep-pile-into-zone", "sweep-two-piles", "sweep-pile-into-matching-zone"]
 CONFIGS = {  # (solver residual for pile worlds, particles in maximal coordinates, blade height)
     "before": (None, False, 0.004),
     "physics": (PILE_SOLVER_RESIDUAL, True, 0.004),
-    "after": (PILE_SOLVER_RESIDUAL, True, robot.BLADE_Z),
+    "after": (PILE_SOLVER_RESIDUAL, True, xarm.BLADE_Z),
 }
 
 
@@ -79,19 +77,19 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--primitives", type=int, default=5)
     args = ap.parse_args()
-    saved = (env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, robot.BLADE_Z)
+    saved = (env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, xarm.BLADE_Z)
     runs: dict[str, list[dict]] = {c: [] for c in CONFIGS}
     try:
         for seed in range(args.seeds):
             for task in TASKS:
                 for name, (residual, maximal, blade) in CONFIGS.items():
-                    env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, robot.BLADE_Z = residual, maximal, blade
+                    env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, xarm.BLADE_Z = residual, maximal, blade
                     r = run(task, seed, args.primitives)
                     runs[name].append({"task": task, "seed": seed, **r})
                     print(f"{name:8s} {task} seed {seed}: {r['steps']} steps, "
                           f"{1e3 * r['seconds'] / max(r['steps'], 1):.1f} ms/step", flush=True)
     finally:
-        env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, robot.BLADE_Z = saved
+        env_mod.PILE_SOLVER_RESIDUAL, objects.PARTICLE_MAXIMAL, xarm.BLADE_Z = saved
     half = objects.PARTICLE / 2
     summary = {}
     for name, rs in runs.items():

@@ -28,6 +28,8 @@ def save_checkpoint(path: str | os.PathLike, payload: dict) -> Path:
 def read_checkpoint(path: str | os.PathLike, what: str) -> dict:
     """The payload of a checkpoint file, its tensors on the CPU (one trained on a GPU loads anywhere). A file torch
     cannot read, or one that holds no mapping, is one UserError naming the file and `what` it should have been."""
+    if not Path(path).is_file():
+        raise UserError(f"{path}: no such {what} checkpoint file")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as e:  # any unreadable file (truncated, not torch's, a pickle of a missing class) is one problem

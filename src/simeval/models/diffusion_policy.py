@@ -273,7 +273,9 @@ def make_ema(policy: nn.Module, settings: TrainSettings):
 def load_checkpoint(path: str | os.PathLike) -> dict:
     ckpt = read_checkpoint(path, "policy")
     if ckpt.get("version") != CHECKPOINT_VERSION or "policy_config" not in ckpt:
-        raise UserError(f"{path}: not a simeval policy checkpoint of version {CHECKPOINT_VERSION}")
+        what = "a world-model checkpoint" if "meta" in ckpt and "format" in ckpt else f"version {ckpt.get('version')!r}"
+        raise UserError(f"{path}: not a simeval policy checkpoint of version {CHECKPOINT_VERSION} ({what}); delete it "
+                        "or use another checkpoint_dir")
     return ckpt
 
 

@@ -113,7 +113,9 @@ def step_generator(seed: int, step: int) -> torch.Generator:
 def load_checkpoint(path: str | os.PathLike) -> dict:
     ck = read_checkpoint(path, "world-model")
     if ck.get("format") != CHECKPOINT_FORMAT:
-        raise UserError(f"{path}: checkpoint format {ck.get('format')!r}, this version reads {CHECKPOINT_FORMAT}")
+        what = "a policy checkpoint" if "policy_config" in ck else f"format {ck.get('format')!r}"
+        raise UserError(f"{path}: not a world-model checkpoint of format {CHECKPOINT_FORMAT} ({what}); delete it "
+                        "or use another checkpoint_dir")
     return ck
 
 

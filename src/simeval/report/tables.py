@@ -123,5 +123,6 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite") -> None:
         return
     hit = committed(paths)
     if hit:
-        raise UserError(f"{hit[0]} is a committed result and would be replaced by a table of the runs on disk; write "
+        kind = "figure" if Path(hit[0]).suffix in (".png", ".pdf") else "table"
+        raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of the runs on disk; write "
                         f"elsewhere (another output path) or replace it with {flag}")
