@@ -3,12 +3,16 @@ approximation, the random-policy baseline's actions, and the per-task detail tab
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.models.policy.random_baseline import RandomActions
-from simeval.report.table5 import detail_rows, write_detail
+from simeval.report.table5 import detail_lines, detail_rows, write_detail
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_task_bootstrap_matches_the_normal_approximation_with_many_tasks():
@@ -115,11 +119,51 @@ def test_detail_rows_pool_runs_per_task_and_report_progress(tmp_path):
     close = next(r for r in rows if r["policy"] == "cpu" and r["task"] == "close")
     assert (close["k"], close["n"]) == (3, 4) and close["ci"] == pytest.approx(list(wilson_interval(3, 4)))
     assert [r["policy"] for r in rows if r["task"] == "*"] == ["cpu", "random"]
-    md = write_detail(rows, tmp_path / "detail")["md"].read_text()
+    md = write_detail(detail_lines(rows), tmp_path / "detail")["md"].read_text()
     assert "| bbsea | drawer | cpu | eval | all tasks | 0.38 (3/8) |" in md
     assert group["run_rates"] == {0: 0.5, 1: 0.25}  # seed 0: 2 of 4, seed 1: 1 of 4
     assert group["task_ci"] == task_bootstrap_interval([[2, 0], [1, 0]], [[2, 2], [2, 2]])
     assert "seed 0: 0.50, seed 1: 0.25" in md
+
+
+def test_the_committed_detail_reads_back_as_written_and_a_rerun_group_replaces_its_lines(tmp_path):
+    """table5_detail.csv read back and written again gives the committed bytes (CSV, Markdown, LaTeX); merging
+    fresh lines of one (pipeline, group, policy) replaces exactly that group's lines and keeps the others, in
+    the order detail_rows gives (the paper's groups first, then by policy)."""
+    from simeval.report.table5 import merge_detail, read_detail_lines
+
+    committed = ROOT / "outputs" / "tables" / "table5_detail"
+    kept = read_detail_lines(committed.with_suffix(".csv"))
+    written = write_detail(kept, tmp_path / "again")
+    for suffix in ("csv", "md", "tex"):
+        assert written[suffix].read_bytes() == committed.with_suffix(f".{suffix}").read_bytes(), suffix
+    fresh = detail_lines(detail_rows([_record("cpu", [("eval", "close", [(True, 1.0)])])]))  # bbsea/drawer/cpu
+    merged = merge_detail(kept, fresh)
+    assert [c for c in merged if c[:3] == ["bbsea", "drawer", "cpu"]] == fresh
+    assert [c for c in merged if c[:3] != ["bbsea", "drawer", "cpu"]] == [c for c in kept
+                                                                           if c[:3] != ["bbsea", "drawer", "cpu"]]
+    new_group = [["metaworld", "ml10", *c[2:]] for c in fresh]
+    assert merge_detail(kept, new_group)[-len(new_group):] == new_group  # not a paper group: after them
+
+
+def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_group(tmp_path):
+    """rebuild_table5(keep=[table5.csv]) also keeps the table5_detail.csv beside it: every committed detail line
+    stays, and the new run's group (not one of the paper's) follows them."""
+    import json
+
+    from simeval.report.table5 import METRIC, rebuild_table5
+
+    run = _record("cpu", [("eval", "reach", [(True, 1.0), (False, 0.5)])])
+    run["identity"].update(pipeline="metaworld", task_group="ml10")
+    run["values"]["splits"] = {"eval": {"success": {"k": 1, "n": 2}}}
+    (tmp_path / "runs" / "0").mkdir(parents=True)
+    (tmp_path / "runs" / "0" / "result.json").write_text(json.dumps({"metric": METRIC, "status": "ok", **run}))
+    rebuild_table5(tmp_path / "runs", tmp_path / "t5", tmp_path / "t5.png",
+                   keep=[ROOT / "outputs" / "tables" / "table5.csv"])
+    committed = (ROOT / "outputs" / "tables" / "table5_detail.csv").read_text().splitlines()
+    rebuilt = (tmp_path / "t5_detail.csv").read_text().splitlines()
+    assert rebuilt[: len(committed)] == committed
+    assert rebuilt[len(committed):] == ["metaworld,ml10,cpu,eval,all tasks,0.50 (1/2),\"[0.09, 0.91]\",-,-,0.75,1", "metaworld,ml10,cpu,eval,reach,0.50 (1/2),\"[0.09, 0.91]\",-,-,0.75,1"]
 
 
 def test_two_runs_of_one_seed_are_refused_not_pooled_twice():

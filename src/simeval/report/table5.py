@@ -232,8 +232,34 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
     return rows
 
 
-def write_detail(rows: list[dict], out: str | Path) -> dict[str, Path]:
-    """`<out>.csv`, `<out>.md` and `<out>.tex` of detail_rows (a group's line first, its tasks under it)."""
+def read_detail_lines(path: str | Path) -> list[list[str]]:
+    """The lines of a per-task table write_detail made, from its CSV, as written (its cells are kept, not
+    recomputed: a kept group's runs are not here to recompute them from)."""
+    raw = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
+    if not raw or raw[0] != DETAIL_HEAD:
+        raise UserError(f"{path}: not a Table 5 detail CSV (written beside table5.csv): its header should be "
+                        f"{','.join(DETAIL_HEAD)}")
+    for line, cells in enumerate(raw[1:], start=2):
+        if len(cells) != len(DETAIL_HEAD):
+            raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(DETAIL_HEAD)}")
+    return raw[1:]
+
+
+def merge_detail(kept: list[list[str]], fresh: list[list[str]]) -> list[list[str]]:
+    """The lines of `fresh` (detail_lines of runs on disk) and those of `kept` (read_detail_lines of an earlier
+    table) for every (pipeline, group, policy) the fresh ones have none of, a group's lines in their order; groups
+    in the paper's order, then by policy (detail_rows' order)."""
+    def key(cells):
+        return tuple(cells[:3])
+
+    have = {key(c) for c in fresh}
+    lines = [*fresh, *(c for c in kept if key(c) not in have)]
+    order = [*PAPER, *sorted({tuple(c[:2]) for c in lines} - set(PAPER))]
+    return sorted(lines, key=lambda c: (order.index(tuple(c[:2])), c[2].removesuffix(CHANCE_NOTE)))
+
+
+def detail_lines(rows: list[dict]) -> list[list[str]]:
+    """detail_rows as the table's cells."""
     def interval(ci) -> str:
         return "-" if ci is None else f"[{ci[0]:.2f}, {ci[1]:.2f}]"
 
@@ -242,10 +268,14 @@ def write_detail(rows: list[dict], out: str | Path) -> dict[str, Path]:
             return "-"
         return ", ".join(f"seed {seed}: " + ("-" if x is None else f"{x:.2f}") for seed, x in rates.items())
 
-    table = [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
-              "all tasks" if r["task"] == "*" else r["task"],
-              f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
-              per_run(r["run_rates"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
+    return [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
+             "all tasks" if r["task"] == "*" else r["task"],
+             f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
+             per_run(r["run_rates"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
+
+
+def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
+    """`<out>.csv`, `<out>.md` and `<out>.tex` of detail_lines (a group's line first, its tasks under it)."""
     notes = ["Task-level 95%: percentile bootstrap over the group's tasks (whole tasks resampled), the interval a "
              "group rate needs when one task holds most successes; the Wilson interval treats every rollout as "
              "independent. With several runs (training seeds) runs and tasks are both resampled",
@@ -321,6 +351,9 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
     simeval.report.rebuild, which the report door calls)."""
     kept = [read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
+    kept_detail = [read_detail_lines(d) for d in (Path(path).with_name(Path(path).stem + "_detail.csv")
+                                                  for path in keep) if d.is_file()]
     records = read_results(root, metric=METRIC)
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
@@ -331,7 +364,10 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
     written = write(rows, out)
-    detail = write_detail(detail_rows(records, policy=policy), f"{out}_detail")
+    lines = detail_lines(detail_rows(records, policy=policy))
+    for lines_of_file in kept_detail:
+        lines = merge_detail([c for c in lines_of_file if policy in (None, c[2].removesuffix(CHANCE_NOTE))], lines)
+    detail = write_detail(lines, f"{out}_detail")
     figures = plot(rows, figure)
     return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
 
