@@ -36,7 +36,7 @@ def main(cfg: DictConfig) -> None:
         values, identity = run_generalization(
             pipeline=pipeline, task_group=cfg.task_group,
             tasks=conf["tasks"], heldout_tasks=conf["heldout_tasks"], policy_name=cfg.policy.name,
-            model=conf["policy"]["model"], train=conf["policy"]["train"], seed=cfg.seed, store=cfg.store,
+            model=conf["policy"]["model"], train=conf["policy"].get("train"), seed=cfg.seed, store=cfg.store,
             checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
             val_episodes_per_task=cfg.val_episodes_per_task, evaluation=conf["eval"], device=device,
             progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf)

@@ -63,6 +63,19 @@ def test_debug_overlay_policy_is_the_tiny_preset():
     assert cpu.name == "cpu" and cpu.model.num_inference_steps == 16 and list(cpu.model.down_dims) == [64, 128, 256]
 
 
+def test_the_random_action_baseline_runs_from_the_command_line_without_a_training_section(tmp_path):
+    """policy=random (conf/policy/random.yaml has no train:) rolls out uniform random actions and writes a result
+    with no training: the chance row of Table 5 (a regression once: the entrypoint read policy.train)."""
+    out = tmp_path / "run"
+    p = run("policy=random", "pipeline=bbsea", "task_group=drawer", "tasks=[bbsea-close-drawer]", "heldout_tasks=[]",
+            "eval.splits=[train]", "eval.seeds=1", "eval.max_steps=3", f"checkpoint_dir={tmp_path / 'ckpt'}",
+            f"store={tmp_path / 'no-store'}", "progress=false", f"hydra.run.dir={out}")
+    assert p.returncode == 0, p.stderr[-2000:]
+    rec = json.loads((out / "result.json").read_text())
+    assert rec["identity"]["policy"] == "random" and rec["values"]["training"] is None
+    assert rec["values"]["splits"]["train"]["success"]["n"] == 1
+
+
 def test_entrypoint_trains_compares_samplers_and_writes_a_result(tmp_path):
     store = synthetic_store(tmp_path / "store")
     out = tmp_path / "run"
