@@ -142,7 +142,7 @@ def test_the_committed_detail_reads_back_as_written_and_a_rerun_group_replaces_i
     assert [c for c in merged if c[:3] == ["bbsea", "drawer", "cpu"]] == fresh
     assert [c for c in merged if c[:3] != ["bbsea", "drawer", "cpu"]] == [c for c in kept
                                                                            if c[:3] != ["bbsea", "drawer", "cpu"]]
-    new_group = [["metaworld", "ml10", *c[2:]] for c in fresh]
+    new_group = [["mypipeline", "mygroup", *c[2:]] for c in fresh]
     assert merge_detail(kept, new_group)[-len(new_group):] == new_group  # not a paper group: after them
 
 
@@ -154,7 +154,7 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
     from simeval.report.table5 import METRIC, rebuild_table5
 
     run = _record("cpu", [("eval", "reach", [(True, 1.0), (False, 0.5)])])
-    run["identity"].update(pipeline="metaworld", task_group="ml10")
+    run["identity"].update(pipeline="mypipeline", task_group="mygroup")  # a group the committed table lacks
     run["values"]["splits"] = {"eval": {"success": {"k": 1, "n": 2}}}
     (tmp_path / "runs" / "0").mkdir(parents=True)
     (tmp_path / "runs" / "0" / "result.json").write_text(json.dumps({"metric": METRIC, "status": "ok", **run}))
@@ -163,7 +163,9 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
     committed = (ROOT / "outputs" / "tables" / "table5_detail.csv").read_text().splitlines()
     rebuilt = (tmp_path / "t5_detail.csv").read_text().splitlines()
     assert rebuilt[: len(committed)] == committed
-    assert rebuilt[len(committed):] == ["metaworld,ml10,cpu,eval,all tasks,0.50 (1/2),\"[0.09, 0.91]\",-,-,0.75,1", "metaworld,ml10,cpu,eval,reach,0.50 (1/2),\"[0.09, 0.91]\",-,-,0.75,1"]
+    assert rebuilt[len(committed):] == [
+        'mypipeline,mygroup,cpu,eval,all tasks,0.50 (1/2),"[0.09, 0.91]",-,-,0.75,1',
+        'mypipeline,mygroup,cpu,eval,reach,0.50 (1/2),"[0.09, 0.91]",-,-,0.75,1']
 
 
 def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
