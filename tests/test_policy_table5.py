@@ -127,3 +127,13 @@ def test_runs_of_one_cell_at_other_training_seeds_pool_but_other_settings_do_not
     assert row["runs"] == 3 and (row["eval"]["k"], row["eval"]["n"]) == (3, 15)
     with pytest.raises(UserError, match="settings.train.lr"):
         build([rec(0), rec(1, lr=1e-3)])
+
+
+def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
+    """Wilson's lower bound of 0/100 is 3.5e-18, a hair above the rate 0: the error bar is clipped at 0, not
+    refused by matplotlib (it once stopped the whole rebuild)."""
+    from simeval.report.table5 import plot
+
+    rows = build([rec("a", 0, 100)])
+    paths = plot(rows, tmp_path / "t5.png")
+    assert (tmp_path / "t5.png").stat().st_size > 10_000 and len(paths) == 2
