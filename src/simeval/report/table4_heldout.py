@@ -194,15 +194,23 @@ def read_rows(path: str | Path) -> list[dict]:
                     row[column] = None
                 continue
             try:
-                row[column] = (text if column in TEXT_COLUMNS else
-                               {"True": True, "False": False}[text] if column.startswith("robot_mask_") else
-                               int(text) if column == "steps" or column.startswith(("runs_", "heldout_episodes_"))
-                               else float(text))
+                row[column] = _cell_value(column, text)
             except (KeyError, ValueError):
                 raise UserError(f"{path}, line {i}, column {column}: {text!r} is not a "
                                 + ("True/False" if column.startswith("robot_mask_") else "number")) from None
         rows.append(row)
     return rows
+
+
+def _cell_value(column: str, text: str):
+    """A CSV cell as `build` made it: names as text, robot_mask_* as bools, counts as ints, the rest floats."""
+    if column in TEXT_COLUMNS:
+        return text
+    if column.startswith("robot_mask_"):
+        return {"True": True, "False": False}[text]
+    if column == "steps" or column.startswith(("runs_", "heldout_episodes_")):
+        return int(text)
+    return float(text)
 
 
 def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
