@@ -130,9 +130,12 @@ def test_runs_of_one_cell_at_other_training_seeds_pool_but_other_settings_do_not
 
 
 def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
-    """Wilson's lower bound of 0/100 is 3.5e-18, a hair above the rate 0: the error bar is clipped at 0, not
-    refused by matplotlib (it once stopped the whole rebuild)."""
+    """Wilson's lower bound of 0/100 computed in floats was 3.5e-18, a hair above the rate 0, and matplotlib refused
+    the negative error bar (it once stopped the whole rebuild): the bounds at k = 0 and k = n are exact now."""
+    from simeval.metrics.intervals import wilson_interval
     from simeval.report.table5 import plot
+
+    assert wilson_interval(0, 100)[0] == 0.0 and wilson_interval(100, 100)[1] == 1.0
 
     rows = build([rec("a", 0, 100)])
     paths = plot(rows, tmp_path / "t5.png")

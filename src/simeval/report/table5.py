@@ -312,9 +312,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                 if v is None:
                     continue
                 ran, x, (lo, hi) = True, i + (j - 1) * 0.27, v["ci"]
-                # Wilson's bound of 0/100 is 3.5e-18, above the rate: matplotlib refuses a negative error bar
-                err = [[max(v["rate"] - lo, 0.0)], [max(hi - v["rate"], 0.0)]]
-                ax.errorbar(x, v["rate"], yerr=err, fmt=marker, color=color, ms=5, capsize=3, lw=1.4)
+                ax.errorbar(x, v["rate"], yerr=[[v["rate"] - lo], [hi - v["rate"]]], fmt=marker, color=color,
+                            ms=5, capsize=3, lw=1.4)
                 ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
                             va="bottom", fontsize=6.5, color=color,
                             bbox={"fc": "white", "ec": "none", "pad": 0.3})  # readable over the paper's line
