@@ -236,3 +236,42 @@ def test_a_trained_checkpoint_is_reused_with_another_sampler_but_not_with_other_
     assert key(wider) != key(cfg)
     with pytest.raises(UserError, match="other settings"):
         train_policy(DiffusionPolicy(wider, ds.state_dim, ds.action_dim, ds.stats()), ds, settings, tmp_path)
+
+
+def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cache_is_named(tmp_path, monkeypatch,
+                                                                                          caplog):
+    """run_splits keeps each (split, task)'s rollouts in a cache beside the checkpoint, so a killed evaluation resumes;
+    a rerun that reuses them logs how many (its numbers are not fresh rollouts), and a cache that is not one is one
+    line naming the file. The rollout itself is replaced by a counter: what is tested is the cache."""
+    import logging
+    from types import SimpleNamespace
+
+    from simeval.errors import UserError
+    from simeval.models.policy import evaluate
+    from simeval.models.policy.experiment import run_splits
+
+    calls = []
+
+    def fake_rollout(policy, task, seeds, *, split, **_):
+        calls.append((split, task))
+        return {"task": task, "split": split, "episodes": [], "success": {"k": 1, "n": len(seeds)}}
+
+    monkeypatch.setattr(evaluate, "rollout_task", fake_rollout)
+    policy = SimpleNamespace(cfg=SimpleNamespace(inference_scheduler="ddim", num_inference_steps=16))
+    plan = {"train": [("a", None)], "eval": [("a", {"colors": "eval"})]}
+    cache = tmp_path / "rollouts.json"
+    first = run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    assert calls == [("train", "a"), ("eval", "a")] and cache.is_file()
+    with caplog.at_level(logging.INFO, logger="simeval.models.policy.experiment"):
+        again = run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    assert len(calls) == 2 and again == first
+    assert f"reused 2 of 2 (split, task) rollouts from {cache}" in caplog.text
+    run_splits(policy, plan, [0, 1], None, cache, policy_step=200)  # another checkpoint step: rolled out again
+    assert len(calls) == 4
+
+    cache.write_text('{"cut short": ')
+    with pytest.raises(UserError, match="rollouts.json: not a rollout cache .*delete it"):
+        run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    cache.write_text("[]")
+    with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(a JSON list, expected an object\\)"):
+        run_splits(policy, plan, [0, 1], None, cache, policy_step=100)

@@ -96,7 +96,7 @@ def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
     write(build([rec("a", 2, 10)]), tmp_path / "t5")
     text = (tmp_path / "t5.csv").read_text().splitlines()
     (tmp_path / "cut.csv").write_text("\n".join(text[:3] + [text[3][:20]]) + "\n")
-    with pytest.raises(UserError, match="cut.csv, line 4: .* cells, expected 8"):
+    with pytest.raises(UserError, match="cut.csv, line 4: .* cells, expected 9"):
         read_rows(tmp_path / "cut.csv")
     (tmp_path / "binary.csv").write_bytes(b"\xff\xfe\x00garbage")
     for reader in (read_rows, table4.read_rows):
@@ -140,3 +140,35 @@ def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
     rows = build([rec("a", 0, 100)])
     paths = plot(rows, tmp_path / "t5.png")
     assert (tmp_path / "t5.png").stat().st_size > 10_000 and len(paths) == 2
+
+
+def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail(tmp_path):
+    """The paper's GenSim column is a step-wise reward: the eval progress beside our success. Runs of one cell weigh
+    by their rollouts (0.5 over 10 and 0.2 over 30: (5 + 6) / 40 = 0.275); a row kept from a table written before
+    the column existed takes it from its group's eval line in the per-task table."""
+    from pathlib import Path
+
+    from simeval.report.table5 import eval_progress_from_detail, read_rows
+
+    a, b = rec("a", 2, 10), rec("b", 3, 30, seed=1)
+    a["values"]["splits"]["eval"]["mean_progress"] = 0.5
+    b["values"]["splits"]["eval"]["mean_progress"] = 0.2
+    piles = next(r for r in build([a, b]) if r["group"] == "piles")
+    assert piles["eval_progress"] == pytest.approx(0.275)
+    line = next(x for x in write([piles], tmp_path / "t5")["md"].read_text().splitlines() if "| piles |" in x)
+    assert "| 0.12 [0.05, 0.26] (5/40) | 0.28 |" in line  # success, then progress, in the eval columns
+    assert read_rows(tmp_path / "t5.csv")[0]["eval_progress"] == pytest.approx(0.28)
+
+    committed = Path(__file__).resolve().parents[1] / "outputs" / "tables" / "table5.csv"
+    old = tmp_path / "old.csv"  # a table as written before the column: read as having no progress
+    old.write_text("\n".join([",".join(h for h in committed.read_text().splitlines()[0].split(",")
+                                        if h != "Ours: eval progress"),
+                              ('bbsea,drawer,0.00,"0.17 [0.10, 0.26] (15/90)","0.18 [0.11, 0.27] (16/90)",'
+                               '"0.00 [0.00, 0.20] (0/15)",cpu,3')]) + "\n")
+    kept = read_rows(old)
+    assert kept[0]["eval_progress"] is None and kept[0]["eval"]["k"] == 15 and kept[0]["heldout"]["n"] == 15
+    detail = [["bbsea", "drawer", "cpu", "eval", "all tasks", "0.17 (15/90)", "-", "-", "-", "0.31", "3"],
+              ["bbsea", "drawer", "cpu", "eval", "close-drawer", "0.50 (15/30)", "-", "-", "-", "0.70", "3"],
+              ["bbsea", "drawer", "cpu", "train", "all tasks", "0.18 (16/90)", "-", "-", "-", "0.40", "3"]]
+    assert eval_progress_from_detail(kept, detail)[0]["eval_progress"] == 0.31
+    assert eval_progress_from_detail(kept, detail[1:])[0]["eval_progress"] is None  # no eval group line: none

@@ -5,7 +5,8 @@ and a figure.
         [--figure outputs/figures/table5.png] [--policy cpu]
 writes table5.{csv,md,tex}, table5_detail.{csv,md} (per task, task-level intervals, mean progress) and
 table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
-group's tasks under variations) with its Wilson 95% interval, and the train/heldout splits beside it when run. Several
+group's tasks under variations) with its Wilson 95% interval and its mean progress (GenSim's paper value is a
+step-wise reward: the progress is what it compares with), and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings), one run per training seed; seeds are pooled (successes and
 rollouts add up; table5_detail adds each seed's rate and an interval over seeds and tasks). The
 paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
@@ -19,6 +20,7 @@ are replaced only with `--overwrite`.
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 from pathlib import Path
@@ -74,7 +76,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
                             f"runs of one setting only: move the other runs out of the folder searched, or search "
                             f"one sweep's folder (--runs)")
-        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}})
+        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}, "eval_progress": []})
         seed = rec["identity"].get("seed")
         if seed in cell["seeds"]:
             raise UserError(f"{rec['path']} and {cell['seeds'][seed]}: two runs of {key[:2]} with policy {key[2]} and "
@@ -85,6 +87,8 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         for split, v in rec["values"].get("splits", {}).items():
             k, n = cell["counts"].get(split, (0, 0))
             cell["counts"][split] = (k + v["success"]["k"], n + v["success"]["n"])
+            if split == "eval":  # rollouts' progress summed, so runs of other sizes weigh by their rollouts
+                cell["eval_progress"].append(v.get("mean_progress", float("nan")) * v["success"]["n"])
     if policy is not None and not cells:
         from simeval.cli import CONF_DIR
 
@@ -103,11 +107,15 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
             row[split] = _split(k, n) if n else None
+        progress = sum(cell["eval_progress"]) / row["eval"]["n"] if cell and row["eval"] else None
+        row["eval_progress"] = None if progress is None or math.isnan(progress) else progress
         rows.append(row)
     return rows
 
 
-HEAD = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: train", "Ours: held-out", "Policy", "Runs"]
+HEAD = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: eval progress", "Ours: train",
+        "Ours: held-out", "Policy", "Runs"]
+HEAD_WITHOUT_PROGRESS = [h for h in HEAD if h != "Ours: eval progress"]  # tables written before 2026-11-27
 _COUNTS = re.compile(r"\((\d+)/(\d+)\)$")
 
 
@@ -119,19 +127,24 @@ def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV: each split's successes/rollouts are read back (the rate and
     interval recomputed from them), for `merge`."""
     raw = read_csv(path)
-    if not raw or raw[0] != HEAD:
+    if not raw or raw[0] not in (HEAD, HEAD_WITHOUT_PROGRESS):
         raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.report.table5): its header "
                         f"should be {','.join(HEAD)}")
+    head = raw[0]
     rows = []
     for line, cells in enumerate(raw[1:], start=2):
         if not cells:
             continue  # a blank line (an editor's trailing newline)
-        if len(cells) != len(HEAD):
-            raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(HEAD)}")
-        pipeline, group, paper, *splits, policy, runs = cells
+        if len(cells) != len(head):
+            raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(head)}")
+        if head == HEAD_WITHOUT_PROGRESS:
+            cells = [*cells[:4], "-", *cells[4:]]
+        pipeline, group, paper, eval_cell, progress, *splits, policy, runs = cells
+        splits = [eval_cell, *splits]
         try:
             row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
-                   "policy": None if policy == "-" else policy.removesuffix(CHANCE_NOTE), "runs": int(runs)}
+                   "policy": None if policy == "-" else policy.removesuffix(CHANCE_NOTE), "runs": int(runs),
+                   "eval_progress": None if progress == "-" else float(progress)}
         except ValueError as e:
             raise UserError(f"{path}, line {line}: {e}") from e
         for split, text in zip(SPLITS, splits):
@@ -159,6 +172,14 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
                   key=lambda r: (order.index((r["pipeline"], r["group"])), str(r["policy"])))
 
 
+def eval_progress_from_detail(rows: list[dict], lines: list[list[str]]) -> list[dict]:
+    """`rows` with the eval progress of each row that has none (a row kept from a table written before the column
+    existed) taken from its group's "all tasks" eval line of the per-task table (detail_lines), where it has one."""
+    progress = {(c[0], c[1], c[2]): float(c[9]) for c in lines if c[3] == "eval" and c[4] == "all tasks"}
+    return [{**r, "eval_progress": progress.get((r["pipeline"], r["group"], _policy_cell(r["policy"])))}
+            if r.get("eval_progress") is None and r["runs"] else r for r in rows]
+
+
 def _policy_cell(policy: str | None) -> str:
     return "-" if not policy else policy + (CHANCE_NOTE if policy == CHANCE else "")
 
@@ -169,10 +190,13 @@ def _fmt(v) -> str:
 
 def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
     """`<out>.csv`, `<out>.md` and `<out>.tex` (booktabs): {suffix: path}."""
-    table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}",
-              *(_fmt(r[s]) for s in SPLITS), _policy_cell(r["policy"]), str(r["runs"])] for r in rows]
+    table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}", _fmt(r["eval"]),
+              "-" if r.get("eval_progress") is None else f"{r['eval_progress']:.2f}",
+              *(_fmt(r[s]) for s in SPLITS[1:]), _policy_cell(r["policy"]), str(r["runs"])] for r in rows]
     notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:],
+             ("Eval progress: the mean over the eval rollouts of each task's progress at the rollout's end (1.0 = "
+              "success; for GenSim the step-wise reward, the quantity of the paper's GenSim column)"),
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed state)",
              "Per task, task-level intervals, mean progress and the random-policy baseline: table5_detail.md"]
     paths = write_table(out, HEAD, table, notes=notes, label="tab:table5",
@@ -363,10 +387,11 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     rows = build(records, policy=policy)
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
-    written = write(rows, out)
     lines = detail_lines(detail_rows(records, policy=policy))
     for lines_of_file in kept_detail:
         lines = merge_detail([c for c in lines_of_file if policy in (None, c[2].removesuffix(CHANCE_NOTE))], lines)
+    rows = eval_progress_from_detail(rows, lines)
+    written = write(rows, out)
     detail = write_detail(lines, f"{out}_detail")
     figures = plot(rows, figure)
     return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())

@@ -72,9 +72,10 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
     from simeval.models.policy.evaluate import rollout_task
 
     cache_file = Path(cache_file)
-    cache = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
+    cache = read_rollout_cache(cache_file)
     rows = []
     todo = [(s, t, dict(v or {})) for s, pairs in plan.items() for t, v in pairs]
+    reused = 0
     bar = None
     if progress:
         from tqdm import tqdm
@@ -83,7 +84,9 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
         key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler], sort_keys=True)
-        if key not in cache:
+        if key in cache:
+            reused += 1
+        else:
             cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps,
                                       make_env=make_env)
             atomic_write_text(cache_file, dumps_strict(cache))
@@ -93,7 +96,25 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
             bar.set_postfix(task=task, split=split, success=cache[key]["success"]["rate"])
     if bar is not None:
         bar.close()
+    if reused:  # a resumed or repeated evaluation: say so, or its numbers look freshly rolled out
+        log.info("reused %d of %d (split, task) rollouts from %s (same checkpoint step, seeds, variation, step limit "
+                 "and sampler); delete that file to roll them out again", reused, len(todo), cache_file)
     return rows
+
+
+def read_rollout_cache(path: Path) -> dict:
+    """The rollouts a killed or finished evaluation kept (run_splits' cache): {key: row}; none when the file is
+    absent. A file that is not such a mapping is a UserError naming it (rolling out again would overwrite it)."""
+    if not path.is_file():
+        return {}
+    try:
+        cache = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise UserError(f"{path}: not a rollout cache ({e}); delete it to roll the evaluation out again") from e
+    if not isinstance(cache, dict):
+        raise UserError(f"{path}: not a rollout cache (a JSON {type(cache).__name__}, expected an object); delete it "
+                        "to roll the evaluation out again")
+    return cache
 
 
 def resolve_action_space(requested: str, specs) -> str:
