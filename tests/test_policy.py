@@ -234,7 +234,8 @@ def test_a_trained_checkpoint_is_reused_with_another_sampler_but_not_with_other_
     assert key(cfg) == key(ddpm)
     wider = PolicyConfig(**{**vars(cfg), "step_embed_dim": 64})
     assert key(wider) != key(cfg)
-    with pytest.raises(UserError, match="other settings"):
+    with pytest.raises(UserError, match=r"last.ckpt: made with other settings or data "
+                                        r"\(policy.model.step_embed_dim\); delete it or use another checkpoint_dir"):
         train_policy(DiffusionPolicy(wider, ds.state_dim, ds.action_dim, ds.stats()), ds, settings, tmp_path)
 
 

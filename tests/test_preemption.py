@@ -125,3 +125,39 @@ def test_the_signal_name_is_read_as_submitit_reads_it(monkeypatch):
     assert preemption_signal() == signal.SIGTERM
     monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL")
     assert preemption_signal() == signal.SIGUSR2
+
+
+def test_the_shared_loop_checkpoints_on_its_cadence_and_at_a_preemption_then_hands_over(submitit_handler):
+    """simeval.models.trainer.CheckpointedSteps, both models' loop: a checkpoint every 3 steps (not at a step where
+    periodic=False), and at the step a preemption signal came in, before submitit's handler runs."""
+    from simeval.models.trainer import CheckpointedSteps
+
+    calls, _ = submitit_handler
+    saved: list[int] = []
+    step = 0
+    with CheckpointedSteps(lambda: saved.append(step), every=3) as loop:
+        for step in range(1, 8):
+            loop.step_done(step, periodic=step < 6)
+    assert saved == [3] and calls == []  # 6 is not periodic here; no signal came
+
+    saved.clear()
+    with pytest.raises(SystemExit) as stop, CheckpointedSteps(lambda: saved.append(step), every=100) as loop:
+        for step in range(1, 8):
+            if step == 5:
+                os.kill(os.getpid(), signal.SIGUSR2)  # recorded only: the step runs to its end
+            loop.step_done(step)
+    assert stop.value.code == REQUEUE_EXIT and saved == [5] and calls == [signal.SIGUSR2]
+
+
+def test_a_checkpoint_made_with_other_settings_names_the_keys_that_differ(tmp_path):
+    from simeval.errors import UserError
+    from simeval.models.trainer import refuse_other_settings, settings_difference
+
+    stored = {"lr": 1e-3, "model": {"width": 32, "depth": 2}, "data": "a"}
+    assert settings_difference(stored, {"lr": 1e-3, "model": {"width": 64, "depth": 2}, "seed": 0}) == [
+        "data", "model.width", "seed"]
+    assert settings_difference(stored, dict(stored)) == []
+    refuse_other_settings(tmp_path / "last.ckpt", stored, dict(stored), "run folder")  # the same: resumes
+    with pytest.raises(UserError, match=r"last.ckpt: made with other settings or data \(lr\); delete it or use "
+                                        r"another run folder"):
+        refuse_other_settings(tmp_path / "last.ckpt", stored, {**stored, "lr": 1e-4}, "run folder")

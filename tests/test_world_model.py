@@ -372,3 +372,26 @@ def test_training_logs_its_planned_steps_and_one_line_per_epoch(caplog, tmp_path
            f"from step {per_epoch + 1}" in lines
     assert [ln.split(",")[0] for ln in lines if " done: step " in ln] == [f"epoch {e}/3 done: step {e * per_epoch}"
                                                                          for e in (2, 3)]
+
+
+def test_a_world_model_checkpoint_of_other_settings_is_refused_naming_them(tmp_path):
+    """A run folder's checkpoint made for other settings or data (its meta) is not resumed: one line naming the keys."""
+    from simeval.episodes.dataset import WindowDataset, WindowSpec
+    from simeval.errors import UserError
+    from simeval.models.synthetic import make_group
+    from simeval.models.training import TrainConfig, train
+
+    ds = WindowDataset(make_group("diverse", 2, 2, 8, 16, seed=0), WindowSpec(length=6, stride=3))
+    ds.stats = ds.fit_stats()
+
+    def fit(meta):
+        model = WorldModel(preset("tiny"), state_dim=len(ds.stats.state_mean), action_dim=len(ds.stats.action_mean))
+        return train(model, ds, TrainConfig(epochs=1, batch_size=4, lr=1e-3), checkpoint=tmp_path / "ck.pt",
+                     meta=meta, progress=False, device="cpu")
+
+    meta = {"episodes": 2, "world_model": {"rssm": {"deter": 32}}}
+    first = fit(meta)
+    assert fit(meta)["steps"] == first["steps"]  # the same settings: trained already, reused
+    with pytest.raises(UserError, match=r"ck.pt: made with other settings or data \(episodes, "
+                                        r"world_model.rssm.deter\); delete it or use another run folder"):
+        fit({"episodes": 4, "world_model": {"rssm": {"deter": 64}}})

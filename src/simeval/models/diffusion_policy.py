@@ -41,7 +41,7 @@ from simeval.errors import UserError, require_whole
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
-from simeval.models.preemption import PreemptionPoint
+from simeval.models.trainer import CheckpointedSteps, refuse_other_settings
 
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
@@ -312,8 +312,9 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     if ckpt_path is not None and ckpt_path.is_file():
         ckpt = load_checkpoint(ckpt_path)
         trained = {k: v for k, v in ckpt["policy_config"].items() if k not in SAMPLING_FIELDS}
-        if trained != policy.cfg.training_fields() or ckpt["train"] != dataclasses.asdict(settings):
-            raise UserError(f"{ckpt_path} was trained with other settings; delete it or use another checkpoint_dir")
+        refuse_other_settings(ckpt_path, {"policy.model": trained, "policy.train": ckpt["train"]},
+                              {"policy.model": policy.cfg.training_fields(),
+                               "policy.train": dataclasses.asdict(settings)}, "checkpoint_dir")
         policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
         optimizer.load_state_dict(ckpt["optimizer"])  # torch moves the state to its parameters' device
         lr_sched.load_state_dict(ckpt["lr_scheduler"])
@@ -344,7 +345,8 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         bar = tqdm(total=settings.train_steps, initial=step, desc="train policy", unit="step")
     policy.train()
     window: list[float] = []
-    with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
+    # a preempted submitit job checkpoints and requeues at a step boundary; the last checkpoint is written once, below
+    with CheckpointedSteps(save, settings.checkpoint_every) as loop:
         while step < settings.train_steps:
             t0 = time.perf_counter()
             loss = policy.compute_loss(dataset.sample(settings.batch_size, gen), generator=gen)
@@ -366,9 +368,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
                     log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
                 if bar is not None:
                     bar.set_postfix(loss=f"{mean:.4f}")
-            if (step % settings.checkpoint_every == 0 and step < settings.train_steps) or preemption.pending:
-                save()
-            preemption.deliver(step)  # only when the signal came: after the checkpoint above
+            loop.step_done(step, periodic=step < settings.train_steps)
         if bar is not None:
             bar.close()
         save()

@@ -38,7 +38,7 @@ import torch
 from simeval.errors import UserError, require_whole
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
-from simeval.models.preemption import PreemptionPoint
+from simeval.models.trainer import CheckpointedSteps, refuse_other_settings
 
 log = logging.getLogger(__name__)
 
@@ -147,10 +147,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     meta = dict(meta or {})
     if checkpoint is not None and Path(checkpoint).is_file():
         ck = load_checkpoint(checkpoint)
-        if ck["meta"] != meta:
-            diff = sorted(k for k in set(ck["meta"]) | set(meta) if ck["meta"].get(k) != meta.get(k))
-            raise UserError(f"{checkpoint}: made with a different config or data ({', '.join(diff)}); delete it or "
-                            f"use another run folder")
+        refuse_other_settings(checkpoint, ck["meta"], meta, "run folder")
         model.load_state_dict(ck["model"])  # copies the checkpoint's CPU tensors into the parameters on `device`
         opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
         epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
@@ -181,7 +178,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
     started = None  # (clock, step) where this process started training: the pace is measured from there
-    with PreemptionPoint() as preemption:  # a preempted submitit job checkpoints and requeues at a step boundary
+    # a preempted submitit job checkpoints and requeues at a step boundary
+    with CheckpointedSteps(lambda: save(epoch, done_in_epoch), cfg.checkpoint_every) as loop:
         while epoch < cfg.epochs and (cap is None or step < cap):
             batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
             if not batches:
@@ -214,9 +212,7 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
                 bar.set_postfix(loss=f"{last['loss']:.1f}")
                 if log_metrics is not None:
                     log_metrics({"train": last, "epoch": epoch}, step)
-                if step % cfg.checkpoint_every == 0 or preemption.pending:
-                    save(epoch, done_in_epoch)
-                preemption.deliver(step)  # only when the signal came: after the checkpoint above
+                loop.step_done(step)
             bar.close()
             if done_in_epoch >= len(batches):
                 epoch, done_in_epoch = epoch + 1, 0
