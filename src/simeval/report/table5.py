@@ -37,6 +37,7 @@ METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
 CHANCE = "random"  # policy=random: the chance baseline (simeval.models.policy.random_baseline), nothing trained
 CHANCE_NOTE = " (chance: nothing trained)"
+PAPER_PROGRESS = {"gensim"}  # pipelines whose paper value is a step-wise reward: the figure draws our eval progress
 PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
@@ -314,7 +315,8 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
 
 def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
     """Success rate with its Wilson 95% interval per group and split, one panel per pipeline, successes/rollouts
-    above each interval and the paper's value as a dashed line over its group. Written as `path` with each suffix
+    above each interval and the paper's value as a dashed line over its group; where that value is a step-wise
+    reward (GenSim), the eval split's mean progress as an open diamond beside the eval success. Written as `path` with each suffix
     of `formats`."""
     import matplotlib
 
@@ -341,6 +343,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                 ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
                             va="bottom", fontsize=6.5, color=color,
                             bbox={"fc": "white", "ec": "none", "pad": 0.3})  # readable over the paper's line
+            if r["pipeline"] in PAPER_PROGRESS and r.get("eval_progress") is not None:
+                ax.plot(i + 0.13, r["eval_progress"], marker="D", ms=5, mfc="white", mec="C3", ls="none", zorder=3)
             if r["paper"] is not None:
                 ax.hlines(r["paper"], i - 0.45, i + 0.45, colors="k", linestyles="--", lw=1.3, zorder=0)
             if not ran:
@@ -358,6 +362,9 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         ax.set_title(p)
     axes[0][0].set_ylabel("success rate (Wilson 95% interval)")
     handles = [Line2D([], [], color=c, marker=m, ls="-", label=label) for label, c, m in PLOT_SPLITS.values()]
+    if any(r["pipeline"] in PAPER_PROGRESS and r.get("eval_progress") is not None for r in rows):
+        handles.append(Line2D([], [], marker="D", ms=5, mfc="white", mec="C3", ls="none",
+                              label="eval progress (GenSim: the paper's quantity)"))
     handles.append(Line2D([], [], color="k", ls="--", label=TABLE5_MEANING))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     policies = sorted({r["policy"] for r in rows if r["policy"]})
