@@ -20,7 +20,6 @@ are replaced only with `--overwrite`.
 from __future__ import annotations
 
 import argparse
-import math
 import re
 import sys
 from pathlib import Path
@@ -77,7 +76,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
                             f"runs of one setting only: move the other runs out of the folder searched, or search "
                             f"one sweep's folder (--runs)")
-        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}, "eval_progress": []})
+        cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}, "eval_progress": 0.0})
         seed = rec["identity"].get("seed")
         if seed in cell["seeds"]:
             raise UserError(f"{rec['path']} and {cell['seeds'][seed]}: two runs of {key[:2]} with policy {key[2]} and "
@@ -88,8 +87,11 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         for split, v in rec["values"].get("splits", {}).items():
             k, n = cell["counts"].get(split, (0, 0))
             cell["counts"][split] = (k + v["success"]["k"], n + v["success"]["n"])
-            if split == "eval":  # rollouts' progress summed, so runs of other sizes weigh by their rollouts
-                cell["eval_progress"].append(v.get("mean_progress", float("nan")) * v["success"]["n"])
+            if split == "eval":  # progress summed over rollouts, so runs of other sizes weigh by their rollouts;
+                # None once a run has none (a result written before runs recorded it)
+                progress = cell["eval_progress"]
+                cell["eval_progress"] = (None if progress is None or v.get("mean_progress") is None
+                                         else progress + v["mean_progress"] * v["success"]["n"])
     if policy is not None and not cells:
         from simeval.cli import CONF_DIR
 
@@ -108,8 +110,8 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
             row[split] = _split(k, n) if n else None
-        progress = sum(cell["eval_progress"]) / row["eval"]["n"] if cell and row["eval"] else None
-        row["eval_progress"] = None if progress is None or math.isnan(progress) else progress
+        has_progress = cell and row["eval"] and cell["eval_progress"] is not None
+        row["eval_progress"] = cell["eval_progress"] / row["eval"]["n"] if has_progress else None
         rows.append(row)
     return rows
 
@@ -140,8 +142,8 @@ def read_rows(path: str | Path) -> list[dict]:
             raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(head)}")
         if head == HEAD_WITHOUT_PROGRESS:
             cells = [*cells[:4], "-", *cells[4:]]
-        pipeline, group, paper, eval_cell, progress, *splits, policy, runs = cells
-        splits = [eval_cell, *splits]
+        pipeline, group, paper, eval_cell, progress, train_cell, heldout_cell, policy, runs = cells
+        splits = (eval_cell, train_cell, heldout_cell)  # SPLITS' order
         try:
             row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
                    "policy": None if policy == "-" else policy.removesuffix(CHANCE_NOTE), "runs": int(runs),
@@ -179,6 +181,11 @@ def eval_progress_from_detail(rows: list[dict], lines: list[list[str]]) -> list[
     progress = {(c[0], c[1], c[2]): float(c[9]) for c in lines if c[3] == "eval" and c[4] == "all tasks"}
     return [{**r, "eval_progress": progress.get((r["pipeline"], r["group"], _policy_cell(r["policy"])))}
             if r.get("eval_progress") is None and r["runs"] else r for r in rows]
+
+
+def _draws_progress(row: dict) -> bool:
+    """Whether the figure draws the row's eval progress: where the paper's value is a step-wise reward."""
+    return row["pipeline"] in PAPER_PROGRESS and row.get("eval_progress") is not None
 
 
 def _policy_cell(policy: str | None) -> str:
@@ -316,8 +323,8 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
 def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
     """Success rate with its Wilson 95% interval per group and split, one panel per pipeline, successes/rollouts
     above each interval and the paper's value as a dashed line over its group; where that value is a step-wise
-    reward (GenSim), the eval split's mean progress as an open diamond beside the eval success. Written as `path` with each suffix
-    of `formats`."""
+    reward (GenSim), the eval split's mean progress as an open diamond beside the eval success. Written as `path`
+    with each suffix of `formats`."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -343,7 +350,7 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                 ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
                             va="bottom", fontsize=6.5, color=color,
                             bbox={"fc": "white", "ec": "none", "pad": 0.3})  # readable over the paper's line
-            if r["pipeline"] in PAPER_PROGRESS and r.get("eval_progress") is not None:
+            if _draws_progress(r):
                 ax.plot(i + 0.13, r["eval_progress"], marker="D", ms=5, mfc="white", mec="C3", ls="none", zorder=3)
             if r["paper"] is not None:
                 ax.hlines(r["paper"], i - 0.45, i + 0.45, colors="k", linestyles="--", lw=1.3, zorder=0)
@@ -362,7 +369,7 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         ax.set_title(p)
     axes[0][0].set_ylabel("success rate (Wilson 95% interval)")
     handles = [Line2D([], [], color=c, marker=m, ls="-", label=label) for label, c, m in PLOT_SPLITS.values()]
-    if any(r["pipeline"] in PAPER_PROGRESS and r.get("eval_progress") is not None for r in rows):
+    if any(_draws_progress(r) for r in rows):
         handles.append(Line2D([], [], marker="D", ms=5, mfc="white", mec="C3", ls="none",
                               label="eval progress (GenSim: the paper's quantity)"))
     handles.append(Line2D([], [], color="k", ls="--", label=TABLE5_MEANING))
