@@ -61,7 +61,7 @@ ifneq ($(HAVE_TASK_LISTS),)
 	$(MAKE) --no-print-directory report-table3
 else
 	@echo "note: no task lists of the pipelines (GENSIM_DESCS=, ROBOGEN_TASKS= or ROBOGEN_ROOT=, BBSEA_TASKS= or BBSEA_ROOT=; ../shared/data beside the checkout has the first two), so Table 3 is built on simeval's suites' own task descriptions: outputs/table3_suites/tables/table3.*"
-	$(PY) experiments/paper.py --stages table3 --out outputs/table3_suites
+	$(PY) experiments/paper.py "stages=[table3]" out=outputs/table3_suites
 	@cat outputs/table3_suites/tables/table3.md
 endif
 
@@ -167,7 +167,7 @@ clean-caches: ## delete outputs/cache: embeddings.sqlite and judge_calls.sqlite 
 	  rm -rf $(CACHE_DIR); \
 	else echo "no $(CACHE_DIR)/: nothing to delete"; fi
 
-# The whole chain at a profile's cost (experiments/profiles/<PROFILE>.yaml): quick = minutes, tiny models (a first
+# The whole chain at a profile's cost (conf/profile/<PROFILE>.yaml): quick = minutes, tiny models (a first
 # look and the CI smoke test); cpu = the default presets (hours); paper = the authors' sizes (GPU jobs).
 PROFILE ?= quick
 PIPELINE ?= gensim
@@ -176,14 +176,14 @@ LAUNCHER ?= local
 SBATCH_ARGS ?=
 .PHONY: paper evaluate
 paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures under outputs/paper/$(PROFILE)/ (resumable)
-	@test -f experiments/profiles/$(PROFILE).yaml || { echo "error: PROFILE=$(PROFILE): no experiments/profiles/$(PROFILE).yaml; profiles: $(basename $(notdir $(wildcard experiments/profiles/*.yaml)))" >&2; exit 2; }
+	@test -f conf/profile/$(PROFILE).yaml || { echo "error: PROFILE=$(PROFILE): no conf/profile/$(PROFILE).yaml; profiles: $(basename $(notdir $(wildcard conf/profile/*.yaml)))" >&2; exit 2; }
 	@if [ -n "$(HAVE_TASK_LISTS)" ]; then \
 	  $(MAKE) --no-print-directory table3; \
 	else echo "note: no GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT=, so Table 3 is built on the suites' task descriptions only (README, Table 3)"; fi
-	$(PY) experiments/paper.py --profile $(PROFILE) --launcher $(LAUNCHER) --sbatch-args "$(SBATCH_ARGS)"
+	$(PY) experiments/paper.py profile=$(PROFILE) launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
 
 evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea
-	$(PY) experiments/paper.py --profile $(PROFILE) --pipelines $(PIPELINE) --launcher $(LAUNCHER) --sbatch-args "$(SBATCH_ARGS)"
+	$(PY) experiments/paper.py profile=$(PROFILE) "pipelines=[$(PIPELINE)]" launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
 
 # The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
 # outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.

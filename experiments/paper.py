@@ -1,8 +1,11 @@
 """Reproduce the paper's measurements for some pipelines with one command, at the cost a profile sets.
 
-    python experiments/paper.py --profile quick                        # minutes: every stage, tiny models
-    python experiments/paper.py --profile cpu --pipelines gensim       # one pipeline, all aspects, cpu presets
+    python experiments/paper.py profile=quick                          # minutes: every stage, tiny models
+    python experiments/paper.py profile=cpu "pipelines=[gensim]"       # one pipeline, all aspects, cpu presets
+    python experiments/paper.py profile=quick profile.episodes=6       # a profile's value changed for this run
     make paper PROFILE=quick        make evaluate PIPELINE=bbsea PROFILE=quick
+A profile is a Hydra config (conf/profile/<name>.yaml, composed by conf/paper.yaml): the episodes per task, the
+training-episode counts and each entrypoint's overrides, which are appended to that stage's command line.
 
 First, two stages that need no episodes:
     table3/         src/text_diversity.py -m experiment=table3 pipeline.source=suite: Table 3's layout on simeval's
@@ -25,13 +28,13 @@ Resumable: a stage whose result.json exists is skipped, and the entrypoints resu
 per episode, training from checkpoints under outputs/paper/<profile>/checkpoints/). A failing stage stops the run
 with its exit status; rerun the same command after fixing the cause.
 
-On a SLURM cluster (`--launcher slurm`, `make paper LAUNCHER=slurm SBATCH_ARGS="--partition=..."`), every stage is
+On a SLURM cluster (`launcher=slurm`, `make paper LAUNCHER=slurm SBATCH_ARGS="--partition=..."`), every stage is
 one batch job (`sbatch --wrap` of the same command, its log the same file), submitted at once with its
 dependencies: a group's world models and policy after its collection, a pipeline's quality after its collections,
 the report after everything; a job whose dependency failed is cancelled (--kill-on-invalid-dep). The script waits
 for the jobs (`sacct`), prints each one's end and, when one failed, its log and exit 1; rerun the same command:
 finished stages are skipped as above. While jobs of the same output folder are still queued or running, a rerun
-refuses with one line (two jobs writing one run would mix them). `--sbatch-args` go to every sbatch (partition,
+refuses with one line (two jobs writing one run would mix them). `sbatch_args` go to every sbatch (partition,
 memory, CPUs, time, account).
 """
 
@@ -47,12 +50,14 @@ import sys
 import time
 from pathlib import Path
 
+import hydra
 import yaml
+from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import OneLineParser
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[1]
-PROFILES = ROOT / "experiments" / "profiles"
 STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
 # Figure 3 from the paper's own appendix score tables, shipped with the package (experiments/paper_human_eval.py);
 # SIMEVAL_HUMAN_SCORES points it at a table of your own
@@ -62,24 +67,15 @@ SUITE_TABLE3_CAPTION = ("Text diversity (paper Eq. 1) of simeval's own suites' t
 
 
 def _fail(message: str) -> None:
-    """A user error: one line, exit status 2 (as the entrypoints)."""
-    print(f"error: {message}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-def load_profile(name: str) -> dict:
-    path = PROFILES / f"{name}.yaml"
-    if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
-        _fail(f"--profile {name}: no {path.relative_to(ROOT)}; profiles: {known}")
-    return yaml.safe_load(path.read_text())
+    """A user error: one line, exit status 2 (main's exit_cleanly_on_user_error prints it)."""
+    raise UserError(message)
 
 
 def suite_of(pipeline: str) -> str | None:
     path = ROOT / "conf" / "pipeline" / f"{pipeline}.yaml"
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
-        _fail(f"--pipelines {pipeline}: no conf/pipeline/{pipeline}.yaml; pipelines: {known}")
+        _fail(f"pipelines: {pipeline}: no conf/pipeline/{pipeline}.yaml; pipelines: {known}")
     return (yaml.safe_load(path.read_text()) or {}).get("suite")
 
 
@@ -160,12 +156,12 @@ class Slurm:
         self.jobs: dict[str, tuple[Path, bool]] = {}  # job id -> (log, echo)
         for tool in ("sbatch", "squeue", "sacct"):
             if shutil.which(tool) is None:
-                _fail(f"--launcher slurm: `{tool}` is not on PATH (no SLURM client here); use --launcher local")
+                _fail(f"launcher=slurm: `{tool}` is not on PATH (no SLURM client here); use launcher=local")
         queued = subprocess.run(["squeue", "-h", "-n", self.name, "-o", "%i"], capture_output=True, text=True)
         if queued.returncode != 0:
             said = [line.strip().removeprefix("squeue: ") for line in (queued.stderr or queued.stdout).splitlines()
                     if line.strip()]
-            _fail("--launcher slurm: no SLURM controller answers here (squeue: "
+            _fail("launcher=slurm: no SLURM controller answers here (squeue: "
                   f"{said[-1] if said else queued.returncode}); run it on the cluster's login node, or point "
                   "SLURM_CONF at its slurm.conf")
         if queued.stdout.split():
@@ -181,7 +177,7 @@ class Slurm:
         p = subprocess.run(sbatch, capture_output=True, text=True)
         if p.returncode != 0:
             said = (p.stderr or p.stdout).strip().splitlines()
-            _fail(f"sbatch refused the stage {log.stem}: {said[-1] if said else p.returncode} (--sbatch-args "
+            _fail(f"sbatch refused the stage {log.stem}: {said[-1] if said else p.returncode} (sbatch_args="
                   f"{shlex.join(self.sbatch_args) or '(none)'})")
         job = p.stdout.strip().split(";")[0]
         print(f"  job {job}{' after ' + ','.join(deps) if deps else ''}: {shlex.join(cmd)}", flush=True)
@@ -231,31 +227,42 @@ def entry(name: str) -> list[str]:
     return [sys.executable, str(ROOT / "src" / f"{name}.py")]
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = OneLineParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--profile", default="quick")
-    ap.add_argument("--pipelines", default="gensim,robogen,bbsea")
-    ap.add_argument("--out", default=None, help="default: outputs/paper/<profile>")
-    ap.add_argument("--stages", default=",".join(STAGES))
-    ap.add_argument("--launcher", choices=["local", "slurm"], default="local",
-                    help="local: stage after stage here; slurm: each stage a batch job, with dependencies")
-    ap.add_argument("--sbatch-args", default="", help="slurm: given to every sbatch, e.g. '--partition=gpu --mem=16G'")
-    args = ap.parse_args(argv)
-    prof = load_profile(args.profile)
-    out = Path(args.out) if args.out else ROOT / "outputs" / "paper" / prof["name"]
-    stages = set(args.stages.split(","))
+def _names(value, key: str) -> list[str]:
+    """A list of names from the config: `[a,b]`, or one name (`pipelines=gensim`), or a comma list as a string."""
+    names = value.split(",") if isinstance(value, str) else list(value or [])
+    if not names or not all(isinstance(n, str) and n for n in names):
+        raise UserError(f"{key}={value!r}: give a list of names, e.g. {key}=[{','.join(DEFAULT_NAMES[key])}]")
+    return names
+
+
+DEFAULT_NAMES = {"pipelines": ["gensim", "robogen", "bbsea"], "stages": list(STAGES)}
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="paper")
+@exit_cleanly_on_user_error
+def main(cfg: DictConfig) -> None:
+    profile = OmegaConf.to_container(cfg.profile, resolve=True)
+    run_profile(profile, _names(cfg.pipelines, "pipelines"), set(_names(cfg.stages, "stages")), Path(cfg.out),
+                cfg.launcher, shlex.split(cfg.sbatch_args or ""))
+
+
+def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, launcher_name: str = "local",
+                sbatch_args: list[str] = ()) -> None:
+    """Every stage in `stages` for `pipelines` at the profile's cost (conf/profile/<name>.yaml, as a mapping), into
+    `out`; launcher_name: local | slurm."""
     store, logs = out / "episodes", out / "logs"
     t_start = time.monotonic()
-    pipelines = args.pipelines.split(",")
     suites = {p: suite_of(p) for p in pipelines}  # every name checked before the first stage runs
     unknown = sorted(stages - set(STAGES))
     if unknown:
-        _fail(f"--stages {','.join(unknown)}: unknown; stages: {','.join(STAGES)}")
+        _fail(f"stages: {','.join(unknown)}: unknown; stages: {','.join(STAGES)}")
+    if launcher_name not in ("local", "slurm"):
+        _fail(f"launcher={launcher_name}: unknown; local (stage after stage here) or slurm (batch jobs)")
     with_suite = [p for p in pipelines if suites[p]]
-    launcher = Slurm(out, shlex.split(args.sbatch_args)) if args.launcher == "slurm" else Local()
+    launcher = Slurm(out, list(sbatch_args)) if launcher_name == "slurm" else Local()
     if not with_suite:  # every stage but Figure 3 runs on a suite's episodes: nothing would run
         have = ", ".join(sorted(p.stem for p in (ROOT / "conf" / "pipeline").glob("*.yaml") if suite_of(p.stem)))
-        _fail(f"--pipelines {args.pipelines}: no simeval suite to collect episodes from (pipeline.suite is null); "
+        _fail(f"pipelines: {','.join(pipelines)}: no simeval suite to collect episodes from (pipeline.suite is null); "
               f"pipelines with one: {have}. For your own pipeline, import its episodes with src/import_data.py and "
               "run the entrypoints on them")
     stage = launcher.stage
@@ -280,7 +287,7 @@ def main(argv: list[str] | None = None) -> None:
                   "src/import_data.py and run the entrypoints on them; skipped here")
             continue
         groups = groups_of(suite, prof["tasks_per_group"])
-        print(f"{pipeline} ({args.profile}): groups {', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
+        print(f"{pipeline} ({prof['name']}): groups {', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
         collected = []  # this pipeline's collections: its quality stage reads all of them
         for group, tasks in groups.items():
             sel, collect = f"tasks=[{','.join(tasks)}]", None
@@ -318,9 +325,9 @@ def main(argv: list[str] | None = None) -> None:
                f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
                f"--tables={tables}", f"--figures={figures}"], logs / "report.log", after=tuple(jobs), echo=True)
     launcher.finish()
-    print(f"\n{args.profile} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
+    print(f"\n{prof['name']} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:
-        print("  (Tables 4, 5 and the HTML report are built by the report stage: --stages ...,report)")
+        print("  (Tables 4, 5 and the HTML report are built by the report stage: stages=[...,report])")
     for sub in ("tables", "figures", "report"):
         for p in sorted((out / sub).rglob("*")) if (out / sub).is_dir() else []:
             if (p.is_file() and ".hydra" not in p.parts and "assets" not in p.parts
@@ -329,4 +336,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    launch(main)

@@ -177,3 +177,12 @@ def test_help_into_a_closed_pipe_ends_quietly(tmp_path):
     _, err = proc.communicate(timeout=120)
     assert "Traceback" not in err and "BrokenPipeError" not in err, err
     assert proc.returncode == 1
+
+
+def test_the_value_of_hydras_own_flags_is_not_read_as_an_override(tmp_path):
+    """`--cfg job` once failed with "override 'job': Error parsing override" before Hydra could print the config."""
+    conf = tmp_path / "conf"
+    (conf / "pipeline").mkdir(parents=True)
+    (conf / "pipeline" / "a.yaml").write_text("name: a\n")
+    assert config_mistakes(["--cfg", "job", "-p", "pipeline", "pipeline=a"], conf) is None
+    assert config_mistakes(["-c", "all", "pipeline=b"], conf) == "pipeline=b: no conf/pipeline/b.yaml; valid: a"

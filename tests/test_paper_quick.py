@@ -11,8 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     out = tmp_path / "paper"
-    cmd = [sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines", "robogen",
-           "--out", str(out)]
+    cmd = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+           f"out={out}"]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     rows = {r["group"]: r for r in csv.DictReader((out / "tables" / "table4.csv").open()) if r["pipeline"] == "robogen"}
@@ -58,8 +58,8 @@ def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
 
         pytest.skip("PR_SET_PDEATHSIG is Linux's")
     # collecting a GenSim group takes 8-30 s, so a stage that outlives paper.py is caught in the act
-    p = subprocess.Popen([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick",
-                          "--pipelines", "gensim", "--stages", "collect", "--out", str(tmp_path / "paper")],
+    p = subprocess.Popen([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick",
+                          "pipelines=[gensim]", "stages=[collect]", f"out={tmp_path / 'paper'}"],
                          cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline, kids = time.time() + 60, []
     while not kids and time.time() < deadline:
@@ -75,11 +75,11 @@ def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
 
 
 def test_pipelines_without_a_suite_only_are_one_line_not_a_run_that_does_nothing(tmp_path):
-    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines",
-                        "custom", "--out", str(tmp_path / "out")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[custom]",
+                        f"out={tmp_path / 'out'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
     assert p.stderr.strip().splitlines() == [
-        "error: --pipelines custom: no simeval suite to collect episodes from (pipeline.suite is null); pipelines "
+        "error: pipelines: custom: no simeval suite to collect episodes from (pipeline.suite is null); pipelines "
         "with one: bbsea, gensim, robogen. For your own pipeline, import its episodes with src/import_data.py and "
         "run the entrypoints on them"]
     assert not (tmp_path / "out").exists()
@@ -98,10 +98,26 @@ def test_the_slurm_launcher_without_a_reachable_controller_is_one_line(tmp_path)
                                     "source' >&2\nexit 1\n")
         (bin_dir / tool).chmod(0o755)
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
-    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines",
-                        "robogen", "--launcher", "slurm", "--out", str(tmp_path / "out")], cwd=ROOT, env=env,
+    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+                        "launcher=slurm", f"out={tmp_path / 'out'}"], cwd=ROOT, env=env,
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and p.stderr.splitlines() == [
-        "error: --launcher slurm: no SLURM controller answers here (squeue: fatal: Could not establish a "
+        "error: launcher=slurm: no SLURM controller answers here (squeue: fatal: Could not establish a "
         "configuration source); run it on the cluster's login node, or point SLURM_CONF at its slurm.conf"]
     assert not (tmp_path / "out").exists()  # nothing submitted, nothing written
+
+
+def test_every_profile_composes_with_what_each_stage_needs_and_takes_overrides():
+    """The profiles are Hydra configs (conf/profile/, composed by conf/paper.yaml): a value changes from the command
+    line like any other key, and the output folder follows the profile's name."""
+    from hydra import compose, initialize_config_dir
+
+    stages = {"collect", "quality", "diversity", "generalization"}
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        for name in ("quick", "cpu", "paper"):
+            cfg = compose("paper", overrides=[f"profile={name}"])
+            assert cfg.profile.name == name and cfg.out == f"outputs/paper/{name}"
+            assert set(cfg.profile.overrides) == stages
+            assert len(cfg.profile.world_model_episodes) == 3 and cfg.profile.episodes >= 4
+        cfg = compose("paper", overrides=["profile=quick", "profile.episodes=6", "paths.root=/scratch/me"])
+        assert cfg.profile.episodes == 6 and cfg.out == "/scratch/me/paper/quick"

@@ -324,13 +324,13 @@ def test_the_paper_chain_as_dependent_jobs_survives_a_cancelled_job_and_ends_wit
     and policy started only after its group's collection ended, the report after everything; a job cancelled
     mid-run ends the run with one line naming it, and the same command again finishes what is left and gives the
     tables of the run made here, stage after stage."""
-    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines", "robogen",
-              "--stages", "collect,table4,table5,report"]
-    local = subprocess.run([*common, "--out", str(tmp_path / "local")], cwd=ROOT, capture_output=True, text=True,
+    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+              "stages=[collect,table4,table5,report]"]
+    local = subprocess.run([*common, f"out={tmp_path / 'local'}"], cwd=ROOT, capture_output=True, text=True,
                            timeout=900, env={k: v for k, v in slurm.items() if k != "SLURM_CONF"})
     assert local.returncode == 0, local.stderr[-3000:]
-    on_cluster = [*common, "--out", str(tmp_path / "slurm"), "--launcher", "slurm", "--sbatch-args",
-                  "--partition=debug --mem=2G --cpus-per-task=1"]
+    on_cluster = [*common, f"out={tmp_path / 'slurm'}", "launcher=slurm",
+                  "sbatch_args='--partition=debug --mem=2G --cpus-per-task=1'"]
     with (tmp_path / "first.out").open("w") as out, (tmp_path / "first.err").open("w") as err:
         first = subprocess.Popen(on_cluster, cwd=ROOT, env=slurm, stdout=out, stderr=err)
     deadline, cancelled = time.time() + 600, None

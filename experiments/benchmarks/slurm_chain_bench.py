@@ -30,8 +30,8 @@ def main() -> None:
     ap.add_argument("--pipeline", default="robogen")
     ap.add_argument("--stages", default="collect,table4,table5,report")
     a = ap.parse_args()
-    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "--profile", "quick", "--pipelines", a.pipeline,
-              "--stages", a.stages]
+    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", f"pipelines=[{a.pipeline}]",
+              f"stages=[{a.stages}]"]
     result = {"benchmark": "slurm_chain", "machine": machine(), "load_average_at_start": os.getloadavg(),
               "profile": "quick", "pipeline": a.pipeline, "stages": a.stages.split(",")}
     with tempfile.TemporaryDirectory() as tmp:
@@ -46,10 +46,10 @@ def main() -> None:
             runs = {}
             for where, extra, run_env in (
                     ("local", [], {k: v for k, v in env.items() if k != "SLURM_CONF"}),
-                    ("slurm", ["--launcher", "slurm", "--sbatch-args", "--partition=debug --mem=2G --cpus-per-task=1"],
+                    ("slurm", ["launcher=slurm", "sbatch_args='--partition=debug --mem=2G --cpus-per-task=1'"],
                      env)):
                 t0 = time.perf_counter()
-                r = subprocess.run([*common, "--out", str(tmp / where), *extra], cwd=ROOT, env=run_env,
+                r = subprocess.run([*common, f"out={tmp / where}", *extra], cwd=ROOT, env=run_env,
                                    capture_output=True, text=True, timeout=3600, check=False)
                 if r.returncode != 0:
                     ap.error(f"the {where} chain failed: {r.stderr.strip().splitlines()[-1] if r.stderr else r.returncode}")

@@ -267,6 +267,11 @@ def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
+# Hydra's own flags whose value is the next argument (`--cfg job`), not an override
+HYDRA_FLAGS_WITH_VALUE = {"--cfg", "-c", "--package", "-p", "--info", "-i", "--config-path", "-cp", "--config-name",
+                          "-cn", "--config-dir", "-cd", "--experimental-rerun"}
+
+
 def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
     """One line for what Hydra would report as a multi-line block and exit 1 on: an override it cannot parse, a
     config-group choice with no file (`world_model=nope`), or a chosen group file that is not valid YAML. None
@@ -277,7 +282,8 @@ def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
 
-    overrides = [a for a in args if not a.startswith("-")]
+    overrides = [a for i, a in enumerate(args)
+                 if not a.startswith("-") and not (i and args[i - 1] in HYDRA_FLAGS_WITH_VALUE)]
     try:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as e:
