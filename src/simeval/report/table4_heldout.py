@@ -313,7 +313,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
     model predicts of the motion outside the robot). Saved without dates or versions
     (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes. The first panel
-    has a log scale (its baselines span four decades)."""
+    has a log scale (its baselines span four decades), the second a symmetric log one (skills from 1 to -800)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -357,7 +357,11 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
             title="object-focused one-step error (primary; model: 95% CI)")
     ax2.axhline(0, color="0.5", lw=0.8)
-    ax2.set(ylabel="skill vs last frame (1 - model / baseline)", title="object-focused skill vs the last frame")
+    # symlog: one group's -800 (a redraw of still pixels) left every other group's -1 .. -70 a flat line at 0
+    ax2.set_yscale("symlog", linthresh=1)
+    ax2.set_ylim(top=1.5)  # a skill is at most 1; symlog's autoscale left two empty decades above it
+    ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
+            title="object-focused skill vs the last frame")
     ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
     if moving:
         axes[3].axhline(0, color="0.5", lw=0.8)
