@@ -242,7 +242,8 @@ DEFAULT_NAMES = {"pipelines": ["gensim", "robogen", "bbsea"], "stages": list(STA
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
     profile = OmegaConf.to_container(cfg.profile, resolve=True)
-    run_profile(profile, _names(cfg.pipelines, "pipelines"), set(_names(cfg.stages, "stages")), Path(cfg.out),
+    # absolute: the stages run from the project root, the user may not (out=mine is the user's ./mine)
+    run_profile(profile, _names(cfg.pipelines, "pipelines"), set(_names(cfg.stages, "stages")), Path(cfg.out).resolve(),
                 cfg.launcher, shlex.split(cfg.sbatch_args or ""))
 
 
