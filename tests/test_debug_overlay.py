@@ -22,6 +22,7 @@ SHRINKS = {
                 "record.scene_view_size": ([128, 128], [64, 64])},
     "import_data": {"image_size": (None, [32, 32])},
     "report": {},  # reads result.json files only: nothing to shrink, but debug=tiny is accepted
+    "paper": {},  # the profile sets every stage's sizes (profile=quick: tiny models); debug=tiny is accepted
     # diversity: the tiny world model (conf/world_model/tiny.yaml) over the default cpu preset
     "diversity": {"world_model.name": ("cpu", "tiny"), "world_model.model.image_size": (64, 16),
                   "world_model.model.deter": (256, 32), "world_model.model.hidden": (256, 32),
