@@ -231,11 +231,8 @@ def _names(value, key: str) -> list[str]:
     """A list of names from the config: `[a,b]`, or one name (`pipelines=gensim`), or a comma list as a string."""
     names = value.split(",") if isinstance(value, str) else list(value or [])
     if not names or not all(isinstance(n, str) and n for n in names):
-        raise UserError(f"{key}={value!r}: give a list of names, e.g. {key}=[{','.join(DEFAULT_NAMES[key])}]")
+        raise UserError(f"{key}={value!r}: give a list of names, e.g. {key}=[a,b]")
     return names
-
-
-DEFAULT_NAMES = {"pipelines": ["gensim", "robogen", "bbsea"], "stages": list(STAGES)}
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="paper")
@@ -243,8 +240,9 @@ DEFAULT_NAMES = {"pipelines": ["gensim", "robogen", "bbsea"], "stages": list(STA
 def main(cfg: DictConfig) -> None:
     profile = OmegaConf.to_container(cfg.profile, resolve=True)
     # absolute: the stages run from the project root, the user may not (out=mine is the user's ./mine)
-    run_profile(profile, _names(cfg.pipelines, "pipelines"), set(_names(cfg.stages, "stages")), Path(cfg.out).resolve(),
-                cfg.launcher, shlex.split(cfg.sbatch_args or ""))
+    out = Path(cfg.out).resolve()
+    run_profile(profile, _names(cfg.pipelines, "pipelines"), set(_names(cfg.stages, "stages")), out, cfg.launcher,
+                shlex.split(cfg.sbatch_args or ""))
 
 
 def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, launcher_name: str = "local",
