@@ -131,6 +131,15 @@ def run(cmd: list[str], log: Path, echo: bool = False) -> None:
     print(f"    done in {time.monotonic() - t0:.0f} s ({log.stem})", flush=True)
 
 
+def finished(run_dir: Path) -> bool:
+    """A stage whose run folder has its result.json (an earlier run of the same command finished it) is kept, and
+    the console says so: a rerun after an interruption shows what it resumes from."""
+    if (run_dir / "result.json").exists():
+        print(f"  kept: {run_dir} (finished earlier; delete the folder to run it again)", flush=True)
+        return True
+    return False
+
+
 class Local:
     """Stages run here, one after the other, in the order they are given (which respects their dependencies)."""
 
@@ -268,13 +277,15 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
     jobs: list = []  # every stage submitted so far: the report waits for all of them
     if "table3" in stages and with_suite:  # the suites' own task descriptions: needs no checkout of the pipelines
         runs, texts = out / "table3" / "runs", None
-        if len(list(runs.glob("*/result.json"))) < 2 * len(with_suite):  # two embedding models per pipeline
+        if len(list(runs.glob("*/result.json"))) >= 2 * len(with_suite):  # two embedding models per pipeline
+            print(f"  kept: {runs} (finished earlier; delete the folder to run it again)", flush=True)
+        else:
             texts = stage([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(with_suite)}",
                            "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
         jobs += [texts, stage([*entry("report"), "report=table3", f"report.runs_dir={runs}",
                                f"report.out_dir={out / 'tables'}", f'report.caption="{SUITE_TABLE3_CAPTION}"'],
                               logs / "report_table3.log", after=(texts,))]
-    if "figure3" in stages and not (out / "figures" / "figure3" / "result.json").exists():
+    if "figure3" in stages and not finished(out / "figures" / "figure3"):
         jobs.append(stage([*entry("agreement"), f"scores_path={HUMAN_SCORES}",
                            f"hydra.run.dir={out / 'figures' / 'figure3'}"], logs / "figure3.log"))
     for pipeline in pipelines:
@@ -298,21 +309,21 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
                 collected.append(collect)
             for k in prof["world_model_episodes"] if "table4" in stages else []:
                 run_dir = out / "table4" / pipeline / group / f"episodes_{k}"
-                if not (run_dir / "result.json").exists():
+                if not finished(run_dir):
                     jobs.append(stage([*entry("diversity"), f"pipeline={pipeline}", f"task_group={group}",
                                        f"episodes={k}", f"store={store}",
                                        f"checkpoint_dir={out / 'checkpoints' / 'world_model'}", *ov["diversity"],
                                        f"hydra.run.dir={run_dir}"], logs / f"table4_{pipeline}_{group}_{k}.log",
                                       after=(collect,)))
             run_dir = out / "table5" / pipeline / group
-            if "table5" in stages and not (run_dir / "result.json").exists():
+            if "table5" in stages and not finished(run_dir):
                 jobs.append(stage([*entry("generalization"), f"pipeline={pipeline}", f"task_group={group}", sel,
                                    f"store={store}", f"checkpoint_dir={out / 'checkpoints' / 'policy'}",
                                    *ov["generalization"], f"hydra.run.dir={run_dir}"],
                                   logs / f"table5_{pipeline}_{group}.log", after=(collect,)))
         jobs += collected
         run_dir = out / "quality" / pipeline
-        if "quality" in stages and not (run_dir / "result.json").exists():
+        if "quality" in stages and not finished(run_dir):
             jobs.append(stage([*entry("quality"), f"episodes.store={store}", f"episodes.pipeline={pipeline}",
                                *ov["quality"], f"cache_dir={out / 'cache'}", f"hydra.run.dir={run_dir}"],
                               logs / f"quality_{pipeline}.log", after=tuple(collected)))

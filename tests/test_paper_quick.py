@@ -36,7 +36,9 @@ def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert again.returncode == 0
     for finished in ("diversity.py", "generalization.py", "text_diversity.py", "agreement.py"):
-        assert finished not in again.stdout  # finished stages are skipped
+        assert finished not in again.stdout  # finished stages are skipped, and the console says which
+    assert f"kept: {out / 'table4' / 'robogen' / 'ground' / 'episodes_4'} (finished earlier" in again.stdout
+    assert f"kept: {out / 'table3' / 'runs'} (finished" in again.stdout
 
 
 def _alive(pid: int) -> bool:

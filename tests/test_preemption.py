@@ -149,6 +149,39 @@ def test_the_shared_loop_checkpoints_on_its_cadence_and_at_a_preemption_then_han
     assert stop.value.code == REQUEUE_EXIT and saved == [5] and calls == [signal.SIGUSR2]
 
 
+def test_the_one_training_loop_numbers_steps_from_the_resume_point_and_saves_on_its_cadence(submitit_handler):
+    """simeval.models.trainer.run_steps, both models' loop: a run resumed at step 3 with 5 batches left takes steps
+    3..7 (take_step sees the steps before it, after_step the steps after), saves at 4 and 6 (every 2) but not at
+    the last step 8 (last_step: the final save follows at once), then the final save at 8; a signal during the step
+    that ends at 5 saves there and hands over."""
+    from simeval.models.trainer import run_steps
+
+    calls, _ = submitit_handler
+    taken, after, saved, final = [], [], [], []
+
+    def take(batch, before):
+        taken.append((batch, before))
+        return {"loss": float(before)}
+
+    end = run_steps("abcde", take, saved.append, step=3, checkpoint_every=2, last_step=8,
+                    after_step=lambda s, m, seconds: after.append((s, m["loss"], seconds >= 0)),
+                    final_save=final.append)
+    assert end == 8 and taken == [("a", 3), ("b", 4), ("c", 5), ("d", 6), ("e", 7)]
+    assert after == [(4, 3.0, True), (5, 4.0, True), (6, 5.0, True), (7, 6.0, True), (8, 7.0, True)]
+    assert saved == [4, 6] and final == [8] and calls == []
+
+    saved.clear()
+
+    def take_and_signal(batch, before):
+        if before == 4:
+            os.kill(os.getpid(), signal.SIGUSR2)
+        return {}
+
+    with pytest.raises(SystemExit) as stop:
+        run_steps([None] * 5, take_and_signal, saved.append, step=0, checkpoint_every=100)
+    assert stop.value.code == REQUEUE_EXIT and saved == [5] and calls == [signal.SIGUSR2]
+
+
 def test_a_checkpoint_made_with_other_settings_names_the_keys_that_differ(tmp_path):
     from simeval.errors import UserError
     from simeval.models.trainer import refuse_other_settings, settings_difference

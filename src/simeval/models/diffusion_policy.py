@@ -25,7 +25,6 @@ import copy
 import dataclasses
 import logging
 import os
-import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -41,7 +40,7 @@ from simeval.errors import UserError, require_whole
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
-from simeval.models.trainer import CheckpointedSteps, refuse_other_settings
+from simeval.models.trainer import refuse_other_settings, run_steps
 
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
@@ -324,7 +323,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         step, losses, t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
         log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
 
-    def save() -> None:
+    def save(step: int) -> None:
         if ckpt_path is None:
             return
         ema_model = copy.deepcopy(policy)
@@ -338,40 +337,45 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
             "lr_scheduler": lr_sched.state_dict(), "generator": gen.get_state(), "step": step, "losses": losses,
             "train_seconds": t_train, "extra": dict(extra or {})})
 
+    def take_step(batch, step: int) -> dict:  # the noise comes from `gen`, not from the step count
+        loss = policy.compute_loss(batch, generator=gen)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        lr_sched.step()
+        ema.step(policy.parameters())
+        return {"loss": loss.item()}
+
+    window: list[float] = []
+
+    def after_step(step: int, metrics: dict, seconds: float) -> None:
+        nonlocal t_train, window
+        t_train += seconds
+        window.append(metrics["loss"])
+        if bar is not None:
+            bar.update(1)
+        if step % settings.log_every == 0 or step == settings.train_steps:
+            mean = float(np.mean(window))
+            losses.append([step, mean])
+            window = []
+            if log_fn is not None:
+                log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
+            if bar is not None:
+                bar.set_postfix(loss=f"{mean:.4f}")
+
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=settings.train_steps, initial=step, desc="train policy", unit="step")
     policy.train()
-    window: list[float] = []
-    # a preempted submitit job checkpoints and requeues at a step boundary; the last checkpoint is written once, below
-    with CheckpointedSteps(save, settings.checkpoint_every) as loop:
-        while step < settings.train_steps:
-            t0 = time.perf_counter()
-            loss = policy.compute_loss(dataset.sample(settings.batch_size, gen), generator=gen)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            lr_sched.step()
-            ema.step(policy.parameters())
-            t_train += time.perf_counter() - t0
-            step += 1
-            window.append(loss.item())
-            if bar is not None:
-                bar.update(1)
-            if step % settings.log_every == 0 or step == settings.train_steps:
-                mean = float(np.mean(window))
-                losses.append([step, mean])
-                window = []
-                if log_fn is not None:
-                    log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
-                if bar is not None:
-                    bar.set_postfix(loss=f"{mean:.4f}")
-            loop.step_done(step, periodic=step < settings.train_steps)
-        if bar is not None:
-            bar.close()
-        save()
+    # drawn one at a time, just before their step, from the same generator as the step's noise (as before a resume)
+    batches = (dataset.sample(settings.batch_size, gen) for _ in range(step, settings.train_steps))
+    # the last checkpoint is written once, after the loop (last_step)
+    step = run_steps(batches, take_step, save, step=step, checkpoint_every=settings.checkpoint_every,
+                     last_step=settings.train_steps, after_step=after_step)
+    if bar is not None:
+        bar.close()
     ema_policy = copy.deepcopy(policy)
     ema.copy_to(ema_policy.parameters())
     summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,

@@ -1,23 +1,26 @@
-"""What both models' training loops share (the world model's, simeval.models.training.train; the policy's,
-simeval.models.diffusion_policy.train_policy): the resume check and the checkpoint cadence with preemption.
+"""The one training loop of both models (the world model's, simeval.models.training.train; the policy's,
+simeval.models.diffusion_policy.train_policy), with its resume check and its checkpoint cadence with preemption.
 
     refuse_other_settings(path, stored, current, where)   # a checkpoint made with other settings: UserError naming
                                                           # the keys that differ
-    with CheckpointedSteps(save, every) as loop:          # save() writes the model's own checkpoint
-        for ...:
-            <one training step>
-            loop.step_done(step)                          # checkpoint every `every` steps and at a preemption
-        save()                                            # the loop's final checkpoint, the model's own
+    step = run_steps(batches, take_step, save, step=resumed_at, checkpoint_every=N, after_step=..., final_save=...)
+        for each batch: take_step(batch, i) -> metrics   # one gradient step, the model's own (i: steps before)
+                        after_step(step, metrics, s)     # progress, logging (s: seconds of the fetch and the step)
+                        checkpoint every N steps and at a preemption (CheckpointedSteps), then the signal goes on
+        after the last batch: final_save()               # or save()
 
-What one step is (a window batch of an epoch; a sampled batch with an LR schedule and an EMA) and what a checkpoint
-holds stay with each model: their files differ (simeval.models.checkpoints reads and writes both).
+What a model owns is passed in: where its batches come from and in which order (epochs of windows for the world
+model, batches sampled from a generator for the policy; each resumes from the checkpoint's position, so a resumed
+run draws what an uninterrupted one would have), what one step is (Adam and a clip; AdamW, an LR schedule and an
+EMA) and what a checkpoint holds (their files differ: simeval.models.checkpoints reads and writes both).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping
-from typing import Self
+import time
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, Self
 
 from simeval.errors import UserError
 from simeval.models.preemption import PreemptionPoint
@@ -69,3 +72,31 @@ class CheckpointedSteps:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self._preemption.__exit__(exc_type, exc, tb)
+
+
+def run_steps(batches: Iterable[Any], take_step: Callable[[Any, int], dict], save: Callable[[int], None], *, step: int,
+              checkpoint_every: int, last_step: int | None = None,
+              after_step: Callable[[int, dict, float], None] | None = None,
+              final_save: Callable[[int], None] | None = None) -> int:
+    """Take one step per batch, take_step(batch, steps taken before it), counting from `step` (where a resumed run
+    starts); after each, after_step(step,
+    metrics, seconds) and the checkpoint cadence: save(step) every `checkpoint_every` steps, not at `last_step`
+    (where the final save follows at once), and whenever a preemption signal came. After the last batch,
+    final_save(step) (default save). Returns the step count at the end."""
+    with CheckpointedSteps(lambda: save(step), checkpoint_every) as loop:
+        it = iter(batches)
+        while True:
+            t0 = time.perf_counter()
+            batch = next(it, _DONE)
+            if batch is _DONE:
+                break
+            metrics = take_step(batch, step)
+            step += 1
+            if after_step is not None:
+                after_step(step, metrics, time.perf_counter() - t0)
+            loop.step_done(step, periodic=last_step is None or step < last_step)
+        (final_save or save)(step)
+    return step
+
+
+_DONE = object()  # the end of the batches (a batch may be anything, None included)

@@ -38,7 +38,7 @@ import torch
 from simeval.errors import UserError, require_whole
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
-from simeval.models.trainer import CheckpointedSteps, refuse_other_settings
+from simeval.models.trainer import refuse_other_settings, run_steps
 
 log = logging.getLogger(__name__)
 
@@ -159,72 +159,88 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
             log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
 
     first_step = step
+    position = {"epoch": epoch, "batch": done_in_epoch}  # of the next batch: what a checkpoint resumes from
 
-    def trained_by() -> list[dict]:
+    def trained_by(step: int) -> list[dict]:
         here = {"steps": [first_step, step], "device": str(device), "compile": bool(compile), "capture": bool(capture)}
         return segments + ([here] if step > first_step else [])
 
-    def save(e: int, b: int, finished: bool = False) -> None:
+    def save(step: int, finished: bool = False) -> None:
         if checkpoint is not None:
             save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": to_cpu(model.state_dict()),
-                                         "optimizer": to_cpu(opt.state_dict()), "epoch": e, "batches_done": b,
-                                         "step": step, "meta": meta, "finished": finished,
-                                         "frames": frames_before + frames,
+                                         "optimizer": to_cpu(opt.state_dict()), "epoch": position["epoch"],
+                                         "batches_done": position["batch"], "step": step, "meta": meta,
+                                         "finished": finished, "frames": frames_before + frames,
                                          "seconds": seconds_before + time.perf_counter() - t0,
-                                         "segments": trained_by()})
+                                         "segments": trained_by(step)})
+
+    def take_step(batch: dict, step: int) -> dict:
+        nonlocal frames
+        frames += int(batch["mask"].sum())
+        if captured is not None:  # it copies the batch into its graph's inputs itself
+            return captured(to_torch(batch), step_generator(cfg.seed, step))
+        loss, metrics = model.loss(to_device(to_torch(batch), device, non_blocking=True),
+                                   generator=step_generator(cfg.seed, step))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        metrics["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
+        opt.step()
+        return metrics
+
+    def after_step(step: int, metrics: dict, seconds: float) -> None:
+        nonlocal last
+        last = metrics
+        if log_metrics is not None:
+            log_metrics({"train": metrics, "epoch": position["epoch"]}, step)
+
+    def window_batches():
+        """Epochs of shuffled windows from the checkpoint's position, with a progress bar, a line and a checkpoint
+        at each epoch's end; the step cap ends them mid-epoch."""
+        step = first_step  # the steps taken: each batch is one, taken before the generator goes on
+        started = None  # (clock, step) where this process started training: the pace is measured from there
+        while position["epoch"] < cfg.epochs and (cap is None or step < cap):
+            epoch = position["epoch"]
+            batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
+            if not batches:
+                raise UserError("no training windows: every training episode is shorter than the window length "
+                                f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
+            todo = batches[position["batch"]:]
+            if cap is not None:
+                todo = todo[: cap - step]
+            if started is None:  # the plan, once: batches vary by a few per epoch with a random window offset
+                started = (time.perf_counter(), step)
+                planned = _planned_steps(cfg, epoch, position["batch"], step, len(batches))
+                log.info("training: about %d steps (%d epochs x ~%d batches of %d windows%s), from step %d", planned,
+                         cfg.epochs, len(batches), cfg.batch_size, f", capped at {cap}" if cap is not None else "",
+                         step)
+            bar = tqdm(total=len(batches), initial=position["batch"], desc=f"epoch {epoch + 1}/{cfg.epochs}",
+                       disable=not progress, leave=False)
+            for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
+                position["batch"] += 1  # before its step: a checkpoint written after the step resumes past it
+                yield batch
+                step += 1
+                bar.update(1)
+                bar.set_postfix(loss=f"{last['loss']:.1f}")
+            bar.close()
+            if position["batch"] >= len(batches):
+                position["epoch"], position["batch"] = epoch + 1, 0
+                _log_epoch(epoch + 1, cfg, step, last, started, len(batches))
+            save(step)
+        if cap is not None and step >= cap and position["epoch"] < cfg.epochs:
+            where = (f"in epoch {position['epoch'] + 1}/{cfg.epochs}, after {position['batch']} of its batches"
+                     if position["batch"] else f"after epoch {position['epoch']}/{cfg.epochs}")
+            log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
 
     model.train()
     captured = CapturedTrainStep(model, opt, cfg.clip) if capture else None
     t0, frames, last = time.perf_counter(), 0, {}
     cap = cfg.max_steps
-    started = None  # (clock, step) where this process started training: the pace is measured from there
     # a preempted submitit job checkpoints and requeues at a step boundary
-    with CheckpointedSteps(lambda: save(epoch, done_in_epoch), cfg.checkpoint_every) as loop:
-        while epoch < cfg.epochs and (cap is None or step < cap):
-            batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
-            if not batches:
-                raise UserError("no training windows: every training episode is shorter than the window length "
-                                f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
-            todo = batches[done_in_epoch:]
-            if cap is not None:
-                todo = todo[: cap - step]
-            if started is None:  # the plan, once: batches vary by a few per epoch with a random window offset
-                started = (time.perf_counter(), step)
-                planned = _planned_steps(cfg, epoch, done_in_epoch, step, len(batches))
-                log.info("training: about %d steps (%d epochs x ~%d batches of %d windows%s), from step %d", planned,
-                         cfg.epochs, len(batches), cfg.batch_size, f", capped at {cap}" if cap is not None else "", step)
-            bar = tqdm(total=len(batches), initial=done_in_epoch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
-                       disable=not progress, leave=False)
-            for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
-                if captured is not None:  # it copies the batch into its graph's inputs itself
-                    last = captured(to_torch(batch), step_generator(cfg.seed, step))
-                else:
-                    loss, last = model.loss(to_device(to_torch(batch), device, non_blocking=True),
-                                            generator=step_generator(cfg.seed, step))
-                    opt.zero_grad(set_to_none=True)
-                    loss.backward()
-                    last["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
-                    opt.step()
-                step += 1
-                done_in_epoch += 1
-                frames += int(batch["mask"].sum())
-                bar.update(1)
-                bar.set_postfix(loss=f"{last['loss']:.1f}")
-                if log_metrics is not None:
-                    log_metrics({"train": last, "epoch": epoch}, step)
-                loop.step_done(step)
-            bar.close()
-            if done_in_epoch >= len(batches):
-                epoch, done_in_epoch = epoch + 1, 0
-                _log_epoch(epoch, cfg, step, last, started, len(batches))
-            save(epoch, done_in_epoch)
-        if cap is not None and step >= cap and epoch < cfg.epochs:
-            where = (f"in epoch {epoch + 1}/{cfg.epochs}, after {done_in_epoch} of its batches" if done_in_epoch
-                     else f"after epoch {epoch}/{cfg.epochs}")
-            log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
-        save(epoch, done_in_epoch, finished=True)
+    step = run_steps(window_batches(), take_step, save, step=step, checkpoint_every=cfg.checkpoint_every,
+                     after_step=after_step, final_save=lambda s: save(s, finished=True))
+    epoch = position["epoch"]
     return {"steps": step, "epochs": epoch, "seconds": seconds_before + time.perf_counter() - t0,
-            "segments": trained_by(),
+            "segments": trained_by(step),
             "frames": frames_before + frames, "last": last}
 
 
