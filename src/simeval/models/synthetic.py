@@ -26,6 +26,8 @@ A "shared" group gives every task PHYSICS[0]; a "varied" group gives task i PHYS
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from simeval.episodes.dataset import ArraySource, EpisodeInfo
@@ -165,23 +167,30 @@ def physics_episode(params, seed: int, n_actions: int, size: int) -> dict[str, n
     return {"image": _render(look, PHYSICS_COLOR, size), "state": st, "action": actions}
 
 
+def _group(name: str, kind: str, n_tasks: int, looks: tuple, episodes: int, n_actions: int, seed: int,
+           episode: Callable[[object, int], dict]) -> ArraySource:
+    """Tasks 0..n_tasks-1 of a control group: task i's episode e is episode(looks[0] if kind is "shared" else
+    looks[i], its seed); the seeds are the same in both kinds, so the kinds differ in the looks (physics, arm) alone."""
+    if kind not in ("shared", "varied"):
+        raise ValueError(f"kind={kind!r}: expected shared or varied")
+    if not 1 <= n_tasks <= len(looks):
+        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(looks)}")
+    infos, arrays = [], []
+    for t in range(n_tasks):
+        look = looks[0] if kind == "shared" else looks[t]
+        for e in range(episodes):
+            arrays.append(episode(look, int(np.random.default_rng([seed, t, e, 1]).integers(2**31))))
+            infos.append(EpisodeInfo(task=f"{name}-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
+                                     action_space=ACTION_SPACE))
+    return ArraySource(infos, arrays)
+
+
 def make_physics_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int,
                        seed: int = 0) -> ArraySource:
     """A dynamics-only group: kind "shared" (every task PHYSICS[0]) or "varied" (task i PHYSICS[i]). Task i has the
     same episode seeds (initial positions and pushes) in both kinds, so the groups differ in physics alone."""
-    if kind not in ("shared", "varied"):
-        raise ValueError(f"kind={kind!r}: expected shared or varied")
-    if not 1 <= n_tasks <= len(PHYSICS):
-        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(PHYSICS)}")
-    infos, arrays = [], []
-    for t in range(n_tasks):
-        params = PHYSICS[0] if kind == "shared" else PHYSICS[t]
-        for e in range(episodes):
-            ep_seed = int(np.random.default_rng([seed, t, e, 1]).integers(2**31))
-            arrays.append(physics_episode(params, ep_seed, n_actions, size))
-            infos.append(EpisodeInfo(task=f"physics-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
-                                     action_space=ACTION_SPACE))
-    return ArraySource(infos, arrays)
+    return _group("physics", kind, n_tasks, PHYSICS, episodes, n_actions, seed,
+                  lambda params, ep_seed: physics_episode(params, ep_seed, n_actions, size))
 
 
 # Visual only (`make_visual_group`): the dynamics-only square with PHYSICS[0] in every task, and an "arm": a bar from
@@ -211,7 +220,7 @@ def _texture(kind: str, size: int) -> np.ndarray:
 def draw_arm(frames: np.ndarray, tips: np.ndarray, look) -> tuple[np.ndarray, np.ndarray]:
     """Draw the arm over (n, H, W, 3) frames for (n, 2) tips (x, y in [0, 1]); returns (frames, robot masks (n, H,
     W) bool: every pixel the bar covers at all)."""
-    n, size = len(frames), frames.shape[1]
+    size = frames.shape[1]
     grid = (np.arange(size, dtype=np.float32) + 0.5) / size
     x, y = tips[:, 0][:, None], tips[:, 1][:, None]
     lo, hi = grid[None] - 0.5 / size, grid[None] + 0.5 / size
@@ -228,22 +237,14 @@ def make_visual_group(kind: str, n_tasks: int, episodes: int, n_actions: int, si
                       seed: int = 0) -> ArraySource:
     """A visual-only group (see ARM_LOOKS): kind "shared" (every task's arm ARM_LOOKS[0]) or "varied" (task i's
     ARM_LOOKS[i]); the same physics, square and episode seeds in both kinds. Episodes carry `robot_mask`."""
-    if kind not in ("shared", "varied"):
-        raise ValueError(f"kind={kind!r}: expected shared or varied")
-    if not 1 <= n_tasks <= len(ARM_LOOKS):
-        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(ARM_LOOKS)}")
-    infos, arrays = [], []
-    for t in range(n_tasks):
-        look = ARM_LOOKS[0] if kind == "shared" else ARM_LOOKS[t]
-        for e in range(episodes):
-            ep_seed = int(np.random.default_rng([seed, t, e, 1]).integers(2**31))
-            ep = physics_episode(PHYSICS[0], ep_seed, n_actions, size)
-            a = ep["action"]
-            # row t shows the arm where the action that produced it pointed (row 0: where the first action points)
-            commanded = np.concatenate([a[:1], a[:-1]])
-            tips = np.clip(0.5 + 0.35 * commanded, 0.05, 0.95)
-            ep["image"], ep["robot_mask"] = draw_arm(ep["image"], tips, look)
-            arrays.append(ep)
-            infos.append(EpisodeInfo(task=f"visual-{kind}-{t}", seed=e, group=kind, n_rows=n_actions + 1,
-                                     action_space=ACTION_SPACE))
-    return ArraySource(infos, arrays)
+
+    def episode(look, ep_seed: int) -> dict:
+        ep = physics_episode(PHYSICS[0], ep_seed, n_actions, size)
+        a = ep["action"]
+        # row t shows the arm where the action that produced it pointed (row 0: where the first action points)
+        commanded = np.concatenate([a[:1], a[:-1]])
+        tips = np.clip(0.5 + 0.35 * commanded, 0.05, 0.95)
+        ep["image"], ep["robot_mask"] = draw_arm(ep["image"], tips, look)
+        return ep
+
+    return _group("visual", kind, n_tasks, ARM_LOOKS, episodes, n_actions, seed, episode)
