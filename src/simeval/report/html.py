@@ -147,15 +147,22 @@ def _reading_order(path: Path, root: Path) -> tuple:
     return (0 if PAPER_FIRST.match(rel.name) else 1, str(rel))
 
 
+def _in_reading_order(folder: Path | None, pattern: str, kind: str) -> list[tuple[Path, Path, str]]:
+    """(file, its path relative to folder, its asset group: kind/subfolder) of the files matching `pattern` below
+    `folder`, the paper's first."""
+    if not (folder and folder.is_dir()):
+        return []
+    files = sorted(folder.rglob(pattern), key=lambda f: _reading_order(f, folder))
+    rels = [f.relative_to(folder) for f in files]
+    return [(f, r, f"{kind}/{_slug(str(r.parent))}" if r.parent != Path(".") else kind) for f, r in zip(files, rels)]
+
+
 def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
-    files = sorted(tables_dir.rglob("*.md"), key=lambda f: _reading_order(f, tables_dir)) \
-        if tables_dir and tables_dir.is_dir() else []
+    files = _in_reading_order(tables_dir, "*.md", "tables")
     if not files:
         return f"<p class='muted'>No tables under {_e(tables_dir)}.</p>"
     parts = []
-    for md in files:
-        rel = md.relative_to(tables_dir)
-        group = f"tables/{_slug(str(rel.parent))}" if rel.parent != Path(".") else "tables"
+    for md, rel, group in files:
         links = [f"<a href='{_e(assets.copy(md, group))}'>md</a>"]
         for ext in (".csv", ".tex"):
             if md.with_suffix(ext).is_file():
@@ -173,14 +180,11 @@ def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
 
 
 def _figures_section(figures_dir: Path | None, assets: _Assets) -> str:
-    files = sorted(figures_dir.rglob("*.png"), key=lambda f: _reading_order(f, figures_dir)) \
-        if figures_dir and figures_dir.is_dir() else []
+    files = _in_reading_order(figures_dir, "*.png", "figures")
     if not files:
         return f"<p class='muted'>No figures under {_e(figures_dir)}.</p>"
     parts = []
-    for png in files:
-        rel = png.relative_to(figures_dir)
-        group = f"figures/{_slug(str(rel.parent))}" if rel.parent != Path(".") else "figures"
+    for png, rel, group in files:
         src = assets.copy(png, group)
         pdf = png.with_suffix(".pdf")
         pdf_link = f" · <a href='{_e(assets.copy(pdf, group))}'>pdf</a>" if pdf.is_file() else ""
