@@ -156,3 +156,20 @@ def _write_ravens(root: Path, task="stack-block-pyramid", mode="train", episodes
             with (d / key / name).open("wb") as f:
                 pickle.dump(value, f)
     return d
+
+
+def load_script(path: Path, name: str | None = None):
+    """A script (experiments/*.py, a file run by another interpreter) loaded as a module from its file, without
+    putting its folder on sys.path; registered in sys.modules under `name` (default: its stem) while it loads, as a
+    module's dataclasses need, and removed again after."""
+    import importlib.util
+
+    name = name or path.stem
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.modules.pop(name, None)
+    return module

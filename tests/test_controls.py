@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "experiments" / "dynamics_controls.py"
@@ -96,13 +97,8 @@ def _record(level: str, seed: int, moving: list[tuple[float, float]]) -> dict:
             "values": {"prediction": {"per_episode": episodes}}}
 
 
-def test_a_dose_judged_by_moving_pixels_reads_their_ratio_of_sums_and_no_motion_passes_nothing(monkeypatch):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("dynamics_controls", SCRIPT)
-    dc = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, dc)  # a script, not a package: loaded from its file
-    spec.loader.exec_module(dc)
+def test_a_dose_judged_by_moving_pixels_reads_their_ratio_of_sums_and_no_motion_passes_nothing():
+    dc = load_script(SCRIPT)  # a script, not a package: loaded from its file
     levels = tuple(dc.DOSES["dose_drawer"].levels)
     assert dc.DOSES["dose_drawer"].metric == "one_step_moving" and dc.DOSES["dose"].metric == "one_step_object"
     # per level, two seeds x two held-out episodes; the error per moving pixel and channel rises with the level

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_script
 
 from simeval.episodes.store import EpisodeStore, read_episode
 
@@ -173,11 +174,7 @@ def test_a_gensim_task_that_raises_is_reported_not_dropped(tmp_path):
 
 
 def test_the_torchvision_stand_in_refuses_any_use():
-    sys.path.insert(0, str(ROOT / "src" / "simeval" / "pipelines" / "gensim"))
-    try:
-        import worker
-    finally:
-        sys.path.pop(0)
+    worker = load_script(ROOT / "src" / "simeval" / "pipelines" / "gensim" / "worker.py")  # GenSim's process runs it
     stand_in = worker._StandIn("torchvision")
     with pytest.raises(ImportError, match="stand-in"):
         stand_in.transforms  # noqa: B018
@@ -280,11 +277,7 @@ def test_a_pipeline_with_neither_suite_nor_own_code_cannot_be_evaluated_closed_l
 
 
 def test_the_oracle_table_reports_failed_tasks_beside_solved_ones():
-    sys.path.insert(0, str(ROOT / "experiments"))
-    try:
-        from gensim_own_oracle import table
-    finally:
-        sys.path.pop(0)
+    table = load_script(ROOT / "experiments" / "gensim_own_oracle.py").table
     values = {"new": [{"task": "a", "seconds": 10.0}, {"task": "a", "seconds": 20.0}],
               "failed": [{"task": "b", "seed": 0, "error": "timed out after 300 s", "where": ""}],
               "tasks": {"a": {"group": "placement", "episodes": 2, "success": 2, "rate": 1.0, "failed": []},

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_script
 
 from simeval.sim.core.objects import COLORS, make_object
 from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, TILE_RGB, World
@@ -91,13 +92,9 @@ def test_front_camera_draws_ravens_workspace_where_gensims_own_camera_does():
     the focal length, at a square size with the focal length scaled as the gensim_own worker renders it): the
     corners of Ravens' workspace (x 0.25-0.75, y -0.5-0.5) and the robot's base land on the same pixels as with
     simeval's front camera, so the cameras are one; what differs in the side-by-side figure is what is drawn."""
-    import importlib.util
-
     import pybullet as p
 
-    spec = importlib.util.spec_from_file_location("gensim_cameras", GENSIM_CAMERAS)
-    gensim_cameras = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gensim_cameras)
+    gensim_cameras = load_script(GENSIM_CAMERAS)
     config = gensim_cameras.RealSenseD415.CONFIG[0]
     size = 128
     rotm = np.array(p.getMatrixFromQuaternion(config["rotation"])).reshape(3, 3)
