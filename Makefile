@@ -98,6 +98,11 @@ bench: setup ## benchmarks; results under outputs/bench/
 bench-slurm: setup ## the quick paper chain here and as SLURM jobs on a local one-node cluster (root), outputs/bench/slurm_chain.json
 	$(PY) experiments/benchmarks/slurm_chain_bench.py
 
+# the report targets' options, as src/report.py's overrides: KEEP=a.csv (or a.csv,b.csv) keeps those tables' rows that
+# the runs on disk lack; OVERWRITE=1 replaces the committed tables and figures
+REPORT_KEEP = $(if $(KEEP),'report.keep=[$(KEEP)]')
+REPORT_OVERWRITE = $(if $(OVERWRITE),overwrite=true)
+
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
 table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Policy per CELLS group (cpu preset; GenSim rollouts capped at 450 steps), table + figure
@@ -107,7 +112,7 @@ table5: setup ## paper Table 5: collect 42 episodes/task, then a Diffusion Polic
 	$(MAKE) --no-print-directory report-table5
 
 report-table5: setup ## rebuild Table 5 + figure from result.json files only (POLICY=cpu: one preset; KEEP=outputs/tables/table5.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files): outputs/tables/table5.{csv,md,tex}, outputs/figures/table5.{png,pdf}
-	$(PY) -m simeval.report.table5 --runs outputs --out outputs/tables/table5 --figure outputs/figures/table5.png $(if $(POLICY),--policy $(POLICY)) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
+	$(PY) src/report.py report=table5 $(if $(POLICY),report.policy=$(POLICY)) $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
 # Table 4 (dynamics diversity): one world model per (CELLS group, 10/20/40 episodes) on the suites' own episodes
 # (collected first; resumable). WM_PRESET=paper for the authors' sizes (a GPU job: 128x128 episodes, windows of 20 for
@@ -127,7 +132,7 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 	$(MAKE) --no-print-directory report-table4
 
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files)
-	$(PY) experiments/world_model_table4.py $(if $(filter paper,$(WM_PRESET)),--preset paper --out outputs/tables/table4_paper --figure outputs/figures/table4_paper.png) $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
+	$(PY) src/report.py report=table4 $(if $(filter paper,$(WM_PRESET)),report.preset=paper report.out=outputs/tables/table4_paper report.figure=outputs/figures/table4_paper.png) $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
 world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
@@ -143,7 +148,7 @@ table4-heldout: setup ## Table 4 under protocol=heldout: collect 50 episodes/tas
 	$(MAKE) --no-print-directory report-table4-heldout
 
 report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (KEEP=outputs/tables/table4_heldout.csv: keep the committed rows of groups without runs here; OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
-	$(PY) experiments/world_model_table4.py --protocol heldout $(if $(KEEP),--keep $(KEEP)) $(if $(OVERWRITE),--overwrite)
+	$(PY) src/report.py report=table4_heldout $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
 controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png)
 	$(PY) experiments/dynamics_controls.py dynamics --episodes 10 40

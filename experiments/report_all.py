@@ -5,8 +5,8 @@
 
 Steps, each with the same library calls as its own command:
     table3   Table 3 (text diversity)    as src/report.py report=table3             tables/table3*.{csv,md,tex}
-    table4   Table 4 (world models)      as experiments/world_model_table4.py       tables/table4.*, figures/table4.*
-    table5   Table 5 (Diffusion Policy)  as python -m simeval.report.table5     tables/table5*.*, figures/table5.*
+    table4   Table 4 (world models)      as src/report.py report=table4             tables/table4.*, figures/table4.*
+    table5   Table 5 (Diffusion Policy)  as src/report.py report=table5             tables/table5*.*, figures/table5.*
     figure4  Figure 4 (quality)          as src/report.py report=figure4            figures/figure4.{png,pdf,md,...}
     html     the HTML report             as src/report.py report=html               <html-runs>/report/index.html
 (tables: .csv, .md and .tex; figures: .png and .pdf)

@@ -308,9 +308,9 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     assert [row["statistic"] for row in rows] == ["heldout_one_step_error"] * 4
     assert rows[0]["value"] == recs[0]["values"]["prediction"]["summary"]["one_step"]["model"]["error"]
     out = tmp_path / "table4_heldout"
-    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
-                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--figure", str(tmp_path / "t.png")],
-                       capture_output=True, text=True, timeout=300)
+    report = [sys.executable, str(ROOT / "src" / "report.py"), "report=table4_heldout",
+              f"report.runs_dir={tmp_path / 'sweep'}", f"report.out={out}"]
+    t = subprocess.run([*report, f"report.figure={tmp_path / 't.png'}"], capture_output=True, text=True, timeout=300)
     assert t.returncode == 0, t.stderr
     md = out.with_suffix(".md").read_text()
     assert "gensim | diverse | tiny (40) | 2 | 2 |" in md and (tmp_path / "t.png").stat().st_size > 10_000
@@ -318,11 +318,10 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     assert (tmp_path / "sweep" / "table4_heldout.md").read_text() == md
     assert (tmp_path / "sweep" / "table4_heldout.png").read_bytes() == (tmp_path / "t.png").read_bytes()
     assert f"sweep table and figure: {tmp_path / 'sweep' / 'table4_heldout.csv'}" in r.stdout
-    # --keep: the committed table's rows (sweeps whose result.json files are elsewhere) beside this sweep's row
+    # keep: the committed table's rows (sweeps whose result.json files are elsewhere) beside this sweep's row
     committed = ROOT / "outputs" / "tables" / "table4_heldout.csv"
-    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
-                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--figure", str(tmp_path / "t.png"),
-                        "--keep", str(committed)], capture_output=True, text=True, timeout=300, check=False)
+    t = subprocess.run([*report, f"report.figure={tmp_path / 't.png'}", f"report.keep=[{committed}]"],
+                       capture_output=True, text=True, timeout=300, check=False)
     assert t.returncode == 0, t.stderr
     kept_md = out.with_suffix(".md").read_text()
     assert "gensim | diverse | tiny (40) | 2 | 2 |" in kept_md
@@ -331,9 +330,7 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
             assert line in kept_md  # every committed row, unchanged
     bad = tmp_path / "bad.csv"
     bad.write_text("a,b\n1,2\n")
-    t = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--protocol", "heldout",
-                        "--root", str(tmp_path / "sweep"), "--out", str(out), "--keep", str(bad)],
-                       capture_output=True, text=True, timeout=300, check=False)
+    t = subprocess.run([*report, f"report.keep=[{bad}]"], capture_output=True, text=True, timeout=300, check=False)
     assert t.returncode == 2 and "not a held-out Table 4 CSV" in t.stderr and "Traceback" not in t.stderr
     # episodes that would be trained on and evaluated: one line, exit 2, before any training
     r = _diversity(*common, "episodes=5", cwd=tmp_path)

@@ -1,4 +1,4 @@
-"""`make report` (experiments/report_all.py) and the Table 4/5 commands rebuild tables and figures from real
+"""`make report` (experiments/report_all.py) and the report door (src/report.py) rebuild tables and figures from real
 result.json files only (conftest: world_model_runs, policy_run); missing inputs are one line each, not a traceback."""
 
 import json
@@ -73,9 +73,8 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
                                                                  "HTML report"]
     assert all(": skipped: " in x for x in r.stdout.splitlines())
     assert not (tmp_path / "outputs").exists()  # nothing written from nothing
-    for cmd in ([str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs"],
-                ["-m", "simeval.report.table5", "--runs", "outputs"]):
-        r = py(*cmd, cwd=tmp_path)
+    for kind in ("table4", "table5"):
+        r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=outputs", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: no ")
         assert "result.json under outputs: run the" in r.stderr
     bad = tmp_path / "outputs" / "runs" / "x" / "result.json"
@@ -113,7 +112,7 @@ def test_table4_says_in_the_file_which_runs_it_leaves_out():
     _, body, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[1, 2, 4])
     assert body and all("—" in cell for row in body for cell in row[3:6])  # no run at 10/20/40: paper / —
     assert ("Runs trained on 1/2/4 episodes per task exist but are not in this table (its columns are 10/20/40): "
-            "build one for them with --episodes 1,2,4") in notes  # the form --episodes parses
+            "build one for them with report.episodes=[1,2,4]") in notes  # the override the report door parses
 
 
 def test_table4_suggests_three_counts_even_when_fewer_runs_are_left_out():
@@ -122,9 +121,9 @@ def test_table4_suggests_three_counts_even_when_fewer_runs_are_left_out():
     from simeval.report import table4
 
     _, _, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[3, 2])
-    assert notes[-1].endswith("build one for them with --episodes 2,3,10")
+    assert notes[-1].endswith("build one for them with report.episodes=[2,3,10]")
     _, _, notes = table4.display(table4.build([], episodes=(1, 2, 4)), (1, 2, 4), unused=[40, 5, 80, 10, 20])
-    assert notes[-1].endswith("--episodes 5,10,20")
+    assert notes[-1].endswith("report.episodes=[5,10,20]")
 
 
 def _commit_all(repo: Path) -> None:
@@ -149,28 +148,26 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
                                         "and would be replaced by a table of the runs on disk; write elsewhere "
                                         "(another output path) or replace it with --overwrite (make report "
                                         "OVERWRITE=1)")
-    for cmd in ([str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs", "--out",
-                 "outputs/tables/table4", "--figure", "outputs/figures/table4.png"],
-                ["-m", "simeval.report.table5", "--runs", "outputs"]):
-        r = py(*cmd, cwd=tmp_path)
+    for kind in ("table4", "table5"):  # the report door (what `make report-table4` / `report-table5` run)
+        r = py(str(ROOT / "src" / "report.py"), f"report={kind}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a committed result" in r.stderr, r.stderr
-        assert r.stderr.rstrip().endswith("replace it with --overwrite")
+        assert r.stderr.rstrip().endswith("replace it with overwrite=true")
     assert {p: p.read_bytes() for p in (outputs / "tables").iterdir()} == before
-    r = py("-m", "simeval.report.table5", "--runs", "outputs", "--overwrite", cwd=tmp_path)
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "overwrite=true", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert (outputs / "tables" / "table5.md").read_text() != "committed Table 5\n"
     r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--overwrite", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
 
 
-def test_the_report_door_builds_tables_4_and_5_as_their_scripts_do(outputs, tmp_path):
-    """src/report.py report=table4|table5 (the one report entrypoint) and the scripts call the same library
-    function (simeval.report.rebuild): the same runs give the same bytes."""
-    for kind, script in (("table4", [str(ROOT / "experiments" / "world_model_table4.py"), "--root", "outputs",
-                                     "--episodes", "1,2,3"]),
-                         ("table5", ["-m", "simeval.report.table5", "--runs", "outputs"])):
-        r = py(*script, "--out", f"a/{kind}", "--figure", f"a/{kind}.png", cwd=tmp_path)
-        assert r.returncode == 0, r.stderr
+def test_the_report_door_builds_tables_4_and_5_as_the_library_does(outputs, tmp_path):
+    """src/report.py report=table4|table5 (the one report entrypoint) is the library function it calls
+    (simeval.report.rebuild), called without Hydra: the same runs give the same bytes."""
+    from simeval.report.rebuild import rebuild_table4, rebuild_table5
+
+    for kind in ("table4", "table5"):
+        a = (tmp_path / "outputs", tmp_path / "a" / kind, tmp_path / "a" / f"{kind}.png")
+        rebuild_table4(*a, episodes=(1, 2, 3)) if kind == "table4" else rebuild_table5(*a)
         extra = ["report.episodes=[1,2,3]"] if kind == "table4" else []
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=outputs", f"report.out=b/{kind}",
                f"report.figure=b/{kind}.png", *extra, cwd=tmp_path)

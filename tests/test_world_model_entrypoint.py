@@ -68,9 +68,9 @@ def test_sweep_end_to_end_writes_results_and_table(tmp_path):
     assert again.returncode == 0, again.stderr[-2000:]
     rec = json.loads((tmp_path / "again" / "result.json").read_text())
     assert rec["values"]["eval"]["image_error"] == recs[0]["values"]["eval"]["image_error"]
-    table = subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--root",
-                            str(tmp_path / "sweep"), "--out", str(tmp_path / "t4"), "--figure", str(tmp_path / "t4.png")],
-                           env=ENV, capture_output=True, text=True, check=True)
+    table = subprocess.run([sys.executable, str(ROOT / "src" / "report.py"), "report=table4",
+                            f"report.runs_dir={tmp_path / 'sweep'}", f"report.out={tmp_path / 't4'}",
+                            f"report.figure={tmp_path / 't4.png'}"], env=ENV, capture_output=True, text=True, check=True)
     assert "| gensim | diverse | tiny |" in table.stdout and "115.0 / —" in table.stdout  # paper row, not run
     assert (tmp_path / "t4.png").stat().st_size > 0
 
@@ -312,18 +312,18 @@ def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp
 
 def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
     def table(*args):
-        return subprocess.run([sys.executable, str(ROOT / "experiments" / "world_model_table4.py"), "--out",
-                               str(tmp_path / "t4"), "--figure", str(tmp_path / "t4.png"), *args], env=ENV,
+        return subprocess.run([sys.executable, str(ROOT / "src" / "report.py"), "report=table4",
+                               f"report.out={tmp_path / 't4'}", f"report.figure={tmp_path / 't4.png'}", *args], env=ENV,
                               capture_output=True, text=True)
 
-    r = table("--root", str(tmp_path), "--keep", str(tmp_path / "nope.csv"))
+    r = table(f"report.runs_dir={tmp_path}", f"report.keep=[{tmp_path / 'nope.csv'}]")
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "nope.csv: cannot read it" in r.stderr
-    # a mistyped --root beside --keep is an error, not the kept table written again as if nothing were new
+    # a mistyped runs_dir beside keep is an error, not the kept table written again as if nothing were new
     from simeval.report import table4
 
     table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "earlier")
-    r = table("--root", str(tmp_path / "typo"), "--keep", str(tmp_path / "earlier.csv"))
+    r = table(f"report.runs_dir={tmp_path / 'typo'}", f"report.keep=[{tmp_path / 'earlier.csv'}]")
     assert r.returncode == 2 and "no dynamics_diversity result.json under" in r.stderr
     assert not (tmp_path / "t4.csv").exists()
     # a blank line at the end and a byte-order mark (a spreadsheet's save) are read as the table
@@ -337,7 +337,7 @@ def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
 
 
 def test_kept_rows_must_have_runs_on_this_tables_episodes(tmp_path):
-    """A 10/20/40 table kept under --episodes 1,2,4 would put 10-episode numbers in a column labelled 1."""
+    """A 10/20/40 table kept under report.episodes=[1,2,4] would put 10-episode numbers in a column labelled 1."""
     from simeval.report import table4
 
     kept = table4.build([_record("gensim", "stacking", 10, 47.2)])

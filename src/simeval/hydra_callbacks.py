@@ -22,7 +22,8 @@ class SweepTables(Callback):
             written = write_sweep_tables(config.hydra.sweep.dir)
         except (UserError, OSError, ValueError, KeyError) as e:
             log.warning("the sweep's table was not drawn (%s: %s); its runs' result.json files are complete: "
-                        "python experiments/world_model_table4.py --root %s --out ... rebuilds it",
+                        "python src/report.py report=table4_heldout report.runs_dir=%s report.out=... report.figure=... "
+                        "rebuilds it (report=table4 for protocol=paper runs)",
                         type(e).__name__, e, config.hydra.sweep.dir)
             return
         for path in written:

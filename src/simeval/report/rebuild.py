@@ -1,6 +1,6 @@
 """Tables 4 and 5 rebuilt from the result.json files on disk, as plain functions: the one place the report door
-(`src/report.py report=table4|table4_heldout|table5`), the scripts (experiments/world_model_table4.py,
-`python -m simeval.report.table5`) and `make report` call.
+(`src/report.py report=table4|table4_heldout|table5`, which the make targets call) and `make report`
+(experiments/report_all.py) call.
 
     rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
     rebuild_table4_heldout(root, out, figure, keep=(), overwrite=False) -> Rebuilt
@@ -30,7 +30,7 @@ def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
                    preset: str | None = None, keep=(), overwrite: bool = False, flags: dict | None = None) -> Rebuilt:
-    """`flags`: how the caller's user spells `episodes` and `overwrite` ({"episodes": "--episodes", ...}), named in
+    """`flags`: how the caller's user spells `episodes` and `overwrite` ({"episodes": "report.episodes", ...}), named in
     the note about unused runs and in the refusal to replace a committed file."""
     from simeval.report import table4
 

@@ -109,7 +109,7 @@ def read_rows(path: str | Path) -> list[dict]:
     lines = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
     need = ["pipeline", "group", "preset"] + [c for k in EPISODES for c in _cell_columns(k)]
     if len(lines) < 2 or lines[0] != need:
-        raise UserError(f"{path}: not a Table 4 CSV (written by experiments/world_model_table4.py): "
+        raise UserError(f"{path}: not a Table 4 CSV (written by src/report.py report=table4): "
                         + ("no rows" if len(lines) < 2 else f"its header should be {','.join(need[:4])},..."))
     whole = {c for c in need if c.startswith(("episodes_", "runs_"))}
     rows = []
@@ -141,8 +141,8 @@ def merge(kept: list[dict], fresh: list[dict], episodes: tuple[int, ...] | list[
         for k, ours_k in zip(EPISODES, episodes):
             if old[f"episodes_{k}"] != int(ours_k):
                 raise UserError(f"{old['pipeline']}/{old['group']}: the kept table's column {k} holds runs on "
-                                f"{old[f'episodes_{k}']} episodes per task, this table's on {ours_k} (--episodes "
-                                f"{','.join(map(str, episodes))}): build both with the same --episodes")
+                                f"{old[f'episodes_{k}']} episodes per task, this table's on {ours_k} (report.episodes="
+                                f"[{','.join(map(str, episodes))}]): build both with the same report.episodes")
         if key(old) not in merged:
             merged[key(old)] = dict(old)
             continue
@@ -193,7 +193,7 @@ def display(rows: list[dict], episodes: tuple[int, ...] | list[int] = EPISODES,
     if unused:  # in the table itself, not only on the console: a reader of the file sees why a cell is '—'
         notes.append(f"Runs trained on {'/'.join(map(str, unused))} episodes per task exist but are not in this "
                      f"table (its columns are {'/'.join(map(str, episodes))}): build one for them with "
-                     f"--episodes {','.join(map(str, suggested_columns(unused, episodes)))}")
+                     f"report.episodes=[{','.join(map(str, suggested_columns(unused, episodes)))}]")
     return header, body, notes
 
 

@@ -179,8 +179,8 @@ def read_rows(path: str | Path) -> list[dict]:
     number the row's runs did not record (runs made before it was summed), so it stays absent, as in `build`."""
     lines = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
     if len(lines) < 2 or not {*TEXT_COLUMNS, *ROW_KEY} <= set(lines[0]):
-        raise UserError(f"{path}: not a held-out Table 4 CSV (written by experiments/world_model_table4.py "
-                        "--protocol heldout): " + ("no rows" if len(lines) < 2 else "its header lacks "
+        raise UserError(f"{path}: not a held-out Table 4 CSV (written by src/report.py "
+                        "report=table4_heldout): " + ("no rows" if len(lines) < 2 else "its header lacks "
                                                    + ",".join(sorted({*TEXT_COLUMNS, *ROW_KEY} - set(lines[0])))))
     header = lines[0]
     rows = []

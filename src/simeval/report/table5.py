@@ -1,8 +1,8 @@
 """Paper Table 5 from generalization result.json files: the paper's value beside ours, per task group, as tables
 and a figure.
 
-    python -m simeval.report.table5 [--runs outputs] [--out outputs/tables/table5] \
-        [--figure outputs/figures/table5.png] [--policy cpu]
+    python src/report.py report=table5 [report.runs_dir=outputs] [report.policy=cpu] \
+        [report.keep=[outputs/tables/table5.csv]] [overwrite=true]          (rebuild_table5, from Python)
 writes table5.{csv,md,tex}, table5_detail.{csv,md} (per task, task-level intervals, mean progress) and
 table5.{png,pdf}. Ours: success rate of the `eval` split (the paper's protocol: the
 group's tasks under variations) with its Wilson 95% interval and its mean progress (GenSim's paper value is a
@@ -10,18 +10,16 @@ step-wise reward: the progress is what it compares with), and the train/heldout 
 runs of one cell must agree on their identity (settings), one run per training seed; seeds are pooled (successes and
 rollouts add up; table5_detail adds each seed's rate and an interval over seeds and tasks). The
 paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
-No generalization result.json under --runs: one line on stderr, exit status 2. `--keep outputs/tables/table5.csv`
-(repeatable) extends an earlier table: its rows of cells the runs under --runs lack are kept (how the committed table
-gathers groups run on different machines, whose result.json files are not all here); the runs under --runs still
+No generalization result.json under runs_dir: one line on stderr, exit status 2. `keep=[outputs/tables/table5.csv]`
+(a list) extends an earlier table: its rows of cells the runs under runs_dir lack are kept (how the committed table
+gathers groups run on different machines, whose result.json files are not all here); the runs under runs_dir still
 have to exist, and a cell they have replaces the kept row. Tables and figures that git tracks (the committed ones)
-are replaced only with `--overwrite`.
+are replaced only with `overwrite=true`.
 """
 
 from __future__ import annotations
 
-import argparse
 import re
-import sys
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -131,7 +129,7 @@ def read_rows(path: str | Path) -> list[dict]:
     interval recomputed from them), for `merge`."""
     raw = read_csv(path)
     if not raw or raw[0] not in (HEAD, HEAD_WITHOUT_PROGRESS):
-        raise UserError(f"{path}: not a Table 5 CSV (written by python -m simeval.report.table5): its header "
+        raise UserError(f"{path}: not a Table 5 CSV (written by src/report.py report=table5): its header "
                         f"should be {','.join(HEAD)}")
     head = raw[0]
     rows = []
@@ -410,29 +408,3 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     figures = plot(rows, figure)
     return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
 
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="paper Table 5 from generalization result.json files")
-    ap.add_argument("--runs", default="outputs", help="folder searched for result.json files")
-    ap.add_argument("--out", default="outputs/tables/table5", help="tables, without suffix")
-    ap.add_argument("--figure", default="outputs/figures/table5.png", help="the figure (.png; a .pdf beside it)")
-    ap.add_argument("--policy", default=None, help="only runs of this policy preset (conf/policy: tiny, cpu, "
-                                                   "official, authors_gensim, authors_gensim_cpu)")
-    ap.add_argument("--keep", action="append", default=[], metavar="CSV",
-                    help="an earlier table's CSV whose rows the runs under --runs lack are kept (runs made on another "
-                         "machine); repeatable, the first file that has a row gives it")
-    ap.add_argument("--overwrite", action="store_true",
-                    help="replace tables or figures that git tracks (the committed Table 5); default: refuse")
-    args = ap.parse_args(argv)
-    try:
-        done = rebuild_table5(args.runs, args.out, args.figure, policy=args.policy, keep=args.keep,
-                              overwrite=args.overwrite)
-    except UserError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
-    print(done.markdown)
-    print("wrote", ", ".join(str(p) for p in done.written))
-
-
-if __name__ == "__main__":
-    main()
