@@ -36,7 +36,7 @@ def test_each_policy_preset_is_its_own_row_and_can_be_chosen():
     assert [(r["policy"], r["eval"]["k"]) for r in piles] == [("cpu", 1), ("tiny", 5)]
     only = [r for r in build(runs, policy="tiny") if r["group"] == "piles"]
     assert [(r["policy"], r["eval"]["k"]) for r in only] == [("tiny", 5)]
-    with pytest.raises(UserError, match="--policy paper: no generalization run of that preset.*cpu, tiny"):
+    with pytest.raises(UserError, match="report.policy=paper: no generalization run of that preset.*cpu, tiny"):
         build(runs, policy="paper")
 
 

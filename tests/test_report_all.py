@@ -151,7 +151,7 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
     for kind in ("table4", "table5"):  # the report door (what `make report-table4` / `report-table5` run)
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a committed result" in r.stderr, r.stderr
-        assert r.stderr.rstrip().endswith("replace it with overwrite=true")
+        assert r.stderr.rstrip().endswith("replace it with overwrite=true (make: OVERWRITE=1)")
     assert {p: p.read_bytes() for p in (outputs / "tables").iterdir()} == before
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "overwrite=true", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -185,4 +185,4 @@ def test_the_report_door_builds_tables_4_and_5_as_the_library_does(outputs, tmp_
     subprocess.run([*git, "commit", "-qm", "committed"], cwd=tmp_path / "b", check=True)
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", "report.out=b/table5",
            "report.figure=b/table5.png", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr.rstrip().endswith("replace it with overwrite=true"), r.stderr
+    assert r.returncode == 2 and r.stderr.rstrip().endswith("replace it with overwrite=true (make: OVERWRITE=1)"), r.stderr

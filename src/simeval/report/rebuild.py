@@ -85,7 +85,7 @@ KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html")
 def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder."""
     kind = spec.get("kind")
-    flag = "overwrite=true"  # how a user of the report door asks to replace a committed file
+    flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),

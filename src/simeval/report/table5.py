@@ -73,13 +73,13 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
             diff = identity_difference(cells[key]["identity"], base)
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "
                             f"runs of one setting only: move the other runs out of the folder searched, or search "
-                            f"one sweep's folder (--runs)")
+                            f"one sweep's folder (report.runs_dir)")
         cell = cells.setdefault(key, {"identity": base, "counts": {}, "runs": [], "seeds": {}, "eval_progress": 0.0})
         seed = rec["identity"].get("seed")
         if seed in cell["seeds"]:
             raise UserError(f"{rec['path']} and {cell['seeds'][seed]}: two runs of {key[:2]} with policy {key[2]} and "
                             f"seed {seed}; a cell pools one run per training seed: move one out of the folder "
-                            f"searched (--runs)")
+                            f"searched (report.runs_dir)")
         cell["seeds"][seed] = rec["path"]
         cell["runs"].append(rec["path"])
         for split, v in rec["values"].get("splits", {}).items():
@@ -95,7 +95,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
 
         presets = sorted({str(r["identity"].get("policy")) for r in records})
         known = sorted(p.stem for p in (CONF_DIR / "policy").glob("*.yaml"))
-        raise UserError(f"--policy {policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)}; "
+        raise UserError(f"report.policy={policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)}; "
                         f"presets: {', '.join(known)})")
     ran = {(p, g) for p, g, _ in cells}
     keys = [(p, g, pr) for p, g in [*PAPER, *sorted(ran - set(PAPER))]
