@@ -39,8 +39,8 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-test: setup gensim-env metaworld-env ## run the test suite (what CI runs; the 25 slowest tests are listed at the end)
-	$(PY) -m pytest -q --durations=25
+test: setup gensim-env metaworld-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25
 
 METAWORLD_STAMP := $(VENV)/.metaworld-installed
 metaworld-env: $(METAWORLD_STAMP) ## Meta-World and MuJoCo beside simeval's pins, for pipeline=metaworld (requirements-metaworld.txt)

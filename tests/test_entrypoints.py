@@ -177,7 +177,7 @@ def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     (out / "table3.md").write_text("committed\n")
     res = run("report.py", "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out}")
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "is a committed result" in res.stderr
-    assert res.stderr.rstrip().endswith("replace it with overwrite=true")
+    assert res.stderr.rstrip().endswith("replace it with overwrite=true (make: OVERWRITE=1)")
     assert (out / "table3.md").read_text() == "committed\n"
     res = run("report.py", "report=table3", f"report.runs_dir={runs}", f"report.out_dir={out}", "overwrite=true")
     assert res.returncode == 0 and (out / "table3.md").read_text() == md
