@@ -18,7 +18,8 @@ def main(cfg: DictConfig) -> None:
     import torch
 
     from simeval.models.device import resolve_device
-    from simeval.models.policy.experiment import RESULT_VERSION, log_splits, run_generalization
+    from simeval.models.policy.experiment import (RESULT_VERSION, log_splits, refuse_replaced_chance_baseline,
+                                                  run_generalization)
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
 
@@ -30,6 +31,7 @@ def main(cfg: DictConfig) -> None:
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)
+    refuse_replaced_chance_baseline(run.choices.get("policy"), cfg.policy.name)
     conf = run.config
     pipeline = pipeline_from_config(conf["pipeline"])  # its suite, or its own code (GenSim's from a checkout)
     with run.logger() as logger:
@@ -43,7 +45,7 @@ def main(cfg: DictConfig) -> None:
         path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
     log_splits(values)
-    log.info("wrote %s", path)
+    log.info("policy %s; wrote %s", cfg.policy.name, path)
 
 
 if __name__ == "__main__":

@@ -102,6 +102,11 @@ def test_user_mistakes_are_one_line(tmp_path):
     assert p.returncode == 2 and "heldout_tasks" in p.stderr and "Traceback" not in p.stderr
     p = run("debug=tiny", f"store={store}", f"task_group={GROUP}", f"hydra.run.dir={tmp_path / 'b'}")
     assert p.returncode == 2 and "fewer than episodes_per_task=2" in p.stderr
+    # debug=tiny sets the whole policy node: with policy=random it would train the tiny policy and report it as chance
+    p = run("debug=tiny", "policy=random", f"store={store}", f"task_group={GROUP}", f"hydra.run.dir={tmp_path / 'c'}")
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "Traceback" not in p.stderr
+    assert p.stderr.startswith("error: policy=random is replaced by policy 'tiny'") and "eval.seeds=2" in p.stderr
+    assert not (tmp_path / "c" / "result.json").exists()
 
 
 def test_a_killed_training_resumes_to_the_same_weights(tmp_path):

@@ -135,6 +135,15 @@ def names(value) -> list[str] | None:
     return None if value is None else [value] if isinstance(value, str) else list(value)
 
 
+def refuse_replaced_chance_baseline(chosen: str | None, policy_name: str) -> None:
+    """policy=random chosen but another policy in the config: a debug overlay (debug=tiny sets the whole policy node)
+    replaced the chance baseline, which would then train and report a policy as if it were chance. One UserError."""
+    if chosen == "random" and policy_name != "random":
+        raise UserError(f"policy=random is replaced by policy {policy_name!r} (debug= sets the whole policy node): "
+                        "for a small chance baseline leave debug out and shrink the rollouts instead, e.g. "
+                        "policy=random eval.seeds=2 eval.max_steps=40")
+
+
 def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
                        model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
                        episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
