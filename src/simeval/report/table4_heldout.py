@@ -362,6 +362,10 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     ax2.set_ylim(top=1.5)  # a skill is at most 1; symlog's autoscale left two empty decades above it
     ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
             title="object-focused skill vs the last frame")
+    if not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
+               for c in (int(c) for c in r["counts"].split("/"))):  # an empty panel would read as a plotting fault
+        ax2.text(0.5, 0.5, "no reading: too few kept pixels\nchange from one frame to the next\n(the last frame is a "
+                 "near-exact copy)", transform=ax2.transAxes, ha="center", va="center", color="0.35")
     ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
     if moving:
         axes[3].axhline(0, color="0.5", lw=0.8)
