@@ -131,10 +131,12 @@ def run(cmd: list[str], log: Path, echo: bool = False) -> None:
     print(f"    done in {time.monotonic() - t0:.0f} s ({log.stem})", flush=True)
 
 
-def finished(run_dir: Path) -> bool:
-    """A stage whose run folder has its result.json (an earlier run of the same command finished it) is kept, and
-    the console says so: a rerun after an interruption shows what it resumes from."""
-    if (run_dir / "result.json").exists():
+def finished(run_dir: Path, done: bool | None = None) -> bool:
+    """Whether a stage is kept: its run folder has its result.json (or `done`, the stage's own test), as an earlier
+    run of the same command left it. The console says so: a rerun after an interruption shows what it resumes from."""
+    if done is None:
+        done = (run_dir / "result.json").exists()
+    if done:
         print(f"  kept: {run_dir} (finished earlier; delete the folder to run it again)", flush=True)
         return True
     return False
@@ -277,9 +279,8 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
     jobs: list = []  # every stage submitted so far: the report waits for all of them
     if "table3" in stages and with_suite:  # the suites' own task descriptions: needs no checkout of the pipelines
         runs, texts = out / "table3" / "runs", None
-        if len(list(runs.glob("*/result.json"))) >= 2 * len(with_suite):  # two embedding models per pipeline
-            print(f"  kept: {runs} (finished earlier; delete the folder to run it again)", flush=True)
-        else:
+        # two embedding models per pipeline
+        if not finished(runs, done=len(list(runs.glob("*/result.json"))) >= 2 * len(with_suite)):
             texts = stage([*entry("text_diversity"), "-m", "experiment=table3", f"pipeline={','.join(with_suite)}",
                            "pipeline.source=suite", f"hydra.sweep.dir={runs}"], logs / "table3.log")
         jobs += [texts, stage([*entry("report"), "report=table3", f"report.runs_dir={runs}",

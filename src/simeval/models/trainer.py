@@ -79,10 +79,9 @@ def run_steps(batches: Iterable[Any], take_step: Callable[[Any, int], dict], sav
               after_step: Callable[[int, dict, float], None] | None = None,
               final_save: Callable[[int], None] | None = None) -> int:
     """Take one step per batch, take_step(batch, steps taken before it), counting from `step` (where a resumed run
-    starts); after each, after_step(step,
-    metrics, seconds) and the checkpoint cadence: save(step) every `checkpoint_every` steps, not at `last_step`
-    (where the final save follows at once), and whenever a preemption signal came. After the last batch,
-    final_save(step) (default save). Returns the step count at the end."""
+    starts); after each, after_step(step, metrics, seconds) and the checkpoint cadence: save(step) every
+    `checkpoint_every` steps, not at `last_step` (where the final save follows at once), and whenever a preemption
+    signal came. After the last batch, final_save(step) (default save). Returns the step count at the end."""
     with CheckpointedSteps(lambda: save(step), checkpoint_every) as loop:
         it = iter(batches)
         while True:
