@@ -202,8 +202,8 @@ RUNS ?= outputs/runs
 report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) of RUNS=folder: RUNS/report/index.html
 	$(PY) src/report.py report=html report.runs_dir=$(RUNS)
 
-# Every table and figure again from the result.json files on disk (experiments/report_all.py; nothing is rerun):
-# Tables 3, 4 and 5 with their figures, Figure 4 when quality runs with a model judge exist, and the HTML report of
-# RUNS. A step with no runs prints one line saying what makes them and is skipped; the others still run.
+# Every table and figure again from the result.json files on disk (src/report.py report=all; nothing is rerun):
+# Tables 3, 4 (both protocols) and 5 with their figures, Figure 4 when quality runs with a model judge exist, and the
+# HTML report of RUNS. A step with no runs prints one line saying what makes them and is skipped; the others still run.
 report: setup ## rebuild EVERY table and figure from result.json files only (no reruns); steps without runs are skipped with a note; committed tables are replaced only with OVERWRITE=1
-	$(PY) experiments/report_all.py --html-runs $(RUNS) $(if $(OVERWRITE),--overwrite)
+	$(PY) src/report.py report=all report.html.runs_dir=$(RUNS) $(if $(OVERWRITE),overwrite=true)

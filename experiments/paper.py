@@ -19,7 +19,7 @@ would type, as subprocesses, each into its own folder under outputs/paper/<profi
     quality/        src/quality.py judge=oracle on those episodes (a VLM judge: run quality.py yourself, see README)
     table4/         src/diversity.py per group and training-episode count (the paper's 10/20/40, scaled)
     table5/         src/generalization.py per group: train, eval (varied) and held-out splits
-then rebuilds, from the result.json files only (experiments/report_all.py, as `make report` does), tables/table4.*,
+then rebuilds, from the result.json files only (src/report.py report=all, as `make report` does), tables/table4.*,
 tables/table5.*, figures/table4.*, figures/table5.* (success with Wilson intervals per group and split),
 figures/figure4.* (with a model judge; the oracle judge scores completion only) and the HTML report, and prints
 where they are.
@@ -330,11 +330,12 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
                               logs / f"quality_{pipeline}.log", after=tuple(collected)))
     if "report" in stages:  # tables and figures from the result.json files only, as `make report` builds them
         tables, figures = out / "tables", out / "figures"
-        stage([sys.executable, str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5,figure4,html",
-               f"--table4-runs={out / 'table4'}",
-               f"--table4-episodes={','.join(map(str, prof['world_model_episodes']))}",
-               f"--table5-runs={out / 'table5'}", f"--quality-runs={out / 'quality'}", f"--html-runs={out}",
-               f"--tables={tables}", f"--figures={figures}"], logs / "report.log", after=tuple(jobs), echo=True)
+        stage([sys.executable, str(ROOT / "src" / "report.py"), "report=all",
+               "report.steps=[table4,table5,figure4,html]", f"report.table4.runs_dir={out / 'table4'}",
+               f"report.table4.episodes=[{','.join(map(str, prof['world_model_episodes']))}]",
+               f"report.table5.runs_dir={out / 'table5'}", f"report.figure4.runs_dir={out / 'quality'}",
+               f"report.html.runs_dir={out}", f"paths.tables={tables}", f"paths.figures={figures}"],
+              logs / "report.log", after=tuple(jobs), echo=True)
     launcher.finish()
     print(f"\n{prof['name']} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
     if "report" not in stages:

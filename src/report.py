@@ -1,5 +1,5 @@
 """The report door: rebuild a paper table, figure or the HTML report from files on disk (no rerun).
-    python src/report.py report=table3|figure4|table4|table4_heldout|table5|html [overwrite=true]
+    python src/report.py report=table3|figure4|table4|table4_heldout|table5|html|all [overwrite=true]
 See conf/report.yaml and conf/report/; the builders are simeval.report.rebuild (callable without Hydra)."""
 
 import logging
@@ -8,6 +8,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 log = logging.getLogger("report")
 
@@ -15,9 +16,15 @@ log = logging.getLogger("report")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.report.rebuild import rebuild
+    from simeval.report.rebuild import rebuild, rebuild_all
 
-    done = rebuild(OmegaConf.to_container(cfg.report, resolve=True), overwrite=bool(cfg.overwrite))
+    spec = OmegaConf.to_container(cfg.report, resolve=True)
+    if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others
+        failed = rebuild_all(spec, overwrite=bool(cfg.overwrite))
+        if failed:
+            raise UserError(f"{', '.join(failed)} not rebuilt (see above); the others were")
+        return
+    done = rebuild(spec, overwrite=bool(cfg.overwrite))
     print(done.markdown)
     for note in done.notes:
         print(f"note: {note}")

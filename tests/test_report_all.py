@@ -1,4 +1,4 @@
-"""`make report` (experiments/report_all.py) and the report door (src/report.py) rebuild tables and figures from real
+"""`make report` (src/report.py report=all) and the report door (src/report.py) rebuild tables and figures from real
 result.json files only (conftest: world_model_runs, policy_run); missing inputs are one line each, not a traceback."""
 
 import json
@@ -18,6 +18,10 @@ def py(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, *args], cwd=cwd, env=ENV, capture_output=True, text=True, timeout=300)
 
 
+def report_all(*overrides: str, cwd: Path) -> subprocess.CompletedProcess:
+    return py(str(ROOT / "src" / "report.py"), "report=all", *overrides, cwd=cwd)
+
+
 @pytest.fixture
 def outputs(world_model_runs, policy_run, tmp_path) -> Path:
     """An outputs/ folder as `make table4 table5` leave it: runs under outputs/multiruns and outputs/runs."""
@@ -28,15 +32,17 @@ def outputs(world_model_runs, policy_run, tmp_path) -> Path:
 
 
 def test_report_rebuilds_tables_4_and_5_with_figures_and_notes_what_has_no_runs(outputs, tmp_path):
-    r = py(str(ROOT / "experiments" / "report_all.py"), cwd=tmp_path)
+    r = report_all(cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert lines[0] == ("Table 3: skipped: no text_diversity result.json under outputs/table3/runs "
                         "(`make table3` runs the sweep)")
     assert lines[1] == ("Table 4: note: runs trained on 1, 2, 3 episodes per task are not in the table "
-                        "(--table4-episodes 10,20,40 chose its columns)")
-    assert lines[4].startswith("Figure 4: skipped: no quality result.json under outputs/runs/quality")
-    assert len(lines) == 6 and "Traceback" not in r.stderr
+                        "(report.table4.episodes 10,20,40 chose its columns)")
+    assert lines[3] == ("Table 4 (held-out): skipped: no protocol=heldout dynamics_diversity result.json under "
+                        "outputs (src/diversity.py makes them: its default protocol)")  # fixture: paper
+    assert lines[5].startswith("Figure 4: skipped: no quality result.json under outputs/runs/quality")
+    assert len(lines) == 7 and "Traceback" not in r.stderr
     tables, figures = outputs / "tables", outputs / "figures"
     for stem in ("table4", "table5"):
         assert all((tables / f"{stem}.{ext}").stat().st_size > 0 for ext in ("csv", "md", "tex"))
@@ -51,7 +57,7 @@ def test_report_rebuilds_tables_4_and_5_with_figures_and_notes_what_has_no_runs(
     assert " & stacking & -- & 115.0 / -- & 67.2 / -- & 24.5 / -- & " in tex  # not run here: the paper's only
     assert "diverse" not in (tables / "table4.md").read_text()  # no run at 10/20/40 episodes: the paper's rows only
     # with our episode counts in the paper's columns, each cell is the run's own number
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--table4-episodes=1,2,3", cwd=tmp_path)
+    r = report_all("report.steps=[table4]", "report.table4.episodes=[1,2,3]", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     md = (tables / "table4.md").read_text()
     assert (f"| gensim | diverse | tiny | — / {diverse[1]:.1f} | — / {diverse[2]:.1f} | — / {diverse[3]:.1f} |"
@@ -67,10 +73,10 @@ def test_report_rebuilds_tables_4_and_5_with_figures_and_notes_what_has_no_runs(
 
 
 def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
-    r = py(str(ROOT / "experiments" / "report_all.py"), cwd=tmp_path)  # no outputs/ at all
+    r = report_all(cwd=tmp_path)  # no outputs/ at all
     assert r.returncode == 0 and r.stderr == ""
-    assert [x.split(":")[0] for x in r.stdout.splitlines()] == ["Table 3", "Table 4", "Table 5", "Figure 4",
-                                                                 "HTML report"]
+    assert [x.split(":")[0] for x in r.stdout.splitlines()] == ["Table 3", "Table 4", "Table 4 (held-out)",
+                                                                 "Table 5", "Figure 4", "HTML report"]
     assert all(": skipped: " in x for x in r.stdout.splitlines())
     assert not (tmp_path / "outputs").exists()  # nothing written from nothing
     for kind in ("table4", "table5"):
@@ -80,12 +86,13 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     bad = tmp_path / "outputs" / "runs" / "x" / "result.json"
     bad.parent.mkdir(parents=True)
     bad.write_text("{not json")
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5", cwd=tmp_path)
+    r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.splitlines()[0] == (f"Table 4: error: cannot read {Path('outputs/runs/x/result.json')}: "
                                         "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)")
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table6", cwd=tmp_path)
-    assert r.returncode == 2 and "unknown step 'table6'; steps: table3, table4, table5, figure4, html" in r.stderr
+    r = report_all("report.steps=[table6]", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == ("error: report.steps: unknown step 'table6'; steps: table3, table4, "
+                                              "table4_heldout, table5, figure4, html\n")
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
@@ -96,7 +103,8 @@ def test_make_report_is_listed_and_runs_the_rebuild(outputs, tmp_path):
         (tmp_path / f).write_text("")
     (tmp_path / ".venv").mkdir()
     (tmp_path / ".venv" / ".installed").write_text("")
-    (tmp_path / "experiments").symlink_to(ROOT / "experiments")
+    for folder in ("src", "conf"):
+        (tmp_path / folder).symlink_to(ROOT / folder)
     help_ = subprocess.run(["make", "--no-print-directory", "help"], cwd=tmp_path, capture_output=True, text=True)
     assert "rebuild EVERY table and figure from result.json files only (no reruns)" in help_.stdout
     r = subprocess.run(["make", "--no-print-directory", "report", f"PY={sys.executable}"], cwd=tmp_path, env=ENV,
@@ -137,16 +145,16 @@ def _commit_all(repo: Path) -> None:
 def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path):
     """A checkout's committed Tables 4/5 stay as committed when a user rebuilds reports from their own runs: each
     command refuses in one line naming the file and the flag, changes nothing, and replaces them with the flag."""
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5", cwd=tmp_path)
+    r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     (outputs / "tables" / "table5.md").write_text("committed Table 5\n")
     _commit_all(tmp_path)
     before = {p: p.read_bytes() for p in (outputs / "tables").iterdir()}
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4,table5", cwd=tmp_path)
+    r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.splitlines()[0] == (f"Table 4: error: {Path('outputs/tables/table4.csv')} is a committed result "
                                         "and would be replaced by a table of the runs on disk; write elsewhere "
-                                        "(another output path) or replace it with --overwrite (make report "
+                                        "(another output path) or replace it with overwrite=true (make: "
                                         "OVERWRITE=1)")
     for kind in ("table4", "table5"):  # the report door (what `make report-table4` / `report-table5` run)
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", cwd=tmp_path)
@@ -156,7 +164,7 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "overwrite=true", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert (outputs / "tables" / "table5.md").read_text() != "committed Table 5\n"
-    r = py(str(ROOT / "experiments" / "report_all.py"), "--only=table4", "--overwrite", cwd=tmp_path)
+    r = report_all("report.steps=[table4]", "overwrite=true", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
 
 

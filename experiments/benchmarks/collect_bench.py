@@ -47,15 +47,17 @@ CAMERAS = ("top", "front")
 MESHES = ("visual", "collision")
 
 
-def render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
-    spec = find_task(spec_name)
+def render_bound(spec, size: tuple[int, int], mesh: str, n: int = 60, *, bbsea: bool = False) -> float:
+    """Observation renders per second in the task's first scene: the most a collection at `size` could record.
+    `spec`: a task name of the GenSim/RoboGen suites, or (bbsea) a BBSEA spec file's stem (its Panda, 4 Hz world)."""
+    spec = load_spec(SUITES_DIR / "bbsea" / f"{spec}.yaml") if bbsea else find_task(spec)
     inst = sample_instance(spec, 0)
-    with World() as w:
-        Arm(w, spec.end_effector, render_mesh=mesh)
+    with World(4.0) if bbsea else World() as w:
+        panda.Panda(w, render_mesh=mesh) if bbsea else Arm(w, spec.end_effector, render_mesh=mesh)
         rng = np.random.default_rng(0)
         for o in inst.objects:
             make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
-            for k, f in enumerate(inst.joints.get(o.id, [])):  # articulated objects as the episode starts
+            for k, f in enumerate(inst.joints.get(o.id, ())):  # articulated objects as the episode starts
                 set_joint_fraction(w.c, o.body_ids[0], k, f)
         w.settle(30)
         t0 = time.perf_counter()
@@ -76,24 +78,6 @@ def collection_rate(spec_name: str, size: tuple[int, int], mesh: str) -> tuple[f
         xarm.RENDER_MESH = default
 
 
-def bbsea_render_bound(spec_name: str, size: tuple[int, int], mesh: str, n: int = 60) -> float:
-    spec = load_spec(SUITES_DIR / "bbsea" / f"{spec_name}.yaml")
-    inst = sample_instance(spec, 0)
-    with World(4.0) as w:
-        panda.Panda(w, render_mesh=mesh)
-        rng = np.random.default_rng(0)
-        for o in inst.objects:
-            make_object(w.c, o, *inst.poses[o.id], rng, TABLE_Z)
-            for k, f in enumerate(inst.joints.get(o.id, ())):
-                set_joint_fraction(w.c, o.body_ids[0], k, f)
-        w.settle(30)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            for cam in CAMERAS:
-                w.render(OBS_CAMERAS[cam], size)
-        return n / (time.perf_counter() - t0)
-
-
 def bbsea_main() -> None:
     out: dict = {"benchmark": "collect_bbsea", "machine": machine(), "cameras": list(CAMERAS), "control_hz": 4.0,
                  "physics_substeps_per_step": 60}
@@ -105,7 +89,7 @@ def bbsea_main() -> None:
         try:
             for task in BBSEA_TASKS:
                 spec = load_spec(SUITES_DIR / "bbsea" / f"{task}.yaml")
-                bound = bbsea_render_bound(task, size, mesh)
+                bound = render_bound(task, size, mesh, bbsea=True)
                 t0 = time.perf_counter()
                 ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)),
                                  pipeline="bbsea")

@@ -1,6 +1,5 @@
-"""Tables 4 and 5 rebuilt from the result.json files on disk, as plain functions: the one place the report door
-(`src/report.py report=table4|table4_heldout|table5`, which the make targets call) and `make report`
-(experiments/report_all.py) call.
+"""Tables and figures rebuilt from the result.json files on disk, as plain functions: what the report door
+(`src/report.py report=table3|figure4|table4|table4_heldout|table5|html|all`, which the make targets call) calls.
 
     rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
     rebuild_table4_heldout(root, out, figure, keep=(), overwrite=False) -> Rebuilt
@@ -10,10 +9,14 @@ replace files git tracks unless `overwrite` (simeval.report.tables.refuse_commit
 (a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
 wrote with the Markdown table and notes to print. `keep`: CSVs of earlier tables whose rows the runs on disk lack
 are kept (groups run on other machines).
+
+    rebuild(spec, overwrite=False) -> Rebuilt          one report of conf/report/<kind>.yaml
+    rebuild_all(spec, overwrite=False) -> list of the steps that failed   (report=all, `make report`)
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -79,18 +82,21 @@ def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path
     return Rebuilt([*written.values(), figure], written["md"].read_text())
 
 
-KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html")
+KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html", "all")
+STEPS = {"table3": "Table 3", "table4": "Table 4", "table4_heldout": "Table 4 (held-out)", "table5": "Table 5",
+         "figure4": "Figure 4", "html": "HTML report"}  # report=all's steps, in the order they run, and their titles
 
 
-def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
-    """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder."""
+def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt:
+    """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder. `key`: where the
+    user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
     kind = spec.get("kind")
     flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
                               keep=spec.get("keep") or (), overwrite=overwrite,
-                              flags={"episodes": "report.episodes", "overwrite": flag})
+                              flags={"episodes": f"{key}.episodes", "overwrite": flag})
     if kind == "table4_heldout":
         return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
                                       overwrite=overwrite, overwrite_flag=flag)
@@ -104,7 +110,7 @@ def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
                                  figures_dir=spec.get("figures_dir"), title=spec.get("title", "simeval report"))
         return Rebuilt([page], f"HTML report: {page} (open it in a browser; the folder is self-contained)")
     if kind not in ("table3", "figure4"):
-        raise UserError(f"report.kind={kind!r}: expected one of {', '.join(KINDS)}")
+        raise UserError(f"{key}.kind={kind!r}: expected one of {', '.join(k for k in KINDS if k != 'all')}")
     from simeval.report.tables import outputs_named
 
     if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
@@ -120,3 +126,66 @@ def rebuild(spec: dict, overwrite: bool = False) -> Rebuilt:
         spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
         caption=spec.get("caption", ""), statistic=spec.get("statistic", "div"), digits=spec.get("digits", 2))
     return Rebuilt([p for paths in written.values() for p in paths], Path(written["main"][1]).read_text())
+
+
+def missing_inputs(step: str, spec: dict) -> str | None:
+    """Why report=all's `step` has nothing to build from (it is skipped, saying what makes its inputs), or None.
+    A result.json that cannot be read is not "missing": the step runs and its builder names the file."""
+    runs = Path(spec["runs_dir"])
+    if step == "html":
+        return None if runs.is_dir() else (f"no folder {runs} (give the runs to report on: "
+                                           "report.html.runs_dir=<run or sweep folder>; make: RUNS=)")
+    metric, maker = {"table3": ("text_diversity", "`make table3` runs the sweep"),
+                     "table4": ("dynamics_diversity", "`make table4` trains the world models"),
+                     "table4_heldout": ("dynamics_diversity", "src/diversity.py makes them: its default protocol"),
+                     "table5": ("generalization", "`make table5` trains and rolls out the policies"),
+                     "figure4": ("quality", "run src/quality.py with a model judge, see README")}[step]
+    records = read_results(runs, metric) if runs.is_dir() else []
+    if step == "table4_heldout":
+        records = [r for r in records if (r.get("identity") or {}).get("protocol") == "heldout"]
+    if not records:
+        return f"no {'protocol=heldout ' if step == 'table4_heldout' else ''}{metric} result.json under {runs} ({maker})"
+    if step == "figure4":
+        from simeval.report.quality_figure import quality_points
+
+        if all(r.get("judge") == "oracle" for r in records):
+            return (f"the quality runs under {runs} are scored by the oracle judge only, and Figure 4 plots a model "
+                    "judge's scene alignment: run src/quality.py judge=openai (see README) on those episodes")
+        if not any(p["scene_alignment"] is not None and p["task_completion"] is not None
+                   for p in quality_points(records)):
+            return (f"no quality run under {runs} has both scene_alignment and task_completion scores (run "
+                    "src/quality.py metric=all)")
+    return None
+
+
+def say_line(line: str, error: bool = False) -> None:
+    """A step's line of report=all: errors to stderr, the rest to stdout, each at once (a long step follows)."""
+    print(line, file=sys.stderr if error else sys.stdout, flush=True)
+
+
+def rebuild_all(spec: dict, overwrite: bool = False, say=say_line) -> list[str]:
+    """report=all (`make report`): each step of `spec["steps"]` (STEPS) as its own report, with its settings at
+    spec[step]. Says one line per step: what it wrote, or why it was skipped (no inputs: missing_inputs), or its
+    error (a UserError: a result.json it cannot read, a committed file it would replace without `overwrite`), and
+    goes on; returns the titles of the steps that failed (the door exits 2 after the others ran)."""
+    steps = list(spec.get("steps") or ())
+    unknown = [s for s in steps if s not in STEPS]
+    if unknown:
+        raise UserError(f"report.steps: unknown step {unknown[0]!r}; steps: {', '.join(STEPS)}")
+    failed = []
+    for step in steps:
+        title = STEPS[step]
+        try:
+            why = missing_inputs(step, spec[step])
+            if why:
+                say(f"{title}: skipped: {why}")
+                continue
+            done = rebuild(spec[step], overwrite, key=f"report.{step}")
+        except UserError as e:
+            say(f"{title}: error: {str(e).strip().splitlines()[0]}", error=True)
+            failed.append(title)
+            continue
+        for note in done.notes:
+            say(f"{title}: note: {note}")
+        say(f"{title}: " + ", ".join(map(str, done.written)))
+    return failed
