@@ -54,6 +54,18 @@ def test_a_group_named_as_in_the_paper_lands_in_the_suite_row():
         build([r, s])
 
 
+def test_gensims_own_tasks_sit_beside_the_papers_gensim_value_as_a_row_of_their_own():
+    """pipeline=gensim_own runs GenSim's own tasks, the ones the paper's authors measured: its row carries the paper's
+    GenSim value (0.32 for placement), apart from the row of simeval's GenSim-style suite."""
+    own, suite = rec("a", 3, 10), rec("b", 1, 10)
+    own["identity"].update(pipeline="gensim_own", task_group="placement")
+    suite["identity"].update(task_group="placement")
+    rows = {(r["pipeline"], r["group"]): r for r in build([own, suite])}
+    assert rows[("gensim_own", "placement")]["paper"] == 0.32 == rows[("gensim", "placement")]["paper"]
+    assert rows[("gensim_own", "placement")]["eval"]["k"] == 3 and rows[("gensim", "placement")]["eval"]["k"] == 1
+    assert ("metaworld", "ml10") not in rows and rows[("gensim", "piles")]["paper"] == 0.2  # not run: paper only
+
+
 def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_path):
     """--keep: the committed table gathers groups run on different machines; a row comes from exactly one side."""
     from simeval.report.table5 import merge, read_rows

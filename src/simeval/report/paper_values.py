@@ -22,3 +22,11 @@ TABLE5 = {("gensim", "stacking"): 0.15, ("gensim", "placement"): 0.32, ("gensim"
           ("gensim", "assembling"): 0.08, ("robogen", "table_top"): 0.0, ("robogen", "ground"): 0.0,
           ("bbsea", "table"): 0.0, ("bbsea", "drawer"): 0.0}
 TABLE5_MEANING = "paper: GenSim step-wise reward (1.0 = success), RoboGen/BBSEA success rate"
+# pipelines that run, with the pipeline's own code, the tasks the paper measured under another name: their rows sit
+# beside the paper's numbers of that pipeline (pipeline=gensim_own: GenSim's own tasks, which the authors ran)
+PAPER_PIPELINE = {"gensim_own": "gensim"}
+
+
+def paper_table5(pipeline: str, group: str) -> float | None:
+    """The paper's Table 5 value of our (pipeline, group), or None where the paper has none."""
+    return TABLE5.get((PAPER_PIPELINE.get(pipeline, pipeline), group))

@@ -25,7 +25,7 @@ from pathlib import Path
 from simeval.errors import UserError
 from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
-from simeval.report.paper_values import TABLE5 as PAPER
+from simeval.report.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.report.paper_values import TABLE5_MEANING
 from simeval.report.tables import Rebuilt, read_csv, refuse_committed, write_table
 from simeval.results import identity_difference, read_results
@@ -34,7 +34,8 @@ METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
 CHANCE = "random"  # policy=random: the chance baseline (simeval.models.policy.random_baseline), nothing trained
 CHANCE_NOTE = " (chance: nothing trained)"
-PAPER_PROGRESS = {"gensim"}  # pipelines whose paper value is a step-wise reward: the figure draws our eval progress
+PAPER_PROGRESS = {"gensim", "gensim_own"}  # pipelines whose paper value is a step-wise reward: the figure draws
+# our eval progress
 PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
@@ -103,7 +104,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
     rows = []
     for (pipeline, group, preset) in keys:
         cell = cells.get((pipeline, group, preset))
-        row = {"pipeline": pipeline, "group": group, "paper": PAPER.get((pipeline, group)),
+        row = {"pipeline": pipeline, "group": group, "paper": paper_table5(pipeline, group),
                "policy": preset, "runs": len(cell["runs"]) if cell else 0}
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
