@@ -71,7 +71,7 @@ else
 endif
 
 report-table3: setup ## rebuild Table 3 from the result.json files only (no rerun; OVERWRITE=1: replace the committed table)
-	$(PY) src/report.py report=table3 $(if $(OVERWRITE),overwrite=true)
+	$(PY) src/report.py report=table3 $(REPORT_OVERWRITE)
 
 figure3: setup ## paper Figure 3: judge-human agreement (HUMAN_SCORES=file), tables + figure under outputs/figures/
 	$(PY) src/agreement.py scores_path=$(HUMAN_SCORES) hydra.run.dir=outputs/figures/figure3
@@ -104,9 +104,10 @@ bench-slurm: setup ## the quick paper chain here and as SLURM jobs on a local on
 	$(PY) experiments/benchmarks/slurm_chain_bench.py
 
 # the report targets' options, as src/report.py's overrides: KEEP=a.csv (or a.csv,b.csv) keeps those tables' rows that
-# the runs on disk lack; OVERWRITE=1 replaces the committed tables and figures
+# the runs on disk lack; OVERWRITE=1 (or true, yes) replaces the committed tables and figures, 0 (false, no) keeps them,
+# anything else goes through as typed and src/report.py refuses it (overwrite= takes true or false)
 REPORT_KEEP = $(if $(KEEP),'report.keep=[$(KEEP)]')
-REPORT_OVERWRITE = $(if $(OVERWRITE),overwrite=true)
+REPORT_OVERWRITE = $(if $(OVERWRITE),overwrite=$(if $(filter 1 true yes,$(OVERWRITE)),true,$(if $(filter 0 false no,$(OVERWRITE)),false,'$(OVERWRITE)')))
 
 # pipeline:group cells of Tables 4 and 5 (every group of the three suites); e.g. make table5 CELLS="bbsea:table"
 CELLS ?= gensim:stacking gensim:placement gensim:piles gensim:assembling robogen:table_top robogen:ground bbsea:table bbsea:drawer
@@ -205,5 +206,5 @@ report-html: setup ## HTML report (runs, tables, figures, judged-task gallery) o
 # Every table and figure again from the result.json files on disk (src/report.py report=all; nothing is rerun):
 # Tables 3, 4 (both protocols) and 5 with their figures, Figure 4 when quality runs with a model judge exist, and the
 # HTML report of RUNS. A step with no runs prints one line saying what makes them and is skipped; the others still run.
-report: setup ## rebuild EVERY table and figure from result.json files only (no reruns); steps without runs are skipped with a note; committed tables are replaced only with OVERWRITE=1
-	$(PY) src/report.py report=all report.html.runs_dir=$(RUNS) $(if $(OVERWRITE),overwrite=true)
+report: setup ## rebuild Tables 3-5 (Table 4 under both protocols), their figures, Figure 4 and the HTML report of RUNS= from result.json files only (no reruns; Figure 3: make figure3); steps without runs are skipped with a note; committed tables are replaced only with OVERWRITE=1
+	$(PY) src/report.py report=all report.html.runs_dir=$(RUNS) $(REPORT_OVERWRITE)

@@ -7,8 +7,7 @@ import logging
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError
+from simeval.cli import exit_cleanly_on_user_error, launch, require_bool_keys
 
 log = logging.getLogger("report")
 
@@ -18,13 +17,13 @@ log = logging.getLogger("report")
 def main(cfg: DictConfig) -> None:
     from simeval.report.rebuild import rebuild, rebuild_all
 
+    require_bool_keys(cfg, ("overwrite",))
     spec = OmegaConf.to_container(cfg.report, resolve=True)
-    if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others
-        failed = rebuild_all(spec, overwrite=bool(cfg.overwrite))
-        if failed:
-            raise UserError(f"{', '.join(failed)} not rebuilt (see above); the others were")
+    if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others, but sets the status
+        if rebuild_all(spec, overwrite=cfg.overwrite, made_under=cfg.paths.root):
+            raise SystemExit(2)
         return
-    done = rebuild(spec, overwrite=bool(cfg.overwrite))
+    done = rebuild(spec, overwrite=cfg.overwrite)
     print(done.markdown)
     for note in done.notes:
         print(f"note: {note}")

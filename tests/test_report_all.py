@@ -40,7 +40,7 @@ def test_report_rebuilds_tables_4_and_5_with_figures_and_notes_what_has_no_runs(
     assert lines[1] == ("Table 4: note: runs trained on 1, 2, 3 episodes per task are not in the table "
                         "(report.table4.episodes 10,20,40 chose its columns)")
     assert lines[3] == ("Table 4 (held-out): skipped: no protocol=heldout dynamics_diversity result.json under "
-                        "outputs (src/diversity.py makes them: its default protocol)")  # fixture: paper
+                        "outputs (`make table4-heldout`, or src/diversity.py: its default protocol)")  # fixture: paper
     assert lines[5].startswith("Figure 4: skipped: no quality result.json under outputs/runs/quality")
     assert len(lines) == 7 and "Traceback" not in r.stderr
     tables, figures = outputs / "tables", outputs / "figures"
@@ -91,8 +91,20 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     assert r.stderr.splitlines()[0] == (f"Table 4: error: cannot read {Path('outputs/runs/x/result.json')}: "
                                         "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)")
     r = report_all("report.steps=[table6]", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr == ("error: report.steps: unknown step 'table6'; steps: table3, table4, "
-                                              "table4_heldout, table5, figure4, html\n")
+    assert r.returncode == 2 and r.stderr == ("error: report.steps=['table6']: unknown step 'table6'; give some of "
+                                              "table3, table4, table4_heldout, table5, figure4, html\n")
+    for steps, why in (("[]", "empty"), ("[table4,table4]", "table4 twice")):
+        r = report_all(f"report.steps={steps}", cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr.startswith("error: report.steps=") and f": {why}; give some" in r.stderr
+    r = report_all("report.steps=table4", cwd=tmp_path)  # one step, not a list: that step
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.startswith("Table 4: error: cannot read ")
+    # a runs folder the user named that is not there (or is a file) is an error, not "nothing run yet"
+    (tmp_path / "README.md").write_text("x")
+    r = report_all("report.steps=[table4,html]", "report.table4.runs_dir=/nonexistent",
+                   "report.html.runs_dir=README.md", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.splitlines() == [
+        "Table 4: error: report.table4.runs_dir=/nonexistent: no such folder",
+        "HTML report: error: report.html.runs_dir=README.md: is a file, not a folder of runs"]
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
@@ -106,7 +118,7 @@ def test_make_report_is_listed_and_runs_the_rebuild(outputs, tmp_path):
     for folder in ("src", "conf"):
         (tmp_path / folder).symlink_to(ROOT / folder)
     help_ = subprocess.run(["make", "--no-print-directory", "help"], cwd=tmp_path, capture_output=True, text=True)
-    assert "rebuild EVERY table and figure from result.json files only (no reruns)" in help_.stdout
+    assert "rebuild Tables 3-5 (Table 4 under both protocols), their figures, Figure 4 and the HTML report" in help_.stdout
     r = subprocess.run(["make", "--no-print-directory", "report", f"PY={sys.executable}"], cwd=tmp_path, env=ENV,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
@@ -152,10 +164,16 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
     before = {p: p.read_bytes() for p in (outputs / "tables").iterdir()}
     r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert r.stderr.splitlines()[0] == (f"Table 4: error: {Path('outputs/tables/table4.csv')} is a committed result "
-                                        "and would be replaced by a table of the runs on disk; write elsewhere "
-                                        "(another output path) or replace it with overwrite=true (make: "
-                                        "OVERWRITE=1)")
+    assert r.stderr.splitlines() == [  # one line per failed step, each naming the keys that write elsewhere
+        f"Table 4: error: {Path('outputs/tables/table4.csv')} is a committed result and would be replaced by a table "
+        "of the runs on disk; write elsewhere (report.table4.out= and report.table4.figure=) or replace it with "
+        "overwrite=true (make: OVERWRITE=1)",
+        f"Table 5: error: {Path('outputs/tables/table5.csv')} is a committed result and would be replaced by a table "
+        "of the runs on disk; write elsewhere (report.table5.out= and report.table5.figure=) or replace it with "
+        "overwrite=true (make: OVERWRITE=1)"]
+    for value in ("maybe", "no"):  # anything but true/false is refused before anything is written
+        r = report_all("report.steps=[table4,table5]", f"overwrite={value}", cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr == f"error: overwrite='{value}': expected true or false\n", r.stderr
     for kind in ("table4", "table5"):  # the report door (what `make report-table4` / `report-table5` run)
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a committed result" in r.stderr, r.stderr

@@ -37,7 +37,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     the note about unused runs and in the refusal to replace a committed file."""
     from simeval.report import table4
 
-    flags = {"episodes": "episodes", "overwrite": "--overwrite", **(flags or {})}
+    flags = {"episodes": "episodes", "overwrite": "--overwrite", "elsewhere": "another output path", **(flags or {})}
 
     episodes = [int(k) for k in episodes]
     kept = [table4.read_rows(path) for path in keep]  # read first: a bad file fails before any work
@@ -46,7 +46,8 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
     refuse_committed([*_with(Path(out), (".csv", ".md", ".tex")), *(Path(figure).with_suffix(x) for x in
-                                                                      (".png", ".pdf"))], overwrite, flags["overwrite"])
+                                                                      (".png", ".pdf"))], overwrite, flags["overwrite"],
+                     flags["elsewhere"])
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
@@ -63,7 +64,8 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
 
 
 def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *, keep=(),
-                           overwrite: bool = False, overwrite_flag: str = "--overwrite") -> Rebuilt:
+                           overwrite: bool = False, overwrite_flag: str = "--overwrite",
+                           elsewhere: str = "another output path") -> Rebuilt:
     from simeval.report import table4_heldout
 
     kept = [table4_heldout.read_rows(path) for path in keep]  # read first: a bad file fails before any work
@@ -73,7 +75,7 @@ def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them")
     out, figure = Path(out), Path(figure)
-    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag)
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere)
     rows = table4_heldout.build(records)
     for rows_of_file in kept:  # the rows merged so far win: the first file that has a row gives it
         rows = table4_heldout.merge(rows_of_file, rows)
@@ -92,17 +94,19 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
     kind = spec.get("kind")
     flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
+    elsewhere = f"{key}.out= and {key}.figure=" if kind in ("table4", "table4_heldout", "table5") else f"{key}.out_dir="
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
                               keep=spec.get("keep") or (), overwrite=overwrite,
-                              flags={"episodes": f"{key}.episodes", "overwrite": flag})
+                              flags={"episodes": f"{key}.episodes", "overwrite": flag, "elsewhere": elsewhere})
     if kind == "table4_heldout":
         return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
-                                      overwrite=overwrite, overwrite_flag=flag)
+                                      overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere)
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
-                              keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag)
+                              keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag,
+                              elsewhere=elsewhere)
     if kind == "html":
         from simeval.report.html import build_html_report
 
@@ -114,7 +118,7 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     from simeval.report.tables import outputs_named
 
     if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
-        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, flag)
+        refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, flag, elsewhere)
     if kind == "figure4":
         from simeval.report.quality_figure import build_quality_figure
 
@@ -128,16 +132,23 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     return Rebuilt([p for paths in written.values() for p in paths], Path(written["main"][1]).read_text())
 
 
-def missing_inputs(step: str, spec: dict) -> str | None:
+def missing_inputs(step: str, spec: dict, made_under: str | Path | None = None) -> str | None:
     """Why report=all's `step` has nothing to build from (it is skipped, saying what makes its inputs), or None.
-    A result.json that cannot be read is not "missing": the step runs and its builder names the file."""
+    A runs folder that does not exist is "nothing made yet" only under `made_under` (the project's outputs, where
+    the commands write); elsewhere (a folder the user typed) it is a UserError, as is a file. A result.json that
+    cannot be read is not "missing": the step runs and its builder names the file."""
     runs = Path(spec["runs_dir"])
+    if runs.exists() and not runs.is_dir():
+        raise UserError(f"report.{step}.runs_dir={runs}: is a file, not a folder of runs")
+    if not runs.exists() and (made_under is None or not _inside(runs, Path(made_under))):
+        raise UserError(f"report.{step}.runs_dir={runs}: no such folder")
     if step == "html":
-        return None if runs.is_dir() else (f"no folder {runs} (give the runs to report on: "
+        return None if runs.is_dir() else (f"no folder {runs} yet (give the runs to report on: "
                                            "report.html.runs_dir=<run or sweep folder>; make: RUNS=)")
     metric, maker = {"table3": ("text_diversity", "`make table3` runs the sweep"),
                      "table4": ("dynamics_diversity", "`make table4` trains the world models"),
-                     "table4_heldout": ("dynamics_diversity", "src/diversity.py makes them: its default protocol"),
+                     "table4_heldout": ("dynamics_diversity", "`make table4-heldout`, or src/diversity.py: its "
+                                                              "default protocol"),
                      "table5": ("generalization", "`make table5` trains and rolls out the policies"),
                      "figure4": ("quality", "run src/quality.py with a model judge, see README")}[step]
     records = read_results(runs, metric) if runs.is_dir() else []
@@ -163,20 +174,29 @@ def say_line(line: str, error: bool = False) -> None:
     print(line, file=sys.stderr if error else sys.stdout, flush=True)
 
 
-def rebuild_all(spec: dict, overwrite: bool = False, say=say_line) -> list[str]:
+def _inside(path: Path, folder: Path) -> bool:
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def rebuild_all(spec: dict, overwrite: bool = False, made_under: str | Path | None = None,
+                say=say_line) -> list[str]:
     """report=all (`make report`): each step of `spec["steps"]` (STEPS) as its own report, with its settings at
-    spec[step]. Says one line per step: what it wrote, or why it was skipped (no inputs: missing_inputs), or its
-    error (a UserError: a result.json it cannot read, a committed file it would replace without `overwrite`), and
-    goes on; returns the titles of the steps that failed (the door exits 2 after the others ran)."""
-    steps = list(spec.get("steps") or ())
+    spec[step]. Says one line per step: what it wrote, or why it was skipped (no inputs: missing_inputs, with
+    `made_under`), or its error (a UserError: a result.json it cannot read, a committed file it would replace
+    without `overwrite`, a runs folder that is not there), and goes on; returns the titles of the steps that failed
+    (the door exits 2 after the others ran; each failure is its own line)."""
+    steps = spec.get("steps")
+    steps = [steps] if isinstance(steps, str) else list(steps or ())
     unknown = [s for s in steps if s not in STEPS]
-    if unknown:
-        raise UserError(f"report.steps: unknown step {unknown[0]!r}; steps: {', '.join(STEPS)}")
+    if unknown or not steps or len(set(steps)) < len(steps):
+        why = (f"unknown step {unknown[0]!r}" if unknown else "empty" if not steps else
+               f"{next(s for s in steps if steps.count(s) > 1)} twice")
+        raise UserError(f"report.steps={steps}: {why}; give some of {', '.join(STEPS)}")
     failed = []
     for step in steps:
         title = STEPS[step]
         try:
-            why = missing_inputs(step, spec[step])
+            why = missing_inputs(step, spec[step], made_under)
             if why:
                 say(f"{title}: skipped: {why}")
                 continue

@@ -384,7 +384,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
 
 
 def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
-                   overwrite: bool = False, overwrite_flag: str = "--overwrite") -> Rebuilt:
+                   overwrite: bool = False, overwrite_flag: str = "--overwrite",
+                   elsewhere: str = "another output path") -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
     simeval.report.rebuild, which the report door calls)."""
     kept = [read_rows(path) for path in keep]  # read first: a bad file fails before any work
@@ -396,7 +397,7 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
                         "src/generalization.py), or give the folder that holds them")
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
-                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag)
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere)
     rows = build(records, policy=policy)
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)

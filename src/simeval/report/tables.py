@@ -114,9 +114,10 @@ def outputs_named(out_dir: str | Path, id: str) -> list[Path]:
     return sorted({*out.glob(f"{id}.*"), *out.glob(f"{id}_*.*")})
 
 
-def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite") -> None:
+def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewhere: str = "another output path") -> None:
     """A report of the runs on disk must not replace a committed result unless asked: raises a UserError naming the
-    first committed file among `paths` and how to proceed (`flag`, or another output path), unless `overwrite`."""
+    first committed file among `paths` and how to proceed (`flag`, or `elsewhere`: the keys that write elsewhere),
+    unless `overwrite`."""
     from simeval.errors import UserError
 
     if overwrite:
@@ -125,4 +126,4 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite") -> None:
     if hit:
         kind = "figure" if Path(hit[0]).suffix in (".png", ".pdf") else "table"
         raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of the runs on disk; write "
-                        f"elsewhere (another output path) or replace it with {flag}")
+                        f"elsewhere ({elsewhere}) or replace it with {flag}")
