@@ -247,6 +247,39 @@ def test_gensims_own_task_as_a_gymnasium_env_follows_its_oracle_to_the_recorded_
     assert env._proc is None
 
 
+def test_a_primitive_that_does_not_return_ends_the_rollout_as_failed_and_the_next_one_runs():
+    """GenSim's descent loop never returns for some poses (it lowers the target until contact): a step past
+    pipeline.native.step_timeout_s stops GenSim's worker and ends the rollout as failed, with the error in info and
+    in the rollout's record; the next reset starts a fresh worker and the oracle solves that seed."""
+    from simeval.models.policy.evaluate import rollout_task
+    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.pipelines.gensim.env import GensimEnv
+    from simeval.pipelines.gensim.native import GensimSettings
+
+    env = GensimEnv(TASK, GensimSettings(root=str(GENSIM), step_timeout_s=0.01), image_size=(32, 32))
+    try:
+        obs, _ = env.reset(seed=0)
+        first = env._proc
+        obs2, reward, terminated, truncated, info = env.step(env.oracle_action())
+        assert terminated and not truncated and reward == 0.0 and not info["success"] and info["progress"] == 0.0
+        assert info["error"].startswith("one step ran past 0.01 s (pipeline.native.step_timeout_s)")
+        assert env._proc is None and first.poll() is not None  # GenSim's worker was stopped, not left running
+        assert all(np.array_equal(obs2["rgb"][c], obs["rgb"][c]) for c in obs["rgb"])  # the last observation
+        env.settings = GensimSettings(root=str(GENSIM))
+        env.reset(seed=0)  # a fresh worker
+        while (action := env.oracle_action()) is not None:
+            _, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        assert info["success"] and "error" not in info
+    finally:
+        env.close()
+    settings = GensimSettings(root=str(GENSIM), step_timeout_s=0.01)
+    out = rollout_task(RandomActions("pick_place", image_size=(32, 32)), TASK, [0, 1],
+                       make_env=lambda task, *a: GensimEnv(task, settings, image_size=a[2], cameras=a[3]))
+    assert [(e["steps"], e["success"], e["error"][:13]) for e in out["episodes"]] == [(1, False, "one step ran ")] * 2
+
+
 def test_generalization_trains_on_gensims_own_episodes_and_rolls_out_in_its_own_env(own_store, tmp_path):
     """src/generalization.py pipeline=gensim_own: a (tiny) pick/place policy trained on GenSim's own episodes, rolled
     out through GenSim's own environment on the train split and on GenSim's test-time mode (the eval split)."""

@@ -65,7 +65,8 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                 if frames is not None:
                     frames.append(obs["rgb"][video_camera or cfg.cameras[0]])
             episodes.append({"seed": int(seed), "success": bool(info["success"]),
-                             "progress": float(info["progress"]), "steps": n})
+                             "progress": float(info["progress"]), "steps": n,
+                             **({"error": str(info["error"])} if info.get("error") else {})})  # the env's own failure
             if frames is not None:
                 videos[int(seed)] = np.stack(frames)
     finally:

@@ -10,6 +10,7 @@ own oracle's next action from the same state (for tests and for scripted baselin
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -30,6 +31,8 @@ from simeval.pipelines.gensim.native import (
     worker_request,
 )
 from simeval.sim.action_spaces import POSE_HIGH, POSE_LOW
+
+log = logging.getLogger(__name__)
 
 
 class GensimEnv(gym.Env):
@@ -64,11 +67,16 @@ class GensimEnv(gym.Env):
         self._send = Connection(os.dup(self._proc.stdin.fileno()), readable=False)
         self._recv = Connection(os.dup(self._proc.stdout.fileno()), writable=False)
 
-    def _call(self, *command):
+    def _call(self, *command, timeout: float | None = None):
         if self._proc is None:
             self._start()
         try:
             self._send.send(command)
+            if timeout is not None and not self._recv.poll(timeout):
+                self._stop_worker()
+                raise EpisodeFailed(self.task, self._seed, f"one step ran past {timeout:g} s "
+                                    "(pipeline.native.step_timeout_s): GenSim's primitive did not return, its worker "
+                                    "was stopped")
             reply = self._recv.recv()
         except (EOFError, BrokenPipeError, OSError):
             self._proc.wait(timeout=30)
@@ -91,26 +99,42 @@ class GensimEnv(gym.Env):
         self._seed = int(seed) if seed is not None else self._seed + 1
         self._steps = 0
         obs, info = self._call("reset", self._seed)
-        return self._obs(obs), info
+        self._last_obs, self._last_info = self._obs(obs), {"progress": 0.0, **info}
+        return self._last_obs, info
 
     def step(self, action):
         action = np.clip(np.asarray(action, np.float32).reshape(14), POSE_LOW, POSE_HIGH)
-        obs, reward, done, info = self._call("step", action.tolist())
         self._steps += 1
+        try:
+            obs, reward, done, info = self._call("step", action.tolist(), timeout=self.settings.step_timeout_s)
+        except EpisodeFailed as e:
+            # GenSim raised, hung or died inside one primitive: the rollout ends there, failed (as GenSim ends one
+            # whose primitive times out), with the error in info; the next reset starts a fresh worker if needed
+            log.warning("%s seed %d, step %d: %s%s", self.task, self._seed, self._steps, e.error,
+                        f" ({e.where})" if e.where else "")
+            info = {**self._last_info, "success": False, "error": e.error}
+            return self._last_obs, 0.0, True, False, info
         terminated = bool(info["success"] or done)
         limits = [m for m in (self.max_steps, info.get("max_steps")) if m is not None]  # GenSim's cap holds too
         truncated = bool(not terminated and limits and self._steps >= min(limits))
-        return self._obs(obs), reward, terminated, truncated, info
+        self._last_obs, self._last_info = self._obs(obs), info
+        return self._last_obs, reward, terminated, truncated, info
 
     def oracle_action(self) -> np.ndarray | None:
         """GenSim's oracle's next pick/place from the current state (None: it has nothing left to do)."""
         (action,) = self._call("oracle")
         return None if action is None else np.asarray(action, np.float32)
 
+    def _stop_worker(self) -> None:
+        self._proc.kill()
+        self._proc.wait()
+        self.close()
+
     def close(self) -> None:
         if self._proc is not None:
             try:
-                self._send.send(("close",))
+                if self._proc.poll() is None:
+                    self._send.send(("close",))
                 self._proc.wait(timeout=30)
             except (OSError, subprocess.TimeoutExpired):
                 self._proc.kill()

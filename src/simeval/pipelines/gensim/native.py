@@ -56,13 +56,15 @@ def _remove_stale_scratch(root: Path) -> None:
 @dataclass(frozen=True)
 class GensimSettings:
     """How GenSim's episodes are run: physics rate (GenSim's `hz`), one stored frame every `frame_every` physics
-    steps, the interpreter that runs the worker (None: this one), and the per-episode time limit."""
+    steps, the interpreter that runs the worker (None: this one), the per-episode time limit of a collection and the
+    per-step one of the closed-loop environment (GensimEnv: one pick/place primitive)."""
 
     root: str
     hz: int = 240
     frame_every: int = 8
     python: str | None = None
     timeout_s: float = 600.0
+    step_timeout_s: float = 120.0
     mode: str = "train"  # GenSim's task.mode: train | val | test (its seen/unseen colour sets)
     clock: str = "simulated"  # what GenSim's 5-second timeouts read: simulated (physics steps / hz) | wall
 
@@ -97,8 +99,9 @@ def check_settings(s: GensimSettings, control_hz: float) -> None:
         raise UserError(f"pipeline.native.mode must be train, val or test (GenSim's task.mode), got {s.mode!r}")
     if s.clock not in ("simulated", "wall"):
         raise UserError(f"pipeline.native.clock must be simulated or wall, got {s.clock!r}")
-    if not (isinstance(s.timeout_s, (int, float)) and s.timeout_s > 0):
-        raise UserError(f"pipeline.native.timeout_s must be a number of seconds > 0, got {s.timeout_s!r}")
+    for key, value in (("timeout_s", s.timeout_s), ("step_timeout_s", s.step_timeout_s)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float)) and value > 0):
+            raise UserError(f"pipeline.native.{key} must be a number of seconds > 0, got {value!r}")
 
 
 class EpisodeFailed(RuntimeError):
