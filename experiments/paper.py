@@ -334,7 +334,8 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
                "report.steps=[table4,table5,figure4,html]", f"report.table4.runs_dir={out / 'table4'}",
                f"report.table4.episodes=[{','.join(map(str, prof['world_model_episodes']))}]",
                f"report.table5.runs_dir={out / 'table5'}", f"report.figure4.runs_dir={out / 'quality'}",
-               f"report.html.runs_dir={out}", f"paths.tables={tables}", f"paths.figures={figures}"],
+               f"report.html.runs_dir={out}", f"paths.root={out}", f"paths.tables={tables}",
+               f"paths.figures={figures}"],  # paths.root: a stage folder not made yet is "skipped", not an error
               logs / "report.log", after=tuple(jobs), echo=True)
     launcher.finish()
     print(f"\n{prof['name']} profile finished in {time.monotonic() - t_start:.0f} s. Outputs in {out}:")
