@@ -32,12 +32,11 @@ def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 
 def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
-                   preset: str | None = None, keep=(), overwrite: bool = False, flags: dict | None = None) -> Rebuilt:
-    """`flags`: how the caller's user spells `episodes` and `overwrite` ({"episodes": "report.episodes", ...}), named in
-    the note about unused runs and in the refusal to replace a committed file."""
+                   preset: str | None = None, keep=(), overwrite: bool = False, overwrite_flag: str = "--overwrite",
+                   elsewhere: str = "another output path", episodes_key: str = "episodes") -> Rebuilt:
+    """`overwrite_flag`, `elsewhere`, `episodes_key`: how the caller's user asks to replace a committed file, to
+    write elsewhere, and to choose the columns, named in the refusal and in the note about unused runs."""
     from simeval.report import table4
-
-    flags = {"episodes": "episodes", "overwrite": "--overwrite", "elsewhere": "another output path", **(flags or {})}
 
     episodes = [int(k) for k in episodes]
     kept = [table4.read_rows(path) for path in keep]  # read first: a bad file fails before any work
@@ -46,8 +45,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
     refuse_committed([*_with(Path(out), (".csv", ".md", ".tex")), *(Path(figure).with_suffix(x) for x in
-                                                                      (".png", ".pdf"))], overwrite, flags["overwrite"],
-                     flags["elsewhere"])
+                                                                      (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere)
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
@@ -59,7 +57,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     written = table4.write(rows, out, episodes, unused)
     figures = table4.plot(rows, figure)
     notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
-             f"({flags['episodes']} {','.join(map(str, episodes))} chose its columns)"] if unused else []
+             f"({episodes_key} {','.join(map(str, episodes))} chose its columns)"] if unused else []
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
@@ -99,7 +97,7 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
                               keep=spec.get("keep") or (), overwrite=overwrite,
-                              flags={"episodes": f"{key}.episodes", "overwrite": flag, "elsewhere": elsewhere})
+                              overwrite_flag=flag, elsewhere=elsewhere, episodes_key=f"{key}.episodes")
     if kind == "table4_heldout":
         return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
                                       overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere)
