@@ -298,7 +298,9 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, l
                   "src/import_data.py and run the entrypoints on them; skipped here")
             continue
         groups = groups_of(suite, prof["tasks_per_group"])
-        print(f"{pipeline} ({prof['name']}): groups {', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
+        if stages & {"collect", "quality", "table4", "table5"}:  # what uses these groups (table3 reads every task)
+            print(f"{pipeline} ({prof['name']}): groups "
+                  f"{', '.join(f'{g} ({len(t)} tasks)' for g, t in groups.items())}")
         collected = []  # this pipeline's collections: its quality stage reads all of them
         for group, tasks in groups.items():
             sel, collect = f"tasks=[{','.join(tasks)}]", None

@@ -81,8 +81,17 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     assert not (tmp_path / "outputs").exists()  # nothing written from nothing
     for kind in ("table4", "table5"):
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=outputs", cwd=tmp_path)
-        assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: no ")
-        assert "result.json under outputs: run the" in r.stderr
+        assert r.returncode == 2 and r.stderr.count("\n") == 1
+        assert r.stderr.startswith("error: report.runs_dir=outputs: no such folder; give the folder that holds the "
+                                   "runs' result.json files (`make table")  # the key, and what makes the runs
+    for kind in ("table4", "table4_heldout", "table5", "table3", "figure4"):  # the same lines as report=all's
+        r = py(str(ROOT / "src" / "report.py"), f"report={kind}", f"report.runs_dir={ROOT / 'README.md'}", cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr == f"error: report.runs_dir={ROOT / 'README.md'}: is a file, not a " \
+            "folder of runs\n", (kind, r.stderr)
+    (tmp_path / "outputs").mkdir()
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", cwd=tmp_path)
+    assert r.returncode == 2 and "no generalization result.json under outputs: run the" in r.stderr
+    (tmp_path / "outputs").rmdir()
     bad = tmp_path / "outputs" / "runs" / "x" / "result.json"
     bad.parent.mkdir(parents=True)
     bad.write_text("{not json")
@@ -103,7 +112,8 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     r = report_all("report.steps=[table4,html]", "report.table4.runs_dir=/nonexistent",
                    "report.html.runs_dir=README.md", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.splitlines() == [
-        "Table 4: error: report.table4.runs_dir=/nonexistent: no such folder",
+        ("Table 4: error: report.table4.runs_dir=/nonexistent: no such folder; give the folder that holds the runs' "
+         "result.json files (`make table4` trains the world models)"),
         "HTML report: error: report.html.runs_dir=README.md: is a file, not a folder of runs"]
 
 

@@ -91,6 +91,8 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder. `key`: where the
     user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
     kind = spec.get("kind")
+    if kind in MAKERS:  # the html kind says itself what it wants of its folder
+        check_runs_dir(Path(spec["runs_dir"]), key, kind)
     flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
     elsewhere = f"{key}.out= and {key}.figure=" if kind in ("table4", "table4_heldout", "table5") else f"{key}.out_dir="
     if kind == "table4":
@@ -130,25 +132,36 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     return Rebuilt([p for paths in written.values() for p in paths], Path(written["main"][1]).read_text())
 
 
+MAKERS = {"table3": ("text_diversity", "`make table3` runs the sweep"),
+          "table4": ("dynamics_diversity", "`make table4` trains the world models"),
+          "table4_heldout": ("dynamics_diversity", "`make table4-heldout`, or src/diversity.py: its default protocol"),
+          "table5": ("generalization", "`make table5` trains and rolls out the policies"),
+          "figure4": ("quality", "run src/quality.py with a model judge, see README")}  # step -> (metric, its maker)
+
+
+def check_runs_dir(runs: Path, key: str, kind: str) -> None:
+    """A runs folder that is a file or does not exist is one UserError naming `key`.runs_dir (the single-report door
+    and report=all say the same), with what makes the runs."""
+    if runs.exists() and not runs.is_dir():
+        raise UserError(f"{key}.runs_dir={runs}: is a file, not a folder of runs")
+    if not runs.exists():
+        maker = f" ({MAKERS[kind][1]})" if kind in MAKERS else ""
+        raise UserError(f"{key}.runs_dir={runs}: no such folder; give the folder that holds the runs' result.json "
+                        f"files{maker}")
+
+
 def missing_inputs(step: str, spec: dict, made_under: str | Path | None = None) -> str | None:
     """Why report=all's `step` has nothing to build from (it is skipped, saying what makes its inputs), or None.
     A runs folder that does not exist is "nothing made yet" only under `made_under` (the project's outputs, where
     the commands write); elsewhere (a folder the user typed) it is a UserError, as is a file. A result.json that
     cannot be read is not "missing": the step runs and its builder names the file."""
     runs = Path(spec["runs_dir"])
-    if runs.exists() and not runs.is_dir():
-        raise UserError(f"report.{step}.runs_dir={runs}: is a file, not a folder of runs")
-    if not runs.exists() and (made_under is None or not _inside(runs, Path(made_under))):
-        raise UserError(f"report.{step}.runs_dir={runs}: no such folder")
+    if runs.exists() or made_under is None or not _inside(runs, Path(made_under)):  # not yet made: skipped below
+        check_runs_dir(runs, f"report.{step}", step)
     if step == "html":
         return None if runs.is_dir() else (f"no folder {runs} yet (give the runs to report on: "
                                            "report.html.runs_dir=<run or sweep folder>; make: RUNS=)")
-    metric, maker = {"table3": ("text_diversity", "`make table3` runs the sweep"),
-                     "table4": ("dynamics_diversity", "`make table4` trains the world models"),
-                     "table4_heldout": ("dynamics_diversity", "`make table4-heldout`, or src/diversity.py: its "
-                                                              "default protocol"),
-                     "table5": ("generalization", "`make table5` trains and rolls out the policies"),
-                     "figure4": ("quality", "run src/quality.py with a model judge, see README")}[step]
+    metric, maker = MAKERS[step]
     records = read_results(runs, metric) if runs.is_dir() else []
     if step == "table4_heldout":
         records = [r for r in records if (r.get("identity") or {}).get("protocol") == "heldout"]
