@@ -186,7 +186,8 @@ def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
 @pytest.mark.parametrize("script,args,job_error", [
     ("quality.py", ["seed=1", "-m", "repeats=2"], "set bundles_dir=DIR"),
     ("agreement.py", ["seed=1", "-m", "n_boot=10"], "scores_path is not set"),
-    ("report.py", ["report.digits=3", "-m", "report.runs_dir=/nonexistent/runs"], "no text_diversity result.json"),
+    ("report.py", ["report.digits=3", "-m", "report.runs_dir=/nonexistent/runs"],
+     "report.runs_dir=/nonexistent/runs: no such folder"),
     ("collect.py", ["episodes=1", "-m", "task_group=nope"], "unknown task_group 'nope'"),
     ("import_data.py", ["format=ravens", "-m", "src=/nonexistent/demos"], "src=/nonexistent/demos does not exist"),
 ])
