@@ -44,8 +44,8 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
-    refuse_committed([*_with(Path(out), (".csv", ".md", ".tex")), *(Path(figure).with_suffix(x) for x in
-                                                                      (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere)
+    replaced = [*_with(Path(out), (".csv", ".md", ".tex")), *_with(Path(figure).with_suffix(""), (".png", ".pdf"))]
+    refuse_committed(replaced, overwrite, overwrite_flag, elsewhere)
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
