@@ -18,8 +18,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from simeval.models.captured import training_device
-    from simeval.models.dynamics_diversity import DiversityRun, episode_source, headline
-    from simeval.models.world_model import VERSION
+    from simeval.models.dynamics_diversity import VERSION, DiversityRun, episode_source, headline
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 

@@ -26,8 +26,7 @@ def main(cfg: DictConfig) -> None:
     require_whole_keys(cfg, {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
                              "eval.seed_offset": 0, "torch_threads": 1, "eval.max_steps": 1},
                        optional=("torch_threads", "eval.max_steps"))
-    if cfg.torch_threads:
-        torch.set_num_threads(cfg.torch_threads)
+    torch.set_num_threads(cfg.torch_threads or torch.get_num_threads())  # null: torch's own default
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)
@@ -36,10 +35,9 @@ def main(cfg: DictConfig) -> None:
     pipeline = pipeline_from_config(conf["pipeline"])  # its suite, or its own code (GenSim's from a checkout)
     with run.logger() as logger:
         values, identity = run_generalization(
-            pipeline=pipeline, task_group=cfg.task_group,
-            tasks=conf["tasks"], heldout_tasks=conf["heldout_tasks"], policy_name=cfg.policy.name,
-            model=conf["policy"]["model"], train=conf["policy"].get("train"), seed=cfg.seed, store=cfg.store,
-            checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
+            pipeline=pipeline, task_group=cfg.task_group, tasks=conf["tasks"], heldout_tasks=conf["heldout_tasks"],
+            policy_name=cfg.policy.name, model=conf["policy"]["model"], train=conf["policy"].get("train"), seed=cfg.seed,
+            store=cfg.store, checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
             val_episodes_per_task=cfg.val_episodes_per_task, evaluation=conf["eval"], device=device,
             progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf)
         path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)

@@ -5,7 +5,6 @@ Exit status: 0 when at least one task was scored; 1 when the run ran but every t
 
 import json
 import logging
-import sys
 
 import hydra
 from omegaconf import DictConfig
@@ -43,8 +42,7 @@ def main(cfg: DictConfig) -> None:
         return
     log.info(out.summary)
     if out.status == "failed":
-        print(f"error: {out.error}", file=sys.stderr)
-        sys.exit(1)  # the run ran and every task failed (module docstring)
+        raise SystemExit(f"error: {out.error}")  # exit status 1: the run ran and every task failed (module docstring)
 
 
 if __name__ == "__main__":

@@ -1,13 +1,12 @@
 """Text diversity of a pipeline's task descriptions (paper Eq. 1, Table 3). See conf/text_diversity.yaml."""
 
 import logging
-from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError, require_folder
+from simeval.errors import require_choice, require_folder
 
 log = logging.getLogger("text_diversity")
 
@@ -21,18 +20,16 @@ def main(cfg: DictConfig) -> None:
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.report.text_diversity import run_record, tasks_fingerprint
     from simeval.results import RunFolder
-    from simeval.tasks import SourceNotConfigured, load_tasks
+    from simeval.tasks import SourceNotConfigured, load_tasks, source_options
 
-    if cfg.on_missing_source not in ("error", "record"):
-        raise UserError(f"on_missing_source={cfg.on_missing_source!r}: expected error or record")
+    require_choice("on_missing_source", cfg.on_missing_source, ("error", "record"))
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)
     p = run.config["pipeline"]
     record = run_record(p["name"], p["source"], cfg.task_group, run.config["embedding"], run.config["metrics"],
                         cfg.seed, run.overrides)
     try:
-        tasks = load_tasks(p["name"], p["source"], **{k: p[k] for k in ("root", "grouped_file", "tasks_path", "suite",
-                                                                          "text_template", "group_aliases")})
+        tasks = load_tasks(p["name"], p["source"], **source_options(p))
     except SourceNotConfigured as e:
         if cfg.on_missing_source != "record":
             raise
@@ -40,7 +37,7 @@ def main(cfg: DictConfig) -> None:
         log.warning("%s: recorded as missing (%s)", p["name"], e.hint)
         return
     record["identity"]["tasks_sha"] = tasks_fingerprint(tasks)
-    embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(Path(cfg.cache_dir) / "embeddings.sqlite"))
+    embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(f"{cfg.cache_dir}/embeddings.sqlite"))
     with run.logger() as logger:
         values = text_diversity_by_group(tasks, embedder.encode, cfg.task_group, seed=cfg.seed, **cfg.metrics)
         path = run.write(values=values, embedded=embedder.last_misses, **record)

@@ -21,6 +21,12 @@ def require_whole(key: str, value: object, low: int = 1) -> None:
         raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")
 
 
+def require_choice(key: str, value: object, choices: tuple[str, ...]) -> None:
+    """Raise a UserError naming `key` and the valid values unless value is one of `choices`."""
+    if value not in choices:
+        raise UserError(f"{key}={value!r}: expected {', '.join(choices[:-1])} or {choices[-1]}")
+
+
 def require_folder(key: str, path: object) -> None:
     """Create the folder a config key names, or raise a UserError naming the key: a path that is a file (or lies
     under one) or cannot be written would otherwise surface as an OSError traceback once a run first writes there,

@@ -87,14 +87,9 @@ def select_tasks(group: Mapping[str, str], task_group: str, tasks, configured: M
 def split_by_heldout(specs: list, split: str, heldout: list[str], variation: Mapping) -> list[tuple[object, dict]]:
     """Pipeline.split_tasks for a pipeline whose `eval` split is its trained tasks under one `variation` (none: an
     empty split): train = the tasks not held out, heldout = the held-out ones."""
-    if split not in ("train", "eval", "heldout"):
-        raise UserError(f"eval.splits: split '{split}' is not one of train, eval, heldout")
-    if split == "heldout":
-        return [(s, {}) for s in specs if s.name in heldout]
-    trained = [s for s in specs if s.name not in heldout]
-    if split == "train":
-        return [(s, {}) for s in trained]
-    return [(s, dict(variation)) for s in trained] if variation else []
+    from simeval.sim.tasks.splits import split_by  # the suite's spec parser stays unloaded until a split is asked
+
+    return split_by(specs, split, heldout, lambda trained: [(s, dict(variation)) for s in trained] if variation else [])
 
 
 class SuitePipeline(Pipeline):

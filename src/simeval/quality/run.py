@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simeval.errors import UserError
+from simeval.errors import UserError, require_choice
 from simeval.judges.prompts import PromptTemplate
 from simeval.judges.runner import JudgeItem, ScoreRecord
 from simeval.quality.bundle import (METRICS, SCALES, BundleError, TaskBundle, load_bundles,
@@ -111,10 +111,8 @@ def summarize(records: list[ScoreRecord]) -> dict[str, dict[str, dict]]:
 
 
 def check_metric_and_mode(metric: str, mode: str) -> None:
-    if metric not in (*METRICS, "all"):
-        raise UserError(f"metric={metric!r}: expected scene_alignment, task_completion or all")
-    if mode not in ("vlm", "caption"):
-        raise UserError(f"scene_alignment_mode={mode!r}: expected vlm or caption")
+    require_choice("metric", metric, (*METRICS, "all"))
+    require_choice("scene_alignment_mode", mode, ("vlm", "caption"))
 
 
 def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provider, templates: dict,

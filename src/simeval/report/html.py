@@ -26,7 +26,9 @@ import html
 import json
 import re
 import shutil
+from collections.abc import Callable
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -157,40 +159,38 @@ def _in_reading_order(folder: Path | None, pattern: str, kind: str) -> list[tupl
     return [(f, r, f"{kind}/{_slug(str(r.parent))}" if r.parent != Path(".") else kind) for f, r in zip(files, rels)]
 
 
-def _tables_section(tables_dir: Path | None, assets: _Assets) -> str:
-    files = _in_reading_order(tables_dir, "*.md", "tables")
+def _section(folder: Path | None, pattern: str, kind: str, render: Callable[[Path, Path, str], list[str]]) -> str:
+    """The HTML of every `pattern` file under `folder` in reading order, each as `render(file, relative path,
+    asset group)` gives it; a line saying there are none otherwise."""
+    files = _in_reading_order(folder, pattern, kind)
     if not files:
-        return f"<p class='muted'>No tables under {_e(tables_dir)}.</p>"
-    parts = []
-    for md, rel, group in files:
-        links = [f"<a href='{_e(assets.copy(md, group))}'>md</a>"]
-        for ext in (".csv", ".tex"):
-            if md.with_suffix(ext).is_file():
-                links.append(f"<a href='{_e(assets.copy(md.with_suffix(ext), group))}'>{ext[1:]}</a>")
-        parts.append(f"<h3 id='table-{_e(_slug(str(rel)))}'>{_e(rel.with_suffix(''))}</h3>"
-                     f"<p class='muted'>{' · '.join(links)}</p>")
-        for kind, body in markdown_blocks(md.read_text(encoding="utf-8")):
-            if kind != "table":
-                parts.append(f"<p class='muted'>{_e(body)}</p>")
-            elif len(body[1]) > LONG_TABLE_ROWS:  # folded, so a long table does not bury the gallery below it
-                parts.append(f"<details><summary>{len(body[1])} rows (show)</summary>{_html_table(*body)}</details>")
-            else:
-                parts.append(_html_table(*body))
-    return "\n".join(parts)
+        return f"<p class='muted'>No {kind} under {_e(folder)}.</p>"
+    return "\n".join(part for file, rel, group in files for part in render(file, rel, group))
 
 
-def _figures_section(figures_dir: Path | None, assets: _Assets) -> str:
-    files = _in_reading_order(figures_dir, "*.png", "figures")
-    if not files:
-        return f"<p class='muted'>No figures under {_e(figures_dir)}.</p>"
-    parts = []
-    for png, rel, group in files:
-        src = assets.copy(png, group)
-        pdf = png.with_suffix(".pdf")
-        pdf_link = f" · <a href='{_e(assets.copy(pdf, group))}'>pdf</a>" if pdf.is_file() else ""
-        parts.append(f"<figure><a href='{_e(src)}'><img src='{_e(src)}' alt='{_e(rel)}'></a>"
-                     f"<figcaption>{_e(rel)}{pdf_link}</figcaption></figure>")
-    return "\n".join(parts)
+def _table_html(md: Path, rel: Path, group: str, assets: _Assets) -> list[str]:
+    links = [f"<a href='{_e(assets.copy(md, group))}'>md</a>"]
+    for ext in (".csv", ".tex"):
+        if md.with_suffix(ext).is_file():
+            links.append(f"<a href='{_e(assets.copy(md.with_suffix(ext), group))}'>{ext[1:]}</a>")
+    parts = [(f"<h3 id='table-{_e(_slug(str(rel)))}'>{_e(rel.with_suffix(''))}</h3>"
+              f"<p class='muted'>{' · '.join(links)}</p>")]
+    for kind, body in markdown_blocks(md.read_text(encoding="utf-8")):
+        if kind != "table":
+            parts.append(f"<p class='muted'>{_e(body)}</p>")
+        elif len(body[1]) > LONG_TABLE_ROWS:  # folded, so a long table does not bury the gallery below it
+            parts.append(f"<details><summary>{len(body[1])} rows (show)</summary>{_html_table(*body)}</details>")
+        else:
+            parts.append(_html_table(*body))
+    return parts
+
+
+def _figure_html(png: Path, rel: Path, group: str, assets: _Assets) -> list[str]:
+    src = assets.copy(png, group)
+    pdf = png.with_suffix(".pdf")
+    pdf_link = f" · <a href='{_e(assets.copy(pdf, group))}'>pdf</a>" if pdf.is_file() else ""
+    return [(f"<figure><a href='{_e(src)}'><img src='{_e(src)}' alt='{_e(rel)}'></a>"
+             f"<figcaption>{_e(rel)}{pdf_link}</figcaption></figure>")]
 
 
 # ------------------------------------------------------------------------------------------------------ runs
@@ -478,9 +478,9 @@ under <code>{_e(tables_dir)}</code> and the figures under <code>{_e(figures_dir)
 <h2 id="tables">Tables</h2>
 <p class="muted">The files under <code>{_e(tables_dir)}</code> as they are (the paper's first): tables of whatever runs
 built them (the committed ones unless rebuilt), not computed from the runs above.</p>
-{_tables_section(Path(tables_dir) if tables_dir else None, assets)}
+{_section(Path(tables_dir) if tables_dir else None, '*.md', 'tables', partial(_table_html, assets=assets))}
 <h2 id="figures">Figures</h2>
-{_figures_section(Path(figures_dir) if figures_dir else None, assets)}
+{_section(Path(figures_dir) if figures_dir else None, '*.png', 'figures', partial(_figure_html, assets=assets))}
 <h2 id="quality">Quality gallery</h2>
 <p class="muted">Per task, what the judge saw and every reply it gave; the lowest-scoring tasks first (scores
 normalised to [0, 1]; red below 0.4, amber below 0.7, purple: no valid score).</p>

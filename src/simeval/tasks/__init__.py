@@ -98,6 +98,14 @@ def source_hint(pipeline: str) -> str:
     return "set " + ", or ".join(parts)
 
 
+SOURCE_OPTIONS = ("root", "grouped_file", "tasks_path", "suite", "text_template", "group_aliases")
+
+
+def source_options(pipeline_config) -> dict:
+    """The keys of a pipeline config (conf/pipeline/*.yaml) that load_tasks reads; the others are its episodes'."""
+    return {k: pipeline_config.get(k) for k in SOURCE_OPTIONS}
+
+
 def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
     """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path, suite,
     text_template, group_aliases (the keys of the pipeline config)."""

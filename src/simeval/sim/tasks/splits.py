@@ -17,11 +17,12 @@ episodes' seeds, so two runs evaluate on the same scenes.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import yaml
 
-from simeval.sim.tasks.spec import SpecError, TaskSpec
+from simeval.sim.tasks.spec import SpecError, TaskSpec, check_variation, variation_for
 
 SPLITS = ("train", "eval", "heldout")
 SPLITS_FILE = "splits.yaml"
@@ -63,26 +64,31 @@ def heldout_of(specs: list[TaskSpec], heldout: dict[str, list[str]]) -> list[str
     return [s.name for s in specs if s.name in names]
 
 
-def split_tasks(specs: list[TaskSpec], split: str, heldout: list[str], *,
-                eval_override: dict | None = None) -> list[tuple[TaskSpec, dict]]:
-    """[(task, variation)] that `split` rolls out among `specs` (a group's tasks), given the held-out task names.
-
-    train and eval cover the tasks that are not held out; eval gives each its own `variations.eval` (or
-    `eval_override`, checked against the task, for every task), and leaves out a task that has none, since rolling
-    it out unvaried would count the training distribution as a variation. heldout covers the held-out tasks."""
+def split_by(specs: list, split: str, heldout: list[str], eval_split: Callable[[list], list[tuple[object, dict]]]
+             ) -> list[tuple[object, dict]]:
+    """[(task, variation)] that `split` rolls out among `specs`: train = the tasks not held out, unvaried; heldout =
+    the held-out ones, unvaried; eval = `eval_split(the tasks not held out)`, each pipeline's own variation rule."""
     if split not in SPLITS:
         raise SpecError(f"eval.splits: split '{split}' is not one of {', '.join(SPLITS)}")
     if split == "heldout":
         return [(s, {}) for s in specs if s.name in heldout]
     trained = [s for s in specs if s.name not in heldout]
-    if split == "train":
-        return [(s, {}) for s in trained]
-    if eval_override:
-        from simeval.sim.tasks.spec import check_variation, variation_for
+    return [(s, {}) for s in trained] if split == "train" else eval_split(trained)
 
-        checked = check_variation(trained, eval_override)
-        return [(s, variation_for(s, checked)) for s in trained]
-    return [(s, s.variations["eval"]) for s in trained if s.variations.get("eval")]
+
+def split_tasks(specs: list[TaskSpec], split: str, heldout: list[str], *,
+                eval_override: dict | None = None) -> list[tuple[TaskSpec, dict]]:
+    """split_by for a simeval suite: eval gives each trained task its own `variations.eval` (or `eval_override`,
+    checked against the task, for every task), and leaves out a task that has none, since rolling it out unvaried
+    would count the training distribution as a variation."""
+
+    def eval_split(trained: list[TaskSpec]) -> list[tuple[TaskSpec, dict]]:
+        if eval_override:
+            checked = check_variation(trained, eval_override)
+            return [(s, variation_for(s, checked)) for s in trained]
+        return [(s, s.variations["eval"]) for s in trained if s.variations.get("eval")]
+
+    return split_by(specs, split, heldout, eval_split)
 
 
 def group_and_heldout(suite_dir: str | os.PathLike, task_group: str, tasks: list[str] | str | None = None,
