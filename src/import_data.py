@@ -15,7 +15,7 @@ log = logging.getLogger("import_data")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="import_data")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.episodes.importers import IMPORTERS, image_size_option, import_into_store
+    from simeval.pipelines.importers import IMPORTERS, image_size_option, import_into_store
     from simeval.episodes.store import EpisodeStore
     from simeval.results import RunFolder
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from simeval.collect import collect
-from simeval.episodes.importers import IMPORTERS, import_into_store
+from simeval.pipelines.importers import IMPORTERS, import_into_store
 from simeval.episodes.store import EpisodeStore
 from simeval.errors import UserError
 from simeval.sim.rollout import RecordSettings

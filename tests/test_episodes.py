@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from simeval.episodes.importers import (import_bbsea_pt, import_gensim_pt, import_ravens,
+from simeval.pipelines.importers import (import_bbsea_pt, import_gensim_pt, import_ravens,
                                         import_robogen_pt)
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_episode, read_meta, write_episode
@@ -174,7 +174,7 @@ def test_import_authors_pt_formats(tmp_path):
     ep = next(import_robogen_pt(tmp_path / "r", groups={"Open_Laptop": "table-top"}))
     assert ep.group == "table-top" and ep.seed == 2 and ep.description == "Open Laptop"
     assert not ep.success_known and ep.progress is None  # these files record neither
-    from simeval.episodes.bundles import export_bundles
+    from simeval.quality.episode_bundles import export_bundles
     from simeval.quality.bundle import load_bundles
     from simeval.quality.run import oracle_completion
 
@@ -286,7 +286,7 @@ def test_importers_convert_float_images_by_range(tmp_path):
 
 
 def test_an_import_replaces_an_unreadable_stored_episode(tmp_path, caplog):
-    from simeval.episodes.importers import import_into_store
+    from simeval.pipelines.importers import import_into_store
 
     _write_ravens(tmp_path / "data", episodes=2)
     store = EpisodeStore(tmp_path / "store")

@@ -145,7 +145,7 @@ def test_varied_episodes_are_stored_beside_the_plain_ones_never_over_them(tmp_pa
 def test_ravens_import_keeps_the_solved_scene_sub_goals_poses_and_the_task_description(tmp_path):
     import pickle
 
-    from simeval.episodes.importers import import_ravens
+    from simeval.pipelines.importers import import_ravens
 
     d, t = tmp_path / "build-car-train", 2
     goals = ["put the red block on the base", "put the blue block on top", "done"]

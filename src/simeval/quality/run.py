@@ -206,7 +206,7 @@ def resolve_bundles_dir(bundles_dir: str | None, episodes: dict | None, out_dir:
     into `<out_dir>/bundles` (the other `episodes` keys go to export_bundles). A VLM judge needs the images."""
     episodes = episodes or {}
     if episodes.get("store"):
-        from simeval.episodes.bundles import export_bundles
+        from simeval.quality.episode_bundles import export_bundles
 
         target = Path(out_dir) / "bundles"
         export_bundles(episodes["store"], target, **{k: v for k, v in episodes.items() if k != "store"})
@@ -247,7 +247,7 @@ class QualityOutcome:
 
 def _tasks_and_errors(judge: str, bundles_dir, episodes: dict | None, out_dir: Path):
     if judge == "oracle" and (episodes or {}).get("store"):  # ground truth from the store's metadata: no export
-        from simeval.episodes.bundles import store_tasks
+        from simeval.quality.episode_bundles import store_tasks
 
         return store_tasks(episodes["store"], **{k: v for k, v in episodes.items()
                                                  if k in ("pipeline", "group", "per_task")})

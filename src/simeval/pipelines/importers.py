@@ -28,6 +28,7 @@ import numpy as np
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.episodes.store import read_meta
 from simeval.errors import UserError
+from simeval.sim.action_spaces import pick_place_action_space
 from simeval.tasks.bbsea import bbsea_group, utf8_name
 from simeval.tasks.gensim import gensim_groups
 
@@ -184,8 +185,6 @@ def _ravens_pose14(action, path: Path, index: int) -> np.ndarray:
 def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                   groups: dict | None = None, descriptions: dict | None = None,
                   stored: IsStored = _never) -> Iterator[Episode | Stored]:
-    from simeval.sim.action_spaces import pick_place_action_space
-
     root = Path(root).expanduser()
     dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
     if not dirs:
@@ -246,8 +245,6 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
 def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                      groups: dict | None = None, descriptions: dict | None = None) -> Iterator[Episode]:
     """(The seed is stored inside these files, so each is loaded even on a resumed import.)"""
-    from simeval.sim.action_spaces import pick_place_action_space
-
     root = Path(root).expanduser()
     for path, _ in _episode_files(root, "*/episode_*.pt", r"episode_\d+_\d+_\d+\.pt",
                                   "GenSim: <task>/episode_<i>_<H>_<L>.pt"):
