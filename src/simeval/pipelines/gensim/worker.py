@@ -66,8 +66,6 @@ def load_gensim(root: str) -> dict:
     if importlib.util.find_spec("torchvision") is None:
         sys.modules["torchvision"] = _StandIn("torchvision")
         stood_in.append("torchvision")
-    if root not in sys.path:
-        sys.path.insert(0, root)
     from cliport import tasks  # noqa: F401  (registry: template and generated tasks)
     from cliport.environments import environment  # noqa: F401
     return {"stood_in": stood_in}
