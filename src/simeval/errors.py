@@ -21,6 +21,12 @@ def require_whole(key: str, value: object, low: int = 1) -> None:
         raise UserError(f"{key} must be a whole number >= {low}, got {value!r}")
 
 
+def require_whole_fields(settings: object, prefix: str, names: tuple[str, ...], low: int = 1) -> None:
+    """require_whole for each named field of a settings dataclass, named `<prefix>.<field>` as the config spells it."""
+    for name in names:
+        require_whole(f"{prefix}.{name}", getattr(settings, name), low)
+
+
 def require_choice(key: str, value: object, choices: tuple[str, ...]) -> None:
     """Raise a UserError naming `key` and the valid values unless value is one of `choices`."""
     if value not in choices:

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from simeval.episodes.episode import EpisodeFormatError
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_whole_fields
 
 
 @dataclass
@@ -52,8 +52,7 @@ class WindowSpec:
     pad_end: bool = False  # a last window may run past the final row (padded)
 
     def __post_init__(self) -> None:
-        for name in ("length", "stride"):
-            require_whole(f"world_model.window.{name}", getattr(self, name))
+        require_whole_fields(self, "world_model.window", ("length", "stride"))
         if not 0 <= self.offset < self.stride:
             raise UserError(f"window.offset={self.offset}: expected 0 <= offset < stride ({self.stride})")
         if not 0 <= self.pad_start < self.length:

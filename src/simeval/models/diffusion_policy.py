@@ -36,7 +36,7 @@ from einops import rearrange
 from torch import nn
 from torch.nn import functional as F
 
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_whole_fields
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
@@ -79,10 +79,9 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         self.cameras, self.image_size, self.down_dims = list(self.cameras), list(self.image_size), list(self.down_dims)
-        ints = ("crop", "encoder_width", "keypoints", "feature_dim", "horizon", "n_obs_steps", "n_action_steps",
-                "step_embed_dim", "kernel_size", "n_groups", "num_train_timesteps", "num_inference_steps")
-        for k in ints:
-            require_whole(f"policy.model.{k}", getattr(self, k))
+        require_whole_fields(self, "policy.model", ("crop", "encoder_width", "keypoints", "feature_dim", "horizon",
+                                                    "n_obs_steps", "n_action_steps", "step_embed_dim", "kernel_size",
+                                                    "n_groups", "num_train_timesteps", "num_inference_steps"))
         if self.action_space not in POLICY_ACTION_SPACES:
             raise UserError(f"policy.action_space={self.action_space!r}: expected one of "
                             f"{', '.join(POLICY_ACTION_SPACES)}")
@@ -255,8 +254,7 @@ class TrainSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for k in ("train_steps", "batch_size", "checkpoint_every", "log_every"):
-            require_whole(f"policy.train.{k}", getattr(self, k))
+        require_whole_fields(self, "policy.train", ("train_steps", "batch_size", "checkpoint_every", "log_every"))
         if not self.lr > 0:
             raise UserError(f"policy.train.lr must be > 0, got {self.lr!r}")
         self.betas = tuple(self.betas)

@@ -101,14 +101,18 @@ def _random_walk(step, s: np.ndarray, rng: np.random.Generator, n_actions: int) 
     return np.stack(states), np.stack(actions)
 
 
+def _check_group(kind: str, kinds: tuple[str, str], n_tasks: int, most: int) -> None:
+    if kind not in kinds:
+        raise ValueError(f"kind={kind!r}: expected {kinds[0]} or {kinds[1]}")
+    if not 1 <= n_tasks <= most:
+        raise ValueError(f"n_tasks={n_tasks}: expected 1..{most}")
+
+
 def make_group(kind: str, n_tasks: int, episodes: int, n_actions: int, size: int, seed: int = 0) -> ArraySource:
     """A group of n_tasks tasks x episodes episodes: kind "shared" (every task `move`) or "diverse" (the first
     n_tasks DYNAMICS). Task i has colour i and the same episode seeds in both kinds, so task 0 (`move` in both) is
     the same data in both groups and only the dynamics of the other tasks differ."""
-    if kind not in ("shared", "diverse"):
-        raise ValueError(f"kind={kind!r}: expected shared or diverse")
-    if not 1 <= n_tasks <= len(DYNAMICS):
-        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(DYNAMICS)}")
+    _check_group(kind, ("shared", "diverse"), n_tasks, len(DYNAMICS))
     infos, arrays = [], []
     for t in range(n_tasks):
         dyn = "move" if kind == "shared" else DYNAMICS[t]
@@ -171,10 +175,7 @@ def _group(name: str, kind: str, n_tasks: int, looks: tuple, episodes: int, n_ac
            episode: Callable[[object, int], dict]) -> ArraySource:
     """Tasks 0..n_tasks-1 of a control group: task i's episode e is episode(looks[0] if kind is "shared" else
     looks[i], its seed); the seeds are the same in both kinds, so the kinds differ in the looks (physics, arm) alone."""
-    if kind not in ("shared", "varied"):
-        raise ValueError(f"kind={kind!r}: expected shared or varied")
-    if not 1 <= n_tasks <= len(looks):
-        raise ValueError(f"n_tasks={n_tasks}: expected 1..{len(looks)}")
+    _check_group(kind, ("shared", "varied"), n_tasks, len(looks))
     infos, arrays = [], []
     for t in range(n_tasks):
         look = looks[0] if kind == "shared" else looks[t]

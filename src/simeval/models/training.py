@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_whole_fields
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
 from simeval.models.device import module_device, resolve_device, to_cpu, to_device
 from simeval.models.trainer import refuse_other_settings, run_steps
@@ -58,8 +58,7 @@ class TrainConfig:
     num_workers: int = 0  # DataLoader workers reading windows
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "epochs", "checkpoint_every"):
-            require_whole(f"world_model.train.{name}", getattr(self, name))
+        require_whole_fields(self, "world_model.train", ("batch_size", "epochs", "checkpoint_every"))
         if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
             raise UserError(f"world_model.train.max_steps={self.max_steps!r}: expected null or a whole number >= 1")
         if self.lr <= 0 or self.clip <= 0:

@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import nn
 
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError, require_whole_fields
 from simeval.models.device import module_device, to_device
 
 VERSION = "1.0"
@@ -64,10 +64,8 @@ class WorldModelConfig:
     state_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        positive = ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth", "minres", "mlp_layers",
-                    "mlp_units")
-        for name in positive:
-            require_whole(f"world_model.model.{name}", getattr(self, name))
+        require_whole_fields(self, "world_model.model", ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth",
+                                                         "minres", "mlp_layers", "mlp_units"))
         if self.kernel < 2:
             raise UserError(f"world_model.kernel={self.kernel}: expected >= 2 (stride-2 convolutions)")
         ratio = self.image_size / self.minres
