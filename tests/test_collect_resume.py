@@ -142,6 +142,15 @@ def test_import_of_a_missing_src_says_it_does_not_exist_before_any_progress(tmp_
     proc = _run("import_data.py", tmp_path, f"src={tmp_path / 'nope'}", f"store={tmp_path / 'store'}")
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 2, err[-2000:]
-    assert _one_line(err) == f"error: src={tmp_path / 'nope'} does not exist"  # no progress bar before it
+    hint = "give the folder that holds the demonstrations"
+    assert _one_line(err) == f"error: src={tmp_path / 'nope'} does not exist; {hint}"  # no progress bar before it
     with pytest.raises(UserError, match="does not exist"):
         import_into_store(IMPORTERS["ravens"], tmp_path / "nope", EpisodeStore(tmp_path / "store"))
+    (tmp_path / "demos.txt").write_text("not demonstrations")
+    (tmp_path / "empty").mkdir()
+    for src, line in [(tmp_path / "demos.txt", f"error: src={tmp_path / 'demos.txt'}: is a file, not a folder; {hint}"),
+                      (tmp_path / "empty", f"error: {tmp_path / 'empty'}: no Ravens demo folders "
+                                           "(<task>-<mode>/action/*.pkl)")]:
+        proc = _run("import_data.py", tmp_path, f"src={src}", f"store={tmp_path / 'store'}")
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 2 and _one_line(err) == line, err[-2000:]

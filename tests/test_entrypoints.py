@@ -189,7 +189,7 @@ def test_table3_reproduces_the_paper_gensim_rows(shared_data, tmp_path):
     ("report.py", ["report.digits=3", "-m", "report.runs_dir=/nonexistent/runs"],
      "report.runs_dir=/nonexistent/runs: no such folder"),
     ("collect.py", ["episodes=1", "-m", "task_group=nope"], "unknown task_group 'nope'"),
-    ("import_data.py", ["format=ravens", "-m", "src=/nonexistent/demos"], "src=/nonexistent/demos does not exist"),
+    ("import_data.py", ["format=ravens", "-m", "src=/nonexistent/demos"], "src=/nonexistent/demos does not exist; give the folder that holds the demonstrations"),
 ])
 def test_every_entrypoint_accepts_multirun_flag_after_an_override(script, args, job_error, tmp_path):
     res = run(script, *args, f"hydra.sweep.dir={tmp_path}")

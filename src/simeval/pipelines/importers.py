@@ -328,13 +328,17 @@ that does not exist is a UserError before any progress output."""
 
     from tqdm import tqdm
 
-    if not Path(src).expanduser().exists():  # before any progress output: a typo is not "no demos found"
-        raise UserError(f"src={src} does not exist")
+    folder = Path(src).expanduser()
+    if not folder.exists():  # before any progress output: a typo is not "no demos found"
+        raise UserError(f"src={src} does not exist; give the folder that holds the demonstrations")
+    if not folder.is_dir():
+        raise UserError(f"src={src}: is a file, not a folder; give the folder that holds the demonstrations")
     if "stored" in inspect.signature(importer).parameters:
         options["stored"] = _never if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0
     per_task: dict[str, dict] = {}
-    for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress):
+    # delay: a folder without the format's layout fails at once, with its one line and no progress bar before it
+    for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress, delay=1.0):
         if isinstance(item, Stored):
             meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
             task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
