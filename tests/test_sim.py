@@ -214,3 +214,22 @@ def test_malformed_specs_are_spec_errors_not_crashes(data, match, tmp_path):
         from simeval.sim.tasks.spec import load_spec
 
         load_spec(tmp_path / "empty.yaml")
+
+
+@pytest.mark.parametrize("robot", ["xarm6", "panda"])
+def test_both_robots_meet_the_robot_interface_the_environment_uses(robot):
+    from simeval.sim.core.world import World
+    from simeval.sim.robots import Robot
+    from simeval.sim.robots.panda import Panda
+    from simeval.sim.robots.xarm import Arm
+
+    world = World(30.0, shadows=False)
+    try:
+        arm = Panda(world) if robot == "panda" else Arm(world)
+        assert isinstance(arm, Robot)
+        assert arm.held is None and arm.body in arm.body_ids
+        state = arm.state()
+        applied = arm.apply(arm.last_action if robot == "panda" else np.r_[arm.target, 0.0].astype(np.float32))
+        assert state.dtype == np.float32 and applied.dtype == np.float32
+    finally:
+        world.close()

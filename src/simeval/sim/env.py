@@ -82,6 +82,7 @@ from simeval.sim.core.articulated import set_joint_fraction
 from simeval.sim.core.geometry import still
 from simeval.sim.core.objects import make_object
 from simeval.sim.core.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
+from simeval.sim.robots import Robot
 from simeval.sim.robots.xarm import JOINT_LIMIT_MARGIN, JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
 from simeval.sim.tasks.goals import task_progress
 from simeval.sim.tasks.spec import (
@@ -194,7 +195,7 @@ class SimEnv(_gym().Env):
             self.action_space = spaces.Box(POSE_LOW, POSE_HIGH, dtype=np.float32)
             self.action_info = pick_place_action_space(self.control_hz)
         self.world: World | None = None
-        self.arm: Arm | None = None
+        self.arm: Robot | None = None  # an Arm (xArm6) or a Panda, by the task's robot
         self.inst = None
         self.episode_seed: int | None = None
         self._low: dict | None = None
