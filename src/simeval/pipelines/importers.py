@@ -323,7 +323,7 @@ def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike,
                       progress: bool = True, **options) -> dict:
     """Run `importer(src, **options)` and write each episode unless the store holds it already, so an
     interrupted import resumes; importers that can tell from a file's path skip loading it altogether. A `src`
-that does not exist is a UserError before any progress output."""
+that does not exist or is a file is a UserError before any progress output."""
     import inspect
 
     from tqdm import tqdm

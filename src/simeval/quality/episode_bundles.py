@@ -20,6 +20,7 @@ import yaml
 
 from simeval.episodes.store import EpisodeStore, read_episode
 from simeval.errors import UserError
+from simeval.quality.bundle import BundleError, TaskBundle, validate_ground_truth
 from simeval.results import atomic_write_text
 
 
@@ -55,8 +56,6 @@ def store_tasks(store_root: str | os.PathLike, *, pipeline: str | None = None, g
     what the episode recorded (success if `success_known`, the last progress if `progress_known`; an unknown is
     left out, never scored as 0). An episode whose recorded truth is invalid is a per-task error."""
     import h5py
-
-    from simeval.quality.bundle import BundleError, TaskBundle, validate_ground_truth
 
     tasks, errors = [], {}
     for m in _episodes(store_root, pipeline, group, per_task):
