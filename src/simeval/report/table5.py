@@ -36,6 +36,7 @@ CHANCE = "random"  # policy=random: the chance baseline (simeval.models.policy.r
 CHANCE_NOTE = " (chance: nothing trained)"
 PAPER_PROGRESS = {"gensim", "gensim_own"}  # pipelines whose paper value is a step-wise reward: the figure draws
 # our eval progress
+LEGEND_ROW_INCHES = 16.0  # the figure legend's five keys in one row at fontsize 8 (measured: ~14 in)
 PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
@@ -372,11 +373,13 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         handles.append(Line2D([], [], marker="D", ms=5, mfc="white", mec="C3", ls="none",
                               label="eval progress (GenSim: the paper's quantity)"))
     handles.append(Line2D([], [], color="k", ls="--", label=TABLE5_MEANING))
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    # one row of keys needs about LEGEND_ROW_INCHES: a narrower figure (few groups) takes two rows, not a cut legend
+    rows_of_keys = 1 if fig.get_figwidth() >= LEGEND_ROW_INCHES else 2
+    fig.legend(handles=handles, loc="lower center", ncol=-(-len(handles) // rows_of_keys), fontsize=8, frameon=False)
     policies = sorted({r["policy"] for r in rows if r["policy"]})
     fig.suptitle("Table 5: Diffusion Policy success per task group"
                  + (f" (policy {', '.join(policies)})" if policies else " (no runs)"))
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.tight_layout(rect=(0, 0.07 * rows_of_keys, 1, 1))
     path = Path(path)
     written = [save_figure(fig, path.with_suffix(f".{fmt}"), dpi=150) for fmt in formats]  # byte-reproducible
     plt.close(fig)
