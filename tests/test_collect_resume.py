@@ -149,7 +149,8 @@ def test_import_of_a_missing_src_says_it_does_not_exist_before_any_progress(tmp_
     (tmp_path / "demos.txt").write_text("not demonstrations")
     (tmp_path / "empty").mkdir()
     for src, line in [(tmp_path / "demos.txt", f"error: src={tmp_path / 'demos.txt'}: is a file, not a folder; {hint}"),
-                      (tmp_path / "empty", f"error: {tmp_path / 'empty'}: no Ravens demo folders (<task>-<mode>/action/*.pkl)")]:
+                      (tmp_path / "empty", (f"error: src={tmp_path / 'empty'}: no Ravens demo folders "
+                                            f"(<task>-<mode>/action/*.pkl); {hint}"))]:
         proc = _run("import_data.py", tmp_path, f"src={src}", f"store={tmp_path / 'store'}")
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 2 and _one_line(err) == line, err[-2000:]

@@ -51,12 +51,20 @@ class Stored:
     seed: int
 
 
+class NoDemonstrations(EpisodeFormatError):
+    """`root` holds none of a format's files; `what` says what it should hold (import_into_store names its key)."""
+
+    def __init__(self, root: Path, what: str) -> None:
+        super().__init__(f"{root}: {what}")
+        self.what = what
+
+
 def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tuple[Path, re.Match]]:
     """Files under `root` matching the glob `pattern` whose name fully matches the regex `name`; none is an
     error that shows the expected layout."""
     found = [(p, m) for p in sorted(root.glob(pattern)) if (m := re.fullmatch(name, p.name))]
     if not found:
-        raise EpisodeFormatError(f"{root}: no episode files ({layout})")
+        raise NoDemonstrations(root, f"no episode files ({layout})")
     return found
 
 
@@ -188,7 +196,7 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
     root = Path(root).expanduser()
     dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
     if not dirs:
-        raise EpisodeFormatError(f"{root}: no Ravens demo folders (<task>-<mode>/action/*.pkl)")
+        raise NoDemonstrations(root, "no Ravens demo folders (<task>-<mode>/action/*.pkl)")
     for d in dirs:
         task = re.sub(r"-(train|val|test)$", "", d.name)
         for action_file in sorted((d / "action").glob("*.pkl")):
@@ -319,6 +327,14 @@ IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt":
              "robogen_pt": import_robogen_pt}
 
 
+def _naming_src(items: Iterator, src) -> Iterator:
+    """`items`, with a folder that holds none of the format's files said as the `src=` key a user typed."""
+    try:
+        yield from items
+    except NoDemonstrations as e:
+        raise UserError(f"src={src}: {e.what}; give the folder that holds the demonstrations") from e
+
+
 def import_into_store(importer: Callable[..., Iterator], src: str | os.PathLike, store, *, overwrite: bool = False,
                       progress: bool = True, **options) -> dict:
     """Run `importer(src, **options)` and write each episode unless the store holds it already, so an
@@ -338,7 +354,8 @@ that does not exist or is a file is a UserError before any progress output."""
     written = skipped = 0
     per_task: dict[str, dict] = {}
     # delay: a folder without the format's layout fails at once, with its one line and no progress bar before it
-    for item in tqdm(importer(src, **options), desc="importing", unit="episode", disable=not progress, delay=1.0):
+    items = _naming_src(importer(src, **options), src)
+    for item in tqdm(items, desc="importing", unit="episode", disable=not progress, delay=1.0):
         if isinstance(item, Stored):
             meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
             task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
