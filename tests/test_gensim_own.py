@@ -334,3 +334,40 @@ def test_the_collect_hint_repeats_the_stores_frame_size(own_store, tmp_path):
                        cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
     line = _error_line(r)
     assert "episodes=50" in line and "'record.image_size=[32,32]'" in line
+
+
+def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_settings(own_store, tmp_path):
+    """experiments/gensim_own_control.py at tiny sizes on the fixture's one task: with one task the generalist and
+    the specialist train on the same episodes with the same settings, so they are one model (one checkpoint) and
+    every difference is exactly zero; a rerun reuses both runs; other settings and a store without enough episodes
+    are one line each, exit 2."""
+    script = ROOT / "experiments" / "gensim_own_control.py"
+    args = ["--group", "placement", "--tasks", "1", "--per-task", "1", "--heldout", "2", "3", "--preset", "tiny",
+            "--steps", "3", "--seeds", "0", "--store", str(own_store), "--out", str(tmp_path)]
+
+    def control(*extra):
+        return subprocess.run([sys.executable, str(script), *args, *extra], capture_output=True, text=True,
+                              timeout=600, cwd=ROOT, env=ENV)
+
+    r = control()
+    assert r.returncode == 0, r.stderr[-3000:]
+    result = json.loads((tmp_path / "tables" / "control_gensim_own.json").read_text())
+    assert result["tasks"] == [TASK] and result["verdict"]["held_out_episodes"] == 2
+    pooled = result["verdict"]["pooled"]["one_step_object"]
+    assert pooled["difference"] == 0.0 and pooled["difference_interval"] == [0.0, 0.0]
+    assert pooled["generalist"] == pooled["specialists"] > 0
+    runs = sorted(p.name for p in (tmp_path / "controls" / "gensim_own" / "runs").glob("*.json"))
+    assert runs == ["generalist_all_s0.json", f"specialists_{TASK}_s0.json"]
+    assert len(list((tmp_path / "checkpoints" / "controls").glob("*"))) == 1  # one model: the same key
+    assert (tmp_path / "figures" / "control_gensim_own.png").stat().st_size > 10_000
+    assert "| pooled |" in (tmp_path / "tables" / "control_gensim_own.md").read_text()
+
+    again = control()
+    assert again.returncode == 0 and again.stdout.count("saved already, reused") == 2
+    other = control("--steps", "4")  # would label the saved runs with the new settings
+    assert other.returncode == 2 and len(other.stderr.strip().splitlines()) == 1
+    assert "was run with other settings" in other.stderr
+    short = control("--heldout", "3", "5")  # the fixture holds 3 episodes of its task
+    assert short.returncode == 2 and "Traceback" not in short.stderr
+    line = short.stderr.strip().splitlines()[-1]
+    assert "needs 1 gensim_own tasks of group placement with 5 episodes each" in line and "collect them" in line

@@ -269,6 +269,16 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     assert f"reused 2 of 2 (split, task) rollouts from {cache}" in caplog.text
     run_splits(policy, plan, [0, 1], None, cache, policy_step=200)  # another checkpoint step: rolled out again
     assert len(calls) == 4
+    # the same task name in another pipeline's environments (simeval's GenSim-style suite and GenSim's own code
+    # share names; the chance baseline's cache folder is shared by every pipeline): rolled out again, then reused
+    from simeval.pipelines.base import SuitePipeline
+    from simeval.sim.tasks.spec import SUITES_DIR
+
+    suite = SuitePipeline("gensim", SUITES_DIR / "gensim").environment_id()
+    other = {**suite, "name": "gensim_own"}
+    for environment in (suite, other, other):
+        run_splits(policy, plan, [0, 1], None, cache, policy_step=200, environment=environment)
+    assert len(calls) == 8
 
     cache.write_text('{"cut short": ')
     with pytest.raises(UserError, match="rollouts.json: not a rollout cache .*delete it"):

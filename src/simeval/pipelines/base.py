@@ -54,6 +54,12 @@ class Pipeline(ABC):
                     ) -> list[tuple[object, dict]]:
         """[(task, variation)] that evaluation split `split` (train | eval | heldout) rolls out."""
 
+    def environment_id(self) -> dict:
+        """What this pipeline's environments depend on besides a rollout's task, variation, action space, frames and
+        step limit: part of the key under which a rollout is cached (a cached rollout is reused only where it
+        matches). A pipeline with settings of its own adds them."""
+        return {"name": self.name}
+
     @abstractmethod
     def make_env(self, task: str, action_space: str, variation: Mapping, image_size: Sequence[int],
                  cameras: Sequence[str], max_steps: int | None):
@@ -116,6 +122,9 @@ class SuitePipeline(Pipeline):
         specs, common, per_task = plan_suite(suite_dir, tasks, task_group, variation["split"], variation["knobs"])
         return collect(specs, seeds, EpisodeStore(store), RecordSettings(**record), pipeline=pipeline["name"],
                        workers=workers, variation=common, task_variations=per_task)
+
+    def environment_id(self):
+        return {"name": self.name, "suite": self.suite_dir.name}
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         from simeval.sim.tasks.splits import group_and_heldout

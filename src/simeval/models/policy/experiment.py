@@ -65,10 +65,12 @@ def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, see
 
 def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds: Sequence[int],
                max_steps: int | None, cache_file: str | os.PathLike, policy_step: int,
-               progress: bool = False, make_env=None) -> list[dict]:
+               progress: bool = False, make_env=None, environment: Mapping | None = None) -> list[dict]:
     """plan: {split: [(task, variation), ...]} (Pipeline.split_tasks); every (split, task) is rolled out on `seeds`
     (in `make_env`'s environments: the pipeline's), its row cached in `cache_file` so a killed evaluation resumes.
-    Each row records its variation."""
+    Each row records its variation. `environment`: what else the rollouts depend on (the pipeline's
+    `environment_id`, and for a policy whose cache folder is shared, as the chance baseline's, its settings), part
+    of each row's key: two pipelines can name a task alike (simeval's GenSim-style suite and GenSim's own code)."""
     from simeval.models.policy.evaluate import rollout_task
 
     cache_file = Path(cache_file)
@@ -83,7 +85,8 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
-        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler], sort_keys=True)
+        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler]
+                         + ([dict(environment)] if environment is not None else []), sort_keys=True, default=str)
         if key in cache:
             reused += 1
         else:
@@ -177,8 +180,9 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
             pipeline.name, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
             val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config)
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
+    environment = {"pipeline": pipeline.environment_id(), **({"policy": settings_id} if chance else {})}
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
-                      progress=progress, make_env=pipeline.make_env)
+                      progress=progress, make_env=pipeline.make_env, environment=environment)
     values.update(tasks=rows, splits=ev.summarize(rows))
     if evaluation["videos"] and rows and not chance:
         values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], evaluation["max_steps"],

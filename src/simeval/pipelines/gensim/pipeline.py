@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -43,6 +43,9 @@ class GensimOwnPipeline(Pipeline):
 
         return collect_from_checkout(pipeline.get("root"), dict(pipeline["native"]), tasks, task_group, seeds, store,
                                      dict(record), pipeline=pipeline["name"], workers=workers)
+
+    def environment_id(self):
+        return {"name": self.name, **asdict(self.settings)}  # its checkout, rates, task mode, clock, timeouts
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         group = plan_tasks(Path(self.settings.root), None, task_group)

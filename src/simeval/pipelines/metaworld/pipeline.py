@@ -38,6 +38,9 @@ class MetaworldPipeline(Pipeline):
         check_variation(variation, "pipeline.eval_variation")
         return cls(pipeline["name"], settings, heldout, variation)
 
+    def environment_id(self):
+        return {"name": self.name, **asdict(self.settings)}
+
     @classmethod
     def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
         from tqdm import tqdm
