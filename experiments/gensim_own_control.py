@@ -150,7 +150,10 @@ def markdown(result: dict) -> str:
 
 
 def plot(result: dict, path: Path) -> None:
-    """Per task and pooled: both conditions' moving-pixel and object-focused errors with their intervals."""
+    """Per task and pooled: both conditions' moving-pixel and object-focused errors with their intervals, and what
+    copying the last frame scores on the same pixels."""
+    import textwrap
+
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -159,25 +162,30 @@ def plot(result: dict, path: Path) -> None:
     v = result["verdict"]
     names = ["pooled", *sorted(v["per_task"])]
     cells = [v["pooled"], *(v["per_task"][n] for n in names[1:])]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
     x = np.arange(len(names))
     for ax, metric, label in ((axes[0], JUDGED, "moving-pixel one-step error (judged)"),
                               (axes[1], BESIDE, "object-focused one-step error (beside)")):
         for j, (cond, color) in enumerate((("specialists", "tab:blue"), ("generalist", "tab:orange"))):
             vals = np.array([1e3 * c[metric][cond] for c in cells])
-            ivs = np.array([[1e3 * c[metric][f"{cond}_interval"][0], 1e3 * c[metric][f"{cond}_interval"][1]]
-                            for c in cells])
-            ax.bar(x + (j - 0.5) * 0.38, vals, 0.38, color=color, label=cond,
-                   yerr=np.abs(np.stack([vals - ivs[:, 0], ivs[:, 1] - vals])), capsize=3)
-        ax.set_xticks(x, [n.replace("-", "-\n", 1) for n in names], fontsize=8)
-        ax.set_ylabel("x1e-3 per pixel")
+            ivs = np.array([1e3 * np.array(c[metric][f"{cond}_interval"]) for c in cells])
+            err = np.where(np.isfinite(ivs.T), np.abs(ivs.T - vals), 0.0)
+            ax.bar(x + (j - 0.5) * 0.38, np.nan_to_num(vals), 0.38, color=color, label=cond, yerr=err, capsize=3)
+        last = np.array([1e3 * c[f"{metric}_last"]["generalist"] for c in cells])
+        ax.scatter(x, last, marker="_", s=500, color="k", zorder=3, label="last frame copied (same pixels)")
+        for i, c in enumerate(cells):
+            if not np.isfinite(c[metric]["generalist"]):
+                ax.text(x[i], 0, "no reading", ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(x, [textwrap.fill(n, 16, break_on_hyphens=True) for n in names], fontsize=8)
+        ax.set_ylabel("x1e-3 per pixel and channel")
         ax.set_title(label, fontsize=10)
-        ax.legend(fontsize=8, loc="upper left")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=3, fontsize=9, bbox_to_anchor=(0.5, 0.94), frameon=False)
     passed = v["passes"]["moving_pixel_error_higher_for_generalist"]
     fig.suptitle(f"GenSim's own {result['group']} episodes: 4-task generalist vs one-task specialists at equal data "
                  f"({result['preset']}, seeds {', '.join(map(str, result['seeds']))}; held-out episodes "
                  f"{result['heldout'][0]}-{result['heldout'][1]}): {'passes' if passed else 'fails'}", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
