@@ -164,10 +164,10 @@ controls: setup ## the heldout protocol's validity controls at the cpu preset: d
 	$(PY) experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30
 
 .PHONY: control-gensim-own
-control-gensim-own: gensim-env ## the control on GenSim's own episodes (a 4-task generalist vs 1-task specialists): collects 20 episodes of the first four stacking tasks from the checkout (GENSIM_ROOT), then outputs/tables/control_gensim_own.*, outputs/figures/control_gensim_own.png
+control-gensim-own: gensim-env ## the control on GenSim's own episodes (a 4-task generalist vs 1-task specialists): collects 20 episodes of the first four stacking tasks from the checkout (GENSIM_ROOT, else ../shared/gensim beside), then 3 seeds: outputs/tables/control_gensim_own.*, outputs/figures/control_gensim_own.png
 	$(if $(GENSIM_CHECKOUT),,$(error no GenSim checkout: set GENSIM_ROOT=<your GenSim checkout>))
 	$(PY) src/collect.py pipeline=gensim_own pipeline.root=$(GENSIM_CHECKOUT) 'tasks=[color-coordinated-cylinder-stacking,color-sorted-container-stack,cylinder-ring-stack,sequential-insertion-and-stacking]' episodes=20 workers=2
-	$(PY) experiments/gensim_own_control.py --seeds 0 1
+	$(PY) experiments/gensim_own_control.py --task-names color-coordinated-cylinder-stacking color-sorted-container-stack cylinder-ring-stack sequential-insertion-and-stacking
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.

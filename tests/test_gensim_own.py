@@ -337,13 +337,18 @@ def test_the_collect_hint_repeats_the_stores_frame_size(own_store, tmp_path):
 
 
 def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_settings(own_store, tmp_path):
-    """experiments/gensim_own_control.py at tiny sizes on the fixture's one task: with one task the generalist and
-    the specialist train on the same episodes with the same settings, so they are one model (one checkpoint) and
-    every difference is exactly zero; a rerun reuses both runs; other settings and a store without enough episodes
-    are one line each, exit 2."""
+    """experiments/gensim_own_control.py at tiny sizes on two of GenSim's own tasks (the fixture's and one more
+    collected here): a generalist and two specialists trained and scored on the same held-out episodes, the
+    table's object-focused errors the ratios of the runs' sums (by hand); a rerun reuses the three runs; other
+    settings, one task, and a store without enough episodes are one line each, exit 2."""
+    store = tmp_path / "store"
+    shutil.copytree(own_store, store)
+    r = _collect(tmp_path, "tasks=[place-blue-on-line-ends]", "debug=tiny", "episodes=3", "workers=2",
+                 f"store={store}")
+    assert r.returncode == 0, r.stderr[-3000:]
     script = ROOT / "experiments" / "gensim_own_control.py"
-    args = ["--group", "placement", "--tasks", "1", "--per-task", "1", "--heldout", "2", "3", "--preset", "tiny",
-            "--steps", "3", "--seeds", "0", "--store", str(own_store), "--out", str(tmp_path)]
+    args = ["--group", "placement", "--tasks", "2", "--per-task", "1", "--heldout", "3", "3", "--preset", "tiny",
+            "--steps", "3", "--seeds", "0", "--store", str(store), "--out", str(tmp_path / "out")]
 
     def control(*extra):
         return subprocess.run([sys.executable, str(script), *args, *extra], capture_output=True, text=True,
@@ -351,23 +356,29 @@ def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_sett
 
     r = control()
     assert r.returncode == 0, r.stderr[-3000:]
-    result = json.loads((tmp_path / "tables" / "control_gensim_own.json").read_text())
-    assert result["tasks"] == [TASK] and result["verdict"]["held_out_episodes"] == 2
+    result = json.loads((tmp_path / "out" / "tables" / "control_gensim_own.json").read_text())
+    assert result["tasks"] == ["place-blue-on-line-ends", TASK] and result["verdict"]["held_out_episodes"] == 2
+    runs = tmp_path / "out" / "controls" / "gensim_own" / "runs"
+    assert sorted(p.name for p in runs.glob("*.json")) == [
+        "generalist_all_s0.json", "specialists_place-blue-on-line-ends_s0.json", f"specialists_{TASK}_s0.json"]
+
+    def object_error(paths):  # sum of squared errors / (3 x kept pixels) over the held-out episodes
+        sums = [e["sums"] for p in paths for e in json.loads(p.read_text())["values"]["prediction"]["per_episode"]]
+        assert len(sums) == 2  # one held-out episode (3) of each task
+        return sum(s["one_step/model/object"] for s in sums) / (3 * sum(s["one_step/kept_pixels"] for s in sums))
+
     pooled = result["verdict"]["pooled"]["one_step_object"]
-    assert pooled["difference"] == 0.0 and pooled["difference_interval"] == [0.0, 0.0]
-    assert pooled["generalist"] == pooled["specialists"] > 0
-    runs = sorted(p.name for p in (tmp_path / "controls" / "gensim_own" / "runs").glob("*.json"))
-    assert runs == ["generalist_all_s0.json", f"specialists_{TASK}_s0.json"]
-    assert len(list((tmp_path / "checkpoints" / "controls").glob("*"))) == 1  # one model: the same key
-    assert (tmp_path / "figures" / "control_gensim_own.png").stat().st_size > 10_000
-    assert "| pooled |" in (tmp_path / "tables" / "control_gensim_own.md").read_text()
+    np.testing.assert_allclose(pooled["generalist"], object_error([runs / "generalist_all_s0.json"]), rtol=1e-9)
+    np.testing.assert_allclose(pooled["specialists"], object_error(sorted(runs.glob("specialists_*.json"))), rtol=1e-9)
+    np.testing.assert_allclose(pooled["difference"], pooled["generalist"] - pooled["specialists"], rtol=1e-9)
+    assert (tmp_path / "out" / "figures" / "control_gensim_own.png").stat().st_size > 10_000
+    assert "| pooled |" in (tmp_path / "out" / "tables" / "control_gensim_own.md").read_text()
 
     again = control()
-    assert again.returncode == 0 and again.stdout.count("saved already, reused") == 2
-    other = control("--steps", "4")  # would label the saved runs with the new settings
-    assert other.returncode == 2 and len(other.stderr.strip().splitlines()) == 1
-    assert "was run with other settings" in other.stderr
-    short = control("--heldout", "3", "5")  # the fixture holds 3 episodes of its task
-    assert short.returncode == 2 and "Traceback" not in short.stderr
-    line = short.stderr.strip().splitlines()[-1]
-    assert "needs 1 gensim_own tasks of group placement with 5 episodes each" in line and "collect them" in line
+    assert again.returncode == 0 and again.stdout.count("saved already, reused") == 3
+    for extra, said in ((("--steps", "4"), "was run with other settings"),  # would label saved runs anew
+                        (("--tasks", "1"), "--tasks 1: expected at least 2"),
+                        (("--heldout", "3", "5"), "needs 2 gensim_own tasks of group placement with 5 episodes")):
+        refused = control(*extra)
+        assert refused.returncode == 2 and "Traceback" not in refused.stderr, extra
+        assert said in refused.stderr.strip().splitlines()[-1], refused.stderr

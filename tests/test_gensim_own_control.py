@@ -53,3 +53,13 @@ def test_the_verdict_pairs_the_specialists_with_the_generalist_episode_for_episo
                                                           for k, px in pixels.items() if k[0] == t})
                                for s in (0, 1) for t in ("a", "b")], n_boot=200)
     assert swapped["passes"] == {"moving_pixel_error_higher_for_generalist": False}
+
+
+def test_too_few_moving_pixels_is_no_reading_not_a_fail():
+    control = load_script(ROOT / "experiments" / "gensim_own_control.py")
+    pixels = {("a", 16): 3.0, ("b", 16): 2.0}  # 5 moving pixels in all: below the count a reading needs
+    general = [_record("generalist", 0, {k: (9.0 * px, px) for k, px in pixels.items()})]
+    special = [_record("specialists", 0, {k: (3.0 * px, px) for k, px in pixels.items() if k[0] == t}) for t in "ab"]
+    v = control.verdict(general, special, n_boot=50)
+    assert v["passes"] == {"moving_pixel_error_higher_for_generalist": None}
+    assert control.outcome(v) == "no reading (too few pixels moved)"
