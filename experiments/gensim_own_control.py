@@ -49,11 +49,11 @@ def fail(message: str) -> None:
     sys.exit(2)
 
 
-def task_sources(store: Path, group: str, n_tasks: int, camera: str, needed: int,
-                 names: list[str] | None = None) -> dict:
-    """{task: StoreSource of its stored episodes} for `names` (or the group's first `n_tasks` stored tasks by name),
-    each holding at least `needed` episodes; a UserError names what is missing and the command that collects it."""
-    from simeval.episodes.dataset import StoreSource, store_paths_for
+def task_episodes(store: Path, group: str, n_tasks: int, needed: int, names: list[str] | None = None) -> dict:
+    """{task: its stored episode files} for `names` (or the group's first `n_tasks` stored tasks by name), each
+    holding at least `needed` episodes; a UserError names what is missing and the command that collects it. The
+    files are opened only by a run that trains (a rebuild from saved runs reads none)."""
+    from simeval.episodes.dataset import store_paths_for
     from simeval.errors import UserError
 
     by_task: dict[str, list[str]] = {}
@@ -71,7 +71,7 @@ def task_sources(store: Path, group: str, n_tasks: int, camera: str, needed: int
         raise UserError(f"--store {store}: the control needs {n_tasks} {PIPELINE} tasks of group {group} with "
                         f"{needed} episodes each (has {have}); collect them: python src/collect.py "
                         f"pipeline={PIPELINE} pipeline.root=<your GenSim checkout> {which} episodes={needed}")
-    return {t: StoreSource(sorted(by_task[t]), camera) for t in tasks}
+    return {t: sorted(by_task[t]) for t in tasks}
 
 
 def merged(records: list[dict]) -> dict:
@@ -211,7 +211,7 @@ def run_all(args) -> list[dict]:
     import torch
     import yaml
 
-    from simeval.episodes.dataset import WindowSpec
+    from simeval.episodes.dataset import StoreSource, WindowSpec
     from simeval.models.dynamics_diversity import fit_and_evaluate
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
@@ -221,13 +221,14 @@ def run_all(args) -> list[dict]:
     wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{args.preset}.yaml").read_text())
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     window = WindowSpec(**wm["window"])
-    sources = task_sources(args.store, args.group, args.tasks, args.camera, args.heldout[1], args.task_names)
+    episodes = task_episodes(args.store, args.group, args.tasks, args.heldout[1], args.task_names)
     runs_dir = args.out / "controls" / "gensim_own" / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     settings = {"preset": args.preset, "steps": args.steps, "lr": args.lr, "group": args.group,
-                "tasks": sorted(sources), "per_task": args.per_task, "heldout": list(args.heldout),
+                "tasks": sorted(episodes), "per_task": args.per_task, "heldout": list(args.heldout),
                 "camera": args.camera, "context": 5, "horizon": args.horizon, "mask_margin": args.mask_margin}
-    plan = [("generalist", None, args.per_task)] + [("specialists", t, args.per_task * len(sources)) for t in sources]
+    plan = [("generalist", None, args.per_task)] + [("specialists", t, args.per_task * len(episodes))
+                                                    for t in episodes]
     records = []
     for seed in args.seeds:
         for condition, task, k in plan:
@@ -239,7 +240,8 @@ def run_all(args) -> list[dict]:
                 records.append(rec)
                 print(f"{path.name}: saved already, reused", flush=True)
                 continue
-            source = sources[task] if task else _concat([sources[t] for t in sorted(sources)])
+            files = episodes[task] if task else [f for t in sorted(episodes) for f in episodes[t]]
+            source = StoreSource(files, args.camera)
             t0 = time.perf_counter()
             values = fit_and_evaluate(
                 source, episodes_per_task=k, model_cfg=model_cfg,
@@ -261,13 +263,6 @@ def run_all(args) -> list[dict]:
             print(f"{path.name}: moving-pixel {shown['moving_error_per_pixel']}, object-focused "
                   f"{shown['object_error_per_pixel']} x1e-3 in {time.perf_counter() - t0:.0f} s", flush=True)
     return records
-
-
-def _concat(sources: list):
-    """One StoreSource over several tasks' episodes (the generalist's group)."""
-    from simeval.episodes.dataset import StoreSource
-
-    return StoreSource([i.path for s in sources for i in s.infos], sources[0].camera)
 
 
 def check_arguments(args) -> None:

@@ -85,8 +85,8 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
-        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler]
-                         + ([dict(environment)] if environment is not None else []), sort_keys=True, default=str)
+        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler, dict(environment or {})],
+                         sort_keys=True, default=str)
         if key in cache:
             reused += 1
         else:
