@@ -188,7 +188,11 @@ def plot(result: dict, path: Path) -> None:
             ax.scatter(x, last, marker="_", s=500, color="k", zorder=3, label="last frame copied (same pixels)")
         for i, c in enumerate(cells):
             if not np.isfinite(c[metric]["generalist"]):
-                ax.text(x[i], 0, "no reading", ha="center", va="bottom", fontsize=8)
+                ax.text(x[i], 0.02, "no reading", ha="center", va="bottom", fontsize=8,
+                        transform=ax.get_xaxis_transform())
+        if not any(np.isfinite(c[metric]["generalist"]) for c in cells):
+            ax.set_yticks([])  # nothing to read: no scale to suggest one
+        ax.set_xlim(-0.6, len(names) - 0.4)
         ax.set_xticks(x, [textwrap.fill(n, 16, break_on_hyphens=True) for n in names], fontsize=8)
         ax.set_ylabel("x1e-3 per pixel and channel")
         ax.set_ylim(bottom=0)
@@ -196,12 +200,14 @@ def plot(result: dict, path: Path) -> None:
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=3, fontsize=9, bbox_to_anchor=(0.5, 0.91), frameon=False)
     d = v["pooled"][JUDGED]
+    diff = (f"{1e3 * d['difference']:.2f} [{1e3 * d['difference_interval'][0]:.2f}, "
+            f"{1e3 * d['difference_interval'][1]:.2f}] x1e-3" if math.isfinite(d["difference_interval"][0])
+            else "no reading (too few pixels moved)")
     fig.suptitle(f"GenSim's own {result['group']} episodes: {len(result['tasks'])}-task generalist vs one-task "
                  f"specialists at equal data ({result['preset']}, seeds {', '.join(map(str, result['seeds']))}; "
                  f"held-out episodes {result['heldout'][0]}-{result['heldout'][1]}): {outcome(v)}\npooled moving-pixel "
-                 f"difference (generalist minus specialists, paired) {1e3 * d['difference']:.2f} "
-                 f"[{1e3 * d['difference_interval'][0]:.2f}, {1e3 * d['difference_interval'][1]:.2f}] x1e-3; "
-                 "bars: each condition's own interval", fontsize=10)
+                 f"difference (generalist minus specialists, paired) {diff}; bars: each condition's own interval",
+                 fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.87))
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -212,6 +218,7 @@ def run_all(args) -> list[dict]:
     import yaml
 
     from simeval.episodes.dataset import StoreSource, WindowSpec
+    from simeval.episodes.store import read_meta
     from simeval.models.dynamics_diversity import fit_and_evaluate
     from simeval.models.training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
@@ -222,6 +229,9 @@ def run_all(args) -> list[dict]:
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     window = WindowSpec(**wm["window"])
     episodes = task_episodes(args.store, args.group, args.tasks, args.heldout[1], args.task_names)
+    cameras = read_meta(next(iter(episodes.values()))[0])["cameras"]  # one header: the flag named, before training
+    if args.camera not in cameras:
+        fail(f"error: --camera {args.camera}: the episodes were recorded from {', '.join(cameras)}")
     runs_dir = args.out / "controls" / "gensim_own" / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     settings = {"preset": args.preset, "steps": args.steps, "lr": args.lr, "group": args.group,
