@@ -173,7 +173,12 @@ def _run_pool(one, jobs, workers: int, args: tuple, new: list, bar) -> None:
     except BaseException:
         for p in list((getattr(pool, "_processes", None) or {}).values()):  # no public way to stop running work
             p.kill()  # an episode cut short leaves at most a temp file, never a file a reader accepts
+        manager = getattr(pool, "_executor_manager_thread", None)
         pool.shutdown(wait=False, cancel_futures=True)
+        if manager is not None:
+            # the pool's thread closes its wake-up pipe as it ends, and Python 3.11's exit hook writes to that pipe
+            # without a lock: leaving while the thread still runs can print a "Bad file descriptor" traceback at exit
+            manager.join(timeout=10)
         raise
     else:
         pool.shutdown()
