@@ -26,7 +26,9 @@ HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simev
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
-	grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk -v c="$$c" -v r="$$r" 'BEGIN {FS = ":.*?## "}; {printf "  %s%-14s%s %s\n", c, $$1, r, $$2}'
+	grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk -v c="$$c" -v r="$$r" 'BEGIN {FS = ":.*?## "}; \
+	  {name[NR] = $$1; doc[NR] = $$2; if (length($$1) > w) w = length($$1)} \
+	  END {fmt = "  %s%-" w "s%s  %s\n"; for (i = 1; i <= NR; i++) printf fmt, c, name[i], r, doc[i]}'
 
 setup: $(STAMP) ## create .venv and install the pinned requirements (idempotent)
 

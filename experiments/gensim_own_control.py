@@ -286,6 +286,11 @@ def check_arguments(args) -> None:
         if len(set(args.task_names)) != len(args.task_names):
             fail(f"error: --task-names {' '.join(args.task_names)}: a task twice")
         args.tasks = len(args.task_names)
+    from simeval.tasks.gensim import SUBSTRING_GROUPS
+
+    if args.group not in SUBSTRING_GROUPS.values():
+        fail(f"error: --group {args.group}: GenSim's groups (the authors' substring rule) are "
+             f"{', '.join(sorted(SUBSTRING_GROUPS.values()))}")
     if args.tasks < 2:
         fail(f"error: --tasks {args.tasks}: expected at least 2 (with one task the generalist is the specialist)")
     lo, hi = args.heldout

@@ -378,6 +378,7 @@ def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_sett
     assert again.returncode == 0 and again.stdout.count("saved already, reused") == 3
     for extra, said in ((("--steps", "4"), "was run with other settings"),  # would label saved runs anew
                         (("--tasks", "1"), "--tasks 1: expected at least 2"),
+                        (("--group", "nosuchgroup"), "--group nosuchgroup: GenSim's groups (the authors' substring rule)"),
                         (("--camera", "nosuch"), "--camera nosuch: the episodes were recorded from"),
                         (("--heldout", "3", "5"), "needs 2 gensim_own tasks of group placement with 5 episodes")):
         refused = control(*extra)
