@@ -126,13 +126,38 @@ def test_key_pasted_into_a_config_file_is_refused_and_scrubbed_from_hydra_files(
     (tmp_path / "conf" / "embedding").mkdir(parents=True)
     (tmp_path / "conf" / "embedding" / "leaky.yaml").write_text(
         "name: leaky\nbackend:\n  _target_: simeval.embeddings.local.MiniLM\n  api_key_env: " + key + "\n")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "notes.txt").write_text("the user's own file keeps the refused run's folder\n")
     proc = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"), "embedding=leaky",
                            f"hydra.searchpath=[file://{tmp_path}/conf]", f"hydra.run.dir={tmp_path}/run"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert "embedding.backend.api_key_env" in proc.stderr and key not in proc.stderr + proc.stdout
     saved = list((tmp_path / "run" / ".hydra").glob("*.yaml"))
-    assert saved and not any(key in p.read_text() for p in saved)
+    assert len(saved) == 3 and not any(key in p.read_text() for p in saved)
+    assert "<redacted>" in (tmp_path / "run" / ".hydra" / "config.yaml").read_text()
+
+
+def test_a_refused_run_leaves_no_folder_but_a_folder_with_anything_else_stays(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    def diversity(run_dir, *extra):
+        return subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "episodes=-1",
+                               f"hydra.run.dir={run_dir}", *extra], capture_output=True, text=True, timeout=120)
+
+    refused = diversity(tmp_path / "fresh")
+    assert refused.returncode == 2 and "episodes must be a whole number >= 1, got -1" in refused.stderr
+    assert not (tmp_path / "fresh").exists()
+    (tmp_path / "used").mkdir()
+    (tmp_path / "used" / "result.json").write_text("{}")
+    assert diversity(tmp_path / "used").returncode == 2
+    assert sorted(p.name for p in (tmp_path / "used").iterdir()) == [".hydra", "diversity.log", "result.json"]
+    sweep = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "-m", "episodes=-1",
+                            f"hydra.sweep.dir={tmp_path / 'sweep'}"], capture_output=True, text=True, timeout=120)
+    assert sweep.returncode == 2 and [p.name for p in (tmp_path / "sweep").iterdir()] == ["multirun.yaml"]
 
 
 def test_a_constructor_error_inside_instantiate_is_one_line(tmp_path):

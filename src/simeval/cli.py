@@ -129,6 +129,32 @@ def scrub_saved_config_of_secrets(cfg: Any) -> None:
                     f"variable and give its name (e.g. judge.provider.api_key_env=OPENAI_API_KEY), never the value")
 
 
+HYDRA_SAVED = {"config.yaml", "hydra.yaml", "overrides.yaml"}
+
+
+def remove_refused_run_folder() -> None:
+    """Delete this run's Hydra folder when the run was refused before it made anything: the folder holds only
+    Hydra's saved config (`.hydra/`) and empty log files. Otherwise every mistyped command would leave a folder
+    under outputs/runs that a reader (or `report.runs_dir`) could take for a run. Anything else in it keeps it."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        out = Path(HydraConfig.get().runtime.output_dir)
+    except (ImportError, ValueError):  # not under Hydra
+        return
+    if not out.is_dir() or out.resolve() == Path.cwd().resolve():
+        return
+    for entry in out.iterdir():
+        if entry.name == ".hydra" and entry.is_dir() and not entry.is_symlink():
+            if not {p.name for p in entry.iterdir()} <= HYDRA_SAVED:
+                return
+        elif not (entry.suffix == ".log" and entry.is_file() and not entry.is_symlink() and entry.stat().st_size == 0):
+            return
+    import shutil
+
+    shutil.rmtree(out, ignore_errors=True)
+
+
 def in_submitit_job() -> bool:
     """True inside a job of a Hydra sweep that submitit runs in a process of its own (`hydra/launcher=
     submitit_local`, `slurm`, `submitit_slurm`). Such a job cannot end the sweep by exiting: submitit only sees a
@@ -167,6 +193,7 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
             if in_submitit_job():
                 _print_error(line)
                 raise UserError(line) from None  # picklable, unlike some config errors and their chained causes
+            remove_refused_run_folder()
             _fail(line)
 
     return wrapper
