@@ -40,7 +40,8 @@ decide `passes`): in the dynamics control the same two criteria on the one-step 
 control the moving-pixel error moves less than a quarter as much as the full frame's. The `dose` control reports
 their share of the kept pixels (its top camera shows nothing moving outside the robot: the carried block is under
 the suction cup); `dose_drawer` is judged by them. `--reevaluate` scores saved runs again from their checkpoints,
-for quantities added later. `--conditions` runs some conditions only (two processes can share the runs; the last
+for quantities added later; `--replot` draws the figure again from the committed table alone (after a change
+to the plotting code). `--conditions` runs some conditions only (two processes can share the runs; the last
 one to finish, or any later call, builds the table from every run saved).
 """
 
@@ -444,12 +445,54 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
                 label="task's mean training image")
         ax.set_xticks(x, [f"{level:.2f}" for level in x])
         ax.set(xlabel=dose.knob_label, ylabel=unit, title=label + (" (judged)" if name == dose.metric else ""))
-        ax.legend(fontsize=7)
+    # one legend below the panels: inside them it covered a baseline's line (every panel has the same three keys)
+    fig.legend(*np.atleast_1d(axes)[0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=8,
+               frameon=False)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
     return out
+
+
+def draw_figure(result: dict, path: Path) -> Path:
+    """The control's figure from its table's JSON (`result`: rows, settings, verdict), so a figure can be drawn
+    again from a committed table alone (--replot), without its runs or episodes."""
+    from simeval.report.table4_heldout import plot
+
+    passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
+    seeds = ", ".join(map(str, result["seeds"]))
+    title = f"{result['control']} control ({result['preset']}, {result['steps']} steps, seeds {seeds}): {passes}"
+    dose = DOSES.get(result["control"])
+    if dose is None:
+        return plot(result["rows"], path, title)
+    lo, hi = result["heldout"]
+    return plot_dose(result["rows"], dose, path, f"{'/'.join(dose.task)} ({dose.camera}), {min(result['episodes'])} "
+                     f"training episodes, held-out episodes {lo}-{hi}\n{title}")
+
+
+def replot(control: str, out: Path, overwrite: bool) -> Path:
+    """--replot: draw OUT/figures/control_<control>.png again from OUT/tables/control_<control>.json (after a
+    change to the plotting code); a committed figure that would change is replaced only with --overwrite."""
+    table = out / "tables" / f"control_{control}.json"
+    try:
+        result = json.loads(table.read_text())
+    except FileNotFoundError:
+        fail(f"error: --replot: no {table}; run `python experiments/dynamics_controls.py {control}` first")
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        fail(f"error: --replot: {table} is not JSON ({e})")
+    needed = ("control", "preset", "steps", "seeds", "episodes", "heldout", "rows", "verdict")
+    if not isinstance(result, dict) or any(k not in result for k in needed) or result["control"] != control:
+        fail(f"error: --replot: {table} is not the {control} control's table (a control table has {', '.join(needed)})")
+    # the JSON holds a number with no reading as null (strict JSON); the figure code reads it as nan, as in a run
+    result["rows"] = [{k: float("nan") if v is None else v for k, v in r.items()} for r in result["rows"]]
+    figure = out / "figures" / f"control_{control}.png"
+    with tempfile.TemporaryDirectory() as tmp:
+        made = draw_figure(result, Path(tmp) / figure.name)
+        refuse_to_replace_committed([figure], [made.read_bytes()], overwrite)
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(made, figure)
+    return figure
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -484,12 +527,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reevaluate", action="store_true",
                     help="evaluate saved runs again from their checkpoints and rewrite their records (for quantities "
                     "added to the evaluation; a run whose checkpoint is gone trains again and says so)")
+    ap.add_argument("--replot", action="store_true",
+                    help="only draw the figure again from OUT/tables/control_<control>.json (no runs, no episodes)")
     args = ap.parse_args(argv)
+    if args.replot:
+        print("wrote", replot(args.control, args.out, args.overwrite))
+        return
     if max(args.episodes) >= args.heldout[0]:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
     from simeval.errors import UserError
-    from simeval.report.table4_heldout import build, plot, write
+    from simeval.report.table4_heldout import build, write
     from simeval.results import dumps_strict
 
     try:
@@ -523,22 +571,13 @@ def main(argv: list[str] | None = None) -> None:
             v["moving_passes"] = {"moves_under_a_quarter_of_full": v["moving_passes"]["moves_under_a_quarter_of_full"]}
     elif "moving_passes" in result["verdict"]:  # the dynamics control: the quarter rule is the visual one's
         del result["verdict"]["moving_passes"]["moves_under_a_quarter_of_full"]
-    passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
-    seeds = ", ".join(map(str, args.seeds))
     stem = args.out / "tables" / f"control_{args.control}"
     figure = args.out / "figures" / f"control_{args.control}.png"
     with tempfile.TemporaryDirectory() as tmp:  # built aside, compared with what is committed, then moved in
         tmp_stem = Path(tmp) / stem.name
         write(rows, tmp_stem)
         tmp_stem.with_suffix(".json").write_text(dumps_strict(result, indent=1) + "\n")
-        title = f"{args.control} control ({args.preset}, {args.steps} steps, seeds {seeds}): {passes}"
-        if dose is not None:
-            plot_dose(rows, dose, Path(tmp) / figure.name,
-                      f"{'/'.join(dose.task)} ({dose.camera}), {min(args.episodes)} training episodes, "
-                      f"held-out episodes "
-                      f"{args.heldout[0]}-{args.heldout[1]}\n{title}")
-        else:
-            plot(rows, Path(tmp) / figure.name, title)
+        draw_figure(result, Path(tmp) / figure.name)
         made = [tmp_stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [Path(tmp) / figure.name]
         targets = [stem.with_suffix(x) for x in (".csv", ".md", ".json")] + [figure]
         refuse_to_replace_committed(targets, [m.read_bytes() for m in made], args.overwrite)

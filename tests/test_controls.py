@@ -54,6 +54,16 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     assert verdict["passes"]["rises_at_every_level"] == all(by_hand[b] > by_hand[a] for a, b in zip(levels, levels[1:]))
     figure = tmp_path / "figures" / "control_dose.png"
     assert figure.stat().st_size > 10_000
+    drawn = figure.read_bytes()
+    figure.unlink()  # --replot draws it again from the table alone: same bytes, no run or episode read
+    (tmp_path / "control_episodes").rename(tmp_path / "episodes_aside")
+    replot = control("dose", "--replot", out=tmp_path)
+    assert replot.returncode == 0 and figure.read_bytes() == drawn, replot.stderr
+    (tmp_path / "episodes_aside").rename(tmp_path / "control_episodes")
+    refused = control("dose_push", "--replot", out=tmp_path)
+    assert refused.returncode == 2 and refused.stderr.strip().splitlines()[-1] == (
+        f"error: --replot: no {tmp_path / 'tables' / 'control_dose_push.json'}; run `python "
+        "experiments/dynamics_controls.py dose_push` first")
 
     again = control(*TINY_DOSE, out=tmp_path)  # every run saved: the table is rebuilt without collecting or training
     assert again.returncode == 0 and "collected" not in again.stdout and "one-step" not in again.stdout
