@@ -17,6 +17,10 @@ from simeval.cli import OneLineParser
 ROOT = Path(__file__).resolve().parents[1]
 
 METRICS = ("image_error", "state_error", "kl_dyn", "open_loop_image_error")
+UNITS = {"image_error": "squared error per frame\n(summed over pixels in [0, 1])",  # simeval.models.training's definitions
+         "state_error": "squared error summed over state dims\n(symlog of the standardised state)",
+         "kl_dyn": "KL[sg(posterior) || prior] (nats)",
+         "open_loop_image_error": "squared error per frame\n(summed over pixels in [0, 1])"}
 
 
 def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_actions: int, epochs: int | None,
@@ -81,6 +85,7 @@ def plot(result: dict, path: Path) -> None:
                 ax.plot(ks, vals[:, s], "-", color=color, alpha=0.25)
         ax.set_xticks(ks)
         ax.set_xlabel("training episodes per task")
+        ax.set_ylabel(UNITS[m], fontsize=8)
         ax.set_title(m.replace("_", " "))
     axes[0].legend()
     fig.suptitle(f"Synthetic control ({result['n_tasks']} tasks, world_model={result['preset']}, "
@@ -102,7 +107,16 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "world_model_control.json"))
     ap.add_argument("--figure", default=str(ROOT / "outputs" / "figures" / "world_model_control.png"))
+    ap.add_argument("--replot", action="store_true", help="only draw --figure again from the --out JSON")
     a = ap.parse_args()
+    if a.replot:
+        try:
+            saved = json.loads(Path(a.out).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            ap.error(f"--replot: cannot read {a.out} ({e}); run the control first")
+        plot(saved, Path(a.figure))
+        print("wrote", a.figure)
+        return
     result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(result, indent=2) + "\n")

@@ -24,3 +24,19 @@ def test_diverse_dynamics_rank_above_shared_dynamics():
         (v,) = result["verdict"][metric]
         assert v["higher_at_few"], (metric, result["rows"])
         assert v["larger_drop"], (metric, result["rows"])
+
+
+def test_replot_draws_the_figure_from_the_saved_json_alone(tmp_path):
+    import subprocess
+    import sys
+
+    script = ROOT / "experiments" / "world_model_control.py"
+    saved = ROOT / "outputs" / "tables" / "world_model_control.json"
+    ok = subprocess.run([sys.executable, str(script), "--replot", "--out", str(saved), "--figure",
+                         str(tmp_path / "f.png")], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and (tmp_path / "f.png").read_bytes() == (
+        ROOT / "outputs" / "figures" / "world_model_control.png").read_bytes(), ok.stderr
+    bad = subprocess.run([sys.executable, str(script), "--replot", "--out", str(tmp_path / "none.json"), "--figure",
+                          str(tmp_path / "g.png")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert f"--replot: cannot read {tmp_path / 'none.json'}" in bad.stderr and not (tmp_path / "g.png").exists()
