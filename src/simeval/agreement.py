@@ -344,16 +344,20 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
             for j, judge in enumerate(judges):
                 r = next((r for r in sub if r["pipeline"] == p and r["judge"] == judge), None)
                 x = j + (k - (len(pipelines) - 1) / 2) * w
+                # labels sit a few points above the bar's top (or 0), never across a thin bar
                 if r is None or r["r_over_mae"] is None:
-                    ax.text(x, 0.02, "n/a", ha="center", va="bottom", fontsize=7, rotation=90)
+                    ax.annotate("n/a", (x, 0), xytext=(0, 3), textcoords="offset points", ha="center",
+                                va="bottom", fontsize=7, rotation=90)
                     continue
                 xs.append(x)
                 ys.append(max(0.0, r["r_over_mae"]))
                 if r["r_over_mae"] < 0.05:  # negative: drawn at 0 as the paper does; tiny: too thin to see. Written
-                    ax.text(x, 0.02, f"{r['r_over_mae']:.2f}", ha="center", va="bottom", fontsize=7,
-                            rotation=90, color="crimson" if r["r_over_mae"] < 0 else "black")
+                    ax.annotate(f"{r['r_over_mae']:.2f}", (x, ys[-1]), xytext=(0, 3), textcoords="offset points",
+                                ha="center", va="bottom", fontsize=7, rotation=90,
+                                color="crimson" if r["r_over_mae"] < 0 else "black")
             ax.bar(xs, ys, width=w, label=p)
         ax.set_xticks(range(len(judges)))
+        ax.set_xlim(-0.5, len(judges) - 0.5)  # every judge's slot, also where no bar is drawn (n/a labels)
         ax.set_xticklabels(judges, rotation=30, ha="right", fontsize=8)
         ax.set_title(table.replace("_", " "))
         ax.set_ylabel("Pearson r ÷ MAE")
