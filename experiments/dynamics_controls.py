@@ -478,7 +478,8 @@ def replot(control: str, out: Path, overwrite: bool) -> Path:
     try:
         result = json.loads(table.read_text())
     except FileNotFoundError:
-        fail(f"error: --replot: no {table}; run `python experiments/dynamics_controls.py {control}` first")
+        where = "" if out.resolve() == (ROOT / "outputs").resolve() else f" --out {out}"
+        fail(f"error: --replot: no {table}; run `python experiments/dynamics_controls.py {control}{where}` first")
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         fail(f"error: --replot: {table} is not JSON ({e})")
     needed = ("control", "preset", "steps", "seeds", "episodes", "heldout", "rows", "verdict")
@@ -488,7 +489,10 @@ def replot(control: str, out: Path, overwrite: bool) -> Path:
     result["rows"] = [{k: float("nan") if v is None else v for k, v in r.items()} for r in result["rows"]]
     figure = out / "figures" / f"control_{control}.png"
     with tempfile.TemporaryDirectory() as tmp:
-        made = draw_figure(result, Path(tmp) / figure.name)
+        try:
+            made = draw_figure(result, Path(tmp) / figure.name)
+        except (KeyError, TypeError, IndexError, ValueError, AttributeError) as e:  # JSON, but edited by hand
+            fail(f"error: --replot: {table} is not a control table this script wrote ({type(e).__name__}: {e})")
         refuse_to_replace_committed([figure], [made.read_bytes()], overwrite)
         figure.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(made, figure)

@@ -96,6 +96,28 @@ def plot(result: dict, path: Path) -> None:
     save_figure(fig, path, dpi=120)  # no dates or tool versions inside: committed figures are byte-reproducible
 
 
+def replot(saved: Path, figure: Path, overwrite: bool, error) -> None:
+    """--replot: the figure again from the saved JSON alone; an existing figure that would change is replaced
+    only with --overwrite (`error`: the parser's one-line exit)."""
+    import tempfile
+
+    try:
+        result = json.loads(saved.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        error(f"--replot: cannot read {saved} ({e}); run the control first")
+    with tempfile.TemporaryDirectory() as tmp:
+        made = Path(tmp) / figure.name
+        try:
+            plot(result, made)
+        except (KeyError, TypeError, IndexError, ValueError, AttributeError) as e:  # JSON, but not this script's
+            error(f"--replot: {saved} is not a table this control wrote ({type(e).__name__}: {e})")
+        if figure.exists() and figure.read_bytes() != made.read_bytes() and not overwrite:
+            error(f"--replot: {figure} exists and would change; add --overwrite to replace it, or give --figure")
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        figure.write_bytes(made.read_bytes())
+    print("wrote", figure)
+
+
 def main() -> None:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="tiny")
@@ -108,14 +130,10 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "world_model_control.json"))
     ap.add_argument("--figure", default=str(ROOT / "outputs" / "figures" / "world_model_control.png"))
     ap.add_argument("--replot", action="store_true", help="only draw --figure again from the --out JSON")
+    ap.add_argument("--overwrite", action="store_true", help="with --replot: replace a figure that would change")
     a = ap.parse_args()
     if a.replot:
-        try:
-            saved = json.loads(Path(a.out).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            ap.error(f"--replot: cannot read {a.out} ({e}); run the control first")
-        plot(saved, Path(a.figure))
-        print("wrote", a.figure)
+        replot(Path(a.out), Path(a.figure), a.overwrite, ap.error)
         return
     result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

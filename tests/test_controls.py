@@ -63,7 +63,12 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     refused = control("dose_push", "--replot", out=tmp_path)
     assert refused.returncode == 2 and refused.stderr.strip().splitlines()[-1] == (
         f"error: --replot: no {tmp_path / 'tables' / 'control_dose_push.json'}; run `python "
-        "experiments/dynamics_controls.py dose_push` first")
+        f"experiments/dynamics_controls.py dose_push --out {tmp_path}` first")
+    edited = json.loads((tmp_path / "tables" / "control_dose.json").read_text())
+    edited["rows"] = []  # valid JSON, edited by hand
+    (tmp_path / "tables" / "control_dose.json").write_text(json.dumps(edited))
+    broken = control("dose", "--replot", out=tmp_path)
+    assert broken.returncode == 2 and "is not a control table this script wrote (IndexError" in broken.stderr
 
     again = control(*TINY_DOSE, out=tmp_path)  # every run saved: the table is rebuilt without collecting or training
     assert again.returncode == 0 and "collected" not in again.stdout and "one-step" not in again.stdout

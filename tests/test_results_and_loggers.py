@@ -144,20 +144,23 @@ def test_a_refused_run_leaves_no_folder_but_a_folder_with_anything_else_stays(tm
 
     from conftest import ROOT
 
-    def diversity(run_dir, *extra):
+    def diversity(*args):
         return subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "episodes=-1",
-                               f"hydra.run.dir={run_dir}", *extra], capture_output=True, text=True, timeout=120)
+                               f"paths.root={tmp_path / 'out'}", *args], capture_output=True, text=True, timeout=120)
 
-    refused = diversity(tmp_path / "fresh")
+    (tmp_path / "out").mkdir()
+    refused = diversity()  # the folder Hydra named: gone, with its parents left empty
     assert refused.returncode == 2 and "episodes must be a whole number >= 1, got -1" in refused.stderr
-    assert not (tmp_path / "fresh").exists()
-    (tmp_path / "used").mkdir()
-    (tmp_path / "used" / "result.json").write_text("{}")
-    assert diversity(tmp_path / "used").returncode == 2
-    assert sorted(p.name for p in (tmp_path / "used").iterdir()) == [".hydra", "diversity.log", "result.json"]
-    sweep = subprocess.run([sys.executable, str(ROOT / "src" / "diversity.py"), "-m", "episodes=-1",
-                            f"hydra.sweep.dir={tmp_path / 'sweep'}"], capture_output=True, text=True, timeout=120)
-    assert sweep.returncode == 2 and [p.name for p in (tmp_path / "sweep").iterdir()] == ["multirun.yaml"]
+    sweep = diversity("-m", "seed=0,1")
+    assert sweep.returncode == 2 and "Traceback" not in sweep.stderr
+    assert list((tmp_path / "out").iterdir()) == []
+    (tmp_path / "mine").mkdir()  # a folder the user named stays, even empty
+    assert diversity(f"hydra.run.dir={tmp_path / 'mine'}").returncode == 2
+    assert sorted(p.name for p in (tmp_path / "mine").iterdir()) == [".hydra", "diversity.log"]
+    (tmp_path / "out" / "runs" / "diversity").mkdir(parents=True)
+    (tmp_path / "out" / "runs" / "diversity" / "earlier_run").mkdir()
+    assert diversity().returncode == 2  # a parent that holds another run stays
+    assert [p.name for p in (tmp_path / "out" / "runs" / "diversity").iterdir()] == ["earlier_run"]
 
 
 def test_a_constructor_error_inside_instantiate_is_one_line(tmp_path):

@@ -40,3 +40,12 @@ def test_replot_draws_the_figure_from_the_saved_json_alone(tmp_path):
                           str(tmp_path / "g.png")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     assert f"--replot: cannot read {tmp_path / 'none.json'}" in bad.stderr and not (tmp_path / "g.png").exists()
+    (tmp_path / "edited.json").write_text("{}")
+    edited = subprocess.run([sys.executable, str(script), "--replot", "--out", str(tmp_path / "edited.json"),
+                             "--figure", str(tmp_path / "g.png")], capture_output=True, text=True, timeout=120)
+    assert edited.returncode == 2 and "is not a table this control wrote (KeyError" in edited.stderr
+    (tmp_path / "f.png").write_bytes(b"another figure")
+    kept = subprocess.run([sys.executable, str(script), "--replot", "--out", str(saved), "--figure",
+                           str(tmp_path / "f.png")], capture_output=True, text=True, timeout=120)
+    assert kept.returncode == 2 and "exists and would change; add --overwrite" in kept.stderr
+    assert (tmp_path / "f.png").read_bytes() == b"another figure"

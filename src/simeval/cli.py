@@ -133,26 +133,49 @@ HYDRA_SAVED = {"config.yaml", "hydra.yaml", "overrides.yaml"}
 
 
 def remove_refused_run_folder() -> None:
-    """Delete this run's Hydra folder when the run was refused before it made anything: the folder holds only
-    Hydra's saved config (`.hydra/`) and empty log files. Otherwise every mistyped command would leave a folder
-    under outputs/runs that a reader (or `report.runs_dir`) could take for a run. Anything else in it keeps it."""
+    """Delete the folder Hydra made for this run when the run was refused before it made anything: it holds only
+    Hydra's saved config (`.hydra/`) and empty logs (in a sweep, the sweep's folder too when only its
+    multirun.yaml is left), and then its parents under the runs root when they are left empty. Otherwise every
+    mistyped command would leave a folder that a reader (or `report.runs_dir`) could take for a run. Only a
+    folder named with this process's ${run_suffix:} goes: one the user named (hydra.run.dir=...) stays, as does
+    one holding anything else."""
     try:
         from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
 
-        out = Path(HydraConfig.get().runtime.output_dir)
+        hc = HydraConfig.get()
+        out, multirun = Path(hc.runtime.output_dir), hc.mode == RunMode.MULTIRUN
     except (ImportError, ValueError):  # not under Hydra
         return
-    if not out.is_dir() or out.resolve() == Path.cwd().resolve():
+    from simeval.results import SUFFIXES_MADE
+
+    made = out.parent if multirun else out  # the folder whose name this process chose
+    if not any(made.name.endswith(f"_{s}") for s in SUFFIXES_MADE) or not _only_hydra_files(out):
         return
-    for entry in out.iterdir():
-        if entry.name == ".hydra" and entry.is_dir() and not entry.is_symlink():
-            if not {p.name for p in entry.iterdir()} <= HYDRA_SAVED:
-                return
-        elif not (entry.suffix == ".log" and entry.is_file() and not entry.is_symlink() and entry.stat().st_size == 0):
-            return
     import shutil
 
     shutil.rmtree(out, ignore_errors=True)
+    if multirun:
+        if {p.name for p in made.iterdir()} - {"multirun.yaml"}:
+            return
+        shutil.rmtree(made, ignore_errors=True)
+    for parent in (made.parent, made.parent.parent):  # <runs root>/<entrypoint>, then the runs root
+        try:
+            parent.rmdir()  # only when empty
+        except OSError:
+            return
+
+
+def _only_hydra_files(folder: Path) -> bool:
+    if not folder.is_dir() or folder.is_symlink():
+        return False
+    for entry in folder.iterdir():
+        if entry.name == ".hydra" and entry.is_dir() and not entry.is_symlink():
+            if not {p.name for p in entry.iterdir()} <= HYDRA_SAVED:
+                return False
+        elif not (entry.suffix == ".log" and entry.is_file() and not entry.is_symlink() and entry.stat().st_size == 0):
+            return False
+    return True
 
 
 def in_submitit_job() -> bool:

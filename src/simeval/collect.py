@@ -276,6 +276,7 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     try:
         run_episodes(_collect_one, [(source_of[name], seed) for name, seed in todo], args, workers, new, bar)
     except (KeyboardInterrupt, _Stopped):
+        bar.close()  # first: the line below would land mid-line after a bar written to a file or pipe
         log.warning("collection stopped: %d new episodes kept in %s; run the same command again to resume",
                     len(new), store.root)
         raise

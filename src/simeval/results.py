@@ -29,10 +29,15 @@ RESULT_SCHEMA = 1
 REPEAT_KEYS = ("seed",)  # identity keys that name a repeat of the same measurement, not a different one
 
 
+SUFFIXES_MADE: set[str] = set()  # by this process: a folder named with one was made by it, not by the user
+
+
 def run_suffix() -> str:
     """`<pid>-<6 random hex>`: with the microsecond timestamp in conf/hydra/default.yaml it makes a run folder
     unique even for runs started at once on several machines that share a filesystem."""
-    return f"{os.getpid()}-{os.urandom(3).hex()}"
+    suffix = f"{os.getpid()}-{os.urandom(3).hex()}"
+    SUFFIXES_MADE.add(suffix)
+    return suffix
 
 
 def register_run_suffix_resolver() -> None:

@@ -318,7 +318,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     from simeval.report.figures import save_figure
 
@@ -356,10 +356,17 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
     ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
             title="object-focused one-step error (primary; model: 95% CI)")
+    ax1.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.01, 1, 10 rather than 10^-2 ..
+    ax1.yaxis.set_minor_formatter(FuncFormatter(  # .. and 2, 3, 4 (not 2x10^0) where it spans under a decade
+        lambda v, _: f"{v:g}" if np.log10(max(ax1.get_ylim()) / min(ax1.get_ylim())) < 1 else ""))
     ax2.axhline(0, color="0.5", lw=0.8)
     # symlog: one group's -800 (a redraw of still pixels) left every other group's -1 .. -70 a flat line at 0
     ax2.set_yscale("symlog", linthresh=1)
     ax2.set_ylim(top=1.5)  # a skill is at most 1; symlog's autoscale left two empty decades above it
+    # symlog's own ticks are 0 and powers of ten: skills between -1 and 1 (most of them) could not be read
+    bottom = ax2.get_ylim()[0]
+    ax2.set_yticks([1, 0.5, 0, -0.5, -1] + [-(10.0 ** k) for k in range(1, 6) if -(10.0 ** k) >= bottom])
+    ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
             title="object-focused skill vs the last frame")
     if not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
