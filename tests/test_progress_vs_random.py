@@ -1,0 +1,54 @@
+"""experiments/progress_vs_random.py: a policy's rollout progress against the chance baseline's, by hand."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from helpers import load_script
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "experiments" / "progress_vs_random.py"
+
+
+def _run(folder: Path, rollouts: dict) -> Path:
+    """A generalization result.json with {(task, split): [progress, ...]}."""
+    tasks = [{"task": t, "split": s, "episodes": [{"seed": 100000 + i, "success": False, "progress": p}
+                                                  for i, p in enumerate(ps)]} for (t, s), ps in rollouts.items()]
+    folder.mkdir(parents=True)
+    (folder / "result.json").write_text(json.dumps({"values": {"tasks": tasks}}))
+    return folder
+
+
+def test_the_comparison_by_hand():
+    mod = load_script(SCRIPT)
+    c = mod.compare([0.5, 0.7, 0.9], [0.0, 0.1, 0.2])
+    assert np.isclose(c["difference"], 0.7 - 0.1) and c["n_policy"] == c["n_random"] == 3
+    # every policy value above every random one: the exact one-sided p is 1 / C(6, 3) = 1/20
+    assert np.isclose(c["p_one_sided"], 1 / 20)
+    lo, hi = c["interval"]  # resampled means stay within the extreme differences
+    assert 0.5 - 0.2 <= lo <= 0.6 <= hi <= 0.9 - 0.0
+    same = mod.compare([0.3, 0.3], [0.1, 0.1])
+    assert np.allclose(same["interval"], [0.2, 0.2])  # no spread in either group
+
+
+def test_the_cli_pools_seeds_drops_a_task_and_refuses_a_wrong_folder_in_one_line(tmp_path):
+    a = _run(tmp_path / "a", {("t1", "eval"): [0.5, 0.7], ("dup", "eval"): [0.9, 0.9], ("h", "heldout"): [0.4]})
+    b = _run(tmp_path / "b", {("t1", "eval"): [0.9], ("dup", "eval"): [0.9]})
+    r = _run(tmp_path / "r", {("t1", "eval"): [0.0, 0.1], ("dup", "eval"): [0.0], ("h", "heldout"): [0.0]})
+    out = subprocess.run([sys.executable, str(SCRIPT), "--policy", str(a), str(b), "--random", str(r),
+                          "--drop-task", "dup"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    rows = {line.split("|")[1].strip(): line for line in out.stdout.splitlines()[2:]}
+    assert set(rows) == {"eval", "heldout"}  # no train rollouts: no row
+    assert "| 0.700 (3) | 0.050 (2) | 0.65 [" in rows["eval"]  # (0.5 + 0.7 + 0.9) / 3 against (0.0 + 0.1) / 2
+    (tmp_path / "quality").mkdir()
+    (tmp_path / "quality" / "result.json").write_text(json.dumps({"values": {"scores": []}}))
+    for bad, said in ((tmp_path / "none", "result.json: no such file"),
+                      (tmp_path / "quality", "is not a src/generalization.py result (KeyError")):
+        refused = subprocess.run([sys.executable, str(SCRIPT), "--policy", str(bad), "--random", str(r)],
+                                 capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1 and said in refused.stderr
