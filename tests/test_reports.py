@@ -211,3 +211,29 @@ def test_a_sweep_that_found_no_task_descriptions_does_not_overwrite_the_table(tm
         _build(tmp_path / "runs", out)
     assert (out / "table3.md").read_text() == "| committed numbers |\n"
     assert sorted(p.name for p in out.iterdir()) == ["table3.md"]
+
+
+def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypatch, tmp_path):
+    """The figure's colour list once held ten colours and zip() stopped there: the committed figure dropped
+    metaworld and both robogen rows without a word."""
+    from matplotlib.colors import to_rgba
+
+    import simeval.report.figures as figures
+    from simeval.report import table4_heldout
+
+    rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
+    assert len(rows) > 10
+    drawn = {}
+
+    def keep(fig, path, **kwargs):  # the figure as saved: its full-frame panel has one legend entry per row
+        ax = fig.axes[2]
+        handles, labels = ax.get_legend_handles_labels()
+        drawn.update(zip(labels, (to_rgba(h.lines[0].get_color()) for h in handles)))
+        return path
+
+    monkeypatch.setattr(figures, "save_figure", keep)
+    table4_heldout.plot(rows, tmp_path / "f.png")
+    assert sorted(drawn) == sorted(f"{r['pipeline']}/{r['group']}" for r in rows)
+    assert len(set(drawn.values())) == len(rows)
+    assert figures.distinct_colors(3) == ["C0", "C1", "C2"]  # up to ten: matplotlib's own cycle, as before
+    assert len({to_rgba(c) for c in figures.distinct_colors(20)}) == 20

@@ -24,3 +24,15 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
         fig.savefig(path, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
     return path
+
+
+def distinct_colors(n: int) -> list:
+    """`n` colours, one per row of a figure: matplotlib's ten (C0-C9) while they suffice, then tab20's lighter
+    shade of each in the same order (rows 11-20), then again. A figure with more rows than colours must neither
+    drop a row nor draw two rows alike without saying so; past 20 the colours repeat (the legend still names each)."""
+    from matplotlib import colormaps
+
+    if n <= 10:
+        return [f"C{i}" for i in range(n)]
+    tab20 = colormaps["tab20"]
+    return [tab20((2 * (i % 10) + (i // 10) % 2) / 19.999) for i in range(n)]

@@ -220,10 +220,10 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from simeval.report.figures import save_figure
+    from simeval.report.figures import distinct_colors, save_figure
 
     groups = list(dict.fromkeys((r["pipeline"], suite_group(r["pipeline"], r["group"])) for r in rows))
-    color = {pg: f"C{i % 10}" for i, pg in enumerate(groups)}
+    color = dict(zip(groups, distinct_colors(len(groups)), strict=True))
     presets = list(dict.fromkeys(r["preset"] for r in rows if r["preset"]))
     marker = {pr: "os^Dv<>"[i % 7] for i, pr in enumerate(presets)}
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10.5, 4.2))

@@ -320,7 +320,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
-    from simeval.report.figures import save_figure
+    from simeval.report.figures import distinct_colors, save_figure
 
     def bars(ax, r, name, ks, style, color, label, shift=1.0, scale=1.0):
         v = np.array([r[f"{name}_{k}"] for k in ks]) * scale
@@ -332,10 +332,10 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
     # legends below the panels: inside, the first panel's covered its own baselines' lines
-    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.2 + 0.45 * len(rows)),
+    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.4 + 0.5 * len(rows)),
                              layout="constrained")
     ax1, ax2, ax3 = axes[:3]
-    for r, color in zip(rows, [f"C{i}" for i in range(10)]):
+    for r, color in zip(rows, distinct_colors(len(rows)), strict=True):  # the zip once stopped at the 10th row
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
