@@ -218,7 +218,7 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     metaworld and both robogen rows without a word."""
     from matplotlib.colors import to_rgba
 
-    import simeval.report.figures as figures
+    from simeval.report import figures
     from simeval.report import table4_heldout
 
     rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
