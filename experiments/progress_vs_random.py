@@ -11,7 +11,8 @@ Each RUN is a run folder (its result.json). Per split (train, eval, heldout) the
     its interval    2.5 and 97.5 percentiles of mean(p*) - mean(r*) over 10,000 resamples, p* and r* drawn with
                     replacement from p and r separately (the two groups are independent rollouts)
     p-value         one-sided Mann-Whitney U test that p tends to be larger than r (scipy.stats.mannwhitneyu,
-                    ties handled by its normal approximation with tie correction)
+                    exact without ties in small samples, else its normal approximation with tie correction, which with a
+                    handful of tied values can come out below the exact permutation p)
 
 Why a task is dropped: GenSim draws some tasks' scenes from the same seeds (separating-piles and
 separating-piles-seen-colors give the same scene for the same seed in its train mode), so one of them counts the
@@ -52,16 +53,31 @@ def compare(policy: list[float], chance: list[float], n_boot: int = 10_000, seed
             "p_one_sided": float(mannwhitneyu(p, r, alternative="greater").pvalue)}
 
 
-def read_run(folder: Path) -> dict:
+def read_run(folder: Path, policy: str | None = None) -> dict:
+    """A src/generalization.py run's result.json, checked: its metric, its rollouts' fields and, when `policy` is
+    given, that the run used that policy (`--random` runs must be policy=random)."""
     path = folder / "result.json"
     try:
         record = json.loads(path.read_text())
-        if not isinstance(record["values"]["tasks"], list):  # a run of another entrypoint has no rollouts
-            raise TypeError("values.tasks is not a list of rollouts")
     except FileNotFoundError:
         fail(f"error: {path}: no such file; give src/generalization.py run folders")
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as e:
+    except OSError as e:  # a file given for the folder, a folder named result.json
+        fail(f"error: {path}: cannot read it ({e.strerror}); give src/generalization.py run folders")
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         fail(f"error: {path} is not a src/generalization.py result ({type(e).__name__}: {e})")
+    metric = record.get("metric") if isinstance(record, dict) else None
+    if metric != "generalization":
+        fail(f"error: {path} is not a src/generalization.py result (its metric is {metric!r}, not 'generalization')")
+    try:
+        if not all(isinstance(t["task"], str) and isinstance(t["split"], str) and
+                   all(isinstance(e["progress"], (int, float)) for e in t["episodes"])
+                   for t in record["values"]["tasks"]):
+            raise TypeError("a task, split or progress of the wrong type")
+    except (KeyError, TypeError) as e:
+        fail(f"error: {path}: a rollout row without task, split or progress ({type(e).__name__}: {e})")
+    used = (record.get("identity") or {}).get("policy")
+    if policy is not None and used != policy:
+        fail(f"error: {folder} is a policy={used} run; --random takes runs of policy={policy}")
     return record
 
 
@@ -78,18 +94,28 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     drop = set(args.drop_task)
     policy = [read_run(f) for f in args.policy]
-    chance = [read_run(f) for f in args.random]
-    print("| split | policy mean (rollouts) | random mean (rollouts) | difference [95% interval] | one-sided Mann-Whitney p |")
-    print("|---|---|---|---|---|")
+    chance = [read_run(f, policy="random") for f in args.random]
+    tasks = {t["task"] for rec in policy + chance for t in rec["values"]["tasks"]}
+    if drop - tasks:  # a misspelt name would silently keep the rollouts it meant to leave out
+        fail(f"error: --drop-task {' '.join(sorted(drop - tasks))}: no such task in these runs; they have "
+             f"{', '.join(sorted(tasks))}")
+    rows = []
+    notes = []
     for split in SPLITS:
         p = [v for rec in policy for v in progress_values(rec, split, drop)]
         r = [v for rec in chance for v in progress_values(rec, split, drop)]
         if not p or not r:
+            if p or r:  # one side has rollouts there: say why the split has no row
+                notes.append(f"{split}: no row ({'no policy' if not p else 'no random'} rollouts in that split)")
             continue
         c = compare(p, r)
-        print(f"| {split} | {c['policy_mean']:.3f} ({c['n_policy']}) | {c['random_mean']:.3f} ({c['n_random']}) | "
-              f"{c['difference']:.2f} [{c['interval'][0]:.2f}, {c['interval'][1]:.2f}] | {c['p_one_sided']:.3f} |")
-    sys.stdout.flush()
+        rows.append(f"| {split} | {c['policy_mean']:.3f} ({c['n_policy']}) | {c['random_mean']:.3f} ({c['n_random']}) "
+                    f"| {c['difference']:.2f} [{c['interval'][0]:.2f}, {c['interval'][1]:.2f}] | {c['p_one_sided']:.3f} |")
+    if not rows:
+        fail("error: no split has rollouts of both the --policy and the --random runs (after --drop-task)")
+    print("| split | policy mean (rollouts) | random mean (rollouts) | difference [95% interval] | one-sided Mann-Whitney p |")
+    print("|---|---|---|---|---|")
+    print("\n".join(rows + [f"\n{n}" for n in notes]))
 
 
 if __name__ == "__main__":

@@ -5,11 +5,13 @@ the run records' per-episode sums (computed here by hand); reruns reuse the runs
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,3 +164,15 @@ def test_moving_share_by_margin_counts_changed_pixels_outside_the_grown_robot_ma
     for level in dose.levels:
         for m, (moving, kept) in expect.items():
             assert shares[level][m]["moving_pixels"] == moving and shares[level][m]["share"] == moving / kept
+
+
+@pytest.mark.parametrize("name", ["dynamics", "visual", "dose", "dose_drawer", "dose_push"])
+def test_each_committed_control_figure_is_what_the_code_draws_from_its_committed_table(name, tmp_path):
+    """A change to the plotting code must come with the committed figures redrawn (--replot --overwrite): a stale
+    figure made `make controls` refuse to replace it on a fresh clone."""
+    (tmp_path / "tables").mkdir()
+    shutil.copy(ROOT / "outputs" / "tables" / f"control_{name}.json", tmp_path / "tables")
+    r = control(name, "--replot", out=tmp_path)
+    assert r.returncode == 0, r.stderr
+    committed = ROOT / "outputs" / "figures" / f"control_{name}.png"
+    assert (tmp_path / "figures" / committed.name).read_bytes() == committed.read_bytes(), name

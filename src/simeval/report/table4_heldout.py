@@ -326,6 +326,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         v = np.array([r[f"{name}_{k}"] for k in ks]) * scale
         lo = np.array([r[f"{name}_{k}_lo"] for k in ks]) * scale
         hi = np.array([r[f"{name}_{k}_hi"] for k in ks]) * scale
+        if not np.isfinite(v).any():  # no reading at any count: no legend entry for a line that is not drawn
+            return
         err = np.maximum(np.stack([v - lo, hi - v]), 0)  # a percentile interval of a ratio may sit beside its point
         ax.errorbar(np.array(ks) * shift, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
 
