@@ -280,8 +280,8 @@ def test_a_preempted_then_requeued_job_resumes_each_time_and_ends_as_the_uninter
             log = _job_logs(tmp_path) if (tmp_path / "sweep" / ".submitit").is_dir() else ""
             if done(log):
                 return log
-            # the sweep's own stderr too: once (a full local run, 2026-11-28) the launching process ended with status 1 right
-            # after the preemption and only the job's log was shown
+            # the sweep's own stderr too: once (a full local run, 2026-11-28) the launching process ended with
+            # status 1 right after the preemption and only the job's log was shown
             assert proc.poll() is None and time.time() < deadline, \
                 f"{what}: sweep status {proc.poll()}; its stderr: {(tmp_path / 'sweep.err').read_text()[-3000:]}; " \
                 f"the job's log: {log[-3000:]}"
