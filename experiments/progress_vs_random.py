@@ -43,11 +43,13 @@ def compare(policy: list[float], chance: list[float], n_boot: int = 10_000, seed
     """Means, the difference with its percentile interval, and the one-sided Mann-Whitney p (formulas above)."""
     from scipy.stats import mannwhitneyu
 
+    from simeval.metrics.bootstrap import percentile_interval
+
     p, r = np.asarray(policy, float), np.asarray(chance, float)
     rng = np.random.default_rng(seed)
     diffs = (p[rng.integers(0, len(p), (n_boot, len(p)))].mean(1)
              - r[rng.integers(0, len(r), (n_boot, len(r)))].mean(1))
-    lo, hi = np.percentile(diffs, [2.5, 97.5])
+    lo, hi = percentile_interval(diffs)
     return {"policy_mean": float(p.mean()), "random_mean": float(r.mean()), "n_policy": len(p), "n_random": len(r),
             "difference": float(p.mean() - r.mean()), "interval": [float(lo), float(hi)],
             "p_one_sided": float(mannwhitneyu(p, r, alternative="greater").pvalue)}
