@@ -142,8 +142,8 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files)
 	$(PY) src/report.py report=table4 $(if $(filter paper,$(WM_PRESET)),report.preset=paper report.out=outputs/tables/table4_paper report.figure=outputs/figures/table4_paper.png) $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
-world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png
-	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1
+world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png (OVERWRITE=1: replace the committed one)
+	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1 $(if $(filter 1 true yes,$(OVERWRITE)),--overwrite)
 
 # simeval's own readings: protocol=heldout (held-out episodes 41-50, the same steps for every count, prediction error
 # beside baselines), 3 training seeds per cell; the controls it was validated on (resumable: a killed run resumes)

@@ -130,11 +130,18 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "outputs" / "tables" / "world_model_control.json"))
     ap.add_argument("--figure", default=str(ROOT / "outputs" / "figures" / "world_model_control.png"))
     ap.add_argument("--replot", action="store_true", help="only draw --figure again from the --out JSON")
-    ap.add_argument("--overwrite", action="store_true", help="with --replot: replace a figure that would change")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace the committed table and figure (a run); with --replot, a figure that would change")
     a = ap.parse_args()
     if a.replot:
         replot(Path(a.out), Path(a.figure), a.overwrite, ap.error)
         return
+    from simeval.report.tables import committed
+
+    hit = [] if a.overwrite else committed([Path(a.out), Path(a.figure)])
+    if hit:  # before training, so a refusal costs nothing
+        ap.error(f"{hit[0]} is a committed result and this run would replace it; add --overwrite (make "
+                 "world-model-control OVERWRITE=1), or write elsewhere with --out and --figure")
     result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(result, indent=2) + "\n")

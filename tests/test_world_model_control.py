@@ -49,3 +49,20 @@ def test_replot_draws_the_figure_from_the_saved_json_alone(tmp_path):
                            str(tmp_path / "f.png")], capture_output=True, text=True, timeout=120)
     assert kept.returncode == 2 and "exists and would change; add --overwrite" in kept.stderr
     assert (tmp_path / "f.png").read_bytes() == b"another figure"
+
+
+def test_a_run_refuses_before_training_to_replace_the_committed_table_and_figure(tmp_path):
+    import subprocess
+    import sys
+
+    script = ROOT / "experiments" / "world_model_control.py"
+    table, figure = ROOT / "outputs" / "tables" / "world_model_control.json", \
+        ROOT / "outputs" / "figures" / "world_model_control.png"
+    before = table.read_bytes(), figure.read_bytes()
+    for elsewhere in ([], ["--figure", str(tmp_path / "f.png")], ["--out", str(tmp_path / "t.json")]):
+        r = subprocess.run([sys.executable, str(script), "--epochs", "1", *elsewhere], capture_output=True, text=True,
+                           timeout=120)
+        named = figure if elsewhere and elsewhere[0] == "--out" else table
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert f"{named} is a committed result and this run would replace it; add --overwrite" in r.stderr
+    assert (table.read_bytes(), figure.read_bytes()) == before and not list(tmp_path.iterdir())
