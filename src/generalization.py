@@ -39,7 +39,8 @@ def main(cfg: DictConfig) -> None:
             policy_name=cfg.policy.name, model=conf["policy"]["model"], train=conf["policy"].get("train"), seed=cfg.seed,
             store=cfg.store, checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
             val_episodes_per_task=cfg.val_episodes_per_task, evaluation=conf["eval"], device=device,
-            progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf)
+            progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf,
+            demonstrations=cfg.demonstrations)
         path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
     log_splits(values)

@@ -199,6 +199,35 @@ def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside
     assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 1)]
 
 
+def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_many_to_collect(tmp_path):
+    """demonstrations=successful, as GenSim's demos.py keeps only completed demonstrations: the failed episodes are
+    passed over (the next successful ones by seed take their place), an episode whose source records no success
+    stays, and too few successes is one error naming each short task's count and a collect size."""
+    import h5py
+
+    from simeval.errors import UserError
+    from simeval.models.policy.experiment import episodes_for
+
+    store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=5, T=8))
+    task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
+    for seed, success, known in ((0, True, True), (1, False, True), (2, True, True), (3, False, False),
+                                 (4, True, True)):
+        with h5py.File(store.path_for("gensim", task, seed), "a") as f:
+            f.attrs["success"], f.attrs["success_known"] = success, known
+    every, every_val, _ = episodes_for(store, "gensim", [task], 3, 1, ["top"])
+    assert [e.seed for e in every] == [0, 1, 2] and [e.seed for e in every_val] == [3]
+    train, val, metas = episodes_for(store, "gensim", [task], 3, 1, ["top"], "successful")
+    assert [e.seed for e in train] == [0, 2, 3] and [e.seed for e in val] == [4]
+    assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 2, 3)]
+    with pytest.raises(UserError) as e:
+        episodes_for(store, "gensim", [task], 5, 1, ["top"], "successful")
+    line = str(e.value)
+    assert "\n" not in line and f"fewer than episodes_per_task=5 successful episodes ({task} has 4 of 5)" in line
+    assert f"tasks=[{task}] episodes=8 " in line and "demonstrations=all" in line  # 5 + 1 successes at 4/5: 8
+    with pytest.raises(UserError, match="demonstrations='some': must be all .* or successful"):
+        episodes_for(store, "gensim", [task], 2, 0, ["top"], "some")
+
+
 def test_authors_gensim_cpu_is_the_authors_abstraction_at_cpu_sizes():
     """The preset edits only sizes and budget: the action abstraction (pick/place, horizon 2, one observation, one
     executed action, unit quaternions) is authors_gensim's, read from that file, not copied."""
@@ -213,3 +242,15 @@ def test_authors_gensim_cpu_is_the_authors_abstraction_at_cpu_sizes():
     assert changed == {"encoder_width", "down_dims", "inference_scheduler", "num_inference_steps"}
     assert cpu["model"]["action_space"] == "pick_place" and cpu["model"]["horizon"] == 2
     assert cpu["model"]["down_dims"] == [128, 256] and cpu["train"]["train_steps"] == 5000
+
+
+def test_demonstrations_default_to_the_pipelines_own_way_and_the_command_line_wins():
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        chosen = {p: compose("generalization", [f"pipeline={p}"]).demonstrations
+                  for p in ("gensim", "gensim_own", "robogen", "bbsea", "metaworld")}
+        overridden = compose("generalization", ["pipeline=gensim_own", "demonstrations=all"]).demonstrations
+    assert chosen == {"gensim": "all", "gensim_own": "successful", "robogen": "all", "bbsea": "all",
+                      "metaworld": "all"}
+    assert overridden == "all"

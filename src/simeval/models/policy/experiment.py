@@ -1,7 +1,9 @@
 """The generalization experiment (paper Sec. 4.3, Table 5) as library calls, so src/generalization.py stays thin.
 
-    episodes_for(store, pipeline, tasks, k, val_k) -> (train episodes, val episodes): the first k episodes of each
-        task by seed, and the next val_k (for the sampler check; none if the store has no more).
+    episodes_for(store, pipeline, tasks, k, val_k, demonstrations) -> (train episodes, val episodes): the first k
+        episodes of each task by seed, and the next val_k (for the sampler check; none if the store has no more);
+        demonstrations="successful" passes over the episodes whose recorded success is False first (as GenSim's
+        demos.py, which saves only completed demonstrations), "all" keeps them.
     checkpoint_key(...) -> a short hash of what determines the trained weights (episode files and their sizes,
         policy and training settings, seed): the checkpoint folder, so a rerun resumes or reuses the training.
     run_splits(policy, plan, ...) -> rollout rows per (split, task), cached per row in a JSON file beside the
@@ -13,12 +15,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from simeval.episodes.store import EpisodeStore, read_episode
+from simeval.episodes.store import EpisodeStore, read_episode, read_meta
 from simeval.errors import UserError
 from simeval.results import atomic_write_text, dumps_strict
 
@@ -27,17 +30,42 @@ RESULT_VERSION = "1.0"  # of the generalization result.json (src/generalization.
 PLAIN = re.compile(r"episode_(\d+)\.h5")
 
 
-def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str]):
+DEMONSTRATIONS = ("all", "successful")
+
+
+def _not_failed(meta: Mapping) -> bool:
+    """Recorded as successful, or from a source that records no success (the authors' files: demos.py saved only
+    completed demonstrations)."""
+    return bool(meta["success"]) or not meta.get("success_known", True)
+
+
+def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str],
+                 demonstrations: str = "all"):
     if k < 1:
         raise UserError(f"episodes_per_task must be >= 1, got {k}")
+    if demonstrations not in DEMONSTRATIONS:
+        raise UserError(f"demonstrations={demonstrations!r}: must be all (every stored episode) or successful (only "
+                        "those the collector recorded as successful, as GenSim's demos.py keeps)")
     if store.root.exists() and not store.root.is_dir():
         raise UserError(f"store={store.root}: is a file, not a folder; give the episode store's folder "
                         "(default outputs/episodes)")
     train, val, metas = [], [], []
     # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
     plain = {task: [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)] for task in tasks}
+    stored = {task: len(paths) for task, paths in plain.items()}
+    if demonstrations == "successful":
+        plain = {task: [p for p in paths if _not_failed(read_meta(p))] for task, paths in plain.items()}
     short = [t for t in tasks if len(plain[t]) < k]
     if short:  # name every short task at once, so the collect command given fixes them all
+        if demonstrations == "successful":
+            counts = ", ".join(f"{t} has {len(plain[t])} of {stored[t]}" for t in short)
+            # at each short task's own success rate, about how many episodes in all would hold k + val_k successes
+            rates = [len(plain[t]) / stored[t] for t in short if plain[t]]
+            more = max((math.ceil((k + val_k) / r) for r in rates), default=None)
+            raise UserError(f"store {store.root}: fewer than episodes_per_task={k} successful episodes ({counts}); "
+                            f"collect more (src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] "
+                            f"episodes={more or '<more>'} store={store.root}: it adds the seeds not stored yet), lower "
+                            "episodes_per_task, or train on the failed ones too with demonstrations=all")
         counts = ", ".join(f"{t} has {len(plain[t])}" for t in short)
         raise UserError(f"store {store.root}: fewer than episodes_per_task={k} episodes ({counts}); collect them "
                         f"(the {k} to train on" + (f" and val_episodes_per_task={val_k}" if val_k else "") + ") with: "
@@ -150,12 +178,14 @@ def refuse_replaced_chance_baseline(chosen: str | None, policy_name: str) -> Non
 def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
                        model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
                        episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
-                       progress: bool, run_dir: str, logger, config: Mapping | None = None) -> tuple[dict, dict]:
+                       progress: bool, run_dir: str, logger, config: Mapping | None = None,
+                       demonstrations: str = "all") -> tuple[dict, dict]:
     """The whole experiment of src/generalization.py without Hydra, for `pipeline` (simeval.pipelines.base.Pipeline:
     a simeval suite or a pipeline's own code): the group's tasks and held-out ones, the policy trained (or resumed, or reused) on the trained tasks' episodes, or the chance
     baseline for policy_name="random", every (split, task) rolled out (cached), the best and worst videos. Returns
     (values, identity) for result.json. `evaluation`: the eval section of conf/generalization.yaml (splits, seeds,
-    seed_offset, max_steps, variation, videos, video_camera, sampler_check); `config` is stored in the checkpoint."""
+    seed_offset, max_steps, variation, videos, video_camera, sampler_check); `config` is stored in the checkpoint;
+    `demonstrations`: all | successful (see episodes_for)."""
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.random_baseline import RandomActions
     specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
@@ -178,7 +208,8 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     else:
         policy, ckpt_dir, summary, values, settings_id = train_on(
             pipeline.name, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
-            val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config)
+            val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config,
+            demonstrations)
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
     environment = {"pipeline": pipeline.environment_id(), **({"policy": settings_id} if chance else {})}
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
@@ -200,7 +231,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
 
 def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
              checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
-             device, progress: bool, config: Mapping | None):
+             device, progress: bool, config: Mapping | None, demonstrations: str = "all"):
     """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
     (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
@@ -210,14 +241,16 @@ def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Ma
     pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
     settings = TrainSettings(**dict(train), seed=seed)
     train_eps, val_eps, metas = episodes_for(EpisodeStore(store), pipeline, trained, episodes_per_task,
-                                             val_episodes_per_task, pcfg.cameras)
+                                             val_episodes_per_task, pcfg.cameras, demonstrations)
     data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
     ckpt_dir = f"{checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), seed)}"
     fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)
     policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics,
                                    extra={"config": dict(config or {})}, progress=progress, device=device)
+    failed = sum(1 for e in train_eps if e.success_known and not e.success)
     values = {"training": {**summary, "checkpoint": f"{ckpt_dir}/last.ckpt", "trained_tasks": trained,
-                           "windows": len(data)}}
+                           "windows": len(data), "demonstrations": {"kept": demonstrations, "episodes": len(train_eps),
+                                                                    "failed": failed}}}
     if sampler_check and val_eps:
         val = PolicyDataset(val_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
         values["sampler_check"] = ev.sampler_action_error(policy, val, {
