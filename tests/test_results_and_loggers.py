@@ -161,6 +161,12 @@ def test_a_refused_run_leaves_no_folder_but_a_folder_with_anything_else_stays(tm
     (tmp_path / "out" / "runs" / "diversity" / "earlier_run").mkdir()
     assert diversity().returncode == 2  # a parent that holds another run stays
     assert [p.name for p in (tmp_path / "out" / "runs" / "diversity").iterdir()] == ["earlier_run"]
+    # refused after it logged a line (one task: no held-out split to roll out), for want of training episodes
+    logged = subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), "tasks=[stack-two-blocks]",
+                             f"paths.root={tmp_path / 'out2'}", f"store={tmp_path / 'empty_store'}"],
+                            capture_output=True, text=True, timeout=120)
+    assert logged.returncode == 2 and "fewer than episodes_per_task=40 episodes" in logged.stderr, logged.stderr
+    assert not (tmp_path / "out2" / "runs").exists()  # its folder, which held the log line, is gone
 
 
 def test_a_constructor_error_inside_instantiate_is_one_line(tmp_path):

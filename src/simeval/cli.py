@@ -134,7 +134,7 @@ HYDRA_SAVED = {"config.yaml", "hydra.yaml", "overrides.yaml"}
 
 def remove_refused_run_folder() -> None:
     """Delete the folder Hydra made for this run when the run was refused before it made anything: it holds only
-    Hydra's saved config (`.hydra/`) and empty logs (in a sweep, the sweep's folder too when only its
+    Hydra's saved config (`.hydra/`) and logs, which this run wrote (in a sweep, the sweep's folder too when only its
     multirun.yaml is left), and then its parents under the runs root when they are left empty. Otherwise every
     mistyped command would leave a folder that a reader (or `report.runs_dir`) could take for a run. Only a
     folder named with this process's ${run_suffix:} goes: one the user named (hydra.run.dir=...) stays, as does
@@ -173,7 +173,8 @@ def _only_hydra_files(folder: Path) -> bool:
         if entry.name == ".hydra" and entry.is_dir() and not entry.is_symlink():
             if not {p.name for p in entry.iterdir()} <= HYDRA_SAVED:
                 return False
-        elif not (entry.suffix == ".log" and entry.is_file() and not entry.is_symlink() and entry.stat().st_size == 0):
+        # a log may hold lines this run wrote before it was refused (no metrics, results or videos: those stay)
+        elif not (entry.suffix == ".log" and entry.is_file() and not entry.is_symlink()):
             return False
     return True
 

@@ -226,6 +226,8 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
                 "heldout_tasks": heldout, "episodes_per_task": episodes_per_task,
                 "variations": {t: v for t, v in plan.get("eval", [])},
                 "eval_seeds": evaluation["seeds"], "settings": settings_id}
+    if demonstrations != "all" and not chance:  # absent = all (the runs made before the key), so those still pool
+        identity["demonstrations"] = demonstrations  # runs trained on other data are not pooled into one cell
     return values, identity
 
 
