@@ -143,6 +143,7 @@ report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, out
 	$(PY) src/report.py report=table4 $(if $(filter paper,$(WM_PRESET)),report.preset=paper report.out=outputs/tables/table4_paper report.figure=outputs/figures/table4_paper.png) $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
 world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png (OVERWRITE=1: replace the committed one)
+	$(if $(filter-out 1 true yes 0 false no,$(OVERWRITE)),$(error OVERWRITE=$(OVERWRITE): 1 (true, yes) replaces the committed files, 0 (false, no) keeps them))
 	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1 $(if $(filter 1 true yes,$(OVERWRITE)),--overwrite)
 
 # simeval's own readings: protocol=heldout (held-out episodes 41-50, the same steps for every count, prediction error

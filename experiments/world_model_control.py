@@ -23,6 +23,9 @@ UNITS = {"image_error": "squared error per frame\n(summed over pixels in [0, 1])
          "open_loop_image_error": "squared error per frame\n(summed over pixels in [0, 1])"}
 
 
+EPISODES_PER_TASK = 40  # each synthetic task's episodes, of which the first k train
+
+
 def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_actions: int, epochs: int | None,
         threads: int) -> dict:
     import torch
@@ -42,14 +45,15 @@ def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_acti
     rows = []
     for seed in seeds:
         for kind in ("shared", "diverse"):
-            src = make_group(kind, n_tasks, 40, n_actions, model_cfg.image_size, seed=seed)
+            src = make_group(kind, n_tasks, EPISODES_PER_TASK, n_actions, model_cfg.image_size, seed=seed)
             for k in episodes:
                 t0 = time.perf_counter()
                 v = fit_and_evaluate(src, episodes_per_task=k, model_cfg=model_cfg,
                                      train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}),
                                      window=WindowSpec(**wm["window"]), heldout_episodes=None, eval_seed=seed,
                                      progress=False)
-                # rounded, no timings: the committed JSON is the same bytes on a re-run (seeded training)
+                # rounded, no timings. Seeded, but not bit-stable across machines: a rerun elsewhere moved errors
+                # in the 4th-6th significant digit (verdicts unchanged), so --overwrite is asked for
                 row = {"seed": seed, "group": kind, "episodes": k, "steps": v["train"]["steps"],
                        **{m: round(v["eval"][m], 6) for m in METRICS}}
                 rows.append(row)
@@ -118,6 +122,35 @@ def replot(saved: Path, figure: Path, overwrite: bool, error) -> None:
     print("wrote", figure)
 
 
+def check_arguments(a, error) -> None:
+    """Every argument a run would fail on after training, and the committed files it would replace (all named)."""
+    from matplotlib.figure import Figure
+
+    from simeval.report.tables import committed
+
+    presets = sorted(p.stem for p in (ROOT / "conf" / "world_model").glob("*.yaml"))
+    if a.preset not in presets:
+        error(f"--preset {a.preset}: no conf/world_model/{a.preset}.yaml; one of {', '.join(presets)}")
+    for flag, value, least in (("--epochs", a.epochs, 1), ("--tasks", a.tasks, 2), ("--steps", a.steps, 1),
+                               ("--threads", a.threads, 1)):
+        if value is not None and value < least:
+            error(f"{flag} {value}: must be >= {least}")
+    if any(not 1 <= k <= EPISODES_PER_TASK for k in a.episodes) or any(s < 0 for s in a.seeds):
+        error(f"--episodes {a.episodes} --seeds {a.seeds}: episodes per task between 1 and {EPISODES_PER_TASK} "
+              "(each synthetic task has that many), seeds >= 0")
+    if Path(a.out).is_dir():
+        error(f"--out {a.out}: is a folder; give the JSON file to write")
+    kinds = Figure().canvas.get_supported_filetypes()
+    if Path(a.figure).suffix.lstrip(".").lower() not in kinds:
+        error(f"--figure {a.figure}: give a file ending in one of .{', .'.join(sorted(kinds))}")
+    hit = [] if a.overwrite else committed([Path(a.out), Path(a.figure)])
+    if hit:
+        said = "are committed results and this run would replace them" if len(hit) > 1 else \
+            "is a committed result and this run would replace it"
+        error(f"{' and '.join(map(str, hit))} {said}; add --overwrite (make world-model-control OVERWRITE=1), or "
+              "write elsewhere with --out and --figure")
+
+
 def main() -> None:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="tiny")
@@ -136,12 +169,7 @@ def main() -> None:
     if a.replot:
         replot(Path(a.out), Path(a.figure), a.overwrite, ap.error)
         return
-    from simeval.report.tables import committed
-
-    hit = [] if a.overwrite else committed([Path(a.out), Path(a.figure)])
-    if hit:  # before training, so a refusal costs nothing
-        ap.error(f"{hit[0]} is a committed result and this run would replace it; add --overwrite (make "
-                 "world-model-control OVERWRITE=1), or write elsewhere with --out and --figure")
+    check_arguments(a, ap.error)  # all before training, so a refusal costs nothing
     result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(result, indent=2) + "\n")

@@ -299,6 +299,21 @@ def test_generalization_trains_on_gensims_own_episodes_and_rolls_out_in_its_own_
         (episode,) = row["episodes"]
         assert 1 <= episode["steps"] <= 10 and 0.0 <= episode["progress"] <= 1.0
     assert result["values"]["training"]["trained_tasks"] == [TASK]
+    # as GenSim's demos.py: the oracle's successful episodes only (pipeline=gensim_own's default)
+    assert result["identity"]["demonstrations"] == "successful"
+    assert result["values"]["training"]["demonstrations"]["kept"] == "successful"
+    assert result["values"]["training"]["demonstrations"]["failed"] == 0
+
+
+def test_missing_training_episodes_name_the_collect_command_with_the_users_checkout(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), "pipeline=gensim_own",
+                        f"pipeline.root={GENSIM}", "policy=authors_gensim_cpu", f"tasks=[{TASK}]",
+                        f"store={tmp_path / 'store'}", f"checkpoint_dir={tmp_path / 'ck'}",
+                        f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                       timeout=300)
+    line = _error_line(r)
+    assert f"python src/collect.py pipeline=gensim_own pipeline.root={GENSIM.resolve()} tasks=[{TASK}] episodes=42 " \
+        in line, line
 
 
 def test_a_pipeline_with_neither_suite_nor_own_code_cannot_be_evaluated_closed_loop(tmp_path):

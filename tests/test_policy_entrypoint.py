@@ -220,10 +220,28 @@ def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_man
     assert [e.seed for e in train] == [0, 2, 3] and [e.seed for e in val] == [4]
     assert [m[0] for m in metas] == [f"gensim/{task}/episode_00000{s}.h5" for s in (0, 2, 3)]
     with pytest.raises(UserError) as e:
-        episodes_for(store, "gensim", [task], 5, 1, ["top"], "successful")
+        episodes_for(store, "gensim", [task], 5, 1, ["top"], "successful", " pipeline.root=/my/GenSim")
     line = str(e.value)
-    assert "\n" not in line and f"fewer than episodes_per_task=5 successful episodes ({task} has 4 of 5)" in line
-    assert f"tasks=[{task}] episodes=8 " in line and "demonstrations=all" in line  # 5 + 1 successes at 4/5: 8
+    assert "\n" not in line and f"episodes_per_task=5 successful episodes ({task} has 4 successful of 5)" in line
+    assert f"python src/collect.py pipeline=gensim pipeline.root=/my/GenSim tasks=[{task}] episodes=8 " in line
+    assert "demonstrations=all" in line  # 5 + 1 successes at 4/5: 8 episodes
+    empty = EpisodeStore(tmp_path / "empty")  # nothing collected yet: the plain message, k + val_k episodes
+    with pytest.raises(UserError) as e:
+        episodes_for(empty, "gensim", [task], 5, 1, ["top"], "successful", " pipeline.root=/my/GenSim")
+    assert f"({task} has 0); collect them" in str(e.value) and f"tasks=[{task}] episodes=6 " in str(e.value)
+    assert "demonstrations=all" not in str(e.value)
+    for seed in (0, 2, 4):  # now only failures are stored: no rate to size the collection by
+        with h5py.File(store.path_for("gensim", task, seed), "a") as f:
+            f.attrs["success"] = False
+    with pytest.raises(UserError) as e:
+        episodes_for(store, "gensim", [task], 2, 0, ["top"], "successful")
+    assert f"({task} has 1 successful of 5)" in str(e.value)  # seed 3: success not recorded, kept
+    with h5py.File(store.path_for("gensim", task, 3), "a") as f:
+        f.attrs["success_known"] = True
+    with pytest.raises(UserError) as e:
+        episodes_for(store, "gensim", [task], 2, 0, ["top"], "successful")
+    assert f"({task} has 0 successful of 5)" in str(e.value) and "episodes=<more: no stored episode of a task " \
+        "succeeded>" in str(e.value) and "demonstrations=all" in str(e.value)
     with pytest.raises(UserError, match="demonstrations='some': must be all .* or successful"):
         episodes_for(store, "gensim", [task], 2, 0, ["top"], "some")
 

@@ -29,6 +29,18 @@ def test_runs_with_other_settings_are_refused():
         build([rec("a", 1, 10), other_sampler])
 
 
+def test_runs_trained_on_successful_demonstrations_pool_only_with_each_other():
+    successful = rec("b", 1, 10, seed=1)
+    successful["identity"]["demonstrations"] = "successful"
+    with pytest.raises(UserError, match="differ in demonstrations \\('all' vs 'successful'\\)"):
+        build([rec("a", 1, 10), successful])  # a run from before the key: it trained on every episode
+    # a run made before the identity recorded it says so in values.training
+    earlier = rec("a", 2, 10)
+    earlier["values"]["training"] = {"demonstrations": {"kept": "successful", "episodes": 30, "failed": 0}}
+    (piles,) = [r for r in build([earlier, successful]) if r["group"] == "piles"]
+    assert piles["eval"]["k"] == 3 and piles["eval"]["n"] == 20
+
+
 def test_each_policy_preset_is_its_own_row_and_can_be_chosen():
     # the quick profile's tiny runs beside the cpu preset's: two rows, never pooled
     runs = [rec("a", 1, 10), rec("b", 5, 10, policy="tiny")]

@@ -62,7 +62,20 @@ def test_a_run_refuses_before_training_to_replace_the_committed_table_and_figure
     for elsewhere in ([], ["--figure", str(tmp_path / "f.png")], ["--out", str(tmp_path / "t.json")]):
         r = subprocess.run([sys.executable, str(script), "--epochs", "1", *elsewhere], capture_output=True, text=True,
                            timeout=120)
-        named = figure if elsewhere and elsewhere[0] == "--out" else table
+        named = {"--out": f"{figure} is a committed result and this run would replace it",
+                 "--figure": f"{table} is a committed result and this run would replace it"}.get(
+            elsewhere[0] if elsewhere else None, f"{table} and {figure} are committed results and this run would "
+                                                 "replace them")
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-        assert f"{named} is a committed result and this run would replace it; add --overwrite" in r.stderr
+        assert f"{named}; add --overwrite" in r.stderr
     assert (table.read_bytes(), figure.read_bytes()) == before and not list(tmp_path.iterdir())
+    elsewhere = ["--out", str(tmp_path / "t.json"), "--figure", str(tmp_path / "f.png")]
+    for bad, said in ((["--preset", "bogus"], "--preset bogus: no conf/world_model/bogus.yaml; one of cpu, paper, tiny"),
+                      (["--tasks", "1"], "--tasks 1: must be >= 2"),
+                      (["--episodes", "10", "50"], "episodes per task between 1 and 40"),
+                      (["--out", str(tmp_path)], "is a folder; give the JSON file to write"),
+                      (["--figure", str(tmp_path / "f.xyz")], "f.xyz: give a file ending in one of ")):
+        r = subprocess.run([sys.executable, str(script), *elsewhere, *bad], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, (bad, r.stderr)
+    assert not list(tmp_path.iterdir())  # refused before anything was trained or written

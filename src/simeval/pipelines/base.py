@@ -31,6 +31,10 @@ class Pipeline(ABC):
     requires: tuple[str, ...] = ()  # keys its pipeline config must set (the registry checks them first)
     collect_args: str = ""  # what its src/collect.py command needs beyond pipeline= (said where episodes are missing)
 
+    def collect_hint(self) -> str:
+        """`collect_args` with this pipeline's own values where it has them (a missing-episodes error's command)."""
+        return self.collect_args
+
     @classmethod
     @abstractmethod
     def from_config(cls, pipeline: Mapping) -> Pipeline:

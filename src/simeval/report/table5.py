@@ -49,10 +49,16 @@ def _cell(rec: dict, policy: str | None) -> tuple | None:
     return ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy")
 
 
-def _setting(identity: dict) -> dict:
+def _setting(rec: dict) -> dict:
     """A run's identity without its training seed (top-level `seed`, and `settings.train.seed` where the run
-    records its training settings): what runs of one cell, one per seed, must share."""
+    records its training settings), with the demonstrations it trained on (all | successful; recorded in the
+    identity since that choice exists, in values.training before, absent = all): what runs of one cell, one per
+    seed, must share."""
+    identity = rec["identity"]
     base = {k: v for k, v in identity.items() if k != "seed"}
+    kept = (((rec.get("values") or {}).get("training") or {}).get("demonstrations") or {}).get("kept")
+    if identity.get("policy") != "random":
+        base["demonstrations"] = identity.get("demonstrations") or kept or "all"
     train = (base.get("settings") or {}).get("train")
     if isinstance(train, dict) and "seed" in train:
         base["settings"] = {**base["settings"], "train": {k: v for k, v in train.items() if k != "seed"}}
@@ -70,7 +76,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         key = _cell(rec, policy)
         if key is None:
             continue
-        base = _setting(rec["identity"])
+        base = _setting(rec)
         if key in cells and cells[key]["identity"] != base:
             diff = identity_difference(cells[key]["identity"], base)
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "

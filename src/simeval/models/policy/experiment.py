@@ -33,6 +33,12 @@ PLAIN = re.compile(r"episode_(\d+)\.h5")
 DEMONSTRATIONS = ("all", "successful")
 
 
+def check_demonstrations(demonstrations: str) -> None:
+    if demonstrations not in DEMONSTRATIONS:
+        raise UserError(f"demonstrations={demonstrations!r}: must be all (every stored episode) or successful (only "
+                        "those the collector recorded as successful, as GenSim's demos.py keeps)")
+
+
 def _not_failed(meta: Mapping) -> bool:
     """Recorded as successful, or from a source that records no success (the authors' files: demos.py saved only
     completed demonstrations)."""
@@ -40,12 +46,10 @@ def _not_failed(meta: Mapping) -> bool:
 
 
 def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str],
-                 demonstrations: str = "all"):
+                 demonstrations: str = "all", collect_args: str = ""):
     if k < 1:
         raise UserError(f"episodes_per_task must be >= 1, got {k}")
-    if demonstrations not in DEMONSTRATIONS:
-        raise UserError(f"demonstrations={demonstrations!r}: must be all (every stored episode) or successful (only "
-                        "those the collector recorded as successful, as GenSim's demos.py keeps)")
+    check_demonstrations(demonstrations)
     if store.root.exists() and not store.root.is_dir():
         raise UserError(f"store={store.root}: is a file, not a folder; give the episode store's folder "
                         "(default outputs/episodes)")
@@ -57,19 +61,24 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
         plain = {task: [p for p in paths if _not_failed(read_meta(p))] for task, paths in plain.items()}
     short = [t for t in tasks if len(plain[t]) < k]
     if short:  # name every short task at once, so the collect command given fixes them all
-        if demonstrations == "successful":
-            counts = ", ".join(f"{t} has {len(plain[t])} of {stored[t]}" for t in short)
-            # at each short task's own success rate, about how many episodes in all would hold k + val_k successes
-            rates = [len(plain[t]) / stored[t] for t in short if plain[t]]
-            more = max((math.ceil((k + val_k) / r) for r in rates), default=None)
+        tasks_arg = f"tasks=[{','.join(short)}]"
+        if demonstrations == "successful" and any(stored[t] for t in short):
+            counts = ", ".join(f"{t} has {len(plain[t])} successful of {stored[t]}" for t in short)
+            # about how many episodes in all would hold k + val_k successes at each short task's own success rate
+            # (a task with nothing stored: at least k + val_k); none when a task has stored only failures
+            needs = [k + val_k if not stored[t] else math.ceil((k + val_k) * stored[t] / len(plain[t]))
+                     if plain[t] else None for t in short]
+            more = None if None in needs else max(needs)
+            failed_too = any(stored[t] > len(plain[t]) for t in short)
             raise UserError(f"store {store.root}: fewer than episodes_per_task={k} successful episodes ({counts}); "
-                            f"collect more (src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] "
-                            f"episodes={more or '<more>'} store={store.root}: it adds the seeds not stored yet), lower "
-                            "episodes_per_task, or train on the failed ones too with demonstrations=all")
+                            f"collect more with python src/collect.py pipeline={pipeline}{collect_args} {tasks_arg} "
+                            f"episodes={more or '<more: no stored episode of a task succeeded>'} store={store.root} "
+                            "(it adds the seeds not stored yet), or lower episodes_per_task"
+                            + (", or train on the failed ones too with demonstrations=all" if failed_too else ""))
         counts = ", ".join(f"{t} has {len(plain[t])}" for t in short)
         raise UserError(f"store {store.root}: fewer than episodes_per_task={k} episodes ({counts}); collect them "
                         f"(the {k} to train on" + (f" and val_episodes_per_task={val_k}" if val_k else "") + ") with: "
-                        f"python src/collect.py pipeline={pipeline} tasks=[{','.join(short)}] episodes={k + val_k} "
+                        f"python src/collect.py pipeline={pipeline}{collect_args} {tasks_arg} episodes={k + val_k} "
                         f"store={store.root}")
     for task in tasks:
         paths = plain[task]
@@ -188,6 +197,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     `demonstrations`: all | successful (see episodes_for)."""
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.random_baseline import RandomActions
+    check_demonstrations(demonstrations)  # before anything is logged or loaded
     specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
@@ -209,7 +219,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
         policy, ckpt_dir, summary, values, settings_id = train_on(
             pipeline.name, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
             val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config,
-            demonstrations)
+            demonstrations, pipeline.collect_hint())
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
     environment = {"pipeline": pipeline.environment_id(), **({"policy": settings_id} if chance else {})}
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
@@ -233,7 +243,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
 
 def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
              checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
-             device, progress: bool, config: Mapping | None, demonstrations: str = "all"):
+             device, progress: bool, config: Mapping | None, demonstrations: str = "all", collect_args: str = ""):
     """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
     (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
@@ -243,7 +253,7 @@ def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Ma
     pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
     settings = TrainSettings(**dict(train), seed=seed)
     train_eps, val_eps, metas = episodes_for(EpisodeStore(store), pipeline, trained, episodes_per_task,
-                                             val_episodes_per_task, pcfg.cameras, demonstrations)
+                                             val_episodes_per_task, pcfg.cameras, demonstrations, collect_args)
     data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
     ckpt_dir = f"{checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), seed)}"
     fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)

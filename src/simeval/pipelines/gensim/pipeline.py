@@ -44,6 +44,11 @@ class GensimOwnPipeline(Pipeline):
         return collect_from_checkout(pipeline.get("root"), dict(pipeline["native"]), tasks, task_group, seeds, store,
                                      dict(record), pipeline=pipeline["name"], workers=workers)
 
+    def collect_hint(self) -> str:
+        import shlex
+
+        return f" pipeline.root={shlex.quote(str(self.settings.root))}"
+
     def environment_id(self):
         return {"name": self.name, **asdict(self.settings)}  # its checkout, rates, task mode, clock, timeouts
 
