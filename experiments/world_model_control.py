@@ -140,6 +140,10 @@ def check_arguments(a, error) -> None:
               "(each synthetic task has that many), seeds >= 0")
     if Path(a.out).is_dir():
         error(f"--out {a.out}: is a folder; give the JSON file to write")
+    for flag, path in (("--out", Path(a.out)), ("--figure", Path(a.figure))):
+        folder = next((f for f in path.parents if f.exists()), None)
+        if folder is not None and not folder.is_dir():
+            error(f"{flag} {path}: {folder} is a file, not a folder")
     kinds = Figure().canvas.get_supported_filetypes()
     if Path(a.figure).suffix.lstrip(".").lower() not in kinds:
         error(f"--figure {a.figure}: give a file ending in one of .{', .'.join(sorted(kinds))}")
@@ -170,7 +174,12 @@ def main() -> None:
         replot(Path(a.out), Path(a.figure), a.overwrite, ap.error)
         return
     check_arguments(a, ap.error)  # all before training, so a refusal costs nothing
-    result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
+    from simeval.errors import UserError
+
+    try:
+        result = run(a.preset, a.seeds, a.episodes, a.tasks, a.steps, a.epochs, a.threads)
+    except UserError as e:  # e.g. --steps shorter than the preset's training window: one line, as the checks above
+        ap.error(str(e).strip().splitlines()[0])
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(result, indent=2) + "\n")
     plot(result, Path(a.figure))

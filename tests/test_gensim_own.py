@@ -312,7 +312,7 @@ def test_missing_training_episodes_name_the_collect_command_with_the_users_check
                         f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
                        timeout=300)
     line = _error_line(r)
-    assert f"python src/collect.py pipeline=gensim_own pipeline.root={GENSIM.resolve()} tasks=[{TASK}] episodes=42 " \
+    assert f"python src/collect.py pipeline=gensim_own pipeline.root={GENSIM.resolve()} 'tasks=[{TASK}]' episodes=42 " \
         in line, line
 
 

@@ -223,12 +223,12 @@ def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_man
         episodes_for(store, "gensim", [task], 5, 1, ["top"], "successful", " pipeline.root=/my/GenSim")
     line = str(e.value)
     assert "\n" not in line and f"episodes_per_task=5 successful episodes ({task} has 4 successful of 5)" in line
-    assert f"python src/collect.py pipeline=gensim pipeline.root=/my/GenSim tasks=[{task}] episodes=8 " in line
-    assert "demonstrations=all" in line  # 5 + 1 successes at 4/5: 8 episodes
+    assert f"python src/collect.py pipeline=gensim pipeline.root=/my/GenSim 'tasks=[{task}]' episodes=9 " in line
+    assert "demonstrations=all" in line  # 5 + 1 successes at 4/5: 7.5 episodes, and a fifth more: 9
     empty = EpisodeStore(tmp_path / "empty")  # nothing collected yet: the plain message, k + val_k episodes
     with pytest.raises(UserError) as e:
         episodes_for(empty, "gensim", [task], 5, 1, ["top"], "successful", " pipeline.root=/my/GenSim")
-    assert f"({task} has 0); collect them" in str(e.value) and f"tasks=[{task}] episodes=6 " in str(e.value)
+    assert f"({task} has 0); collect them" in str(e.value) and f"'tasks=[{task}]' episodes=6 " in str(e.value)
     assert "demonstrations=all" not in str(e.value)
     for seed in (0, 2, 4):  # now only failures are stored: no rate to size the collection by
         with h5py.File(store.path_for("gensim", task, seed), "a") as f:
@@ -242,6 +242,9 @@ def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_man
         episodes_for(store, "gensim", [task], 2, 0, ["top"], "successful")
     assert f"({task} has 0 successful of 5)" in str(e.value) and "episodes=<more: no stored episode of a task " \
         "succeeded>" in str(e.value) and "demonstrations=all" in str(e.value)
+    with pytest.raises(UserError) as e:  # all 5 stored would still be too few for 6: no demonstrations=all offered
+        episodes_for(store, "gensim", [task], 6, 0, ["top"], "successful")
+    assert f"({task} has 0 successful of 5)" in str(e.value) and "demonstrations=all" not in str(e.value)
     with pytest.raises(UserError, match="demonstrations='some': must be all .* or successful"):
         episodes_for(store, "gensim", [task], 2, 0, ["top"], "some")
 

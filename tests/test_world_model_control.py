@@ -74,7 +74,10 @@ def test_a_run_refuses_before_training_to_replace_the_committed_table_and_figure
                       (["--tasks", "1"], "--tasks 1: must be >= 2"),
                       (["--episodes", "10", "50"], "episodes per task between 1 and 40"),
                       (["--out", str(tmp_path)], "is a folder; give the JSON file to write"),
-                      (["--figure", str(tmp_path / "f.xyz")], "f.xyz: give a file ending in one of ")):
+                      (["--figure", str(tmp_path / "f.xyz")], "f.xyz: give a file ending in one of "),
+                      (["--out", f"{script}/t.json"], f"{script} is a file, not a folder"),
+                      (["--steps", "3", "--epochs", "1", "--seeds", "0", "--episodes", "10"],
+                       "world_model.window.length=8: 4 of 4 tasks have no training episode that holds a window")):
         r = subprocess.run([sys.executable, str(script), *elsewhere, *bad], capture_output=True, text=True,
                            timeout=120)
         assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, (bad, r.stderr)

@@ -61,15 +61,17 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
         plain = {task: [p for p in paths if _not_failed(read_meta(p))] for task, paths in plain.items()}
     short = [t for t in tasks if len(plain[t]) < k]
     if short:  # name every short task at once, so the collect command given fixes them all
-        tasks_arg = f"tasks=[{','.join(short)}]"
+        tasks_arg = f"'tasks=[{','.join(short)}]'"  # quoted: unquoted brackets are a glob to the shell
         if demonstrations == "successful" and any(stored[t] for t in short):
             counts = ", ".join(f"{t} has {len(plain[t])} successful of {stored[t]}" for t in short)
-            # about how many episodes in all would hold k + val_k successes at each short task's own success rate
-            # (a task with nothing stored: at least k + val_k); none when a task has stored only failures
-            needs = [k + val_k if not stored[t] else math.ceil((k + val_k) * stored[t] / len(plain[t]))
+            # how many episodes in all would hold k + val_k successes at each short task's own success rate, with
+            # a fifth more as a margin (at the expected count, about half the time it falls short); a task with
+            # nothing stored: k + val_k; none when a task has stored only failures
+            needs = [k + val_k if not stored[t] else math.ceil(1.2 * (k + val_k) * stored[t] / len(plain[t]))
                      if plain[t] else None for t in short]
             more = None if None in needs else max(needs)
-            failed_too = any(stored[t] > len(plain[t]) for t in short)
+            # offered only where it would do: every short task has failures and at least k episodes in all
+            failed_too = all(stored[t] >= k for t in short) and any(stored[t] > len(plain[t]) for t in short)
             raise UserError(f"store {store.root}: fewer than episodes_per_task={k} successful episodes ({counts}); "
                             f"collect more with python src/collect.py pipeline={pipeline}{collect_args} {tasks_arg} "
                             f"episodes={more or '<more: no stored episode of a task succeeded>'} store={store.root} "
