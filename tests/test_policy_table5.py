@@ -120,7 +120,7 @@ def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
     write(build([rec("a", 2, 10)]), tmp_path / "t5")
     text = (tmp_path / "t5.csv").read_text().splitlines()
     (tmp_path / "cut.csv").write_text("\n".join(text[:3] + [text[3][:20]]) + "\n")
-    with pytest.raises(UserError, match="cut.csv, line 4: .* cells, expected 9"):
+    with pytest.raises(UserError, match="cut.csv, line 4: .* cells, expected 10"):
         read_rows(tmp_path / "cut.csv")
     (tmp_path / "binary.csv").write_bytes(b"\xff\xfe\x00garbage")
     for reader in (read_rows, table4.read_rows):
@@ -170,9 +170,7 @@ def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail
     """The paper's GenSim column is a step-wise reward: the eval progress beside our success. Runs of one cell weigh
     by their rollouts (0.5 over 10 and 0.2 over 30: (5 + 6) / 40 = 0.275); a row kept from a table written before
     the column existed takes it from its group's eval line in the per-task table."""
-    from pathlib import Path
-
-    from simeval.report.table5 import eval_progress_from_detail, read_rows
+    from simeval.report.table5 import HEAD_WITHOUT_PROGRESS, eval_progress_from_detail, read_rows
 
     a, b = rec("a", 2, 10), rec("b", 3, 30, seed=1)
     a["values"]["splits"]["eval"]["mean_progress"] = 0.5
@@ -183,10 +181,8 @@ def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail
     assert "| 0.12 [0.05, 0.26] (5/40) | 0.28 |" in line  # success, then progress, in the eval columns
     assert read_rows(tmp_path / "t5.csv")[0]["eval_progress"] == pytest.approx(0.28)
 
-    committed = Path(__file__).resolve().parents[1] / "outputs" / "tables" / "table5.csv"
     old = tmp_path / "old.csv"  # a table as written before the column: read as having no progress
-    old.write_text("\n".join([",".join(h for h in committed.read_text().splitlines()[0].split(",")
-                                        if h != "Ours: eval progress"),
+    old.write_text("\n".join([",".join(HEAD_WITHOUT_PROGRESS),
                               ('bbsea,drawer,0.00,"0.17 [0.10, 0.26] (15/90)","0.18 [0.11, 0.27] (16/90)",'
                                '"0.00 [0.00, 0.20] (0/15)",cpu,3')]) + "\n")
     kept = read_rows(old)
@@ -196,3 +192,28 @@ def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail
               ["bbsea", "drawer", "cpu", "train", "all tasks", "0.18 (16/90)", "-", "-", "-", "0.40", "3"]]
     assert eval_progress_from_detail(kept, detail)[0]["eval_progress"] == 0.31
     assert eval_progress_from_detail(kept, detail[1:])[0]["eval_progress"] is None  # no eval group line: none
+
+
+def test_the_table_says_which_demonstrations_each_row_trained_on_and_reads_older_tables_as_all(tmp_path):
+    """GenSim's demos.py keeps only completed demonstrations (demonstrations=successful); a row says which it
+    trained on, random (nothing trained) says '-', and a table written before the column read all its trained rows
+    as 'all' (the only choice then)."""
+    from simeval.report.table5 import HEAD_WITHOUT_DEMONSTRATIONS, read_rows
+
+    successful = rec("s", 1, 10)
+    successful["identity"].update(task_group="assembling", demonstrations="successful")
+    chance = rec("r", 0, 10, policy="random")
+    chance["identity"]["demonstrations"] = "successful"  # the pipeline's default rides along; nothing trained
+    rows = build([rec("a", 2, 10), successful, chance])
+    write(rows, tmp_path / "t5")
+    lines = (tmp_path / "t5.csv").read_text().splitlines()
+    assert lines[0].endswith(",Policy,Demonstrations,Runs")
+    by_group = {(r["group"], r["policy"]): r["demonstrations"] for r in read_rows(tmp_path / "t5.csv") if r["runs"]}
+    assert by_group == {("piles", "cpu"): "all", ("piles", "random"): None, ("assembling", "cpu"): "successful"}
+
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join([",".join(HEAD_WITHOUT_DEMONSTRATIONS),
+                              'gensim,piles,0.20,"0.20 [0.06, 0.51] (2/10)",0.30,-,-,cpu,1',
+                              'gensim,piles,0.20,"0.00 [0.00, 0.28] (0/10)",0.00,-,-,random (chance: nothing trained),1'
+                              ]) + "\n")
+    assert [(r["policy"], r["demonstrations"]) for r in read_rows(old)] == [("cpu", "all"), ("random", None)]

@@ -67,7 +67,7 @@ def _setting(rec: dict) -> dict:
 
 def build(records: list[dict], policy: str | None = None) -> list[dict]:
     """One row per paper cell and policy preset (then per other group run): {pipeline, group, paper, policy, runs,
-    eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
+    demonstrations (all | successful; None untrained), eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
     `policy`: only runs of that policy preset (the quick profile's `tiny` runs beside the `cpu` ones give two
     rows per group otherwise). Runs of one cell and preset with other settings (another sampler, other seeds)
     are a UserError: pooling them would mix two experiments."""
@@ -112,7 +112,8 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
     for (pipeline, group, preset) in keys:
         cell = cells.get((pipeline, group, preset))
         row = {"pipeline": pipeline, "group": group, "paper": paper_table5(pipeline, group),
-               "policy": preset, "runs": len(cell["runs"]) if cell else 0}
+               "policy": preset, "runs": len(cell["runs"]) if cell else 0,
+               "demonstrations": cell["identity"].get("demonstrations") if cell and preset != CHANCE else None}
         for split in SPLITS:
             k, n = (cell or {"counts": {}})["counts"].get(split, (0, 0))
             row[split] = _split(k, n) if n else None
@@ -123,8 +124,9 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
 
 
 HEAD = ["Pipeline", "Task group", "Paper", "Ours: eval (varied)", "Ours: eval progress", "Ours: train",
-        "Ours: held-out", "Policy", "Runs"]
-HEAD_WITHOUT_PROGRESS = [h for h in HEAD if h != "Ours: eval progress"]  # tables written before 2026-11-27
+        "Ours: held-out", "Policy", "Demonstrations", "Runs"]
+HEAD_WITHOUT_DEMONSTRATIONS = [h for h in HEAD if h != "Demonstrations"]  # tables written before 2026-11-28
+HEAD_WITHOUT_PROGRESS = [h for h in HEAD_WITHOUT_DEMONSTRATIONS if h != "Ours: eval progress"]  # before 2026-11-27
 _COUNTS = re.compile(r"\((\d+)/(\d+)\)$")
 
 
@@ -136,7 +138,7 @@ def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV: each split's successes/rollouts are read back (the rate and
     interval recomputed from them), for `merge`."""
     raw = read_csv(path)
-    if not raw or raw[0] not in (HEAD, HEAD_WITHOUT_PROGRESS):
+    if not raw or raw[0] not in (HEAD, HEAD_WITHOUT_DEMONSTRATIONS, HEAD_WITHOUT_PROGRESS):
         raise UserError(f"{path}: not a Table 5 CSV (written by src/report.py report=table5): its header "
                         f"should be {','.join(HEAD)}")
     head = raw[0]
@@ -148,11 +150,14 @@ def read_rows(path: str | Path) -> list[dict]:
             raise UserError(f"{path}, line {line}: {len(cells)} cells, expected {len(head)}")
         if head == HEAD_WITHOUT_PROGRESS:
             cells = [*cells[:4], "-", *cells[4:]]
-        pipeline, group, paper, eval_cell, progress, train_cell, heldout_cell, policy, runs = cells
+        if head != HEAD:  # written before the choice existed: every trained run used all its episodes
+            cells = [*cells[:8], "-" if cells[7].removesuffix(CHANCE_NOTE) in ("-", CHANCE) else "all", cells[8]]
+        pipeline, group, paper, eval_cell, progress, train_cell, heldout_cell, policy, demonstrations, runs = cells
         splits = (eval_cell, train_cell, heldout_cell)  # SPLITS' order
         try:
             row = {"pipeline": pipeline, "group": group, "paper": None if paper == "-" else float(paper),
                    "policy": None if policy == "-" else policy.removesuffix(CHANCE_NOTE), "runs": int(runs),
+                   "demonstrations": None if demonstrations == "-" else demonstrations,
                    "eval_progress": None if progress == "-" else float(progress)}
         except ValueError as e:
             raise UserError(f"{path}, line {line}: {e}") from e
@@ -206,12 +211,15 @@ def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
     """`<out>.csv`, `<out>.md` and `<out>.tex` (booktabs): {suffix: path}."""
     table = [[r["pipeline"], r["group"], "-" if r["paper"] is None else f"{r['paper']:.2f}", _fmt(r["eval"]),
               "-" if r.get("eval_progress") is None else f"{r['eval_progress']:.2f}",
-              *(_fmt(r[s]) for s in SPLITS[1:]), _policy_cell(r["policy"]), str(r["runs"])] for r in rows]
+              *(_fmt(r[s]) for s in SPLITS[1:]), _policy_cell(r["policy"]), r.get("demonstrations") or "-",
+              str(r["runs"])] for r in rows]
     notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:],
              ("Eval progress: the mean over the eval rollouts of each task's progress at the rollout's end (1.0 = "
               "success; for GenSim the step-wise reward, the quantity of the paper's GenSim column)"),
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed state)",
+             ("Demonstrations: the episodes the policy trained on: 'all' stored, or only the 'successful' ones (as "
+              "GenSim's demos.py keeps them); '-' = nothing trained"),
              "Per task, task-level intervals, mean progress and the random-policy baseline: table5_detail.md"]
     paths = write_table(out, HEAD, table, notes=notes, label="tab:table5",
                         caption="Diffusion Policy trained per task group: success rate on the group's tasks under "
