@@ -69,7 +69,8 @@ def test_report_rebuilds_tables_4_and_5_with_figures_and_notes_what_has_no_runs(
     tex = (tables / "table5.tex").read_text()
     line = next(x for x in tex.splitlines() if x.startswith("gensim & stacking & 0.15 & "))
     assert f"{s['rate']:.2f} [{s['ci'][0]:.2f}, {s['ci'][1]:.2f}] ({s['k']}/{s['n']})" in line
-    assert line.endswith("& tiny & 1 \\\\") and "robogen & table\\_top & 0.00 & - & - & - & - & - & 0 \\\\" in tex
+    # the preset, then the demonstrations it trained on (every stored episode), then the runs
+    assert line.endswith("& tiny & all & 1 \\\\") and "robogen & table\\_top & 0.00 & - & - & - & - & - & - & 0 \\\\" in tex
 
 
 def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
