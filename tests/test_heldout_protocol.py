@@ -332,6 +332,7 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     bad.write_text("a,b\n1,2\n")
     t = subprocess.run([*report, f"report.keep=[{bad}]"], capture_output=True, text=True, timeout=300, check=False)
     assert t.returncode == 2 and "not a held-out Table 4 CSV" in t.stderr and "Traceback" not in t.stderr
+    assert "report.keep: " in t.stderr and t.stderr.count("\n") == 1  # the key the user typed the path into
     # episodes that would be trained on and evaluated: one line, exit 2, before any training
     r = _diversity(*common, "episodes=5", cwd=tmp_path)
     assert r.returncode == 2 and "would train on evaluated episodes" in r.stderr and "Traceback" not in r.stderr

@@ -318,7 +318,7 @@ def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
 
     r = table(f"report.runs_dir={tmp_path}", f"report.keep=[{tmp_path / 'nope.csv'}]")
     assert r.returncode == 2
-    assert r.stderr.count("\n") == 1 and "nope.csv: cannot read it" in r.stderr
+    assert r.stderr.count("\n") == 1 and "report.keep: " in r.stderr and "nope.csv: cannot read it" in r.stderr
     # a mistyped runs_dir beside keep is an error, not the kept table written again as if nothing were new
     from simeval.report import table4
 

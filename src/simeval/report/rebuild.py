@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.tables import Rebuilt, refuse_committed
+from simeval.report.tables import Rebuilt, read_kept, refuse_committed
 from simeval.report.table5 import rebuild_table5
 from simeval.results import read_results
 
@@ -33,13 +33,14 @@ def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
                    preset: str | None = None, keep=(), overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                   elsewhere: str = "another output path", episodes_key: str = "episodes") -> Rebuilt:
-    """`overwrite_flag`, `elsewhere`, `episodes_key`: how the caller's user asks to replace a committed file, to
-    write elsewhere, and to choose the columns, named in the refusal and in the note about unused runs."""
+                   elsewhere: str = "another output path", episodes_key: str = "episodes",
+                   keep_key: str = "keep") -> Rebuilt:
+    """`overwrite_flag`, `elsewhere`, `episodes_key`, `keep_key`: how the caller's user asks to replace a committed
+    file, to write elsewhere, to choose the columns and to keep earlier rows, named in the refusal and in notes."""
     from simeval.report import table4
 
     episodes = [int(k) for k in episodes]
-    kept = [table4.read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    kept = read_kept(table4.read_rows, keep, keep_key, "Table 4")
     records = read_results(root, metric=table4.METRIC)
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
@@ -63,10 +64,10 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
 
 def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *, keep=(),
                            overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                           elsewhere: str = "another output path") -> Rebuilt:
+                           elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     from simeval.report import table4_heldout
 
-    kept = [table4_heldout.read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    kept = read_kept(table4_heldout.read_rows, keep, keep_key, "held-out Table 4")
     records = [r for r in read_results(root, metric=table4_heldout.METRIC)
                if (r.get("identity") or {}).get("protocol") == "heldout"]
     if not records:
@@ -99,14 +100,16 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
                               keep=spec.get("keep") or (), overwrite=overwrite,
-                              overwrite_flag=flag, elsewhere=elsewhere, episodes_key=f"{key}.episodes")
+                              overwrite_flag=flag, elsewhere=elsewhere, episodes_key=f"{key}.episodes",
+                              keep_key=f"{key}.keep")
     if kind == "table4_heldout":
         return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
-                                      overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere)
+                                      overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere,
+                                      keep_key=f"{key}.keep")
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
                               keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag,
-                              elsewhere=elsewhere)
+                              elsewhere=elsewhere, keep_key=f"{key}.keep")
     if kind == "html":
         from simeval.report.html import build_html_report
 

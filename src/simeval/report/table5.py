@@ -27,7 +27,7 @@ from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import Rebuilt, read_csv, refuse_committed, write_table
+from simeval.report.tables import Rebuilt, read_csv, read_kept, refuse_committed, write_table
 from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
@@ -49,9 +49,13 @@ def _cell(rec: dict, policy: str | None) -> tuple | None:
     return ident["pipeline"], suite_group(ident["pipeline"], ident["task_group"]), ident.get("policy")
 
 
+_NOT_A_SETTING = {"seed", "checkpoint_every", "log_every"}  # settings.train keys runs of one cell may differ in
+
+
 def _setting(rec: dict) -> dict:
     """A run's identity without its training seed (top-level `seed`, and `settings.train.seed` where the run
-    records its training settings), with the demonstrations it trained on (all | successful; recorded in the
+    records its training settings) and without the training's bookkeeping (how often it logs and checkpoints: a
+    resumed training gets the same weights at any checkpoint interval), with the demonstrations it trained on (all | successful; recorded in the
     identity since that choice exists, in values.training before, absent = all): what runs of one cell, one per
     seed, must share."""
     identity = rec["identity"]
@@ -60,8 +64,8 @@ def _setting(rec: dict) -> dict:
     if identity.get("policy") != "random":
         base["demonstrations"] = identity.get("demonstrations") or kept or "all"
     train = (base.get("settings") or {}).get("train")
-    if isinstance(train, dict) and "seed" in train:
-        base["settings"] = {**base["settings"], "train": {k: v for k, v in train.items() if k != "seed"}}
+    if isinstance(train, dict):
+        base["settings"] = {**base["settings"], "train": {k: v for k, v in train.items() if k not in _NOT_A_SETTING}}
     return base
 
 
@@ -402,10 +406,10 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
 
 def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
                    overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                   elsewhere: str = "another output path") -> Rebuilt:
+                   elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
     simeval.report.rebuild, which the report door calls)."""
-    kept = [read_rows(path) for path in keep]  # read first: a bad file fails before any work
+    kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
     kept_detail = [read_detail_lines(d) for d in (Path(path).with_name(Path(path).stem + "_detail.csv")
                                                   for path in keep) if d.is_file()]

@@ -127,3 +127,18 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewher
         kind = "figure" if Path(hit[0]).suffix in (".png", ".pdf") else "table"
         raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of the runs on disk; write "
                         f"elsewhere ({elsewhere}) or replace it with {flag}")
+
+
+def read_kept(reader, keep, keep_key: str = "keep", table: str = "table") -> list:
+    """`reader(path)` of each kept CSV, before any other work, a bad one's error naming the key that gave it: the
+    reader names the file and line, but a user who typed a list of paths also needs to know which option to fix."""
+    from simeval.errors import UserError
+
+    kept = []
+    for path in keep:
+        try:
+            kept.append(reader(path))
+        except UserError as e:
+            raise UserError(f"{keep_key}: {e}; give a {table} CSV this report wrote, or leave it out of {keep_key}") \
+                from None
+    return kept
