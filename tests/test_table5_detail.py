@@ -166,6 +166,16 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
     assert rebuilt[len(committed):] == [
         'mypipeline,mygroup,cpu,eval,all tasks,0.50 (1/2),"[0.09, 0.91]",-,-,0.75,1',
         'mypipeline,mygroup,cpu,eval,reach,0.50 (1/2),"[0.09, 0.91]",-,-,0.75,1']
+    # a per-task table beside a kept one that is cut short fails before any work, naming the key and the file
+    from simeval.errors import UserError
+
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "table5.csv").write_text((ROOT / "outputs" / "tables" / "table5.csv").read_text())
+    (tmp_path / "kept" / "table5_detail.csv").write_text("\n".join(committed[:3] + [committed[3][:20]]) + "\n")
+    with pytest.raises(UserError, match="^report.keep: .*table5_detail.csv, line 4: "):
+        rebuild_table5(tmp_path / "runs", tmp_path / "t5b", tmp_path / "t5b.png",
+                       keep=[tmp_path / "kept" / "table5.csv"], keep_key="report.keep")
+    assert not (tmp_path / "t5b.csv").exists()
 
 
 def test_two_runs_of_one_seed_are_refused_not_pooled_twice():

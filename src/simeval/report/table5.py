@@ -55,9 +55,9 @@ _NOT_A_SETTING = {"seed", "checkpoint_every", "log_every"}  # settings.train key
 def _setting(rec: dict) -> dict:
     """A run's identity without its training seed (top-level `seed`, and `settings.train.seed` where the run
     records its training settings) and without the training's bookkeeping (how often it logs and checkpoints: a
-    resumed training gets the same weights at any checkpoint interval), with the demonstrations it trained on (all | successful; recorded in the
-    identity since that choice exists, in values.training before, absent = all): what runs of one cell, one per
-    seed, must share."""
+    resumed training gets the same weights at any checkpoint interval), with the demonstrations it trained on
+    (all | successful; recorded in the identity since that choice exists, in values.training before, absent = all):
+    what runs of one cell, one per seed, must share."""
     identity = rec["identity"]
     base = {k: v for k, v in identity.items() if k != "seed"}
     kept = (((rec.get("values") or {}).get("training") or {}).get("demonstrations") or {}).get("kept")
@@ -411,8 +411,8 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     simeval.report.rebuild, which the report door calls)."""
     kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
-    kept_detail = [read_detail_lines(d) for d in (Path(path).with_name(Path(path).stem + "_detail.csv")
-                                                  for path in keep) if d.is_file()]
+    details = [d for d in (Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep) if d.is_file()]
+    kept_detail = read_kept(read_detail_lines, details, keep_key, "Table 5 detail")
     records = read_results(root, metric=METRIC)
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
