@@ -169,6 +169,25 @@ def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
     assert (tmp_path / "t5.png").stat().st_size > 10_000 and len(paths) == 2
 
 
+def test_the_figure_wraps_pipelines_into_rows_of_at_most_ten_groups(tmp_path):
+    """Five pipelines of 9, 4, 4, 8 and 2 groups in one row were 5300 px wide: in order, a panel goes on the open row
+    while that row stays within 10 groups, and a panel wider than a row gets one of its own."""
+    from simeval.report.table5 import pack_panels, plot
+
+    assert pack_panels([9, 4, 4, 8, 2], 10) == [[0], [1, 2], [3, 4]]
+    assert pack_panels([3, 3, 3, 1], 10) == [[0, 1, 2, 3]]
+    assert pack_panels([12, 1], 10) == [[0], [1]]
+    assert pack_panels([], 10) == []
+
+    import matplotlib.image
+
+    rows = build([rec("a", 0, 10), {**rec("b", 1, 10), "identity": {**rec("b", 1, 10)["identity"],
+                                                                       "pipeline": "bbsea", "task_group": "drawer"}}])
+    plot(rows, tmp_path / "t5.png", formats=("png",))
+    height, width = matplotlib.image.imread(tmp_path / "t5.png").shape[:2]
+    assert width < 2000 and height < width / 2  # the paper's 8 groups of 3 pipelines: one row, 150 dpi
+
+
 def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail(tmp_path):
     """The paper's GenSim column is a step-wise reward: the eval progress beside our success. Runs of one cell weigh
     by their rollouts (0.5 over 10 and 0.2 over 30: (5 + 6) / 40 = 0.275); a row kept from a table written before

@@ -318,6 +318,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
     from simeval.report.figures import distinct_colors, save_figure
@@ -333,8 +334,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
 
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
-    # legends below the panels: inside, the first panel's covered its own baselines' lines
-    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 4.4 + 0.5 * len(rows)),
+    # keys below the panels: inside, the first panel's covered its own baselines' lines
+    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 6.4),
                              layout="constrained")
     ax1, ax2, ax3 = axes[:3]
     for r, color in zip(rows, distinct_colors(len(rows)), strict=True):  # the zip once stopped at the 10th row
@@ -386,7 +387,20 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax.set_xticks(ks, [str(k) for k in ks])
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlim(min(ks) / 1.3, max(ks) * 1.3)
-        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    # two keys for the whole figure: a row keeps its colour in every panel and a reading its line style, so one
+    # list of rows and one of styles replace four legends that each repeated every row (up to 60 entries)
+    row_keys = [Line2D([], [], color=color, marker="o", label=f"{r['pipeline']}/{r['group']}" + (
+        "" if all(r.get(f"robot_mask_{k}") for k in (int(c) for c in r["counts"].split("/")))
+        else " (no masks: full frame)")) for r, color in zip(rows, distinct_colors(len(rows)), strict=True)]
+    style_keys = [Line2D([], [], color="0.3", marker="o", ls="-", label="model, one step (95% CI)"),
+                  Line2D([], [], color="0.3", marker="s", ls=":", label="model, open loop (skill panels)"),
+                  Line2D([], [], color="0.3", marker="x", ls=":", label="last-frame baseline (left panel)"),
+                  Line2D([], [], color="0.3", marker="+", ms=9, ls="--", alpha=0.6,
+                         label="mean-image baseline (left panel)")]
+    fig.legend(handles=row_keys, loc="outside lower left", ncol=-(-len(row_keys) // 4), fontsize=8,
+               frameon=False, title="row (colour)", title_fontsize=8, alignment="left")
+    fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False,
+               title="reading (line style)", title_fontsize=8, alignment="left")
     fig.suptitle(title, fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)

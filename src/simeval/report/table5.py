@@ -36,7 +36,10 @@ CHANCE = "random"  # policy=random: the chance baseline (simeval.models.policy.r
 CHANCE_NOTE = " (chance: nothing trained)"
 PAPER_PROGRESS = {"gensim", "gensim_own"}  # pipelines whose paper value is a step-wise reward: the figure draws
 # our eval progress
-LEGEND_ROW_INCHES = 16.0  # the figure legend's five keys in one row at fontsize 8 (measured: ~14 in)
+LEGEND_ROW_INCHES = 14.5  # the figure legend's five keys in one row at fontsize 8 (measured: ~14 in)
+GROUPS_PER_ROW = 10  # panels wrap into rows of at most this many groups: one row of 26 groups was 5300 px wide and
+# unreadable at any size a screen shows it
+GROUP_INCHES = 1.25
 PLOT_SPLITS = {"train": ("train (trained tasks)", "C0", "o"), "eval": ("eval (varied scenes)", "C3", "s"),
                "heldout": ("held-out tasks", "C2", "^")}  # figure order: as the policy moves away from its data
 
@@ -339,7 +342,8 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
 
 
 def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
-    """Success rate with its Wilson 95% interval per group and split, one panel per pipeline, successes/rollouts
+    """Success rate with its Wilson 95% interval per group and split, one panel per pipeline (panels wrap into rows
+    of at most GROUPS_PER_ROW groups), successes/rollouts
     above each interval and the paper's value as a dashed line over its group; where that value is a step-wise
     reward (GenSim), the eval split's mean progress as an open diamond beside the eval success. Written as `path`
     with each suffix of `formats`."""
@@ -353,9 +357,22 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
 
     pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
     per = {p: [r for r in rows if r["pipeline"] == p] for p in pipelines}
-    fig, axes = plt.subplots(1, len(pipelines), figsize=(1.6 + 1.25 * len(rows), 4.2), sharey=True, squeeze=False,
-                             gridspec_kw={"width_ratios": [len(per[p]) for p in pipelines]})
-    for ax, p in zip(axes[0], pipelines):
+    layout = pack_panels([len(per[p]) for p in pipelines], GROUPS_PER_ROW)
+    width = max(sum(len(per[pipelines[k]]) for k in row) for row in layout)
+    fig = plt.figure(figsize=(1.6 + GROUP_INCHES * width, 0.6 + 3.6 * len(layout)))
+    outer = fig.add_gridspec(len(layout), 1)
+    axes_of = {}
+    for r_i, row in enumerate(layout):
+        sizes = [len(per[pipelines[k]]) for k in row]
+        spare = width - sum(sizes)  # an unused column keeps one group as wide in every row
+        inner = outer[r_i].subgridspec(1, len(row) + bool(spare), width_ratios=sizes + ([spare] if spare else []))
+        for c_i, k in enumerate(row):
+            axes_of[pipelines[k]] = fig.add_subplot(inner[0, c_i])
+            if c_i:
+                axes_of[pipelines[k]].tick_params(labelleft=False)
+            else:
+                axes_of[pipelines[k]].set_ylabel("success rate\n(Wilson 95% interval)")
+    for p, ax in axes_of.items():
         for i, r in enumerate(per[p]):
             ran = False
             for j, (split, (_, color, marker)) in enumerate(PLOT_SPLITS.items()):
@@ -385,7 +402,6 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
         ax.set_ylim(-0.04, 1.12)
         ax.grid(axis="y", alpha=0.3)
         ax.set_title(p)
-    axes[0][0].set_ylabel("success rate (Wilson 95% interval)")
     handles = [Line2D([], [], color=c, marker=m, ls="-", label=label) for label, c, m in PLOT_SPLITS.values()]
     if any(_draws_progress(r) for r in rows):
         handles.append(Line2D([], [], marker="D", ms=5, mfc="white", mec="C3", ls="none",
@@ -397,11 +413,25 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     policies = sorted({r["policy"] for r in rows if r["policy"]})
     fig.suptitle("Table 5: Diffusion Policy success per task group"
                  + (f" (policy {', '.join(policies)})" if policies else " (no runs)"))
-    fig.tight_layout(rect=(0, 0.07 * rows_of_keys, 1, 1))
+    fig.tight_layout(rect=(0, 0.35 * rows_of_keys / fig.get_figheight(), 1, 1))
     path = Path(path)
     written = [save_figure(fig, path.with_suffix(f".{fmt}"), dpi=150) for fmt in formats]  # byte-reproducible
     plt.close(fig)
     return written
+
+
+def pack_panels(sizes: list[int], per_row: int) -> list[list[int]]:
+    """Panels (one per pipeline, `sizes[k]` groups each) in order into rows of at most `per_row` groups; a panel
+    larger than `per_row` gets a row of its own. Returns the panel indices of each row."""
+    rows: list[list[int]] = []
+    used = per_row  # no open row yet
+    for k, size in enumerate(sizes):
+        if used + size > per_row:
+            rows.append([])
+            used = 0
+        rows[-1].append(k)
+        used += size
+    return rows
 
 
 def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
