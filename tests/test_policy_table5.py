@@ -134,6 +134,9 @@ def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
     (tmp_path / "t4cut.csv").write_text("\n".join(lines[:2] + [lines[2][:15]]) + "\n")
     with pytest.raises(UserError, match="t4cut.csv, line 3: .* cells, expected 18"):
         table4.read_rows(tmp_path / "t4cut.csv")
+    (tmp_path / "header_only.csv").write_text(text[0] + "\n")  # the report always writes the paper's rows
+    with pytest.raises(UserError, match="header_only.csv: not a Table 5 CSV .*: no rows"):
+        read_rows(tmp_path / "header_only.csv")
 
 
 def test_runs_of_one_cell_at_other_training_seeds_pool_but_other_settings_do_not():

@@ -237,3 +237,44 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     assert len(set(drawn.values())) == len(rows)
     assert figures.distinct_colors(3) == ["C0", "C1", "C2"]  # up to ten: matplotlib's own cycle, as before
     assert len({to_rgba(c) for c in figures.distinct_colors(20)}) == 20
+
+
+def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_path):
+    """A report killed while matplotlib wrote a PDF left a 0-byte table5.pdf (over a committed one with
+    overwrite=true): the figure is written beside its path and renamed over it only once complete."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from simeval.report.figures import save_figure
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    target = tmp_path / "f.pdf"
+    target.write_bytes(b"the committed figure")
+
+    def stops_midway(path, **kwargs):
+        Path(path).write_bytes(b"%PDF-1.4 half")
+        raise KeyboardInterrupt
+
+    real = fig.savefig
+    fig.savefig = stops_midway
+    with pytest.raises(KeyboardInterrupt):
+        save_figure(fig, target)
+    assert target.read_bytes() == b"the committed figure"
+    assert [p.name for p in tmp_path.iterdir()] == ["f.pdf"]  # nothing half-written left beside it
+    fig.savefig = real
+    assert save_figure(fig, target) == target and target.read_bytes().startswith(b"%PDF")
+    assert [p.name for p in tmp_path.iterdir()] == ["f.pdf"]
+    plt.close(fig)
+
+
+def test_a_kept_table_given_without_brackets_is_one_path():
+    """`report.keep=outputs/tables/table5.csv` reached the builders as a string and was read one character at a
+    time (the error named a file "o")."""
+    from simeval.report.rebuild import kept_paths
+
+    assert kept_paths({"keep": "outputs/tables/table5.csv"}) == ["outputs/tables/table5.csv"]
+    assert kept_paths({"keep": ["a.csv", "b.csv"]}) == ["a.csv", "b.csv"]
+    assert kept_paths({"keep": None}) == [] and kept_paths({}) == []

@@ -4,6 +4,7 @@ date); the Software/Producer lines only name the pinned matplotlib version and a
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 # per format: metadata keys set to None are left out of the file
@@ -15,14 +16,21 @@ REPRODUCIBLE_METADATA = {
 
 
 def save_figure(fig, path: str | Path, **kwargs) -> Path:
-    """fig.savefig(path, ...) without dates or tool versions in the file; returns the path."""
+    """fig.savefig(path, ...) without dates or tool versions in the file; returns the path. Written beside `path`
+    and renamed over it, so a run killed while saving leaves the previous figure (a committed one too), not a
+    truncated file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fmt = path.suffix.lstrip(".").lower()
     import matplotlib
 
-    with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
-        fig.savefig(path, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
+            fig.savefig(partial, format=fmt, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path
 
 

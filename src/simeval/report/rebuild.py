@@ -88,6 +88,12 @@ STEPS = {"table3": "Table 3", "table4": "Table 4", "table4_heldout": "Table 4 (h
          "figure4": "Figure 4", "html": "HTML report"}  # report=all's steps, in the order they run, and their titles
 
 
+def kept_paths(spec: dict) -> list:
+    """`spec`'s keep as a list of paths: `report.keep=a.csv` (no brackets) is one path, not its characters."""
+    keep = spec.get("keep") or ()
+    return [keep] if isinstance(keep, str | Path) else list(keep)
+
+
 def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt:
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder. `key`: where the
     user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
@@ -99,16 +105,16 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
-                              keep=spec.get("keep") or (), overwrite=overwrite,
+                              keep=kept_paths(spec), overwrite=overwrite,
                               overwrite_flag=flag, elsewhere=elsewhere, episodes_key=f"{key}.episodes",
                               keep_key=f"{key}.keep")
     if kind == "table4_heldout":
-        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=spec.get("keep") or (),
+        return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=kept_paths(spec),
                                       overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere,
                                       keep_key=f"{key}.keep")
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
-                              keep=spec.get("keep") or (), overwrite=overwrite, overwrite_flag=flag,
+                              keep=kept_paths(spec), overwrite=overwrite, overwrite_flag=flag,
                               elsewhere=elsewhere, keep_key=f"{key}.keep")
     if kind == "html":
         from simeval.report.html import build_html_report
@@ -146,7 +152,8 @@ def check_runs_dir(runs: Path, key: str, kind: str) -> None:
     """A runs folder that is a file or does not exist is one UserError naming `key`.runs_dir (the single-report door
     and report=all say the same), with what makes the runs."""
     if runs.exists() and not runs.is_dir():
-        raise UserError(f"{key}.runs_dir={runs}: is a file, not a folder of runs")
+        raise UserError(f"{key}.runs_dir={runs}: is a file, not a folder of runs; give the folder that holds the "
+                        "runs' result.json files")
     if not runs.exists():
         maker = f" ({MAKERS[kind][1]})" if kind in MAKERS else ""
         raise UserError(f"{key}.runs_dir={runs}: no such folder; give the folder that holds the runs' result.json "

@@ -175,6 +175,8 @@ def read_rows(path: str | Path) -> list[dict]:
                                 "successes <= rollouts")
             row[split] = _split(int(m[1]), int(m[2])) if m else None
         rows.append(row)
+    if not rows:  # this report always writes the paper's rows: a header alone is a cut or hand-made file
+        raise UserError(f"{path}: not a Table 5 CSV (written by src/report.py report=table5): no rows")
     return rows
 
 
