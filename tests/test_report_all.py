@@ -88,7 +88,7 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     for kind in ("table4", "table4_heldout", "table5", "table3", "figure4"):  # the same lines as report=all's
         r = py(str(ROOT / "src" / "report.py"), f"report={kind}", f"report.runs_dir={ROOT / 'README.md'}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr == f"error: report.runs_dir={ROOT / 'README.md'}: is a file, not a " \
-            "folder of runs\n", (kind, r.stderr)
+            "folder of runs; give the folder that holds the runs' result.json files\n", (kind, r.stderr)
     (tmp_path / "outputs").mkdir()
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", cwd=tmp_path)
     assert r.returncode == 2 and "no generalization result.json under outputs: run the" in r.stderr
@@ -115,7 +115,8 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     assert r.returncode == 2 and r.stderr.splitlines() == [
         ("Table 4: error: report.table4.runs_dir=/nonexistent: no such folder; give the folder that holds the runs' "
          "result.json files (`make table4` trains the world models)"),
-        "HTML report: error: report.html.runs_dir=README.md: is a file, not a folder of runs"]
+        ("HTML report: error: report.html.runs_dir=README.md: is a file, not a folder of runs; give the folder that "
+         "holds the runs' result.json files")]
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
