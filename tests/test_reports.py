@@ -265,8 +265,13 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
     assert target.read_bytes() == b"the committed figure"
     assert [p.name for p in tmp_path.iterdir()] == ["f.pdf"]  # nothing half-written left beside it
     fig.savefig = real
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    left = tmp_path / f".f.pdf.{int(dead.stdout)}.partial"  # what a run killed -9 mid-save leaves
+    left.write_bytes(b"")
+    alive = tmp_path / f".f.pdf.{os.getppid()}.partial"  # a live process may be saving the same figure
+    alive.write_bytes(b"")
     assert save_figure(fig, target) == target and target.read_bytes().startswith(b"%PDF")
-    assert [p.name for p in tmp_path.iterdir()] == ["f.pdf"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "f.pdf"])
     plt.close(fig)
 
 

@@ -24,6 +24,7 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     fmt = path.suffix.lstrip(".").lower()
     import matplotlib
 
+    _remove_partials_of_dead_runs(path)
     partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
         with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
@@ -32,6 +33,21 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     finally:
         partial.unlink(missing_ok=True)
     return path
+
+
+def _remove_partials_of_dead_runs(path: Path) -> None:
+    """A run killed mid-save leaves `.<name>.<pid>.partial` beside the figure: the next save removes those whose
+    process is gone (a live one may be another run saving the same figure right now)."""
+    for partial in path.parent.glob(f".{path.name}.*.partial"):
+        pid = partial.name.removeprefix(f".{path.name}.").removesuffix(".partial")
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            partial.unlink(missing_ok=True)
+        except PermissionError:  # alive, another user's
+            continue
 
 
 def distinct_colors(n: int) -> list:
