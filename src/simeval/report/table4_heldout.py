@@ -338,10 +338,13 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 6.4),
                              layout="constrained")
     ax1, ax2, ax3 = axes[:3]
+    row_keys = []  # one key per row for the whole figure (below)
     for r, color in zip(rows, distinct_colors(len(rows)), strict=True):  # the zip once stopped at the 10th row
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
+        row_keys.append(Line2D([], [], color=color, marker="o",
+                               label=name + ("" if masked else " (no masks: full frame)")))
         bars(ax1, r, "one_step_object", ks, "o-", color,
              f"{name}: model" + ("" if masked else " (no masks: full frame)"), scale=1e3)
         ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], ":x", color=color,
@@ -389,9 +392,6 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax.set_xlim(min(ks) / 1.3, max(ks) * 1.3)
     # two keys for the whole figure: a row keeps its colour in every panel and a reading its line style, so one
     # list of rows and one of styles replace four legends that each repeated every row (up to 60 entries)
-    row_keys = [Line2D([], [], color=color, marker="o", label=f"{r['pipeline']}/{r['group']}" + (
-        "" if all(r.get(f"robot_mask_{k}") for k in (int(c) for c in r["counts"].split("/")))
-        else " (no masks: full frame)")) for r, color in zip(rows, distinct_colors(len(rows)), strict=True)]
     style_keys = [Line2D([], [], color="0.3", marker="o", ls="-", label="model, one step (95% CI)"),
                   Line2D([], [], color="0.3", marker="s", ls=":", label="model, open loop (skill panels)"),
                   Line2D([], [], color="0.3", marker="x", ls=":", label="last-frame baseline (left panel)"),

@@ -345,10 +345,9 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
 
 def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
     """Success rate with its Wilson 95% interval per group and split, one panel per pipeline (panels wrap into rows
-    of at most GROUPS_PER_ROW groups), successes/rollouts
-    above each interval and the paper's value as a dashed line over its group; where that value is a step-wise
-    reward (GenSim), the eval split's mean progress as an open diamond beside the eval success. Written as `path`
-    with each suffix of `formats`."""
+    of at most GROUPS_PER_ROW groups), successes/rollouts above each interval and the paper's value as a dashed line
+    over its group; where that value is a step-wise reward (GenSim), the eval split's mean progress as an open
+    diamond beside the eval success. Written as `path` with each suffix of `formats`."""
     import matplotlib
 
     matplotlib.use("Agg")
