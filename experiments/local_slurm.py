@@ -159,6 +159,9 @@ def up(state: str | os.PathLike) -> dict[str, str]:
         "SelectTypeParameters=CR_Core_Memory", "EnforcePartLimits=ALL", "JobAcctGatherType=jobacct_gather/none",
         "AccountingStorageType=accounting_storage/slurmdbd", "AccountingStorageHost=127.0.0.1",
         f"AccountingStoragePort={dbd_port}", "JobCompType=jobcomp/none", "KillWait=5", "MinJobAge=30",
+        # the daemons share this machine's cores with the jobs and the test suite: a starved slurmd may take longer
+        # than the defaults (10 s each) to launch a batch job or to answer, which would end the job without a result
+        "BatchStartTimeout=60", "MessageTimeout=30",
         f"NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory={mem_mb} State=UNKNOWN",
         f"PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP", ""]))
     _run("slurmdbd", env=env)

@@ -246,3 +246,23 @@ def test_a_killed_submitit_job_ends_the_sweep_with_one_line_naming_its_log_and_a
     assert again.returncode == 0, again.stderr[-3000:]
     logs = "".join(p.read_text() for p in sweep.glob(".submitit/*/*_log.out"))
     assert re.search(r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step [1-9]\d*\)", logs), logs[-3000:]
+
+
+def test_the_dead_job_line_names_slurms_state_of_the_job_not_the_local_executors():
+    """submitit's UncompletedJobError carries the scheduler's state of the job: SLURM's (OUT_OF_MEMORY, TIMEOUT,
+    CANCELLED by <uid>) says what ended it and is kept; the local executor's (FINISHED, INTERRUPTED) is that of
+    its controller process and would mislead, so it is left out."""
+    from submitit.core.utils import UncompletedJobError
+
+    from simeval.cli import dead_job_line
+
+    def line(state: str) -> str:
+        return dead_job_line(UncompletedJobError(f"Job 12 (task: 0) with path /s/12/12_0_result.pkl\nhas not "
+                                                 f"produced any output (state: {state})\nError stream produced:\n..."))
+
+    tail = ("; its log: /s/12/12_0_log.err and _log.out. Run the same command again: finished runs are kept and a "
+            "training resumes from its last checkpoint")
+    head = "a job of the sweep died without a result (killed, out of memory?): job 12 (task 0) left no result"
+    assert line("OUT_OF_MEMORY") == head + " (state: OUT_OF_MEMORY)" + tail
+    assert line("CANCELLED by 0") == head + " (state: CANCELLED by 0)" + tail
+    assert line("FINISHED") == line("INTERRUPTED") == line("UNKNOWN") == head + tail

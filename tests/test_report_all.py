@@ -224,3 +224,32 @@ def test_the_report_door_builds_tables_4_and_5_as_the_library_does(outputs, tmp_
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", "report.out=b/table5",
            "report.figure=b/table5.png", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.rstrip().endswith("replace it with overwrite=true (make: OVERWRITE=1)"), r.stderr
+
+
+@pytest.mark.parametrize("kind,files", [
+    ("table4_heldout", ["table4_heldout.csv", "table4_heldout.md"]),
+    ("table5", [f"table5{part}.{x}" for part in ("", "_detail") for x in ("csv", "md", "tex")])])
+def test_a_committed_table_is_drawn_again_from_its_csv_alone_with_runs_dir_null(kind, files, tmp_path):
+    """`report.runs_dir=null` says on purpose that there are no runs (a fresh clone, a change to the plotting
+    code): the tables come back byte for byte from the kept CSV (and Table 5's detail beside it), and the figure
+    is drawn from them."""
+    r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=null",
+           f"report.keep=[{ROOT / 'outputs' / 'tables' / f'{kind}.csv'}]", f"report.out={tmp_path / kind}",
+           f"report.figure={tmp_path / kind}.png", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    for name in files:
+        assert (tmp_path / name).read_bytes() == (ROOT / "outputs" / "tables" / name).read_bytes(), name
+    assert (tmp_path / f"{kind}.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_runs_dir_null_without_a_kept_table_or_for_another_report_is_one_line(tmp_path):
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=null", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == (
+        "error: report.runs_dir=null draws from report.keep's tables alone, and it is empty; give "
+        "report.keep=[outputs/tables/table5.csv] (or a folder of runs)\n")
+    r = py(str(ROOT / "src" / "report.py"), "report=table4", "report.runs_dir=null",
+           f"report.keep=[{ROOT / 'outputs' / 'tables' / 'table4.csv'}]", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == (
+        "error: report.runs_dir=null: only report=table4_heldout and report=table5 can be drawn from their kept "
+        "tables alone; give report.runs_dir=<the folder that holds the runs>\n")
+    assert not (tmp_path / "outputs").exists()

@@ -223,12 +223,13 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
 
     rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
     assert len(rows) > 10
-    drawn = {}
+    drawn, markers = {}, {}
 
     def keep(fig, path, **kwargs):  # the figure as saved: its full-frame panel has one legend entry per row
         ax = fig.axes[2]
         handles, labels = ax.get_legend_handles_labels()
         drawn.update(zip(labels, (to_rgba(h.lines[0].get_color()) for h in handles)))
+        markers.update(zip(labels, (h.lines[0].get_marker() for h in handles)))
         return path
 
     monkeypatch.setattr(figures, "save_figure", keep)
@@ -237,6 +238,32 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     assert len(set(drawn.values())) == len(rows)
     assert figures.distinct_colors(3) == ["C0", "C1", "C2"]  # up to ten: matplotlib's own cycle, as before
     assert len({to_rgba(c) for c in figures.distinct_colors(20)}) == 20
+    # each row has its own marker too: rows 11-13's tab20 shades were hard to tell from rows 1-3's
+    assert len(set(markers.values())) == len(rows), markers
+
+
+def test_a_wide_interval_is_cut_at_the_panel_edge_and_named_instead_of_squeezing_the_other_rows():
+    """By hand: points -0.5 .. 0.7 (spread 1.2, pad 0.15 -> -0.68 .. 0.88); b's interval reaches -1.7 and is cut,
+    a's highest end 0.75 sets the top; 4% of the span (1.43) above and below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from simeval.report.figures import cut_wide_intervals
+
+    fig, ax = plt.subplots()
+    a = ("a", [0.5, 0.7], [0.45, 0.65], [0.55, 0.75])
+    b = ("b", [-0.5], [-1.7], [0.1])
+    b_open_loop = ("b", [-0.3], [-0.9], [0.2])  # the same row's second line: one entry, its lowest end
+    assert cut_wide_intervals(ax, [a, b, b_open_loop]) == ["b down to -1.70"]
+    assert ax.get_ylim() == pytest.approx((-0.68 - 0.0572, 0.75 + 0.0572))
+    fig2, ax2 = plt.subplots()
+    ax2.plot([0, 1], [0.4, 0.8])
+    before = ax2.get_ylim()
+    assert cut_wide_intervals(ax2, [a]) == [] and ax2.get_ylim() == before  # every interval fits: as drawn
+    plt.close(fig)
+    plt.close(fig2)
 
 
 def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_path):

@@ -191,6 +191,17 @@ def _job_logs(tmp: Path) -> str:
     return "".join(p.read_text() for p in sorted((tmp / "sweep" / ".submitit").glob("*/*_log.*")))
 
 
+def _failed_sweep(env: dict, tmp: Path, err: str) -> str:
+    """What a failed training sweep's assertion shows: the launching process's stderr, the job's own log (what it
+    did when it stopped; not the per-epoch lines) and SLURM's record of each of its runs (when it started and ended,
+    how). CI keeps none of these once the test is over."""
+    log = "".join(line for line in _job_logs(tmp).splitlines(keepends=True) if " done: step " not in line) \
+        if (tmp / "sweep" / ".submitit").is_dir() else ""
+    runs = subprocess.run(["sacct", "-D", "-X", "-P", "-o", "JobID,State,Start,End,ExitCode"], env=env,
+                          capture_output=True, text=True, check=False).stdout if "SLURM_CONF" in env else ""
+    return f"the sweep's stderr:\n{err[-3000:]}\nthe job's log:\n{log[-5000:]}\nsacct -D:\n{runs}"
+
+
 def _values(tmp: Path) -> dict:
     rec = json.loads((tmp / "sweep" / "0" / "result.json").read_text())
     assert rec["status"] == "ok"
@@ -224,7 +235,7 @@ def test_a_job_at_its_time_limit_is_requeued_and_resumes_at_the_step_it_stopped(
     rc, err = _wait(_training_sweep(slurm, tmp_path, training_store, "hydra.launcher.timeout_min=2",
                                     "hydra.launcher.signal_delay_s=60", "hydra.launcher.max_num_timeout=8",
                                     epochs=LONG_EPOCHS), slurm, tmp_path)
-    assert rc == 0, err[-3000:]
+    assert rc == 0, _failed_sweep(slurm, tmp_path, err)
     log = _job_logs(tmp_path)
     stopped = re.findall(r"preempted at step (\d+): checkpoint saved", log)
     resumed = re.findall(RESUMED, log)
@@ -246,12 +257,15 @@ def test_a_cancelled_job_resumes_from_its_checkpoint_when_the_sweep_is_run_again
     subprocess.run(["scancel", job], env=slurm, check=True)
     rc, err = _wait(proc, slurm, tmp_path)
     assert rc == 1 and "Traceback" not in err, err[-3000:]
-    assert err.strip().splitlines()[-1] == (
-        f"error: a job of the sweep died without a result (killed, out of memory?): job {job} (task 0) left no "
-        f"result; its log: {tmp_path / 'sweep' / '.submitit' / job / job}_0_log.err and _log.out. Run the same "
-        "command again: finished runs are kept and a training resumes from its last checkpoint")
+    # with what SLURM said of the job (sacct: "CANCELLED by <uid>")
+    assert re.fullmatch(
+        re.escape(f"error: a job of the sweep died without a result (killed, out of memory?): job {job} (task 0) "
+                  "left no result (state: CANCELLED") + r"[^)]*" + re.escape(
+            f"); its log: {tmp_path / 'sweep' / '.submitit' / job / job}_0_log.err and _log.out. Run the same "
+            "command again: finished runs are kept and a training resumes from its last checkpoint"),
+        err.strip().splitlines()[-1]), err[-3000:]
     rc, err = _wait(_training_sweep(slurm, tmp_path, training_store), slurm, tmp_path)  # the same command again
-    assert rc == 0, err[-3000:]
+    assert rc == 0, _failed_sweep(slurm, tmp_path, err)
     [step] = re.findall(RESUMED, _job_logs(tmp_path))
     assert int(step) >= 100  # the last periodic checkpoint before the kill (every 50 steps), not step 0
     assert _values(tmp_path) == uninterrupted
@@ -298,7 +312,7 @@ def test_a_preempted_then_requeued_job_resumes_each_time_and_ends_as_the_uninter
              "100 steps after the resume")
     subprocess.run(["scontrol", "requeue", job], env=slurm, check=True)
     rc, err = _wait(proc, slurm, tmp_path)
-    assert rc == 0, err[-3000:]
+    assert rc == 0, _failed_sweep(slurm, tmp_path, err)
     log = _job_logs(tmp_path)
     first, second = map(int, re.findall(RESUMED, log))
     assert first == stopped and second >= 220  # its last checkpoint (each epoch's end), not the preemption's
@@ -311,7 +325,7 @@ def test_a_job_out_of_requeues_ends_the_sweep_with_one_line_naming_the_limits(sl
     rc, err = _wait(_training_sweep(slurm, tmp_path, training_store, "hydra.launcher.timeout_min=2",
                                     "hydra.launcher.signal_delay_s=60", "hydra.launcher.max_num_timeout=0",
                                     epochs=LONG_EPOCHS), slurm, tmp_path)
-    assert rc == 1 and "Traceback" not in err, err[-3000:]
+    assert rc == 1 and "Traceback" not in err, _failed_sweep(slurm, tmp_path, err)
     last = err.strip().splitlines()[-1]
     assert last.startswith("error: the sweep's job [") and "episodes=2] stopped and was not requeued again " \
         "(timed-out too many times; hydra.launcher.timeout_min=2, hydra.launcher.max_num_timeout=0): its last " \

@@ -267,6 +267,10 @@ def stop_sweep_on_unrequeued_jobs(results: Any, params: dict | None = None) -> N
     sys.exit(1)
 
 
+SLURM_END_STATES = ("BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED", "NODE_FAIL", "OUT_OF_MEMORY",
+                    "PREEMPTED", "TIMEOUT")  # sacct's states of a job that has ended
+
+
 def dead_job_line(exc: BaseException) -> str:
     """One line for submitit's UncompletedJobError (a job of the sweep died without a result: killed, out of
     memory, a node lost), naming the job and its log instead of submitit's traceback and the log's tail."""
@@ -275,8 +279,12 @@ def dead_job_line(exc: BaseException) -> str:
     text = str(exc)
     first = text.splitlines()[0] if text.strip() else type(exc).__name__
     m = re.search(r"Job (\S+) \(task: (\d+)\) with path (\S+)_result\.pkl", text)
-    where = f"job {m.group(1)} (task {m.group(2)}) left no result; its log: {m.group(3)}_log.err and _log.out" \
-        if m else first
+    state = re.search(r"has not produced any output \(state: ([^)]+)\)", text)
+    # SLURM's last word on the job (OUT_OF_MEMORY, TIMEOUT, NODE_FAIL, CANCELLED by <uid>...) tells what ended it;
+    # the local executor's (FINISHED, INTERRUPTED: of its controller, not of the job) would mislead
+    said = f" (state: {state.group(1)})" if state and state.group(1).startswith(SLURM_END_STATES) else ""
+    where = (f"job {m.group(1)} (task {m.group(2)}) left no result{said}; its log: {m.group(3)}_log.err and _log.out"
+             if m else first)
     return (f"a job of the sweep died without a result (killed, out of memory?): {where}. Run the same command "
             "again: finished runs are kept and a training resumes from its last checkpoint")
 

@@ -50,6 +50,50 @@ def _remove_partials_of_dead_runs(path: Path) -> None:
             continue
 
 
+# filled shapes that stay apart at 5-6 pt; a row's marker, with its colour, tells rows apart where two of
+# distinct_colors' shades are close (tab20's pairs: a row 11-20 beside the row ten before it)
+ROW_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "p", "h", "*", "d")
+
+
+def row_markers(n: int) -> list[str]:
+    """`n` marker shapes, one per row of a figure, in ROW_MARKERS' order; past its 13 they repeat (with other
+    colours: distinct_colors repeats only past 20)."""
+    return [ROW_MARKERS[i % len(ROW_MARKERS)] for i in range(n)]
+
+
+def cut_wide_intervals(ax, drawn: list[tuple[str, object, object, object]], pad: float = 0.15,
+                       min_spread: float = 0.5) -> list[str]:
+    """y-limits for `ax` that hold every drawn point with `pad` of their spread (at least `min_spread`: a skill's
+    scale) around them, and every interval that fits there; a wider interval (one row's few moving pixels) is cut
+    at the panel's edge instead of squeezing the other rows into a strip. `drawn`: (row name, values, lows, highs)
+    per line. Returns what was cut, one entry per row and edge ("gensim/assembling down to -1.72"), for the
+    caller to say beside the panel; empty (and the limits left as drawn) when every interval fits."""
+    import numpy as np
+
+    def finite(key: int) -> np.ndarray:
+        parts = [np.asarray(d[key], dtype=float).ravel() for d in drawn]
+        values = np.concatenate(parts) if parts else np.array([])
+        return values[np.isfinite(values)]
+
+    points, lows, highs = finite(1), finite(2), finite(3)
+    if not points.size:
+        return []
+    spread = max(points.max() - points.min(), min_spread)
+    bottom, top = points.min() - pad * spread, points.max() + pad * spread
+    if lows.min(initial=bottom) >= bottom and highs.max(initial=top) <= top:
+        return []  # every interval fits near the points: matplotlib's own limits
+    lowest, highest = {}, {}
+    for name, _, lo, hi in drawn:
+        lowest[name] = min(lowest.get(name, np.inf), np.nanmin(np.asarray(lo, dtype=float), initial=np.inf))
+        highest[name] = max(highest.get(name, -np.inf), np.nanmax(np.asarray(hi, dtype=float), initial=-np.inf))
+    cut = [f"{name} down to {v:.2f}" for name, v in lowest.items() if v < bottom]
+    cut += [f"{name} up to {v:.2f}" for name, v in highest.items() if v > top]
+    low, high = max(lows.min(), bottom), min(highs.max(), top)
+    margin = 0.04 * (high - low)
+    ax.set_ylim(low - margin, high + margin)
+    return cut
+
+
 def distinct_colors(n: int) -> list:
     """`n` colours, one per row of a figure: matplotlib's ten (C0-C9) while they suffice, then tab20's lighter
     shade of each in the same order (rows 11-20), then again. A figure with more rows than colours must neither

@@ -8,7 +8,8 @@ Each reads every result.json of its metric under `root` (none: a UserError sayin
 replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
 (a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
 wrote with the Markdown table and notes to print. `keep`: CSVs of earlier tables whose rows the runs on disk lack
-are kept (groups run on other machines).
+are kept (groups run on other machines). Tables 4 (held-out) and 5 take `root=None` (`report.runs_dir=null`):
+drawn again from the kept CSVs alone, after a change to the plotting code or on a clone without the runs.
 
     rebuild(spec, overwrite=False) -> Rebuilt          one report of conf/report/<kind>.yaml
     rebuild_all(spec, overwrite=False) -> list of the steps that failed   (report=all, `make report`)
@@ -62,15 +63,15 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
-def rebuild_table4_heldout(root: str | Path, out: str | Path, figure: str | Path, *, keep=(),
+def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str | Path, *, keep=(),
                            overwrite: bool = False, overwrite_flag: str = "--overwrite",
                            elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     from simeval.report import table4_heldout
 
     kept = read_kept(table4_heldout.read_rows, keep, keep_key, "held-out Table 4")
-    records = [r for r in read_results(root, metric=table4_heldout.METRIC)
-               if (r.get("identity") or {}).get("protocol") == "heldout"]
-    if not records:
+    records = [] if root is None else [r for r in read_results(root, metric=table4_heldout.METRIC)
+                                       if (r.get("identity") or {}).get("protocol") == "heldout"]
+    if not records and root is not None:
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them")
     out, figure = Path(out), Path(figure)
@@ -98,7 +99,9 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder. `key`: where the
     user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
     kind = spec.get("kind")
-    if kind in MAKERS:  # the html kind says itself what it wants of its folder
+    if spec.get("runs_dir") is None:
+        check_kept_only(spec, key)
+    elif kind in MAKERS:  # the html kind says itself what it wants of its folder
         check_runs_dir(Path(spec["runs_dir"]), key, kind)
     flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
     elsewhere = f"{key}.out= and {key}.figure=" if kind in ("table4", "table4_heldout", "table5") else f"{key}.out_dir="
@@ -148,6 +151,22 @@ MAKERS = {"table3": ("text_diversity", "`make table3` runs the sweep"),
           "figure4": ("quality", "run src/quality.py with a model judge, see README")}  # step -> (metric, its maker)
 
 
+KEPT_ONLY = ("table4_heldout", "table5")  # the reports that can be drawn again from their own CSVs (runs_dir=null)
+
+
+def check_kept_only(spec: dict, key: str) -> None:
+    """`runs_dir: null` asks for the tables and figure drawn again from `keep`'s CSVs alone (after a change to the
+    plotting code, on a clone without the runs): said on purpose, so not mistaken for an empty folder. One
+    UserError where that cannot be done."""
+    kind = spec.get("kind")
+    if kind not in KEPT_ONLY:
+        raise UserError(f"{key}.runs_dir=null: only report={' and report='.join(KEPT_ONLY)} can be drawn from their "
+                        f"kept tables alone; give {key}.runs_dir=<the folder that holds the runs>")
+    if not kept_paths(spec):
+        raise UserError(f"{key}.runs_dir=null draws from {key}.keep's tables alone, and it is empty; give "
+                        f"{key}.keep=[outputs/tables/{kind}.csv] (or a folder of runs)")
+
+
 def check_runs_dir(runs: Path, key: str, kind: str) -> None:
     """A runs folder that is a file or does not exist is one UserError naming `key`.runs_dir (the single-report door
     and report=all say the same), with what makes the runs."""
@@ -165,6 +184,8 @@ def missing_inputs(step: str, spec: dict, made_under: str | Path | None = None) 
     A runs folder that does not exist is "nothing made yet" only under `made_under` (the project's outputs, where
     the commands write); elsewhere (a folder the user typed) it is a UserError, as is a file. A result.json that
     cannot be read is not "missing": the step runs and its builder names the file."""
+    if spec.get("runs_dir") is None:  # from the kept tables alone: rebuild() checks that it can be
+        return None
     runs = Path(spec["runs_dir"])
     if runs.exists() or made_under is None or not _inside(runs, Path(made_under)):  # not yet made: skipped below
         check_runs_dir(runs, f"report.{step}", step)

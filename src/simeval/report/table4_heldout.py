@@ -311,7 +311,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
     same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
     error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
-    model predicts of the motion outside the robot). Saved without dates or versions
+    model predicts of the motion outside the robot). A row has one colour and one marker shape in every panel, a
+    reading one line style; in the right panel an interval far wider than the points' spread is cut at the edge
+    and named in its title (simeval.report.figures.cut_wide_intervals). Saved without dates or versions
     (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes. The first panel
     has a log scale (its baselines span four decades), the second a symmetric log one (skills from 1 to -800)."""
     import matplotlib
@@ -321,16 +323,19 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
-    from simeval.report.figures import distinct_colors, save_figure
+    from simeval.report.figures import cut_wide_intervals, distinct_colors, row_markers, save_figure
 
-    def bars(ax, r, name, ks, style, color, label, shift=1.0, scale=1.0):
+    def bars(ax, r, name, ks, ls, color, marker, label, hollow=False, shift=1.0, scale=1.0):
+        """The reading's points with their intervals; (values, lows, highs), or None where there is no reading."""
         v = np.array([r[f"{name}_{k}"] for k in ks]) * scale
         lo = np.array([r[f"{name}_{k}_lo"] for k in ks]) * scale
         hi = np.array([r[f"{name}_{k}_hi"] for k in ks]) * scale
-        if not np.isfinite(v).any():  # no reading at any count: no legend entry for a line that is not drawn
-            return
+        if not np.isfinite(v).any():  # no reading at any count: nothing drawn
+            return None
         err = np.maximum(np.stack([v - lo, hi - v]), 0)  # a percentile interval of a ratio may sit beside its point
-        ax.errorbar(np.array(ks) * shift, v, yerr=err, fmt=style, color=color, capsize=3, label=label)
+        ax.errorbar(np.array(ks) * shift, v, yerr=err, ls=ls, marker=marker, ms=5, color=color, capsize=3,
+                    mfc="white" if hollow else color, label=label)
+        return v, lo, hi
 
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
@@ -338,27 +343,29 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 6.4),
                              layout="constrained")
     ax1, ax2, ax3 = axes[:3]
-    row_keys = []  # one key per row for the whole figure (below)
-    for r, color in zip(rows, distinct_colors(len(rows)), strict=True):  # the zip once stopped at the 10th row
+    row_keys, moving_drawn = [], []  # one key per row for the whole figure (below); the moving panel's lines
+    # a row: its colour and its marker shape in every panel (two of tab20's shades alone were hard to tell apart)
+    for r, color, marker in zip(rows, distinct_colors(len(rows)), row_markers(len(rows)), strict=True):
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
-        row_keys.append(Line2D([], [], color=color, marker="o",
+        row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
                                label=name + ("" if masked else " (no masks: full frame)")))
-        bars(ax1, r, "one_step_object", ks, "o-", color,
-             f"{name}: model" + ("" if masked else " (no masks: full frame)"), scale=1e3)
-        ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], ":x", color=color,
-                 label=f"{name}: last frame")
-        ax1.plot(ks, [r[f"one_step_object_mean_{k}"] * 1e3 for k in ks], "--+", color=color, alpha=0.6, ms=9,
-                 label=f"{name}: mean image")
-        bars(ax2, r, "one_step_object_skill_last", ks, "o-", color, f"{name}: one step (object-focused)")
-        bars(ax2, r, "open_loop_object_skill_last", ks, "s:", color, f"{name}: open loop (object-focused)",
-             shift=1.04)
-        bars(ax3, r, "one_step", ks, "o-", color, name)
+        bars(ax1, r, "one_step_object", ks, "-", color, marker, f"{name}: model", scale=1e3)
+        ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], "-.", marker=marker, ms=3, lw=0.9,
+                 color=color, label=f"{name}: last frame")
+        ax1.plot(ks, [r[f"one_step_object_mean_{k}"] * 1e3 for k in ks], "--", marker=marker, ms=3, lw=0.9,
+                 color=color, alpha=0.5, label=f"{name}: mean image")
+        bars(ax2, r, "one_step_object_skill_last", ks, "-", color, marker, f"{name}: one step (object-focused)")
+        bars(ax2, r, "open_loop_object_skill_last", ks, ":", color, marker, f"{name}: open loop (object-focused)",
+             hollow=True, shift=1.04)
+        bars(ax3, r, "one_step", ks, "-", color, marker, name)
         if r in moving:
-            bars(axes[3], r, "one_step_moving_skill_last", ks, "o-", color, f"{name}: one step")
+            drawn = [bars(axes[3], r, "one_step_moving_skill_last", ks, "-", color, marker, f"{name}: one step")]
             if all(np.isfinite(r.get(f"open_loop_moving_skill_last_{k}", np.nan)) for k in ks):
-                bars(axes[3], r, "open_loop_moving_skill_last", ks, "s:", color, f"{name}: open loop", shift=1.04)
+                drawn.append(bars(axes[3], r, "open_loop_moving_skill_last", ks, ":", color, marker,
+                                  f"{name}: open loop", hollow=True, shift=1.04))
+            moving_drawn += [(name, *d) for d in drawn if d is not None]
     # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
     ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
             title="object-focused one-step error (primary; model: 95% CI)")
@@ -382,8 +389,11 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
     if moving:
         axes[3].axhline(0, color="0.5", lw=0.8)
+        # one row's wide interval (few moving pixels) had squeezed the other rows into a strip: cut, and said
+        cut = cut_wide_intervals(axes[3], moving_drawn)
         axes[3].set(ylabel="skill vs last frame (1 - model / baseline)",
-                    title="moving pixels: skill vs the last frame")
+                    title="moving pixels: skill vs the last frame"
+                    + ("\n(intervals cut: " + "; ".join(cut) + ")" if cut else ""))
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
     for ax in axes:
         ax.set(xlabel="training episodes per task", xscale="log")
@@ -392,13 +402,15 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax.set_xlim(min(ks) / 1.3, max(ks) * 1.3)
     # two keys for the whole figure: a row keeps its colour in every panel and a reading its line style, so one
     # list of rows and one of styles replace four legends that each repeated every row (up to 60 entries)
-    style_keys = [Line2D([], [], color="0.3", marker="o", ls="-", label="model, one step (95% CI)"),
-                  Line2D([], [], color="0.3", marker="s", ls=":", label="model, open loop (skill panels)"),
-                  Line2D([], [], color="0.3", marker="x", ls=":", label="last-frame baseline (left panel)"),
-                  Line2D([], [], color="0.3", marker="+", ms=9, ls="--", alpha=0.6,
+    style_keys = [Line2D([], [], color="0.3", marker="o", ms=5, ls="-", label="model, one step (95% CI)"),
+                  Line2D([], [], color="0.3", marker="o", ms=5, mfc="white", ls=":",
+                         label="model, open loop (skill panels)"),
+                  Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="-.",
+                         label="last-frame baseline (left panel)"),
+                  Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
                          label="mean-image baseline (left panel)")]
     fig.legend(handles=row_keys, loc="outside lower left", ncol=-(-len(row_keys) // 4), fontsize=8,
-               frameon=False, title="row (colour)", title_fontsize=8, alignment="left")
+               frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False,
                title="reading (line style)", title_fontsize=8, alignment="left")
     fig.suptitle(title, fontsize=10)

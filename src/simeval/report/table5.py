@@ -343,9 +343,14 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
     return {p.suffix.lstrip("."): p for p in paths}
 
 
+COUNT_BAND = (-0.17, -0.035)  # the panels' strip under 0 where each split's successes/rollouts are written
+COUNT_Y = (-0.07, -0.135)  # its two lines: train and held-out on the first, eval (between them) on the second
+
+
 def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
     """Success rate with its Wilson 95% interval per group and split, one panel per pipeline (panels wrap into rows
-    of at most GROUPS_PER_ROW groups), successes/rollouts above each interval and the paper's value as a dashed line
+    of at most GROUPS_PER_ROW groups), successes/rollouts under each interval (in a band below 0, COUNT_BAND, clear
+    of the intervals and of the paper's line) and the paper's value as a dashed line
     over its group; where that value is a step-wise reward (GenSim), the eval split's mean progress as an open
     diamond beside the eval success. Written as `path` with each suffix of `formats`."""
     import matplotlib
@@ -383,9 +388,10 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                 ran, x, (lo, hi) = True, i + (j - 1) * 0.27, v["ci"]
                 ax.errorbar(x, v["rate"], yerr=[[v["rate"] - lo], [hi - v["rate"]]], fmt=marker, color=color,
                             ms=5, capsize=3, lw=1.4)
-                ax.annotate(f"{v['k']}/{v['n']}", (x, hi), xytext=(0, 3), textcoords="offset points", ha="center",
-                            va="bottom", fontsize=6.5, color=color,
-                            bbox={"fc": "white", "ec": "none", "pad": 0.3})  # readable over the paper's line
+                # in a band of their own under the zero line (above each interval they sat on the paper's line),
+                # eval's a line lower than its neighbours' so that "28/180" and "25/180" do not run together
+                ax.text(x, COUNT_Y[j % 2], f"{v['k']}/{v['n']}", ha="center", va="center", fontsize=6.5,
+                        color=color)
             if _draws_progress(r):
                 ax.plot(i + 0.13, r["eval_progress"], marker="D", ms=5, mfc="white", mec="C3", ls="none", zorder=3)
             if r["paper"] is not None:
@@ -400,7 +406,9 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
                                                          if several and r["policy"] else "") for r in per[p]],
                       fontsize=7)
         ax.set_xlim(-0.5, len(per[p]) - 0.5)
-        ax.set_ylim(-0.04, 1.12)
+        ax.set_ylim(COUNT_BAND[0], 1.12)
+        ax.axhspan(*COUNT_BAND, color="0.95", lw=0, zorder=0)
+        ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])  # none in the counts' band
         ax.grid(axis="y", alpha=0.3)
         ax.set_title(p)
     handles = [Line2D([], [], color=c, marker=m, ls="-", label=label) for label, c, m in PLOT_SPLITS.values()]
@@ -435,7 +443,7 @@ def pack_panels(sizes: list[int], per_row: int) -> list[list[int]]:
     return rows
 
 
-def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
+def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
                    overwrite: bool = False, overwrite_flag: str = "--overwrite",
                    elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
@@ -444,8 +452,8 @@ def rebuild_table5(root: str | Path, out: str | Path, figure: str | Path, *, pol
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
     details = [d for d in (Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep) if d.is_file()]
     kept_detail = read_kept(read_detail_lines, details, keep_key, "Table 5 detail")
-    records = read_results(root, metric=METRIC)
-    if not records:  # with keep too: a mistyped root must not pass for "nothing new"
+    records = [] if root is None else read_results(root, metric=METRIC)  # None: the kept tables alone
+    if not records and root is not None:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
                         "src/generalization.py), or give the folder that holds them")
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
