@@ -252,4 +252,16 @@ def test_runs_dir_null_without_a_kept_table_or_for_another_report_is_one_line(tm
     assert r.returncode == 2 and r.stderr == (
         "error: report.runs_dir=null: only report=table4_heldout and report=table5 can be drawn from their kept "
         "tables alone; give report.runs_dir=<the folder that holds the runs>\n")
-    assert not (tmp_path / "outputs").exists()
+    alone = tmp_path / "mine" / "table5.csv"  # a copy without table5_detail.csv beside it: refused, not empty detail
+    alone.parent.mkdir()
+    shutil.copy(ROOT / "outputs" / "tables" / "table5.csv", alone)
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=null", f"report.keep=[{alone}]",
+           f"report.out={tmp_path / 't5'}", f"report.figure={tmp_path / 't5.png'}", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == (
+        f"error: report.keep: {alone} has no table5_detail.csv beside it, from which the per-task table is drawn "
+        "when there are no runs; keep the two files together\n")
+    assert not (tmp_path / "outputs").exists() and not list(tmp_path.glob("t5*"))
+    (tmp_path / "outputs").mkdir()  # keep beside an empty runs folder: the error points at runs_dir=null
+    r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=outputs", f"report.keep=[{alone}]",
+           cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.endswith("(report.runs_dir=null draws from the kept tables alone)\n")

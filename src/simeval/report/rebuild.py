@@ -73,7 +73,9 @@ def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str
                                        if (r.get("identity") or {}).get("protocol") == "heldout"]
     if not records and root is not None:
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
-                        "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them")
+                        "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
+                        + (f" ({keep_key.removesuffix('keep')}runs_dir=null draws from the kept tables alone)"
+                           if keep else ""))
     out, figure = Path(out), Path(figure)
     refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere)
     rows = table4_heldout.build(records)

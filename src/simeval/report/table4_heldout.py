@@ -411,7 +411,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                          label="mean-image baseline (left panel)")]
     fig.legend(handles=row_keys, loc="outside lower left", ncol=-(-len(row_keys) // 4), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
-    fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False,
+    fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False, handlelength=4,
                title="reading (line style)", title_fontsize=8, alignment="left")
     fig.suptitle(title, fontsize=10)
     out = save_figure(fig, path, dpi=120)
