@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.tables import Rebuilt, read_kept, refuse_committed
+from simeval.report.tables import Rebuilt, kept_only_hint, read_kept, refuse_committed
 from simeval.report.table5 import rebuild_table5
 from simeval.results import read_results
 
@@ -74,8 +74,7 @@ def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str
     if not records and root is not None:
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
-                        + (f" ({keep_key.removesuffix('keep')}runs_dir=null draws from the kept tables alone)"
-                           if keep else ""))
+                        + kept_only_hint(keep, keep_key))
     out, figure = Path(out), Path(figure)
     refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere)
     rows = table4_heldout.build(records)

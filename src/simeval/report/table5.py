@@ -27,7 +27,7 @@ from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
 from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import Rebuilt, read_csv, read_kept, refuse_committed, write_table
+from simeval.report.tables import Rebuilt, kept_only_hint, read_csv, read_kept, refuse_committed, write_table
 from simeval.results import identity_difference, read_results
 
 METRIC = "generalization"
@@ -450,18 +450,17 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
     simeval.report.rebuild, which the report door calls)."""
     kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
-    details = [d for d in (Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep) if d.is_file()]
-    kept_detail = read_kept(read_detail_lines, details, keep_key, "Table 5 detail")
-    if root is None and len(details) < len(keep):  # the per-task tables would be written empty
-        lacking = next(Path(p) for p in keep if not Path(p).with_name(Path(p).stem + "_detail.csv").is_file())
-        raise UserError(f"{keep_key}: {lacking} has no {lacking.stem}_detail.csv beside it, from which the per-task "
-                        "table is drawn when there are no runs; keep the two files together")
+    beside = {Path(path): Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep}
+    lacking = [path for path, detail in beside.items() if not detail.is_file()]
+    if root is None and lacking:  # without runs, the per-task tables would be written empty
+        raise UserError(f"{keep_key}: {lacking[0]} has no {lacking[0].stem}_detail.csv beside it, from which the "
+                        "per-task table is drawn when there are no runs; keep the two files together")
+    kept_detail = read_kept(read_detail_lines, [d for d in beside.values() if d.is_file()], keep_key,
+                            "Table 5 detail")
     records = [] if root is None else read_results(root, metric=METRIC)  # None: the kept tables alone
     if not records and root is not None:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
-                        "src/generalization.py), or give the folder that holds them"
-                        + (f" ({keep_key.removesuffix('keep')}runs_dir=null draws from the kept tables alone)"
-                           if keep else ""))
+                        "src/generalization.py), or give the folder that holds them" + kept_only_hint(keep, keep_key))
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
                       *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere)
     rows = build(records, policy=policy)

@@ -129,6 +129,12 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewher
                         f"elsewhere ({elsewhere}) or replace it with {flag}")
 
 
+def kept_only_hint(keep, keep_key: str = "keep") -> str:
+    """What to add to "no result.json under <runs_dir>" when the user gave kept tables: that they can be drawn
+    alone, on purpose (`runs_dir=null`)."""
+    return f" ({keep_key.removesuffix('keep')}runs_dir=null draws from the kept tables alone)" if keep else ""
+
+
 def read_kept(reader, keep, keep_key: str = "keep", table: str = "table") -> list:
     """`reader(path)` of each kept CSV, before any other work, a bad one's error naming the key that gave it: the
     reader names the file and line, but a user who typed a list of paths also needs to know which option to fix."""
