@@ -240,6 +240,19 @@ def test_a_committed_table_is_drawn_again_from_its_csv_alone_with_runs_dir_null(
     for name in files:
         assert (tmp_path / name).read_bytes() == (ROOT / "outputs" / "tables" / name).read_bytes(), name
     assert (tmp_path / f"{kind}.png").read_bytes().startswith(b"\x89PNG")
+    if shutil.which("git") is None:
+        return
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    subprocess.run([*git, "add", files[0]], cwd=tmp_path, check=True)
+    subprocess.run([*git, "commit", "-qm", "committed"], cwd=tmp_path, check=True)
+    r = py(str(ROOT / "src" / "report.py"), f"report={kind}", "report.runs_dir=null",
+           f"report.keep=[{ROOT / 'outputs' / 'tables' / f'{kind}.csv'}]", f"report.out={tmp_path / kind}",
+           f"report.figure={tmp_path / kind}.png", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == (  # names what would replace it: no runs are involved
+        f"error: {tmp_path / files[0]} is a committed result and would be replaced by a table of the kept tables "
+        "alone; write elsewhere (report.out= and report.figure=) or replace it with overwrite=true (make: "
+        "OVERWRITE=1)\n"), r.stderr
 
 
 def test_runs_dir_null_without_a_kept_table_or_for_another_report_is_one_line(tmp_path):

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from omegaconf import OmegaConf
@@ -223,13 +224,14 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
 
     rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
     assert len(rows) > 10
-    drawn, markers = {}, {}
+    drawn, markers, keys = {}, {}, []
 
     def keep(fig, path, **kwargs):  # the figure as saved: its full-frame panel has one legend entry per row
         ax = fig.axes[2]
         handles, labels = ax.get_legend_handles_labels()
         drawn.update(zip(labels, (to_rgba(h.lines[0].get_color()) for h in handles)))
         markers.update(zip(labels, (h.lines[0].get_marker() for h in handles)))
+        keys.extend(t.get_text() for t in fig.legends[0].get_texts())
         return path
 
     monkeypatch.setattr(figures, "save_figure", keep)
@@ -240,6 +242,14 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     assert len({to_rgba(c) for c in figures.distinct_colors(20)}) == 20
     # each row has its own marker too: rows 11-13's tab20 shades were hard to tell from rows 1-3's
     assert len(set(markers.values())) == len(rows), markers
+    # a row absent from the moving-pixel panel says why in the row key (GenSim stacking's top camera: nothing moves)
+    silent = [r for r in rows if not np.isfinite(r["one_step_moving_skill_last_10"])]
+    assert [f"{r['pipeline']}/{r['group']}" for r in silent] == ["gensim/stacking"]
+    assert [k for k in keys if "right panel" in k] == ["gensim/stacking (right panel: no reading, under 100 pixels moved)"]
+    rows[0] = {k: v for k, v in rows[0].items() if "moving" not in k}  # runs from before moving pixels were summed
+    keys.clear()
+    table4_heldout.plot(rows, tmp_path / "f.png")
+    assert f"{rows[0]['pipeline']}/{rows[0]['group']} (right panel: its runs did not sum moving pixels)" in keys
 
 
 def test_a_wide_interval_is_cut_at_the_panel_edge_and_named_instead_of_squeezing_the_other_rows():

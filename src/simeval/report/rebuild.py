@@ -76,7 +76,8 @@ def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
                         + kept_only_hint(keep, keep_key))
     out, figure = Path(out), Path(figure)
-    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere)
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere,
+                     source="the kept tables alone" if root is None else "the runs on disk")
     rows = table4_heldout.build(records)
     for rows_of_file in kept:  # the rows merged so far win: the first file that has a row gives it
         rows = table4_heldout.merge(rows_of_file, rows)

@@ -462,7 +462,8 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
                         "src/generalization.py), or give the folder that holds them" + kept_only_hint(keep, keep_key))
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
-                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere)
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere,
+                     source="the kept tables alone" if root is None else "the runs on disk")
     rows = build(records, policy=policy)
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)

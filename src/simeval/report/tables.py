@@ -114,10 +114,11 @@ def outputs_named(out_dir: str | Path, id: str) -> list[Path]:
     return sorted({*out.glob(f"{id}.*"), *out.glob(f"{id}_*.*")})
 
 
-def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewhere: str = "another output path") -> None:
+def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewhere: str = "another output path",
+                     source: str = "the runs on disk") -> None:
     """A report of the runs on disk must not replace a committed result unless asked: raises a UserError naming the
-    first committed file among `paths` and how to proceed (`flag`, or `elsewhere`: the keys that write elsewhere),
-    unless `overwrite`."""
+    first committed file among `paths`, what would replace it (`source`: "the kept tables alone" for a redraw) and
+    how to proceed (`flag`, or `elsewhere`: the keys that write elsewhere), unless `overwrite`."""
     from simeval.errors import UserError
 
     if overwrite:
@@ -125,7 +126,7 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewher
     hit = committed(paths)
     if hit:
         kind = "figure" if Path(hit[0]).suffix in (".png", ".pdf") else "table"
-        raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of the runs on disk; write "
+        raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of {source}; write "
                         f"elsewhere ({elsewhere}) or replace it with {flag}")
 
 
