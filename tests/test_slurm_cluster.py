@@ -166,14 +166,30 @@ def _training_sweep(env: dict, tmp: Path, store: Path, *overrides: str, slurm: b
         return subprocess.Popen(cmd, cwd=tmp, env={**env, "OMP_NUM_THREADS": "1"}, stdout=out, stderr=err)
 
 
+_HELD_SINCE: dict[str, float] = {}  # job id -> when _release_requeued first saw it held after a requeue
+RELEASE_AFTER_S = 2.0
+
+
 def _release_requeued(env: dict) -> None:
     """SLURM holds a requeued job for 2 minutes (Reason=BeginTime) before it may start again, which would only make
-    a test slow: start it now."""
+    a test slow: start it, but not within the second of its requeue. The hold is the credential's lifetime
+    (`AuthInfo=cred_expire`, 120 s): slurmd revokes the job's credential at the requeue, to the second, and refuses
+    a launch whose new credential carries the same second ("Job N already killed, do not launch batch job";
+    slurmctld: "Killing non-startable batch JobId=N: Job credential revoked"), so the job ends FAILED without a
+    result. Released at once, that happened whenever the restart fell in the requeue's second (once on CI, once in a
+    full local run; reproduced at the first requeue with a 0.05 s poll); RELEASE_AFTER_S after the hold is first
+    seen it cannot."""
+    held = set()
     for line in subprocess.run(["squeue", "-h", "-o", "%i %r"], env=env, capture_output=True,
                                text=True).stdout.splitlines():
         job, reason = line.split(maxsplit=1)
-        if reason == "BeginTime":
+        if reason != "BeginTime":
+            continue
+        held.add(job)
+        if time.time() - _HELD_SINCE.setdefault(job, time.time()) >= RELEASE_AFTER_S:
             subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], env=env, capture_output=True)
+    for job in set(_HELD_SINCE) - held:  # started again (or gone): its next requeue waits afresh
+        del _HELD_SINCE[job]
 
 
 def _wait(proc: subprocess.Popen, env: dict, tmp: Path, timeout: float = 600) -> tuple[int, str]:
