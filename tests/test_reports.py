@@ -4,6 +4,7 @@ partial re-runs keep the other groups, Figure 4 counts distinct tasks."""
 import csv
 import json
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -242,10 +243,11 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     assert len({to_rgba(c) for c in figures.distinct_colors(20)}) == 20
     # each row has its own marker too: rows 11-13's tab20 shades were hard to tell from rows 1-3's
     assert len(set(markers.values())) == len(rows), markers
-    # a row absent from the moving-pixel panel says why in the row key (GenSim stacking's top camera: nothing moves)
+    # a row absent from the skill-vs-last-frame panels says why in its key (GenSim stacking's top camera: nothing moves)
     silent = [r for r in rows if not np.isfinite(r["one_step_moving_skill_last_10"])]
     assert [f"{r['pipeline']}/{r['group']}" for r in silent] == ["gensim/stacking"]
-    assert [k for k in keys if "right panel" in k] == ["gensim/stacking (right panel: no reading, under 100 pixels moved)"]
+    expected = "gensim/stacking (second and right panels: no reading, under 100 pixels moved)"
+    assert [k for k in keys if "panel" in k] == [expected]
     rows[0] = {k: v for k, v in rows[0].items() if "moving" not in k}  # runs from before moving pixels were summed
     keys.clear()
     table4_heldout.plot(rows, tmp_path / "f.png")
@@ -303,12 +305,15 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
     assert [p.name for p in tmp_path.iterdir()] == ["f.pdf"]  # nothing half-written left beside it
     fig.savefig = real
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    left = tmp_path / f".f.pdf.{int(dead.stdout)}.partial"  # what a run killed -9 mid-save leaves
+    host = socket.gethostname().split(".")[0]
+    left = tmp_path / f".f.pdf.{int(dead.stdout)}@{host}.partial"  # what a run killed -9 mid-save leaves
     left.write_bytes(b"")
-    alive = tmp_path / f".f.pdf.{os.getppid()}.partial"  # a live process may be saving the same figure
+    alive = tmp_path / f".f.pdf.{os.getppid()}@{host}.partial"  # a live process may be saving the same figure
     alive.write_bytes(b"")
+    elsewhere = tmp_path / f".f.pdf.{int(dead.stdout)}@not-{host}.partial"  # a shared folder: pid not ours to ask
+    elsewhere.write_bytes(b"")
     assert save_figure(fig, target) == target and target.read_bytes().startswith(b"%PDF")
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "f.pdf"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, elsewhere.name, "f.pdf"])
     plt.close(fig)
 
 

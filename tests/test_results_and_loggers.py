@@ -33,6 +33,30 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     assert os.listdir(tmp_path) == ["x.txt"]
 
 
+def test_a_killed_writers_temp_file_is_removed_by_the_next_write_of_the_same_file(tmp_path):
+    """A table redraw killed -9 between the temp file and its rename left `.t5.csv.<random>.tmp` beside the table
+    for good (untracked files in a checkout's outputs/tables): temp files now carry their writer's pid@host, and the
+    next write of the same file removes those of this host's dead processes, never a live or another host's one."""
+    import socket
+    import subprocess
+    import sys
+
+    host = socket.gethostname().split(".")[0]
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True, check=True).stdout)
+    left = tmp_path / f".t5.csv.{dead}@{host}.k2x9.tmp"
+    alive = tmp_path / f".t5.csv.{os.getppid()}@{host}.a1b2.tmp"  # a live run writing the same table now
+    remote = tmp_path / f".t5.csv.{dead}@not-{host}.c3d4.tmp"  # a shared folder: that pid is not ours to ask
+    other = tmp_path / f".t5.md.{dead}@{host}.e5f6.tmp"  # another file's: its own next write removes it
+    unnamed = tmp_path / ".t5.csv.q8w7e6r5.tmp"  # before writers were named: nothing says whose it is
+    for p in (left, alive, remote, other, unnamed):
+        p.write_text("half")
+    atomic_write_text(tmp_path / "t5.csv", "a,b\n")
+    assert (tmp_path / "t5.csv").read_text() == "a,b\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [p.name for p in (alive, remote, other, unnamed)] + ["t5.csv"])
+
+
 def test_redaction_is_recursive():
     cfg = {"a": [{"token": "t"}], "password": None, "nested": {"Authorization": "Bearer x", "name": "ok"}}
     assert redact_secrets(cfg) == {"a": [{"token": "<redacted>"}], "password": None,

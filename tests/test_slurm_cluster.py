@@ -193,7 +193,7 @@ def _release_requeued(env: dict) -> None:
 
 
 def _wait(proc: subprocess.Popen, env: dict, tmp: Path, timeout: float = 600) -> tuple[int, str]:
-    """Wait for the sweep, releasing its requeued jobs at once."""
+    """Wait for the sweep, releasing its requeued jobs (_release_requeued: 2 s after their hold is first seen)."""
     deadline = time.time() + timeout
     while proc.poll() is None and time.time() < deadline:
         _release_requeued(env)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import glob
 import json
 import math
 import os
@@ -119,9 +120,40 @@ def atomic_path(path: str | os.PathLike, prefix: str | None = None) -> Iterator[
         raise
 
 
+def writer_tag() -> str:
+    """`<pid>@<host>` in a temp file's name: whose it is, so a later writer can remove a killed writer's leftover
+    and leave a live one's alone (a folder shared by several hosts: only this host's pids can be asked)."""
+    import socket
+
+    return f"{os.getpid()}@{socket.gethostname().split('.')[0]}"
+
+
+def remove_leftovers_of_dead_writers(path: str | os.PathLike, suffix: str) -> int:
+    """Removes `.<name>.<pid>@<host>.*<suffix>` files beside `path` that this host's dead processes left (a run
+    killed -9 mid-write: the rename never came); returns how many. A live pid's file may be another run writing the
+    same file right now, and another host's cannot be checked, so both stay."""
+    path = Path(path)
+    host = writer_tag().partition("@")[2]
+    removed = 0
+    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*{suffix}"):
+        pid, _, its_host = leftover.name.removeprefix(f".{path.name}.").partition(".")[0].partition("@")
+        if its_host != host or not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            leftover.unlink(missing_ok=True)
+            removed += 1
+        except PermissionError:  # alive, another user's
+            continue
+    return removed
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write via a temp file in the same folder and rename, so a reader never sees half a file."""
-    with atomic_path(path) as tmp, tmp.open("w") as f:
+    """Write via a temp file in the same folder and rename, so a reader never sees half a file; the temp files a
+    killed writer of the same file left are removed first (remove_leftovers_of_dead_writers)."""
+    remove_leftovers_of_dead_writers(path, ".tmp")
+    with atomic_path(path, prefix=f".{Path(path).name}.{writer_tag()}.") as tmp, tmp.open("w") as f:
         f.write(text)
         f.flush()
         os.fsync(f.fileno())

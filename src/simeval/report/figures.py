@@ -7,6 +7,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from simeval.results import remove_leftovers_of_dead_writers, writer_tag
+
 # per format: metadata keys set to None are left out of the file
 REPRODUCIBLE_METADATA = {
     "png": {"Software": None},
@@ -24,8 +26,8 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     fmt = path.suffix.lstrip(".").lower()
     import matplotlib
 
-    _remove_partials_of_dead_runs(path)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    remove_leftovers_of_dead_writers(path, ".partial")  # a run killed mid-save left one
+    partial = path.with_name(f".{path.name}.{writer_tag()}.partial")
     try:
         with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
             fig.savefig(partial, format=fmt, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
@@ -33,21 +35,6 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     finally:
         partial.unlink(missing_ok=True)
     return path
-
-
-def _remove_partials_of_dead_runs(path: Path) -> None:
-    """A run killed mid-save leaves `.<name>.<pid>.partial` beside the figure: the next save removes those whose
-    process is gone (a live one may be another run saving the same figure right now)."""
-    for partial in path.parent.glob(f".{path.name}.*.partial"):
-        pid = partial.name.removeprefix(f".{path.name}.").removesuffix(".partial")
-        if not pid.isdigit():
-            continue
-        try:
-            os.kill(int(pid), 0)
-        except ProcessLookupError:
-            partial.unlink(missing_ok=True)
-        except PermissionError:  # alive, another user's
-            continue
 
 
 # filled shapes that stay apart at 5-6 pt; a row's marker, with its colour, tells rows apart where two of

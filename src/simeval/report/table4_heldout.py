@@ -306,12 +306,24 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     return paths
 
 
-def _no_moving_reason(row: dict, counts: list[int]) -> str:
-    """Why a row has no point in the moving-pixel panel, for its key: a row missing from a panel without a word
-    reads as a plotting fault."""
-    if all(f"one_step_moving_skill_last_{k}" in row for k in counts):
-        return f" (right panel: no reading, under {MIN_MOVING_PIXELS} pixels moved)"
-    return " (right panel: its runs did not sum moving pixels)"
+def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
+    """Why a row has no point in a skill-vs-last-frame panel (the second, object-focused; the right, moving
+    pixels), for its key: a row missing from a panel without a word reads as a plotting fault. Both need pixels
+    that moved (simeval.models.prediction: a copy of the last frame is otherwise exact and the ratio divides by ~0);
+    a row's runs may also predate the moving-pixel sums."""
+    summed = all(f"one_step_moving_skill_last_{k}" in row for k in counts)
+    few_moved = summed and not any(np.isfinite(row[f"one_step_moving_skill_last_{k}"]) for k in counts)
+    no_object = not any(np.isfinite(row.get(f"one_step_object_skill_last_{k}", np.nan)) for k in counts)
+    reasons = []
+    if few_moved:
+        panels = ["second"] * no_object + ["right"] * moving_panel
+        if panels:
+            reasons.append(f"{' and '.join(panels)} panel{'s' * (len(panels) > 1)}: no reading, under "
+                           f"{MIN_MOVING_PIXELS} pixels moved")
+    else:
+        reasons += ["second panel: no reading"] * no_object
+        reasons += ["right panel: its runs did not sum moving pixels"] * (moving_panel and not summed)
+    return f" ({'; '.join(reasons)})" if reasons else ""
 
 
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
@@ -319,11 +331,12 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
     same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
     error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
-    model predicts of the motion outside the robot; a row without that reading says why in its key). A row has one
+    model predicts of the motion outside the robot; a row without a skill reading says why in its key). A row has one
     colour and one marker shape in every panel, a reading one line style; in the right panel an interval far wider
-    than the points' spread is cut at the edge and named in its title (simeval.report.figures.cut_wide_intervals). Saved without dates or versions
-    (simeval.report.figures.save_figure), so a rebuild from the same runs gives the same bytes. The first panel
-    has a log scale (its baselines span four decades), the second a symmetric log one (skills from 1 to -800)."""
+    than the points' spread is cut at the edge and named in its title (simeval.report.figures.cut_wide_intervals).
+    Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the
+    same bytes. The first panel has a log scale (its baselines span four decades), the second a symmetric log one
+    (skills from 1 to -800)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -359,7 +372,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
         row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
                                label=name + ("" if masked else " (no masks: full frame)")
-                               + (_no_moving_reason(r, ks) if moving and r not in moving else "")))
+                               + _missing_readings(r, ks, bool(moving))))
         bars(ax1, r, "one_step_object", ks, "-", color, marker, f"{name}: model", scale=1e3)
         ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], "-.", marker=marker, ms=3, lw=0.9,
                  color=color, label=f"{name}: last frame")
