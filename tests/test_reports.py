@@ -306,11 +306,11 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
     fig.savefig = real
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     host = socket.gethostname().split(".")[0]
-    left = tmp_path / f".f.pdf.{int(dead.stdout)}@{host}.partial"  # what a run killed -9 mid-save leaves
+    left = tmp_path / f".f.pdf.{int(dead.stdout)}@{host}.k2x9.tmp"  # what a run killed -9 mid-save leaves
     left.write_bytes(b"")
-    alive = tmp_path / f".f.pdf.{os.getppid()}@{host}.partial"  # a live process may be saving the same figure
+    alive = tmp_path / f".f.pdf.{os.getppid()}@{host}.a1b2.tmp"  # a live process may be saving the same figure
     alive.write_bytes(b"")
-    elsewhere = tmp_path / f".f.pdf.{int(dead.stdout)}@not-{host}.partial"  # a shared folder: pid not ours to ask
+    elsewhere = tmp_path / f".f.pdf.{int(dead.stdout)}@not-{host}.c3d4.tmp"  # a shared folder: pid not ours to ask
     elsewhere.write_bytes(b"")
     assert save_figure(fig, target) == target and target.read_bytes().startswith(b"%PDF")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, elsewhere.name, "f.pdf"])

@@ -102,24 +102,6 @@ def _process_umask() -> int:
     return mask
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, prefix: str | None = None) -> Iterator[Path]:
-    """A temp file in `path`'s folder, with the mode a plainly created file gets (mkstemp makes 0600 files; a shared
-    store or checkpoint folder needs the mode others' files get). Write it inside the block: it is renamed to `path`
-    when the block ends, and removed when the block raises (a kill never leaves half a file at `path`)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix or f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, umask_file_mode())
-        os.close(fd)
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def writer_tag() -> str:
     """`<pid>@<host>` in a temp file's name: whose it is, so a later writer can remove a killed writer's leftover
     and leave a live one's alone (a folder shared by several hosts: only this host's pids can be asked)."""
@@ -128,15 +110,14 @@ def writer_tag() -> str:
     return f"{os.getpid()}@{socket.gethostname().split('.')[0]}"
 
 
-def remove_leftovers_of_dead_writers(path: str | os.PathLike, suffix: str) -> int:
-    """Removes `.<name>.<pid>@<host>.*<suffix>` files beside `path` that this host's dead processes left (a run
+def remove_leftovers_of_dead_writers(folder: str | os.PathLike, prefix: str, suffix: str = ".tmp") -> int:
+    """Removes `<prefix><pid>@<host>.*<suffix>` files in `folder` that this host's dead processes left (a run
     killed -9 mid-write: the rename never came); returns how many. A live pid's file may be another run writing the
-    same file right now, and another host's cannot be checked, so both stay."""
-    path = Path(path)
+    same file right now, and another host's cannot be checked, so both stay; an untagged (older) one says nothing."""
     host = writer_tag().partition("@")[2]
     removed = 0
-    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*{suffix}"):
-        pid, _, its_host = leftover.name.removeprefix(f".{path.name}.").partition(".")[0].partition("@")
+    for leftover in Path(folder).glob(f"{glob.escape(prefix)}*{suffix}"):
+        pid, _, its_host = leftover.name.removeprefix(prefix).partition(".")[0].partition("@")
         if its_host != host or not pid.isdigit():
             continue
         try:
@@ -149,11 +130,31 @@ def remove_leftovers_of_dead_writers(path: str | os.PathLike, suffix: str) -> in
     return removed
 
 
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, prefix: str | None = None) -> Iterator[Path]:
+    """A temp file in `path`'s folder, with the mode a plainly created file gets (mkstemp makes 0600 files; a shared
+    store or checkpoint folder needs the mode others' files get). Write it inside the block: it is renamed to `path`
+    when the block ends, and removed when the block raises (a kill never leaves half a file at `path`). Its name
+    carries its writer (`<prefix><pid>@<host>.<random>.tmp`), and the temp files of the same prefix that this host's
+    killed writers left (kill -9: neither rename nor removal came) are removed first."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    prefix = prefix or f".{path.name}."
+    remove_leftovers_of_dead_writers(path.parent, prefix)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{prefix}{writer_tag()}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, umask_file_mode())
+        os.close(fd)
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write via a temp file in the same folder and rename, so a reader never sees half a file; the temp files a
-    killed writer of the same file left are removed first (remove_leftovers_of_dead_writers)."""
-    remove_leftovers_of_dead_writers(path, ".tmp")
-    with atomic_path(path, prefix=f".{Path(path).name}.{writer_tag()}.") as tmp, tmp.open("w") as f:
+    """Write via a temp file in the same folder and rename, so a reader never sees half a file."""
+    with atomic_path(path) as tmp, tmp.open("w") as f:
         f.write(text)
         f.flush()
         os.fsync(f.fileno())

@@ -4,10 +4,9 @@ date); the Software/Producer lines only name the pinned matplotlib version and a
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-from simeval.results import remove_leftovers_of_dead_writers, writer_tag
+from simeval.results import atomic_path
 
 # per format: metadata keys set to None are left out of the file
 REPRODUCIBLE_METADATA = {
@@ -22,18 +21,11 @@ def save_figure(fig, path: str | Path, **kwargs) -> Path:
     and renamed over it, so a run killed while saving leaves the previous figure (a committed one too), not a
     truncated file."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fmt = path.suffix.lstrip(".").lower()
     import matplotlib
 
-    remove_leftovers_of_dead_writers(path, ".partial")  # a run killed mid-save left one
-    partial = path.with_name(f".{path.name}.{writer_tag()}.partial")
-    try:
-        with matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids are random otherwise
-            fig.savefig(partial, format=fmt, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+    with atomic_path(path) as tmp, matplotlib.rc_context({"svg.hashsalt": "simeval"}):  # SVG ids: random otherwise
+        fig.savefig(tmp, format=fmt, metadata=REPRODUCIBLE_METADATA.get(fmt), **kwargs)
     return path
 
 
