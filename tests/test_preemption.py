@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
+from simeval.cli import exit_cleanly_on_user_error
 from simeval.episodes.dataset import WindowSpec
 from simeval.models.diffusion_policy import DiffusionPolicy, TrainSettings, train_policy
 from simeval.models.dynamics_diversity import fit_and_evaluate
 from simeval.models.policy.data import PolicyDataset
-from simeval.models.preemption import PreemptionPoint, preemption_signal
+from simeval.models.preemption import PreemptionPoint, preemption_signal, requeue_deaf_to_sigterm
 from simeval.models.synthetic import make_group
 from simeval.models.training import TrainConfig
 from simeval.models.world_model import WorldModelConfig
@@ -116,6 +120,91 @@ def test_a_signal_in_the_loops_last_moment_is_delivered_when_the_block_ends(subm
             os.kill(os.getpid(), signal.SIGUSR2)
             assert point.pending and calls == []  # recorded, not yet handled
     assert calls == [signal.SIGUSR2] and signal.getsignal(signal.SIGUSR2) is requeue
+
+
+# A child that gets SIGTERM before it exits, as `scontrol requeue` can: SLURM's requeue signals every process of
+# the job. check_call raises CalledProcessError for it, as submitit's requeue does.
+_CHILD_TERMINATED_WHILE_RUNNING = [sys.executable, "-c",
+                                   "import os, signal, time; os.kill(os.getpid(), signal.SIGTERM); time.sleep(0.2)"]
+
+
+def test_the_requeue_command_outlives_the_sigterm_the_requeue_sends_the_job(monkeypatch):
+    """submitit's handler runs `scontrol requeue` in a child and SLURM's requeue sends SIGTERM to the whole job, that
+    child included; submitit ignores SIGTERM only in its own process (a Python handler, not inherited). A CI run's
+    job died of it: CalledProcessError out of the handler, the job ended with that error although requeued. Delivered
+    by the PreemptionPoint, the child is deaf to SIGTERM and the handler gets as far as its exit; submitit's SIGTERM
+    handler is back afterwards. Called as submitit calls it, the same handler fails (so this test can tell)."""
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
+    bypassed = []
+
+    def submitits_bypass(signum, frame):
+        bypassed.append(signum)
+
+    def submitits_requeue(signum, frame):
+        subprocess.check_call(_CHILD_TERMINATED_WHILE_RUNNING, timeout=60)
+        raise SystemExit(REQUEUE_EXIT)
+
+    old_term = signal.signal(signal.SIGTERM, submitits_bypass)
+    old_usr2 = signal.signal(signal.SIGUSR2, submitits_requeue)
+    try:
+        with pytest.raises(subprocess.CalledProcessError) as died:
+            submitits_requeue(signal.SIGUSR2, None)
+        assert died.value.returncode == -signal.SIGTERM
+
+        with pytest.raises(SystemExit) as exited, PreemptionPoint() as point:
+            os.kill(os.getpid(), signal.SIGUSR2)
+            point.deliver(step=3)
+        assert exited.value.code == REQUEUE_EXIT
+        assert signal.getsignal(signal.SIGTERM) is submitits_bypass and signal.getsignal(signal.SIGUSR2) is submitits_requeue
+        assert bypassed == []  # the child's SIGTERM was its own; none reached this process
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGUSR2, old_usr2)
+
+
+def test_outside_a_training_loop_the_job_start_wrapping_makes_submitits_requeue_deaf_to_sigterm(monkeypatch):
+    """A signal outside any training loop (loading data, evaluating) runs submitit's handler at once. Every
+    entrypoint's job calls requeue_deaf_to_sigterm first (through exit_cleanly_on_user_error), which wraps that
+    handler once: the requeue's child outlives its SIGTERM there too. Outside a submitit job nothing is wrapped."""
+    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
+    seen_signals = []
+
+    def submitits_bypass(signum, frame):
+        pass
+
+    def submitits_requeue(signum, frame):
+        seen_signals.append(signum)
+        subprocess.check_call(_CHILD_TERMINATED_WHILE_RUNNING, timeout=60)
+        raise SystemExit(REQUEUE_EXIT)
+
+    old_term = signal.signal(signal.SIGTERM, submitits_bypass)
+    old_usr2 = signal.signal(signal.SIGUSR2, submitits_requeue)
+    try:
+        monkeypatch.delenv("SUBMITIT_EXECUTOR", raising=False)
+        requeue_deaf_to_sigterm()
+        assert signal.getsignal(signal.SIGUSR2) is submitits_requeue
+
+        monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+        requeue_deaf_to_sigterm()
+        wrapped = signal.getsignal(signal.SIGUSR2)
+        requeue_deaf_to_sigterm()  # a second call (a second entrypoint in one process) does not wrap it again
+        assert wrapped is not submitits_requeue and signal.getsignal(signal.SIGUSR2) is wrapped
+        with pytest.raises(SystemExit) as exited:
+            os.kill(os.getpid(), signal.SIGUSR2)
+        assert exited.value.code == REQUEUE_EXIT and seen_signals == [signal.SIGUSR2]
+        assert signal.getsignal(signal.SIGTERM) is submitits_bypass
+
+        signal.signal(signal.SIGUSR2, submitits_requeue)
+
+        @exit_cleanly_on_user_error
+        def entrypoint(cfg):
+            return signal.getsignal(signal.SIGUSR2)
+
+        assert getattr(entrypoint(OmegaConf.create({})), "deaf_to_sigterm", False)
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGUSR2, old_usr2)
 
 
 def test_the_signal_name_is_read_as_submitit_reads_it(monkeypatch):

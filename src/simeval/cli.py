@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from simeval.errors import UserError, require_whole
+from simeval.models.preemption import requeue_deaf_to_sigterm
 from simeval.secrets import key_shaped_overrides
 
 MULTIRUN_FLAGS = ("-m", "--multirun")
@@ -207,6 +208,7 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(cfg: Any, *args: Any, **kwargs: Any) -> Any:
         try:
             scrub_saved_config_of_secrets(cfg)
+            requeue_deaf_to_sigterm()
             return fn(cfg, *args, **kwargs)
         except Exception as e:
             cause = _user_error_in(e)

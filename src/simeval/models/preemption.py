@@ -13,6 +13,16 @@ So while a loop runs under `PreemptionPoint()`, the signal is only recorded. The
 step, saves a checkpoint and calls `deliver()`, which runs submitit's own handler there: the requeue and the exit
 then happen at a known place, with nothing lost.
 
+Submitit's SLURM handler requeues with a child process, `scontrol requeue <job>`, and SLURM carries out a requeue
+by sending SIGTERM to every process of the job: the `scontrol` child too, which can get it before it exits. Submitit
+only ignores SIGTERM in the job's own process (a Python handler, reset to the default in a child), so the child dies
+of it, `check_call` raises CalledProcessError out of the handler, the job ends with that error as its result and the
+sweep fails although the job was requeued. (Seen: a CI run's preemption test, "Command '['scontrol', 'requeue',
+'11']' died with <Signals.SIGTERM: 15>".) `deliver()` therefore ignores SIGTERM (SIG_IGN, which a child inherits)
+while the handler runs, and puts the previous SIGTERM handler back after it; `requeue_deaf_to_sigterm()`, called
+at the start of every entrypoint's job (simeval.cli.exit_cleanly_on_user_error), does the same for a signal that
+comes outside a training loop (loading data, evaluating), where submitit's handler runs at once.
+
 Outside a submitit job (no SUBMITIT_EXECUTOR in the environment), off the main thread, or when no Python handler
 is installed for the signal, nothing is changed. A step must end before the job's grace period does (submitit
 signals 120 s before the time limit, conf/hydra/launcher/slurm.yaml); a step of the largest preset takes seconds.
@@ -74,9 +84,42 @@ class PreemptionPoint:
         self.pending = False
         handler = self._restore()
         if handler is not None:
-            handler(self._signum, None)
+            _run_deaf_to_sigterm(handler, self._signum)
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None and self.pending:
             self.deliver()  # came during the loop's last step: the caller's final checkpoint is written by now
         self._restore()
+
+
+def _run_deaf_to_sigterm(handler: Callable[[int, FrameType | None], object], signum: int,
+                         frame: FrameType | None = None) -> None:
+    """Run `handler(signum, frame)` with SIGTERM ignored, so the processes it starts (`scontrol requeue`) outlive the
+    SIGTERM the requeue sends the whole job; see the module docstring. A SIGTERM handler not installed from Python
+    (getsignal gives None) could not be put back, so it is then left as it is."""
+    if signal.getsignal(signal.SIGTERM) is None:
+        handler(signum, frame)
+        return
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        handler(signum, frame)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def requeue_deaf_to_sigterm() -> None:
+    """In a submitit job's main thread, replace submitit's handler for its preemption signal with one that runs it
+    deaf to SIGTERM (see the module docstring). Outside a job, off the main thread, with no Python handler on the
+    signal, or when already done, nothing changes."""
+    if not os.environ.get("SUBMITIT_EXECUTOR") or threading.current_thread() is not threading.main_thread():
+        return
+    signum = preemption_signal()
+    handler = signal.getsignal(signum)
+    if not callable(handler) or getattr(handler, "deaf_to_sigterm", False):
+        return
+
+    def deaf_handler(received: int, frame: FrameType | None) -> None:
+        _run_deaf_to_sigterm(handler, received, frame)
+
+    deaf_handler.deaf_to_sigterm = True  # type: ignore[attr-defined]
+    signal.signal(signum, deaf_handler)
