@@ -272,7 +272,8 @@ def collect(specs: Sequence[TaskSpec], seeds: Sequence[int], store: EpisodeStore
     new: list[dict] = []
     args = (str(store.root), asdict(settings), pipeline, var_of)
     source_of = {s.name: s.source for s in specs}
-    bar = tqdm(total=len(todo), desc=f"collecting ({workers} workers)", unit="episode", disable=not progress)
+    plural = "" if workers == 1 else "s"
+    bar = tqdm(total=len(todo), desc=f"collecting ({workers} worker{plural})", unit="episode", disable=not progress)
     try:
         run_episodes(_collect_one, [(source_of[name], seed) for name, seed in todo], args, workers, new, bar)
     except (KeyboardInterrupt, _Stopped):

@@ -215,7 +215,8 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
     todo = missing_episodes(store, pipeline, dict.fromkeys(tasks), seeds, recorded_as, dict.fromkeys(tasks, JOINT_KIND))
     skipped = len(tasks) * len(seeds) - len(todo)
     new, failed = [], []
-    bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} workers)", unit="episode", disable=not progress)
+    plural = "" if workers == 1 else "s"
+    bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} worker{plural})", unit="episode", disable=not progress)
     _remove_stale_scratch(store.root)
     scratch = store.root / f"{SCRATCH_PREFIX}{os.getpid()}"
     scratch.mkdir(exist_ok=True)
