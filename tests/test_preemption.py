@@ -128,83 +128,76 @@ _CHILD_TERMINATED_WHILE_RUNNING = [sys.executable, "-c",
                                    "import os, signal, time; os.kill(os.getpid(), signal.SIGTERM); time.sleep(0.2)"]
 
 
-def test_the_requeue_command_outlives_the_sigterm_the_requeue_sends_the_job(monkeypatch):
-    """submitit's handler runs `scontrol requeue` in a child and SLURM's requeue sends SIGTERM to the whole job, that
-    child included; submitit ignores SIGTERM only in its own process (a Python handler, not inherited). A CI run's
-    job died of it: CalledProcessError out of the handler, the job ended with that error although requeued. Delivered
-    by the PreemptionPoint, the child is deaf to SIGTERM and the handler gets as far as its exit; submitit's SIGTERM
-    handler is back afterwards. Called as submitit calls it, the same handler fails (so this test can tell)."""
-    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+@pytest.fixture
+def submitit_slurm_handlers(monkeypatch):
+    """Stand-ins for submitit's two handlers in a SLURM job: SIGTERM bypassed by a Python handler (recording what
+    reaches this process) and a USR2 requeue whose child gets SIGTERM while it runs, then exits like submitit's
+    requeue. Yields (bypass, requeue, signals bypassed, signals requeued on); both old handlers are put back."""
     monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
-    bypassed = []
+    bypassed, requeued = [], []
 
     def submitits_bypass(signum, frame):
         bypassed.append(signum)
 
     def submitits_requeue(signum, frame):
+        requeued.append(signum)
         subprocess.check_call(_CHILD_TERMINATED_WHILE_RUNNING, timeout=60)
         raise SystemExit(REQUEUE_EXIT)
 
     old_term = signal.signal(signal.SIGTERM, submitits_bypass)
     old_usr2 = signal.signal(signal.SIGUSR2, submitits_requeue)
-    try:
-        with pytest.raises(subprocess.CalledProcessError) as died:
-            submitits_requeue(signal.SIGUSR2, None)
-        assert died.value.returncode == -signal.SIGTERM
-
-        with pytest.raises(SystemExit) as exited, PreemptionPoint() as point:
-            os.kill(os.getpid(), signal.SIGUSR2)
-            point.deliver(step=3)
-        assert exited.value.code == REQUEUE_EXIT
-        assert signal.getsignal(signal.SIGTERM) is submitits_bypass and signal.getsignal(signal.SIGUSR2) is submitits_requeue
-        assert bypassed == []  # the child's SIGTERM was its own; none reached this process
-    finally:
-        signal.signal(signal.SIGTERM, old_term)
-        signal.signal(signal.SIGUSR2, old_usr2)
+    yield submitits_bypass, submitits_requeue, bypassed, requeued
+    signal.signal(signal.SIGTERM, old_term)
+    signal.signal(signal.SIGUSR2, old_usr2)
 
 
-def test_outside_a_training_loop_the_job_start_wrapping_makes_submitits_requeue_deaf_to_sigterm(monkeypatch):
+def test_the_requeue_command_outlives_the_sigterm_the_requeue_sends_the_job(monkeypatch, submitit_slurm_handlers):
+    """submitit's handler runs `scontrol requeue` in a child and SLURM's requeue sends SIGTERM to the whole job, that
+    child included; submitit ignores SIGTERM only in its own process (a Python handler, not inherited). A CI run's
+    job died of it: CalledProcessError out of the handler, the job ended with that error although requeued. Delivered
+    by the PreemptionPoint, the child is deaf to SIGTERM and the handler gets as far as its exit; submitit's SIGTERM
+    handler is back afterwards. Called as submitit calls it, the same handler fails (so this test can tell)."""
+    submitits_bypass, submitits_requeue, bypassed, _ = submitit_slurm_handlers
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+    with pytest.raises(subprocess.CalledProcessError) as died:
+        submitits_requeue(signal.SIGUSR2, None)
+    assert died.value.returncode == -signal.SIGTERM
+
+    with pytest.raises(SystemExit) as exited, PreemptionPoint() as point:
+        os.kill(os.getpid(), signal.SIGUSR2)
+        point.deliver(step=3)
+    assert exited.value.code == REQUEUE_EXIT
+    assert signal.getsignal(signal.SIGTERM) is submitits_bypass and signal.getsignal(signal.SIGUSR2) is submitits_requeue
+    assert bypassed == []  # the child's SIGTERM was its own; none reached this process
+
+
+def test_outside_a_training_loop_the_job_start_wrapping_makes_submitits_requeue_deaf_to_sigterm(
+        monkeypatch, submitit_slurm_handlers):
     """A signal outside any training loop (loading data, evaluating) runs submitit's handler at once. Every
     entrypoint's job calls requeue_deaf_to_sigterm first (through exit_cleanly_on_user_error), which wraps that
     handler once: the requeue's child outlives its SIGTERM there too. Outside a submitit job nothing is wrapped."""
-    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
-    seen_signals = []
+    submitits_bypass, submitits_requeue, _, seen_signals = submitit_slurm_handlers
+    monkeypatch.delenv("SUBMITIT_EXECUTOR", raising=False)
+    requeue_deaf_to_sigterm()
+    assert signal.getsignal(signal.SIGUSR2) is submitits_requeue
 
-    def submitits_bypass(signum, frame):
-        pass
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+    requeue_deaf_to_sigterm()
+    wrapped = signal.getsignal(signal.SIGUSR2)
+    requeue_deaf_to_sigterm()  # a second call (a second entrypoint in one process) does not wrap it again
+    assert wrapped is not submitits_requeue and signal.getsignal(signal.SIGUSR2) is wrapped
+    with pytest.raises(SystemExit) as exited:
+        os.kill(os.getpid(), signal.SIGUSR2)
+    assert exited.value.code == REQUEUE_EXIT and seen_signals == [signal.SIGUSR2]
+    assert signal.getsignal(signal.SIGTERM) is submitits_bypass
 
-    def submitits_requeue(signum, frame):
-        seen_signals.append(signum)
-        subprocess.check_call(_CHILD_TERMINATED_WHILE_RUNNING, timeout=60)
-        raise SystemExit(REQUEUE_EXIT)
+    signal.signal(signal.SIGUSR2, submitits_requeue)
 
-    old_term = signal.signal(signal.SIGTERM, submitits_bypass)
-    old_usr2 = signal.signal(signal.SIGUSR2, submitits_requeue)
-    try:
-        monkeypatch.delenv("SUBMITIT_EXECUTOR", raising=False)
-        requeue_deaf_to_sigterm()
-        assert signal.getsignal(signal.SIGUSR2) is submitits_requeue
+    @exit_cleanly_on_user_error
+    def entrypoint(cfg):
+        return signal.getsignal(signal.SIGUSR2)
 
-        monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
-        requeue_deaf_to_sigterm()
-        wrapped = signal.getsignal(signal.SIGUSR2)
-        requeue_deaf_to_sigterm()  # a second call (a second entrypoint in one process) does not wrap it again
-        assert wrapped is not submitits_requeue and signal.getsignal(signal.SIGUSR2) is wrapped
-        with pytest.raises(SystemExit) as exited:
-            os.kill(os.getpid(), signal.SIGUSR2)
-        assert exited.value.code == REQUEUE_EXIT and seen_signals == [signal.SIGUSR2]
-        assert signal.getsignal(signal.SIGTERM) is submitits_bypass
-
-        signal.signal(signal.SIGUSR2, submitits_requeue)
-
-        @exit_cleanly_on_user_error
-        def entrypoint(cfg):
-            return signal.getsignal(signal.SIGUSR2)
-
-        assert getattr(entrypoint(OmegaConf.create({})), "deaf_to_sigterm", False)
-    finally:
-        signal.signal(signal.SIGTERM, old_term)
-        signal.signal(signal.SIGUSR2, old_usr2)
+    assert getattr(entrypoint(OmegaConf.create({})), "deaf_to_sigterm", False)
 
 
 def test_the_signal_name_is_read_as_submitit_reads_it(monkeypatch):
