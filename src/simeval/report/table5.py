@@ -313,6 +313,12 @@ def merge_detail(kept: list[list[str]], fresh: list[list[str]]) -> list[list[str
     return sorted(lines, key=lambda c: (order.index(tuple(c[:2])), c[2].removesuffix(CHANCE_NOTE)))
 
 
+def _seed_order(item) -> tuple:
+    """Integer seeds by value, anything else (a seed missing from an old record) after them by its text."""
+    seed = item[0]
+    return (0, seed, "") if isinstance(seed, int) else (1, 0, str(seed))
+
+
 def detail_lines(rows: list[dict]) -> list[list[str]]:
     """detail_rows as the table's cells."""
     def interval(ci) -> str:
@@ -321,7 +327,9 @@ def detail_lines(rows: list[dict]) -> list[list[str]]:
     def per_run(rates) -> str:
         if rates is None or len(rates) < 2:
             return "-"
-        return ", ".join(f"seed {seed}: " + ("-" if x is None else f"{x:.2f}") for seed, x in rates.items())
+        # in seed order: runs arrive in their folders' order (launch time), which need not be the seeds'
+        return ", ".join(f"seed {seed}: " + ("-" if x is None else f"{x:.2f}")
+                         for seed, x in sorted(rates.items(), key=_seed_order))
 
     return [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
              "all tasks" if r["task"] == "*" else r["task"],
