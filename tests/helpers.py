@@ -173,3 +173,27 @@ def load_script(path: Path, name: str | None = None):
     finally:
         sys.modules.pop(name, None)
     return module
+
+
+GROUP = "piles"  # the smallest group of the GenSim-style suite (3 tasks): synthetic_store's
+
+
+def synthetic_store(root, per_task: int = 3, T: int = 30) -> Path:
+    """Episodes of GROUP's tasks with random frames and smooth joint actions, for src/generalization.py and
+    experiments/policy_offline.py: enough to train and to check the plumbing (not to learn a task)."""
+    from simeval.episodes.store import EpisodeStore
+    from simeval.sim.action_spaces import joint_action_space
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
+
+    store = EpisodeStore(root)
+    for spec in select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP):
+        for seed in range(per_task):
+            r = np.random.default_rng(seed)
+            store.write(Episode(
+                pipeline="gensim", task=spec.name, description="d", group=spec.group, seed=seed,
+                rgb={"top": r.integers(0, 255, (T, 32, 32, 3), dtype=np.uint8)},
+                state=r.normal(size=(T, 12)).astype(np.float32),
+                action=np.cumsum(r.normal(size=(T, 7)), 0).astype(np.float32), reward=np.zeros(T, np.float32),
+                is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32),
+                action_space=joint_action_space(30.0)))  # every stored episode declares its action space
+    return root

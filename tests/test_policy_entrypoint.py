@@ -11,34 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import yaml
+from helpers import GROUP, synthetic_store
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from simeval.episodes.episode import Episode
 from simeval.episodes.store import EpisodeStore
-from simeval.sim.action_spaces import joint_action_space
 from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
-GROUP = "piles"  # the smallest group of the suite (3 tasks)
-
-
-def synthetic_store(root, per_task=3, T=30):
-    """Episodes of the group's tasks with random frames and smooth actions: enough to train and to check the
-    plumbing (not to learn a task)."""
-    store = EpisodeStore(root)
-    for spec in select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP):
-        for seed in range(per_task):
-            r = np.random.default_rng(seed)
-            store.write(Episode(
-                pipeline="gensim", task=spec.name, description="d", group=spec.group, seed=seed,
-                rgb={"top": r.integers(0, 255, (T, 32, 32, 3), dtype=np.uint8)},
-                state=r.normal(size=(T, 12)).astype(np.float32),
-                action=np.cumsum(r.normal(size=(T, 7)), 0).astype(np.float32), reward=np.zeros(T, np.float32),
-                is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32),
-                action_space=joint_action_space(30.0)))  # every stored episode declares its action space
-    return root
 
 
 def h5py_attr(path, key):

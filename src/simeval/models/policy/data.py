@@ -92,9 +92,24 @@ class PolicyDataset:
         if len(dims) != 1 or len({s.shape[1] for s in states}) != 1:
             raise UserError(f"episodes disagree on action/state sizes {sorted(dims)}: one training set cannot mix "
                             f"action spaces or robots")
-        self.rgb = {c: torch.from_numpy(np.concatenate(v)) for c, v in rgb.items()}
-        self.state = torch.from_numpy(np.concatenate(states))
-        self.action = torch.from_numpy(np.concatenate(actions))
+        self._index({c: torch.from_numpy(np.concatenate(v)) for c, v in rgb.items()},
+                    torch.from_numpy(np.concatenate(states)), torch.from_numpy(np.concatenate(actions)), lengths)
+
+    @classmethod
+    def from_arrays(cls, rgb: dict, state: torch.Tensor, action: torch.Tensor, lengths, horizon: int,
+                    n_obs_steps: int) -> PolicyDataset:
+        """The dataset of steps already extracted (`arrays()` of another one): trains where the store is not, e.g.
+        on a GPU machine the episodes were not copied to (experiments/policy_offline.py)."""
+        self = cls.__new__(cls)
+        self.cameras, self.horizon, self.n_obs_steps = tuple(rgb), int(horizon), int(n_obs_steps)
+        self._index(dict(rgb), state, action, lengths)
+        return self
+
+    def arrays(self) -> dict:
+        return {"rgb": self.rgb, "state": self.state, "action": self.action, "lengths": self.lengths.tolist()}
+
+    def _index(self, rgb: dict, state: torch.Tensor, action: torch.Tensor, lengths) -> None:
+        self.rgb, self.state, self.action = rgb, state, action
         self.lengths = np.asarray(lengths)
         self.offsets = np.r_[0, np.cumsum(self.lengths)[:-1]]
         # every (episode, start) with start in [-(To-1), T-To]: T windows per episode of T actions

@@ -243,13 +243,12 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     return values, identity
 
 
-def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
-             checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
-             device, progress: bool, config: Mapping | None, demonstrations: str = "all", collect_args: str = ""):
-    """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
-    (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
-    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
-    from simeval.models.policy import evaluate as ev
+def training_data(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
+                  episodes_per_task: int, val_episodes_per_task: int, demonstrations: str = "all",
+                  collect_args: str = ""):
+    """What train_on trains on: (PolicyConfig, TrainSettings, PolicyDataset of the trained tasks' episodes, those
+    episodes, the validation episodes, the episode files and sizes that key the checkpoint)."""
+    from simeval.models.diffusion_policy import PolicyConfig, TrainSettings
     from simeval.models.policy.data import PolicyDataset
 
     pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
@@ -257,6 +256,21 @@ def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Ma
     train_eps, val_eps, metas = episodes_for(EpisodeStore(store), pipeline, trained, episodes_per_task,
                                              val_episodes_per_task, pcfg.cameras, demonstrations, collect_args)
     data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    return pcfg, settings, data, train_eps, val_eps, metas
+
+
+def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
+             checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
+             device, progress: bool, config: Mapping | None, demonstrations: str = "all", collect_args: str = ""):
+    """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
+    (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
+    from simeval.models.diffusion_policy import DiffusionPolicy, train_policy
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.data import PolicyDataset
+
+    pcfg, settings, data, train_eps, val_eps, metas = training_data(
+        pipeline, specs, trained, model, train, seed, store, episodes_per_task, val_episodes_per_task,
+        demonstrations, collect_args)
     ckpt_dir = f"{checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), seed)}"
     fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)
     policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics,

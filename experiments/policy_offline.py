@@ -1,0 +1,311 @@
+"""Train a Diffusion Policy where the simulator is not (a GPU machine), and score it on held-out demonstrations.
+
+    python experiments/policy_offline.py pack --out pack.pt [generalization.py's overrides ...]
+        e.g. pack --out .gpu/piles.pt pipeline=gensim_own pipeline.root=$GENSIM_ROOT policy=authors_gensim \
+             task_group=piles episodes_per_task=40
+    python experiments/policy_offline.py train --pack pack.pt --out train.json [--device cuda] \
+        [--checkpoint-dir outputs/policies] [--steps N] [--seed S]
+    python experiments/policy_offline.py score --pack pack.pt --checkpoint outputs/policies/<key>/last.ckpt \
+        --out score.json
+
+Why: Table 5's rollouts need the simulator (PyBullet, a GenSim checkout), which a GPU machine may lack (a lent one
+here has no PyBullet wheel for its Python and takes 64 MiB in). `pack` composes conf/generalization.yaml with the
+given overrides and reads the store exactly as `src/generalization.py` does (simeval.models.policy.experiment.
+training_data: the same episodes, tasks in the same order, the same PolicyDataset), keeping only the training steps
+(for pick/place one per primitive: a few MB), plus the episodes after the first episodes_per_task of each trained
+task (same selection: successful only where demonstrations=successful) as held-out demonstrations no model trained
+on. `train` runs the product's own `train_policy` on them; with --checkpoint-dir it writes
+<checkpoint-dir>/<key>/last.ckpt under the key `src/generalization.py` gives the same data and settings, so that run
+(same overrides, checkpoint_dir=<checkpoint-dir>) reuses the weights and only rolls out. `score` reads any checkpoint
+on the pack's held-out steps, so policies trained anywhere are compared window for window.
+
+Held-out score, per window w (one step of a held-out demonstration; the policy sees its observation):
+    e_w = mean over (executed steps, action dims) of (norm(a_pred) - norm(a_demo))^2, in the policy's
+          normalised units ([-1, 1] over the training data's range)
+    reported: mean_w e_w with a 95% percentile bootstrap over held-out episodes (windows of one episode move
+    together), per task, for the DDPM sampler (all steps) and the preset's own, beside a trivial baseline that
+    predicts the training actions' mean. It says how well the policy imitates unseen demonstrations of its tasks;
+    it is not Table 5's success rate, which only rollouts give.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from simeval.cli import OneLineParser
+from simeval.errors import UserError
+
+PACK_FORMAT = 2
+
+
+def compose_generalization(overrides: list[str]) -> dict:
+    """conf/generalization.yaml with `overrides`, resolved, as src/generalization.py sees it (no Hydra run)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+            cfg = compose(config_name="generalization", overrides=list(overrides))
+        return OmegaConf.to_container(cfg, resolve=True)
+    except (HydraException, OmegaConfBaseException) as e:  # a bad override: one line, as the entrypoint gives
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise UserError(f"overrides {' '.join(overrides)}: {first}") from None
+
+
+def heldout_paths(store, pipeline: str, task: str, k: int, demonstrations: str) -> list:
+    """The episodes of `task` after the first k by seed, of those `src/generalization.py` selects (only the successful
+    ones with demonstrations=successful): at episodes_per_task=k it never trains on them."""
+    from simeval.episodes.store import read_meta
+    from simeval.models.policy.experiment import PLAIN, _not_failed
+
+    plain = sorted((p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)),
+                   key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))
+    if demonstrations == "successful":
+        plain = [p for p in plain if _not_failed(read_meta(p))]
+    return plain[k:]
+
+
+def pack(a) -> None:
+    from simeval.episodes.store import EpisodeStore, read_episode
+    from simeval.models.policy.data import PolicyDataset
+    from simeval.models.policy.experiment import checkpoint_key, names, training_data
+    from simeval.pipelines.registry import pipeline_from_config
+
+    cfg = compose_generalization(a.overrides)
+    if cfg["policy"]["name"] == "random":
+        raise UserError("policy=random trains nothing: pack a trained preset (policy=cpu, authors_gensim, ...)")
+    pipeline = pipeline_from_config(cfg["pipeline"])
+    specs, heldout = pipeline.group_and_heldout(cfg["task_group"], cfg["tasks"], names(cfg["heldout_tasks"]))
+    trained = [s.name for s in specs if s.name not in heldout]
+    k, seed = cfg["episodes_per_task"], cfg["seed"]
+    pcfg, settings, data, _, _, metas = training_data(
+        pipeline.name, specs, trained, cfg["policy"]["model"], cfg["policy"]["train"], seed, cfg["store"], k,
+        cfg["val_episodes_per_task"], cfg["demonstrations"], pipeline.collect_hint())
+    store = EpisodeStore(cfg["store"])
+    held = [(task, p) for task in trained for p in heldout_paths(store, pipeline.name, task, k, cfg["demonstrations"])]
+    if not held:
+        raise UserError(f"store {store.root}: no episode after the first episodes_per_task={k} of any trained task, "
+                        f"so nothing is held out to score on; collect more (episodes={k + 5} or more)")
+    held_data = PolicyDataset([read_episode(p, list(pcfg.cameras)) for _, p in held], pcfg.action_space,
+                              pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    key = checkpoint_key(metas, vars(pcfg), vars(settings), seed)
+    out = {"format": PACK_FORMAT, "config": cfg, "pipeline": pipeline.name, "task_group": cfg["task_group"],
+           "trained_tasks": trained, "episodes_per_task": k, "demonstrations": cfg["demonstrations"],
+           "policy_name": cfg["policy"]["name"], "policy_config": vars(pcfg), "train_settings": vars(settings),
+           "seed": seed, "metas": metas, "checkpoint_key": key, "train": data.arrays(), "heldout": held_data.arrays(),
+           "heldout_episodes": [str(p.relative_to(store.root)) for _, p in held],
+           "heldout_tasks": [task for task, _ in held]}
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(f"{a.out}.tmp")
+    torch.save(out, tmp)
+    tmp.replace(a.out)  # a killed pack leaves no half file under the name
+    print(f"packed {len(data)} training steps of {len(metas)} episodes ({', '.join(trained)}) and {len(held_data)} "
+          f"held-out steps of {len(held)} episodes into {a.out} ({Path(a.out).stat().st_size / 2**20:.1f} MiB); "
+          f"policy {cfg['policy']['name']} seed {seed}: checkpoint key {key}")
+
+
+def load_pack(path: str) -> dict:
+    if not Path(path).is_file():
+        raise UserError(f"--pack {path}: no such file (make it with: python experiments/policy_offline.py pack ...)")
+    try:
+        p = torch.load(path, weights_only=False)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError) as e:
+        raise UserError(f"--pack {path}: not readable as a pack ({type(e).__name__}); remake it with the pack "
+                        "command") from None
+    if not isinstance(p, dict) or p.get("format") != PACK_FORMAT:
+        raise UserError(f"--pack {path}: not a pack of format {PACK_FORMAT} (remake it with the pack command)")
+    return p
+
+
+def datasets(p: dict):
+    from simeval.models.policy.data import PolicyDataset
+
+    def build(x):
+        return PolicyDataset.from_arrays(x["rgb"], x["state"], x["action"], x["lengths"],
+                                         p["policy_config"]["horizon"], p["policy_config"]["n_obs_steps"])
+    return build(p["train"]), build(p["heldout"])
+
+
+def heldout_score(policy, train, held, tasks: list[str], samplers: dict, seed: int = 0, chunk: int = 256) -> dict:
+    """The module docstring's e_w per sampler, with the train-mean baseline, each with a bootstrap over episodes."""
+    from simeval.metrics.bootstrap import bootstrap_ci
+    from simeval.models.device import module_device
+
+    cfg = policy.cfg
+    sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
+    episode = held.starts[:, 0]
+    rows = np.arange(len(held))
+    target = torch.cat([policy.action_norm(held.window(rows[i:i + chunk])["action"].float().to(module_device(policy)))
+                        for i in range(0, len(rows), chunk)])[:, sl].cpu()
+    mean_action = policy.action_norm(train.action.float().to(module_device(policy))).mean(0).cpu()
+    errors = {"train_mean_baseline": ((mean_action - target) ** 2).mean(dim=(1, 2)).numpy()}
+    for label, (kind, steps) in samplers.items():
+        gen, preds = torch.Generator().manual_seed(seed), []
+        with torch.no_grad():
+            for i in range(0, len(rows), chunk):
+                batch = held.window(rows[i:i + chunk])
+                preds.append(policy.action_norm(policy.predict_action(batch, kind, steps, gen)).cpu())
+        errors[label] = ((torch.cat(preds)[:, sl] - target) ** 2).mean(dim=(1, 2)).numpy()
+    episodes = np.unique(episode)
+    members = [np.flatnonzero(episode == e) for e in episodes]
+
+    def summary(e: np.ndarray) -> dict:
+        ci = bootstrap_ci(lambda idx: float(np.concatenate([e[members[i]] for i in idx]).mean()), len(episodes))
+        by_task = {}
+        for t in dict.fromkeys(tasks):
+            mask = np.isin(episode, [i for i, name in enumerate(tasks) if name == t])
+            by_task[t] = float(e[mask].mean())
+        return {"mse": float(e.mean()), "ci95": ci, "by_task": by_task, "per_window": [round(float(v), 6) for v in e]}
+
+    return {"windows": len(rows), "episodes": len(episodes),
+            "samplers": {k: list(v) for k, v in samplers.items()}, **{k: summary(v) for k, v in errors.items()}}
+
+
+def samplers_of(cfg) -> dict:
+    out = {"ddpm": ("ddpm", cfg.num_train_timesteps)}
+    if cfg.inference_scheduler != "ddpm" or cfg.num_inference_steps != cfg.num_train_timesteps:
+        out[cfg.inference_scheduler] = (cfg.inference_scheduler, cfg.num_inference_steps)
+    return out
+
+
+def device_fields(device: torch.device) -> dict:
+    info = {"device": str(device), "torch": torch.__version__}
+    if device.type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
+def write(path: str, result: dict) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(f"{path}.tmp")
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    tmp.replace(path)
+
+
+def train(a) -> None:
+    from simeval.models.device import resolve_device
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
+    from simeval.models.policy.experiment import checkpoint_key
+
+    p = load_pack(a.pack)
+    device = resolve_device(a.device, key="--device")
+    threads = a.threads or p["config"].get("torch_threads")  # as the entrypoint: CPU results depend on the count
+    if threads:
+        torch.set_num_threads(threads)
+    pcfg = PolicyConfig.from_mapping(p["policy_config"])
+    seed = p["seed"] if a.seed is None else a.seed
+    train_cfg = {k: v for k, v in p["train_settings"].items() if k != "seed"}
+    if a.steps:
+        train_cfg["train_steps"] = a.steps
+    settings = TrainSettings(**train_cfg, seed=seed)
+    key = checkpoint_key(p["metas"], vars(pcfg), vars(settings), seed)  # what src/generalization.py would name it
+    ckpt_dir = f"{a.checkpoint_dir}/{key}" if a.checkpoint_dir else None
+    data, held = datasets(p)
+    result = {"experiment": "policy_offline", "pack": {k: p[k] for k in ("pipeline", "task_group", "trained_tasks",
+                                                                          "episodes_per_task", "demonstrations")},
+              "preset": p["policy_name"], "seed": seed, "train_settings": train_cfg, **device_fields(device),
+              "torch_threads": torch.get_num_threads(),
+              "checkpoint_key": key, "checkpoint": f"{ckpt_dir}/last.ckpt" if ckpt_dir else None,
+              "training_windows": len(data), "status": "training"}
+    t0 = time.perf_counter()
+
+    def log_fn(metrics: dict, step: int) -> None:
+        result.setdefault("losses", []).append([step, round(metrics["train/loss"], 5)])
+        result["elapsed_s"] = round(time.perf_counter() - t0, 1)
+        print(f"{p['policy_name']} seed {seed} step {step}: loss {metrics['train/loss']:.4f} "
+              f"({result['elapsed_s']} s)", flush=True)
+        write(a.out, result)  # a run stopped at a machine's time limit still brings back its curve
+
+    fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)
+    config = dict(p["config"], seed=seed, policy={**p["config"]["policy"], "train": train_cfg})
+    policy, summary = train_policy(fresh, data, settings, ckpt_dir, log_fn, extra={"config": config},
+                                   progress=False, device=device)
+    result.update(status="trained", training={k: v for k, v in summary.items() if k != "losses"},
+                  wall_s=round(time.perf_counter() - t0, 1))
+    write(a.out, result)
+    t1 = time.perf_counter()
+    result["heldout"] = heldout_score(policy, data, held, p["heldout_tasks"], samplers_of(pcfg))
+    result.update(status="scored", score_s=round(time.perf_counter() - t1, 1))
+    write(a.out, result)
+    print(json.dumps({k: v for k, v in result.items() if k not in ("losses", "heldout")}), flush=True)
+    print_scores(result["heldout"])
+
+
+def print_scores(heldout: dict) -> None:
+    for k, v in heldout.items():
+        if isinstance(v, dict) and "mse" in v:
+            ci = "no interval" if v["ci95"] is None else f"[{v['ci95'][0]:.4f}, {v['ci95'][1]:.4f}]"
+            print(f"held-out {k}: {v['mse']:.4f} {ci}", flush=True)
+
+
+def score(a) -> None:
+    from simeval.models.device import resolve_device
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, load_checkpoint
+
+    p = load_pack(a.pack)
+    if not Path(a.checkpoint).is_file():
+        raise UserError(f"--checkpoint {a.checkpoint}: no such file")
+    ckpt = load_checkpoint(a.checkpoint)
+    pcfg = PolicyConfig.from_mapping(ckpt["policy_config"])
+    policy = DiffusionPolicy(pcfg, ckpt["state_dim"], ckpt["action_dim"], seed=0)
+    policy.load_state_dict(ckpt["ema_model"])
+    device = resolve_device(a.device, key="--device")
+    policy.to(device).eval()
+    data, held = datasets(p)
+    key = Path(a.checkpoint).parent.name
+    t0 = time.perf_counter()
+    result = {"experiment": "policy_offline", "checkpoint": a.checkpoint, "checkpoint_key": key,
+              "pack_key": p["checkpoint_key"], "step": ckpt["step"], **device_fields(device),
+              "heldout": heldout_score(policy, data, held, p["heldout_tasks"], samplers_of(pcfg))}
+    result["score_s"] = round(time.perf_counter() - t0, 1)
+    write(a.out, result)
+    print_scores(result["heldout"])
+
+
+def main() -> None:
+    ap = OneLineParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    pk = sub.add_parser("pack", help="a task group's training and held-out steps, read as src/generalization.py reads "
+                                     "them with the same overrides")
+    pk.add_argument("--out", required=True)
+    pk.add_argument("overrides", nargs="*", help="src/generalization.py's overrides (pipeline=, policy=, task_group=, "
+                                                 "tasks=, episodes_per_task=, seed=, store=, ...)")
+    tr = sub.add_parser("train", help="train the pack's policy on its steps, then score it on its held-out steps")
+    tr.add_argument("--pack", required=True)
+    tr.add_argument("--out", required=True)
+    tr.add_argument("--device", default="auto")
+    tr.add_argument("--seed", type=int, default=None, help="default: the pack's (its seed= override)")
+    tr.add_argument("--steps", type=int, default=None, help="override the preset's train_steps (another key)")
+    tr.add_argument("--threads", type=int, default=None,
+                    help="torch threads (default: the pack's torch_threads, else torch's); on the CPU the weights "
+                         "depend on it in the last bits")
+    tr.add_argument("--checkpoint-dir", default=None,
+                    help="write <dir>/<key>/last.ckpt, the folder src/generalization.py checkpoint_dir=<dir> reuses")
+    sc = sub.add_parser("score", help="score a trained checkpoint on a pack's held-out steps")
+    sc.add_argument("--pack", required=True)
+    sc.add_argument("--checkpoint", required=True)
+    sc.add_argument("--device", default="auto")
+    sc.add_argument("--out", required=True)
+    a = ap.parse_args()
+    try:
+        {"pack": pack, "train": train, "score": score}[a.command](a)
+    except UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,143 @@
+"""experiments/policy_offline.py: a policy trained from a pack (no store, no simulator) is the one src/generalization.py
+trains, under the key it reuses; the held-out score against a hand computation; bad inputs are one line."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from helpers import GROUP, load_script, synthetic_store
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "experiments" / "policy_offline.py"
+
+
+def offline(*args):
+    return _python(SCRIPT, *args)
+
+
+def run(*args):
+    return _python(ROOT / "src" / "generalization.py", *args)
+
+
+def _python(script: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    return subprocess.run([sys.executable, str(script), *args], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=280, check=False)
+
+
+@pytest.fixture(scope="module")
+def packed(tmp_path_factory):
+    root = tmp_path_factory.mktemp("offline")
+    store = synthetic_store(root / "store", per_task=4)  # 2 to train on per task, 2 after them held out
+    overrides = ["debug=tiny", f"store={store}", f"task_group={GROUP}"]
+    p = offline("pack", "--out", str(root / "pack.pt"), *overrides)
+    assert p.returncode == 0, p.stderr[-2000:]
+    return root, overrides
+
+
+def test_a_pack_trains_the_policy_generalization_would_and_under_the_key_it_reuses(packed):
+    root, overrides = packed
+    p = offline("train", "--pack", str(root / "pack.pt"), "--out", str(root / "train.json"), "--device", "cpu",
+                "--checkpoint-dir", str(root / "ck"))
+    assert p.returncode == 0, p.stderr[-2000:]
+    rec = json.loads((root / "train.json").read_text())
+    assert rec["status"] == "scored" and rec["training"]["steps"] == 20
+    # the held-out steps: episodes 2 and 3 of each trained task, 29 actions each (30 rows)
+    assert rec["heldout"]["episodes"] == 4 and rec["heldout"]["windows"] == 4 * 29
+    ckpt = root / "ck" / rec["checkpoint_key"] / "last.ckpt"
+    assert ckpt.is_file() and rec["checkpoint"] == str(ckpt)
+
+    # the entrypoint, same overrides, that checkpoint folder: it finds the finished training and trains nothing
+    reused = run(*overrides, f"checkpoint_dir={root / 'ck'}", "eval.splits=[]", f"hydra.run.dir={root / 'r1'}")
+    assert reused.returncode == 0, reused.stderr[-2000:]
+    result = json.loads((root / "r1" / "result.json").read_text())
+    assert result["values"]["training"]["checkpoint"] == str(ckpt)
+    assert result["values"]["training"]["trained_tasks"] == rec["pack"]["trained_tasks"]
+    assert len(rec["pack"]["trained_tasks"]) == 2  # the group's 3 tasks less the held-out sweep-two-piles
+    assert "at step 20/20" in (root / "r1" / "generalization.log").read_text()
+
+    # and it is the policy the entrypoint trains itself from the store
+    fresh = run(*overrides, f"checkpoint_dir={root / 'fresh'}", "eval.splits=[]", f"hydra.run.dir={root / 'r2'}")
+    assert fresh.returncode == 0, fresh.stderr[-2000:]
+    (own,) = list((root / "fresh").glob("*/last.ckpt"))
+    assert own.parent.name == rec["checkpoint_key"]
+    a, b = torch.load(ckpt, weights_only=False), torch.load(own, weights_only=False)
+    # bit for bit: the pack's torch_threads (debug=tiny's 1) is the entrypoint's, and the CPU's sums follow it
+    assert a["losses"] == b["losses"] and a["step"] == b["step"] == 20
+    for k in b["ema_model"]:
+        assert torch.equal(a["ema_model"][k], b["ema_model"][k]), k
+
+
+def test_scoring_a_checkpoint_gives_the_score_its_training_gave(packed):
+    root, _ = packed
+    trained = json.loads((root / "train.json").read_text())
+    ckpt = trained["checkpoint"]
+    p = offline("score", "--pack", str(root / "pack.pt"), "--checkpoint", ckpt, "--out", str(root / "score.json"),
+                "--device", "cpu")
+    assert p.returncode == 0, p.stderr[-2000:]
+    rec = json.loads((root / "score.json").read_text())
+    assert rec["checkpoint_key"] == rec["pack_key"] == trained["checkpoint_key"]
+    for k in ("ddpm", "ddim", "train_mean_baseline"):
+        assert rec["heldout"][k]["per_window"] == trained["heldout"][k]["per_window"], k
+
+
+def test_heldout_score_against_a_hand_computation(packed, monkeypatch):
+    """A policy that predicts the demonstrator's own actions scores 0; the train-mean baseline equals numpy's
+    (x - lo) / (hi - lo) * 2 - 1 normalisation, the executed steps s+1..s+4 of each window (n_obs_steps 2, 4 executed,
+    indices clipped to the episode), and the squared difference to the normalised training mean."""
+    from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig
+
+    root, _ = packed
+    po = load_script(SCRIPT)
+    pk = po.load_pack(str(root / "pack.pt"))
+    train, held = po.datasets(pk)
+    cfg = PolicyConfig.from_mapping(pk["policy_config"])
+    policy = DiffusionPolicy(cfg, train.state_dim, train.action_dim, train.stats(), seed=0)
+    monkeypatch.setattr(policy, "predict_action", lambda batch, *a, **k: batch["action"].float())
+    out = po.heldout_score(policy, train, held, pk["heldout_tasks"], {"ddpm": ("ddpm", 20)})
+    assert out["ddpm"]["mse"] == 0.0 and out["ddpm"]["ci95"] == [0.0, 0.0]
+
+    tr = pk["train"]["action"].numpy().astype(np.float64)
+    lo, hi = tr.min(0), tr.max(0)
+
+    def norm(x):
+        return 2 * (x - lo) / (hi - lo) - 1
+
+    mean = norm(tr).mean(0)
+    actions, lengths = pk["heldout"]["action"].numpy().astype(np.float64), pk["heldout"]["lengths"]
+    expected, offset = [], 0
+    for n in lengths:
+        ep = actions[offset:offset + n]
+        for s in range(-1, n - 1):  # window starts -(To-1) .. T-To
+            executed = ep[np.clip(np.arange(s + 1, s + 5), 0, n - 1)]
+            expected.append(((mean - norm(executed)) ** 2).mean())
+        offset += n
+    np.testing.assert_allclose(out["train_mean_baseline"]["per_window"], expected, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(out["train_mean_baseline"]["mse"], np.mean(expected), rtol=1e-4)
+
+
+def test_bad_inputs_are_one_line(packed, tmp_path):
+    root, _ = packed
+    cases = [
+        (("pack", "--out", str(tmp_path / "x.pt"), "policy=no-such-preset"), "policy"),
+        (("pack", "--out", str(tmp_path / "x.pt"), "debug=tiny", f"store={tmp_path / 'empty'}",
+          f"task_group={GROUP}"), "fewer than episodes_per_task"),
+        (("pack", "--out", str(tmp_path / "x.pt"), "policy=random"), "policy=random"),
+        (("train", "--pack", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "t.json")), "missing.pt"),
+        (("train", "--pack", str(root / "pack.pt"), "--out", str(tmp_path / "t.json"), "--device", "tpu"), "--device"),
+        (("score", "--pack", str(root / "pack.pt"), "--checkpoint", str(tmp_path / "none.ckpt"), "--out",
+          str(tmp_path / "s.json")), "none.ckpt"),
+    ]
+    (tmp_path / "not-a-pack.pt").write_bytes(b"garbage")
+    cases.append((("train", "--pack", str(tmp_path / "not-a-pack.pt"), "--out", str(tmp_path / "t.json")),
+                  "not-a-pack.pt"))
+    for args, needle in cases:
+        p = offline(*args)
+        assert p.returncode == 2, (args, p.stderr[-1500:])
+        assert p.stderr.count("\n") == 1 and needle in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
+    assert not (tmp_path / "x.pt").exists()
