@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import pickle
 import sys
 import time
@@ -43,7 +44,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from simeval.cli import OneLineParser
+from simeval.cli import OneLineParser, require_whole_keys
 from simeval.errors import UserError
 
 PACK_FORMAT = 2
@@ -79,12 +80,18 @@ def heldout_paths(store, pipeline: str, task: str, k: int, demonstrations: str) 
 
 
 def pack(a) -> None:
+    from omegaconf import OmegaConf
+
     from simeval.episodes.store import EpisodeStore, read_episode
     from simeval.models.policy.data import PolicyDataset
     from simeval.models.policy.experiment import checkpoint_key, names, training_data
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides)
+    require_whole_keys(OmegaConf.create(cfg), {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "torch_threads": 1},
+                       optional=("torch_threads",))  # as src/generalization.py checks them
+    if Path(a.out).is_dir():
+        raise UserError(f"--out {a.out}: is a folder; give the pack's file name (e.g. {Path(a.out) / 'pack.pt'})")
     if cfg["policy"]["name"] == "random":
         raise UserError("policy=random trains nothing: pack a trained preset (policy=cpu, authors_gensim, ...)")
     pipeline = pipeline_from_config(cfg["pipeline"])
@@ -117,9 +124,18 @@ def pack(a) -> None:
           f"policy {cfg['policy']['name']} seed {seed}: checkpoint key {key}")
 
 
+def set_threads(threads: int | None, p: dict) -> None:
+    """--threads, else the pack's torch_threads (the entrypoint's), else torch's default: on the CPU the sums, and so
+    the weights and scores, follow the count in the last bits."""
+    threads = threads if threads is not None else p["config"].get("torch_threads")
+    if threads is not None:
+        torch.set_num_threads(threads)
+
+
 def load_pack(path: str) -> dict:
     if not Path(path).is_file():
-        raise UserError(f"--pack {path}: no such file (make it with: python experiments/policy_offline.py pack ...)")
+        what = "a folder, not a pack file" if Path(path).is_dir() else "no such file"
+        raise UserError(f"--pack {path}: {what} (make one with: python experiments/policy_offline.py pack ...)")
     try:
         p = torch.load(path, weights_only=False)
     except (pickle.UnpicklingError, RuntimeError, EOFError, OSError) as e:
@@ -202,13 +218,11 @@ def train(a) -> None:
 
     p = load_pack(a.pack)
     device = resolve_device(a.device, key="--device")
-    threads = a.threads or p["config"].get("torch_threads")  # as the entrypoint: CPU results depend on the count
-    if threads:
-        torch.set_num_threads(threads)
+    set_threads(a.threads, p)
     pcfg = PolicyConfig.from_mapping(p["policy_config"])
     seed = p["seed"] if a.seed is None else a.seed
     train_cfg = {k: v for k, v in p["train_settings"].items() if k != "seed"}
-    if a.steps:
+    if a.steps is not None:
         train_cfg["train_steps"] = a.steps
     settings = TrainSettings(**train_cfg, seed=seed)
     key = checkpoint_key(p["metas"], vars(pcfg), vars(settings), seed)  # what src/generalization.py would name it
@@ -233,6 +247,7 @@ def train(a) -> None:
     config = dict(p["config"], seed=seed, policy={**p["config"]["policy"], "train": train_cfg})
     policy, summary = train_policy(fresh, data, settings, ckpt_dir, log_fn, extra={"config": config},
                                    progress=False, device=device)
+    result["losses"] = [[step, round(loss, 5)] for step, loss in summary["losses"]]  # a resumed run's whole curve
     result.update(status="trained", training={k: v for k, v in summary.items() if k != "losses"},
                   wall_s=round(time.perf_counter() - t0, 1))
     write(a.out, result)
@@ -257,8 +272,14 @@ def score(a) -> None:
 
     p = load_pack(a.pack)
     if not Path(a.checkpoint).is_file():
-        raise UserError(f"--checkpoint {a.checkpoint}: no such file")
-    ckpt = load_checkpoint(a.checkpoint)
+        raise UserError(f"--checkpoint {a.checkpoint}: no such file (a policy's last.ckpt, e.g. "
+                        "outputs/policies/<key>/last.ckpt)")
+    try:
+        ckpt = load_checkpoint(a.checkpoint)
+    except UserError:
+        raise UserError(f"--checkpoint {a.checkpoint}: not a simeval policy checkpoint (a policy's last.ckpt, e.g. "
+                        "outputs/policies/<key>/last.ckpt)") from None
+    set_threads(a.threads, p)
     pcfg = PolicyConfig.from_mapping(ckpt["policy_config"])
     policy = DiffusionPolicy(pcfg, ckpt["state_dim"], ckpt["action_dim"], seed=0)
     policy.load_state_dict(ckpt["ema_model"])
@@ -275,6 +296,17 @@ def score(a) -> None:
     print_scores(result["heldout"])
 
 
+def whole(low: int):
+    """An argparse type: a whole number >= low (argparse turns its ValueError into one usage line, exit 2)."""
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < low:
+            raise ValueError(text)
+        return value
+    parse.__name__ = f"whole number >= {low}"
+    return parse
+
+
 def main() -> None:
     ap = OneLineParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -287,9 +319,9 @@ def main() -> None:
     tr.add_argument("--pack", required=True)
     tr.add_argument("--out", required=True)
     tr.add_argument("--device", default="auto")
-    tr.add_argument("--seed", type=int, default=None, help="default: the pack's (its seed= override)")
-    tr.add_argument("--steps", type=int, default=None, help="override the preset's train_steps (another key)")
-    tr.add_argument("--threads", type=int, default=None,
+    tr.add_argument("--seed", type=whole(0), default=None, help="default: the pack's (its seed= override)")
+    tr.add_argument("--steps", type=whole(1), default=None, help="override the preset's train_steps (another key)")
+    tr.add_argument("--threads", type=whole(1), default=None,
                     help="torch threads (default: the pack's torch_threads, else torch's); on the CPU the weights "
                          "depend on it in the last bits")
     tr.add_argument("--checkpoint-dir", default=None,
@@ -298,8 +330,10 @@ def main() -> None:
     sc.add_argument("--pack", required=True)
     sc.add_argument("--checkpoint", required=True)
     sc.add_argument("--device", default="auto")
+    sc.add_argument("--threads", type=whole(1), default=None, help="torch threads (default: the pack's, else torch's)")
     sc.add_argument("--out", required=True)
     a = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")  # the library's lines, "resuming ..." among them
     try:
         {"pack": pack, "train": train, "score": score}[a.command](a)
     except UserError as e:

@@ -132,6 +132,13 @@ def test_bad_inputs_are_one_line(packed, tmp_path):
         (("train", "--pack", str(root / "pack.pt"), "--out", str(tmp_path / "t.json"), "--device", "tpu"), "--device"),
         (("score", "--pack", str(root / "pack.pt"), "--checkpoint", str(tmp_path / "none.ckpt"), "--out",
           str(tmp_path / "s.json")), "none.ckpt"),
+        (("score", "--pack", str(root / "pack.pt"), "--checkpoint", str(root / "pack.pt"), "--out",
+          str(tmp_path / "s.json")), "--checkpoint"),  # the pack given as a checkpoint: named, nothing to delete
+        (("pack", "--out", str(tmp_path / "x.pt"), "debug=tiny", "episodes_per_task=abc"), "episodes_per_task"),
+        (("pack", "--out", str(tmp_path), "debug=tiny", f"store={root / 'store'}", f"task_group={GROUP}"),
+         "is a folder"),
+        (("train", "--pack", str(root / "pack.pt"), "--out", str(tmp_path / "t.json"), "--threads", "0"),
+         "--threads"),
     ]
     (tmp_path / "not-a-pack.pt").write_bytes(b"garbage")
     cases.append((("train", "--pack", str(tmp_path / "not-a-pack.pt"), "--out", str(tmp_path / "t.json")),
@@ -140,4 +147,5 @@ def test_bad_inputs_are_one_line(packed, tmp_path):
         p = offline(*args)
         assert p.returncode == 2, (args, p.stderr[-1500:])
         assert p.stderr.count("\n") == 1 and needle in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
+        assert "delete" not in p.stderr, (args, p.stderr)
     assert not (tmp_path / "x.pt").exists()
