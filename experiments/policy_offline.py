@@ -46,6 +46,8 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.cli import OneLineParser, require_whole_keys
 from simeval.errors import UserError
+from simeval.models.device import describe_device
+from simeval.results import atomic_path, atomic_write_text, dumps_strict
 
 PACK_FORMAT = 2
 
@@ -66,30 +68,17 @@ def compose_generalization(overrides: list[str]) -> dict:
         raise UserError(f"overrides {' '.join(overrides)}: {first}") from None
 
 
-def heldout_paths(store, pipeline: str, task: str, k: int, demonstrations: str) -> list:
-    """The episodes of `task` after the first k by seed, of those `src/generalization.py` selects (only the successful
-    ones with demonstrations=successful): at episodes_per_task=k it never trains on them."""
-    from simeval.episodes.store import read_meta
-    from simeval.models.policy.experiment import PLAIN, _not_failed
-
-    plain = sorted((p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)),
-                   key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))
-    if demonstrations == "successful":
-        plain = [p for p in plain if _not_failed(read_meta(p))]
-    return plain[k:]
-
-
 def pack(a) -> None:
     from omegaconf import OmegaConf
 
     from simeval.episodes.store import EpisodeStore, read_episode
     from simeval.models.policy.data import PolicyDataset
-    from simeval.models.policy.experiment import checkpoint_key, names, training_data
+    from simeval.models.policy.experiment import checkpoint_key, demonstration_paths, names, training_data
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides)
-    require_whole_keys(OmegaConf.create(cfg), {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "torch_threads": 1},
-                       optional=("torch_threads",))  # as src/generalization.py checks them
+    whole = {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "torch_threads": 1}
+    require_whole_keys(OmegaConf.create(cfg), whole, optional=("torch_threads",))  # as src/generalization.py does
     if Path(a.out).is_dir():
         raise UserError(f"--out {a.out}: is a folder; give the pack's file name (e.g. {Path(a.out) / 'pack.pt'})")
     if cfg["policy"]["name"] == "random":
@@ -102,7 +91,8 @@ def pack(a) -> None:
         pipeline.name, specs, trained, cfg["policy"]["model"], cfg["policy"]["train"], seed, cfg["store"], k,
         cfg["val_episodes_per_task"], cfg["demonstrations"], pipeline.collect_hint())
     store = EpisodeStore(cfg["store"])
-    held = [(task, p) for task in trained for p in heldout_paths(store, pipeline.name, task, k, cfg["demonstrations"])]
+    held = [(task, p) for task in trained  # what follows the first k: no policy trained at this k saw it
+            for p in demonstration_paths(store, pipeline.name, task, cfg["demonstrations"])[k:]]
     if not held:
         raise UserError(f"store {store.root}: no episode after the first episodes_per_task={k} of any trained task, "
                         f"so nothing is held out to score on; collect more (episodes={k + 5} or more)")
@@ -115,10 +105,8 @@ def pack(a) -> None:
            "seed": seed, "metas": metas, "checkpoint_key": key, "train": data.arrays(), "heldout": held_data.arrays(),
            "heldout_episodes": [str(p.relative_to(store.root)) for _, p in held],
            "heldout_tasks": [task for task, _ in held]}
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(f"{a.out}.tmp")
-    torch.save(out, tmp)
-    tmp.replace(a.out)  # a killed pack leaves no half file under the name
+    with atomic_path(a.out) as tmp:  # a killed pack leaves no half file under the name
+        torch.save(out, tmp)
     print(f"packed {len(data)} training steps of {len(metas)} episodes ({', '.join(trained)}) and {len(held_data)} "
           f"held-out steps of {len(held)} episodes into {a.out} ({Path(a.out).stat().st_size / 2**20:.1f} MiB); "
           f"policy {cfg['policy']['name']} seed {seed}: checkpoint key {key}")
@@ -164,17 +152,16 @@ def heldout_score(policy, train, held, tasks: list[str], samplers: dict, seed: i
     sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
     episode = held.starts[:, 0]
     rows = np.arange(len(held))
-    target = torch.cat([policy.action_norm(held.window(rows[i:i + chunk])["action"].float().to(module_device(policy)))
-                        for i in range(0, len(rows), chunk)])[:, sl].cpu()
-    mean_action = policy.action_norm(train.action.float().to(module_device(policy))).mean(0).cpu()
-    errors = {"train_mean_baseline": ((mean_action - target) ** 2).mean(dim=(1, 2)).numpy()}
-    for label, (kind, steps) in samplers.items():
-        gen, preds = torch.Generator().manual_seed(seed), []
-        with torch.no_grad():
-            for i in range(0, len(rows), chunk):
-                batch = held.window(rows[i:i + chunk])
-                preds.append(policy.action_norm(policy.predict_action(batch, kind, steps, gen)).cpu())
-        errors[label] = ((torch.cat(preds)[:, sl] - target) ** 2).mean(dim=(1, 2)).numpy()
+    batches = [held.window(rows[i:i + chunk]) for i in range(0, len(rows), chunk)]
+    device = module_device(policy)
+    with torch.no_grad():
+        target = torch.cat([policy.action_norm(b["action"].float().to(device)) for b in batches])[:, sl].cpu()
+        mean_action = policy.action_norm(train.action.float().to(device)).mean(0).cpu()
+        errors = {"train_mean_baseline": ((mean_action - target) ** 2).mean(dim=(1, 2)).numpy()}
+        for label, (kind, steps) in samplers.items():
+            gen = torch.Generator().manual_seed(seed)  # the same noise for each sampler's first chunk
+            preds = [policy.action_norm(policy.predict_action(b, kind, steps, gen)).cpu() for b in batches]
+            errors[label] = ((torch.cat(preds)[:, sl] - target) ** 2).mean(dim=(1, 2)).numpy()
     episodes = np.unique(episode)
     members = [np.flatnonzero(episode == e) for e in episodes]
 
@@ -197,18 +184,8 @@ def samplers_of(cfg) -> dict:
     return out
 
 
-def device_fields(device: torch.device) -> dict:
-    info = {"device": str(device), "torch": torch.__version__}
-    if device.type == "cuda":
-        info["gpu"] = torch.cuda.get_device_name(device)
-    return info
-
-
 def write(path: str, result: dict) -> None:
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(f"{path}.tmp")
-    tmp.write_text(json.dumps(result, indent=1) + "\n")
-    tmp.replace(path)
+    atomic_write_text(path, dumps_strict(result, indent=1) + "\n")
 
 
 def train(a) -> None:
@@ -230,7 +207,7 @@ def train(a) -> None:
     data, held = datasets(p)
     result = {"experiment": "policy_offline", "pack": {k: p[k] for k in ("pipeline", "task_group", "trained_tasks",
                                                                           "episodes_per_task", "demonstrations")},
-              "preset": p["policy_name"], "seed": seed, "train_settings": train_cfg, **device_fields(device),
+              "preset": p["policy_name"], "seed": seed, "train_settings": train_cfg, **describe_device(device),
               "torch_threads": torch.get_num_threads(),
               "checkpoint_key": key, "checkpoint": f"{ckpt_dir}/last.ckpt" if ckpt_dir else None,
               "training_windows": len(data), "status": "training"}
@@ -289,7 +266,7 @@ def score(a) -> None:
     key = Path(a.checkpoint).parent.name
     t0 = time.perf_counter()
     result = {"experiment": "policy_offline", "checkpoint": a.checkpoint, "checkpoint_key": key,
-              "pack_key": p["checkpoint_key"], "step": ckpt["step"], **device_fields(device),
+              "pack_key": p["checkpoint_key"], "step": ckpt["step"], **describe_device(device),
               "heldout": heldout_score(policy, data, held, p["heldout_tasks"], samplers_of(pcfg))}
     result["score_s"] = round(time.perf_counter() - t0, 1)
     write(a.out, result)

@@ -15,14 +15,10 @@ def machine() -> dict:
 
 
 def device_info(device) -> dict:
-    """What the timed steps ran on: the torch.device, torch's build (a +cpu one cannot use a GPU) and, for a GPU,
-    its name (timings differ by model)."""
-    import torch
+    """What the timed steps ran on (simeval.models.device.describe_device)."""
+    from simeval.models.device import describe_device
 
-    info = {"device": str(device), "torch": torch.__version__}
-    if device.type == "cuda":
-        info["gpu"] = torch.cuda.get_device_name(device)
-    return info
+    return describe_device(device)
 
 
 def save(name: str, result: dict) -> Path:

@@ -9,6 +9,7 @@ src/generalization.py, and the `device` argument of the library functions behind
     to_cpu(obj): the tensors of a nested dict/list/tuple on the CPU: what checkpoints store, so that one written on
         a GPU loads on a machine without one (and a checkpoint's device is never part of what it is).
     module_device(module): where a module's parameters are; evaluation and sampling bring their inputs there.
+    describe_device(device) -> {"device", "torch", "gpu" (on CUDA)}: what a timing or a result ran on.
 
 Randomness stays on the CPU: the models draw their random tensors from seeded CPU torch.Generators and move them to
 the device (small next to the model's own work), so a seed gives the same samples on every device, and device=cpu
@@ -87,3 +88,12 @@ def to_cpu(obj):
 
 def module_device(module: torch.nn.Module) -> torch.device:
     return next(module.parameters()).device
+
+
+def describe_device(device: torch.device) -> dict:
+    """What steps ran on: the torch.device, torch's build (a +cpu one cannot use a GPU) and, for a GPU, its name
+    (timings and last-bit rounding differ by model)."""
+    info = {"device": str(device), "torch": torch.__version__}
+    if device.type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info

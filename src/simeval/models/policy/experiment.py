@@ -45,6 +45,15 @@ def _not_failed(meta: Mapping) -> bool:
     return bool(meta["success"]) or not meta.get("success_known", True)
 
 
+def demonstration_paths(store: EpisodeStore, pipeline: str, task: str, demonstrations: str = "all") -> list[Path]:
+    """A task's plain episode files by seed (a varied one, episode_<seed>.v<id>.h5 stored beside, is another
+    distribution), only those not failed with demonstrations=successful: episodes_for trains on the first k, and
+    what follows them no policy trained at episodes_per_task=k has seen."""
+    plain = sorted((p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)),
+                   key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))
+    return [p for p in plain if _not_failed(read_meta(p))] if demonstrations == "successful" else plain
+
+
 def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: int, val_k: int, cameras: Sequence[str],
                  demonstrations: str = "all", collect_args: str = ""):
     if k < 1:
@@ -54,11 +63,8 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
         raise UserError(f"store={store.root}: is a file, not a folder; give the episode store's folder "
                         "(default outputs/episodes)")
     train, val, metas = [], [], []
-    # the plain episodes only: a varied one (episode_<seed>.v<id>.h5, stored beside) is another distribution
-    plain = {task: [p for p in store.paths(pipeline, task) if PLAIN.fullmatch(p.name)] for task in tasks}
-    stored = {task: len(paths) for task, paths in plain.items()}
-    if demonstrations == "successful":
-        plain = {task: [p for p in paths if _not_failed(read_meta(p))] for task, paths in plain.items()}
+    stored = {task: len(demonstration_paths(store, pipeline, task, "all")) for task in tasks}
+    plain = {task: demonstration_paths(store, pipeline, task, demonstrations) for task in tasks}
     short = [t for t in tasks if len(plain[t]) < k]
     if short:  # name every short task at once, so the collect command given fixes them all
         tasks_arg = f"'tasks=[{','.join(short)}]'"  # quoted: unquoted brackets are a glob to the shell
@@ -84,7 +90,6 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
                         f"store={store.root}")
     for task in tasks:
         paths = plain[task]
-        paths = sorted(paths, key=lambda p: int(PLAIN.fullmatch(p.name).group(1)))  # by seed
         train += [read_episode(p, list(cameras)) for p in paths[:k]]
         val += [read_episode(p, list(cameras)) for p in paths[k : k + val_k]]
         metas += [(str(p.relative_to(store.root)), p.stat().st_size) for p in paths[:k]]
