@@ -24,6 +24,17 @@ def run(*args):
     return _python(ROOT / "src" / "generalization.py", *args)
 
 
+def assert_one_line_errors(cases) -> list[str]:
+    """Each (args, needle): exit status 2 and one stderr line holding the needle, no traceback; their stderr."""
+    out = []
+    for args, needle in cases:
+        p = offline(*args)
+        assert p.returncode == 2, (args, p.stderr[-1500:])
+        assert p.stderr.count("\n") == 1 and needle in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
+        out.append(p.stderr)
+    return out
+
+
 def _python(script: Path, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     return subprocess.run([sys.executable, str(script), *args], cwd=ROOT, env=env, capture_output=True, text=True,
@@ -86,6 +97,110 @@ def test_scoring_a_checkpoint_gives_the_score_its_training_gave(packed):
         assert rec["heldout"][k]["per_window"] == trained["heldout"][k]["per_window"], k
 
 
+def test_an_exported_and_imported_policy_is_the_rounded_one_and_the_entrypoint_rolls_it_out(packed):
+    """export -> import: the entrypoint reuses the finished weights (no training state travels) and says so in
+    result.json; they are the EMA weights with the large tensors rounded to float16 and the rest exact."""
+    root, overrides = packed
+    trained = json.loads((root / "train.json").read_text())
+    key, ckpt = trained["checkpoint_key"], trained["checkpoint"]
+    p = offline("export", "--checkpoint", ckpt, "--out-dir", str(root / "ex"), "--part-mib", "0.05")
+    assert p.returncode == 0, p.stderr[-2000:]
+    manifest = json.loads((root / "ex" / "weights.json").read_text())
+    assert manifest["checkpoint_key"] == key and len(manifest["parts"]) >= 3
+    assert all(q["bytes"] <= 0.05 * 2**20 for q in manifest["parts"])
+    p = offline("import", "--manifest", str(root / "ex" / "weights.json"), "--checkpoint-dir", str(root / "im"))
+    assert p.returncode == 0, p.stderr[-2000:]
+
+    full, slim = (torch.load(f, weights_only=False) for f in (ckpt, root / "im" / key / "last.ckpt"))
+    assert "optimizer" not in slim and "model" not in slim and slim["losses"] == full["losses"]
+    assert slim["weights"]["float16_tensors"] > 0 and slim["weights"]["float32_tensors"] > 0
+    for name, w in full["ema_model"].items():
+        big = w.is_floating_point() and w.numel() >= 4096
+        assert slim["ema_model"][name].dtype == (torch.float16 if big else w.dtype), name
+        assert torch.equal(slim["ema_model"][name], w.half() if big else w), name
+
+    reused = run(*overrides, f"checkpoint_dir={root / 'im'}", "eval.splits=[]", f"hydra.run.dir={root / 'r3'}")
+    assert reused.returncode == 0, reused.stderr[-2000:]
+    assert "a finished training (20 steps" in (root / "r3" / "generalization.log").read_text()
+    training = json.loads((root / "r3" / "result.json").read_text())["values"]["training"]
+    assert training["steps"] == 20 and training["weights"]["rounding"].startswith("tensors of >= 4096")
+    assert training["device"].startswith("device cpu")  # where it trained, from the checkpoint
+
+    p = offline("score", "--pack", str(root / "pack.pt"), "--checkpoint", str(root / "im" / key / "last.ckpt"),
+                "--out", str(root / "score_im.json"), "--device", "cpu")
+    assert p.returncode == 0, p.stderr[-2000:]
+    rounded = json.loads((root / "score_im.json").read_text())
+    assert rounded["weights"]["float16_tensors"] == slim["weights"]["float16_tensors"]
+    np.testing.assert_allclose(rounded["heldout"]["ddpm"]["per_window"], trained["heldout"]["ddpm"]["per_window"],
+                               atol=5e-3)
+
+
+def test_transfer_faults_are_one_line_and_write_nothing(packed, tmp_path):
+    import shutil
+
+    root, _ = packed
+    trained = json.loads((root / "train.json").read_text())
+    ex = tmp_path / "ex"
+    assert offline("export", "--checkpoint", trained["checkpoint"], "--out-dir", str(ex), "--part-mib",
+                   "0.05").returncode == 0
+    manifest = ex / "weights.json"
+    unfinished = torch.load(trained["checkpoint"], weights_only=False)
+    unfinished["step"] = 10
+    torch.save(unfinished, tmp_path / "unfinished.ckpt")
+    cases = [(("export", "--checkpoint", str(tmp_path / "unfinished.ckpt"), "--out-dir", str(tmp_path / "x")),
+              "step 10 of 20"),
+             (("export", "--checkpoint", str(root / "pack.pt"), "--out-dir", str(tmp_path / "x")), "--checkpoint")]
+    (tmp_path / "garbage.json").write_text("{not json")
+    cases.append((("import", "--manifest", str(tmp_path / "garbage.json"), "--checkpoint-dir", str(tmp_path / "ck")),
+                  "garbage.json"))
+    broken = tmp_path / "broken"
+    shutil.copytree(ex, broken)
+    (broken / "weights.part01").write_bytes(b"\0" * 100)
+    cases.append((("import", "--manifest", str(broken / "weights.json"), "--checkpoint-dir", str(tmp_path / "ck")),
+                  "weights.part01 does not match"))
+    (ex / "weights.part02").rename(tmp_path / "away")
+    cases.append((("import", "--manifest", str(manifest), "--checkpoint-dir", str(tmp_path / "ck")),
+                  "weights.part02"))
+    cases.append((("import", "--manifest", str(broken / "weights.json"), "--checkpoint-dir", str(root / "ck")),
+                  "does not match"))
+    assert_one_line_errors(cases)
+    assert not (tmp_path / "x").exists() and not (tmp_path / "ck").exists()
+    # an import never overwrites: the original full checkpoint stays where it is
+    (tmp_path / "away").rename(ex / "weights.part02")
+    p = offline("import", "--manifest", str(manifest), "--checkpoint-dir", str(root / "ck"))
+    assert p.returncode == 2 and "exists" in p.stderr and p.stderr.count("\n") == 1
+    assert "optimizer" in torch.load(trained["checkpoint"], weights_only=False)
+
+
+def test_a_weights_only_checkpoint_short_of_its_steps_is_refused(packed, tmp_path):
+    from simeval.errors import UserError
+    from simeval.models.diffusion_policy import (
+        DiffusionPolicy,
+        PolicyConfig,
+        TrainSettings,
+        finished_weights,
+    )
+
+    root, _ = packed
+    po = load_script(SCRIPT)
+    pk = po.load_pack(str(root / "pack.pt"))
+    train, _ = po.datasets(pk)
+    policy = DiffusionPolicy(PolicyConfig.from_mapping(pk["policy_config"]), train.state_dim, train.action_dim,
+                             train.stats(), seed=0)
+    slim = {"step": 15, "losses": [], "train_seconds": 1.0, "weights": {}, "ema_model": policy.state_dict()}
+    settings = TrainSettings(**{k: v for k, v in pk["train_settings"].items() if k != "seed"})
+    with pytest.raises(UserError, match="at step 15, not a finished training of 20 steps"):
+        finished_weights(policy, slim, tmp_path / "last.ckpt", settings)
+
+
+def test_packing_round_trips_any_bytes():
+    po = load_script(SCRIPT)
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 2, 1001):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert po.unpack_bytes(po.pack_bytes(data)) == data
+
+
 def test_heldout_score_against_a_hand_computation(packed, monkeypatch):
     """A policy that predicts the demonstrator's own actions scores 0; the train-mean baseline equals numpy's
     (x - lo) / (hi - lo) * 2 - 1 normalisation, the executed steps s+1..s+4 of each window (n_obs_steps 2, 4 executed,
@@ -143,9 +258,6 @@ def test_bad_inputs_are_one_line(packed, tmp_path):
     (tmp_path / "not-a-pack.pt").write_bytes(b"garbage")
     cases.append((("train", "--pack", str(tmp_path / "not-a-pack.pt"), "--out", str(tmp_path / "t.json")),
                   "not-a-pack.pt"))
-    for args, needle in cases:
-        p = offline(*args)
-        assert p.returncode == 2, (args, p.stderr[-1500:])
-        assert p.stderr.count("\n") == 1 and needle in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
-        assert "delete" not in p.stderr, (args, p.stderr)
+    for stderr in assert_one_line_errors(cases):
+        assert "delete" not in stderr, stderr
     assert not (tmp_path / "x.pt").exists()

@@ -123,11 +123,13 @@ def test_detail_rows_pool_runs_per_task_and_report_progress(tmp_path):
     assert "| bbsea | drawer | cpu | eval | all tasks | 0.38 (3/8) |" in md
     assert group["run_rates"] == {0: 0.5, 1: 0.25}  # seed 0: 2 of 4, seed 1: 1 of 4
     assert group["task_ci"] == task_bootstrap_interval([[2, 0], [1, 0]], [[2, 2], [2, 2]])
-    assert "seed 0: 0.50, seed 1: 0.25" in md
+    assert group["run_progress"] == pytest.approx({0: (1 + 1 + 0.5 + 0) / 4, 1: (0.25 + 1 + 0 + 0) / 4})
+    assert "seed 0: 0.50 (progress 0.62), seed 1: 0.25 (progress 0.31)" in md
     # runs launched side by side can sort seed 2 before seed 1 by folder; the table lists them by seed
     late = [_record("cpu", [("eval", "close", [(i == 2, 1.0)])], seed=i) for i in (0, 2, 1)]
     late_md = write_detail(detail_lines(detail_rows(late)), tmp_path / "late")["md"].read_text()
-    assert "seed 0: 0.00, seed 1: 0.00, seed 2: 1.00" in late_md
+    assert ("seed 0: 0.00 (progress 1.00), seed 1: 0.00 (progress 1.00), seed 2: 1.00 (progress 1.00)"
+            in late_md)
 
 
 def test_the_committed_detail_reads_back_as_written_and_a_rerun_group_replaces_its_lines(tmp_path):

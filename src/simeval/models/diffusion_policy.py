@@ -260,11 +260,14 @@ class TrainSettings:
         self.betas = tuple(self.betas)
 
 
-def make_ema(policy: nn.Module, settings: TrainSettings):
+def make_ema(policy: nn.Module, settings: TrainSettings, foreach: bool = False):
+    """foreach: one multi-tensor kernel per update instead of three per parameter. On a GPU, where a step of the
+    largest presets is bound by kernel launches, that is the faster way; on the CPU it stays off, since its fused
+    `a - alpha * b` may round differently from the loop's and a CPU run should give the weights it always gave."""
     from diffusers.training_utils import EMAModel
 
     return EMAModel(policy.parameters(), decay=settings.ema_max_decay, min_decay=0.0, update_after_step=0,
-                    use_ema_warmup=True, inv_gamma=1.0, power=settings.ema_power)
+                    use_ema_warmup=True, inv_gamma=1.0, power=settings.ema_power, foreach=foreach)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
@@ -298,11 +301,12 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     device = resolve_device(device)
     policy.to(device)  # before the optimiser and the EMA are made: their state is created beside the parameters
     torch.manual_seed(settings.seed)
+    on_gpu = device.type == "cuda"  # launch-bound there: fused/multi-tensor updates (same maths, other rounding)
     optimizer = torch.optim.AdamW(policy.parameters(), lr=settings.lr, betas=settings.betas,
-                                  weight_decay=settings.weight_decay)
+                                  weight_decay=settings.weight_decay, fused=on_gpu or None)
     lr_sched = get_scheduler(settings.lr_schedule, optimizer, num_warmup_steps=settings.warmup_steps,
                              num_training_steps=settings.train_steps)
-    ema = make_ema(policy, settings)
+    ema = make_ema(policy, settings, foreach=on_gpu)
     gen = torch.Generator().manual_seed(settings.seed)
     step, losses, t_train = 0, [], 0.0
     ckpt_path = Path(ckpt_dir) / "last.ckpt" if ckpt_dir else None
@@ -312,6 +316,8 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         refuse_other_settings(ckpt_path, {"policy.model": trained, "policy.train": ckpt["train"]},
                               {"policy.model": policy.cfg.training_fields(),
                                "policy.train": dataclasses.asdict(settings)}, "checkpoint_dir")
+        if "optimizer" not in ckpt:
+            return finished_weights(policy, ckpt, ckpt_path, settings)
         policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
         optimizer.load_state_dict(ckpt["optimizer"])  # torch moves the state to its parameters' device
         lr_sched.load_state_dict(ckpt["lr_scheduler"])
@@ -342,7 +348,8 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         optimizer.step()
         lr_sched.step()
         ema.step(policy.parameters())
-        return {"loss": loss.item()}
+        # read at the log step: a .item() here would make the CPU wait for each step's kernels on a GPU
+        return {"loss": loss.detach()}
 
     window: list[float] = []
 
@@ -353,7 +360,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         if bar is not None:
             bar.update(1)
         if step % settings.log_every == 0 or step == settings.train_steps:
-            mean = float(np.mean(window))
+            mean = float(np.mean([float(loss) for loss in window]))
             losses.append([step, mean])
             window = []
             if log_fn is not None:
@@ -369,9 +376,12 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     policy.train()
     # drawn one at a time, just before their step, from the same generator as the step's noise (as before a resume)
     batches = (dataset.sample(settings.batch_size, gen) for _ in range(step, settings.train_steps))
-    # the last checkpoint is written once, after the loop (last_step)
+    # the last checkpoint is written once, after the loop (last_step), and not again by a run that found it finished
+    # (rewriting it would only replace its `extra` with this run's)
+    started = step
     step = run_steps(batches, take_step, save, step=step, checkpoint_every=settings.checkpoint_every,
-                     last_step=settings.train_steps, after_step=after_step)
+                     last_step=settings.train_steps, after_step=after_step,
+                     final_save=lambda s: None if s == started else save(s))
     if bar is not None:
         bar.close()
     ema_policy = copy.deepcopy(policy)
@@ -379,6 +389,25 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,
                "train_seconds": t_train, "seconds_per_step": t_train / max(step, 1), "device": str(device)}
     return ema_policy.eval(), summary
+
+
+def finished_weights(policy: DiffusionPolicy, ckpt: Mapping, path: Path,
+                     settings: TrainSettings) -> tuple[DiffusionPolicy, dict]:
+    """A checkpoint holding only a finished training's EMA weights (no model, optimiser or RNG state: what
+    experiments/policy_offline.py `export` + `import` bring from a machine whose checkpoint is too large to copy
+    whole): the policy with those weights and the training's summary, with what was done to the weights. It cannot
+    be resumed, so one short of settings.train_steps is refused."""
+    if ckpt["step"] != settings.train_steps:
+        raise UserError(f"{path}: holds only the EMA weights at step {ckpt['step']}, not a finished training of "
+                        f"{settings.train_steps} steps, so it cannot be resumed; delete it to train here")
+    policy.load_state_dict(ckpt["ema_model"])  # float16-rounded tensors are copied into the float32 parameters
+    losses = list(ckpt["losses"])
+    log.info("policy weights from %s: a finished training (%d steps, %s) reused", path, ckpt["step"],
+             ckpt["weights"].get("trained_on", "?"))
+    return policy.eval(), {"steps": ckpt["step"], "losses": losses, "final_loss": losses[-1][1] if losses else None,
+                           "train_seconds": ckpt["train_seconds"],
+                           "seconds_per_step": ckpt["train_seconds"] / max(ckpt["step"], 1),
+                           "device": ckpt["weights"].get("trained_on"), "weights": dict(ckpt["weights"])}
 
 
 # --- execution -------------------------------------------------------------------------------------------------

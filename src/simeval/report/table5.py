@@ -245,8 +245,8 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
     (cluster) bootstrap interval (simeval.metrics.intervals.task_bootstrap_interval; with several runs of the cell,
     i.e. training seeds, over runs and tasks both), each run's own rate, the mean progress (GenSim's step-wise reward
     is a progress, not a success), then one row per task, its runs pooled. Rows are dicts: {pipeline, group, policy,
-    split, task ('*' for the group), k, n, rate, ci, task_ci, run_rates (the group line's {training seed: rate},
-    None on task lines), progress, runs}."""
+    split, task ('*' for the group), k, n, rate, ci, task_ci, run_rates and run_progress (the group line's
+    {training seed: rate} and {training seed: mean progress}, None on task lines), progress, runs}."""
     cells: dict = {}
     for rec in records:
         key = _cell(rec, policy)
@@ -276,14 +276,17 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
             pooled = [tuple(sum(c[i] for c in v.values()) for i in range(3)) for _, v in tasks]
             k, n = sum(p[0] for p in pooled), sum(p[1] for p in pooled)
             base = dict(zip(("pipeline", "group", "policy"), key), split=split, runs=cell["runs"])
+            p_rt = [[v.get(r, (0, 0, 0))[2] for _, v in tasks] for r in runs]
             run_rates = {seed: sum(kr) / sum(nr) if sum(nr) else None
                          for seed, kr, nr in zip(cell["seeds"], k_rt, n_rt)}
+            run_progress = {seed: sum(pr) / sum(nr) if sum(nr) else None
+                            for seed, pr, nr in zip(cell["seeds"], p_rt, n_rt)}
             rows.append({**base, "task": "*", "k": k, "n": n, "rate": k / n, "ci": list(wilson_interval(k, n)),
                          "task_ci": task_bootstrap_interval(k_rt, n_rt), "run_rates": run_rates,
-                         "progress": sum(p[2] for p in pooled) / n})
+                         "run_progress": run_progress, "progress": sum(p[2] for p in pooled) / n})
             for (t, _), (tk, tn, tp) in zip(tasks, pooled):
                 rows.append({**base, "task": t, "k": tk, "n": tn, "rate": tk / tn, "ci": list(wilson_interval(tk, tn)),
-                             "task_ci": None, "run_rates": None, "progress": tp / tn})
+                             "task_ci": None, "run_rates": None, "run_progress": None, "progress": tp / tn})
     return rows
 
 
@@ -324,17 +327,20 @@ def detail_lines(rows: list[dict]) -> list[list[str]]:
     def interval(ci) -> str:
         return "-" if ci is None else f"[{ci[0]:.2f}, {ci[1]:.2f}]"
 
-    def per_run(rates) -> str:
+    def per_run(rates, progress) -> str:
         if rates is None or len(rates) < 2:
             return "-"
+
+        def value(x, prog) -> str:
+            return "-" if x is None else f"{x:.2f} (progress {prog:.2f})"
         # in seed order: runs arrive in their folders' order (launch time), which need not be the seeds'
-        return ", ".join(f"seed {seed}: " + ("-" if x is None else f"{x:.2f}")
+        return ", ".join(f"seed {seed}: " + value(x, progress.get(seed))
                          for seed, x in sorted(rates.items(), key=_seed_order))
 
     return [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
              "all tasks" if r["task"] == "*" else r["task"],
              f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
-             per_run(r["run_rates"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
+             per_run(r["run_rates"], r["run_progress"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
 
 
 def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
@@ -342,7 +348,8 @@ def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:
     notes = ["Task-level 95%: percentile bootstrap over the group's tasks (whole tasks resampled), the interval a "
              "group rate needs when one task holds most successes; the Wilson interval treats every rollout as "
              "independent. With several runs (training seeds) runs and tasks are both resampled",
-             "Per run: each run's rate on the split, by its training seed",
+             ("Per run: each run's rate on the split, by its training seed, and its mean progress (rows kept from a "
+              "table built before progress was listed per run give the rate alone)"),
              "Policy 'random': uniform random actions on the same tasks, seeds and step limits (the chance level)",
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed "
              "state)"]
