@@ -1,4 +1,4 @@
-"""Train a Diffusion Policy where the simulator is not (a GPU machine), and score it on held-out demonstrations.
+r"""Train a Diffusion Policy where the simulator is not (a GPU machine), and score it on held-out demonstrations.
 
     python experiments/policy_offline.py pack --out pack.pt [generalization.py's overrides ...]
         e.g. pack --out .gpu/piles.pt pipeline=gensim_own pipeline.root=$GENSIM_ROOT policy=authors_gensim \
@@ -10,8 +10,8 @@
     python experiments/policy_offline.py export --checkpoint C --out-dir D [--part-mib 15.8]   # on the GPU machine
     python experiments/policy_offline.py import --manifest D/weights.json --checkpoint-dir outputs/policies
 
-Why: Table 5's rollouts need the simulator (PyBullet, a GenSim checkout), which a GPU machine may lack (a lent one
-here has no PyBullet wheel for its Python and takes 64 MiB in). `pack` composes conf/generalization.yaml with the
+Why: Table 5's rollouts need the simulator (PyBullet, a GenSim checkout), which a GPU machine may lack (one we used
+had no PyBullet wheel for its Python and took files 64 MiB at a time). `pack` composes conf/generalization.yaml with the
 given overrides and reads the store exactly as `src/generalization.py` does (simeval.models.policy.experiment.
 training_data: the same episodes, tasks in the same order, the same PolicyDataset), keeping only the training steps
 (for pick/place one per primitive: a few MB), plus the episodes after the first episodes_per_task of each trained
@@ -22,13 +22,17 @@ on. `train` runs the product's own `train_policy` on them; with --checkpoint-dir
 on the pack's held-out steps, so policies trained anywhere are compared window for window.
 
 `export` + `import` bring a finished training back where its whole checkpoint cannot travel (the authors' GenSim size
-holds 71M parameters: 1.4 GB with the optimiser, over a lent machine's 64 MiB out): `export` keeps only the EMA
+holds 71M parameters: 1.4 GB with the optimiser; that machine returned at most 64 MiB per command): `export` keeps only the EMA
 weights, the config and the training's curve, stores the large tensors (>= ROUND_MIN_NUMEL elements: the conv and
 linear weights, nearly all the bytes) as float16 and the rest (biases, norms, the normalisers' ranges) as float32,
 packs it (pack_bytes: 15% smaller) and splits it into parts of at most --part-mib with a manifest of SHA-256 sums; `import` checks every part,
 joins them and writes <checkpoint-dir>/<key>/last.ckpt, which src/generalization.py reuses as a finished training
 (simeval.models.diffusion_policy.finished_weights) and whose result.json says what was rounded. `score` on both
-sides of the rounding says what it costs.
+sides of the rounding says what it costs. What to keep in mind: `train` writes a checkpoint only with
+--checkpoint-dir (without it there is nothing to export); `export` takes the checkpoint inside its <key>/ folder
+(the key names where `import` puts it) and refuses an unfinished training (rerun `train` with the same --pack,
+--seed and --steps to finish it: other values are another key) and a folder that holds an earlier export; `import
+--checkpoint-dir` must be the `checkpoint_dir=` that src/generalization.py is given, with the pack's overrides.
 
 Held-out score, per window w (one step of a held-out demonstration; the policy sees its observation):
     e_w = mean over (executed steps, action dims) of (norm(a_pred) - norm(a_demo))^2, in the policy's
@@ -47,6 +51,7 @@ import io
 import json
 import logging
 import pickle
+import re
 import sys
 import time
 import zlib
@@ -65,6 +70,8 @@ from simeval.results import atomic_path, atomic_write_text, dumps_strict
 
 PACK_FORMAT = 2
 WEIGHTS_FORMAT = 1
+KEY = re.compile(r"[0-9a-f]{16}")  # simeval.models.policy.experiment.checkpoint_key's form
+PART = re.compile(r"weights\.part\d{2,}")
 ROUND_MIN_NUMEL = 4096  # tensors this large travel as float16; smaller ones (biases, norms, normalisers) as float32
 
 
@@ -134,6 +141,21 @@ def set_threads(threads: int | None, p: dict) -> None:
     threads = threads if threads is not None else p["config"].get("torch_threads")
     if threads is not None:
         torch.set_num_threads(threads)
+
+
+def writable_file(path: str, flag: str) -> None:
+    """Before any work: `flag`'s file can be written (not a folder; its folder made if missing)."""
+    target = Path(path)
+    if target.is_dir():
+        raise UserError(f"{flag} {path}: is a folder; give a file name (e.g. {target / 'out.json'})")
+    if target.parent.exists() and not target.parent.is_dir():
+        raise UserError(f"{flag} {path}: {target.parent} is a file, not a folder")
+    target.parent.mkdir(parents=True, exist_ok=True)
+
+
+def folder_or_absent(path: str, flag: str) -> None:
+    if Path(path).exists() and not Path(path).is_dir():
+        raise UserError(f"{flag} {path}: is a file; give a folder (it is made if missing)")
 
 
 def load_pack(path: str) -> dict:
@@ -211,6 +233,9 @@ def train(a) -> None:
 
     p = load_pack(a.pack)
     device = resolve_device(a.device, key="--device")
+    writable_file(a.out, "--out")
+    if a.checkpoint_dir:
+        folder_or_absent(a.checkpoint_dir, "--checkpoint-dir")
     set_threads(a.threads, p)
     pcfg = PolicyConfig.from_mapping(p["policy_config"])
     seed = p["seed"] if a.seed is None else a.seed
@@ -240,8 +265,7 @@ def train(a) -> None:
     config = dict(p["config"], seed=seed, policy={**p["config"]["policy"], "train": train_cfg})
     if device.type == "cuda":
         torch.backends.cudnn.benchmark = True  # fixed shapes: let cuDNN pick its fastest convolutions once
-    policy, summary = train_policy(fresh, data, settings, ckpt_dir, log_fn,
-                                   extra={"config": config, "trained_on": describe_device(device)},
+    policy, summary = train_policy(fresh, data, settings, ckpt_dir, log_fn, extra={"config": config},
                                    progress=False, device=device)
     result["losses"] = [[step, round(loss, 5)] for step, loss in summary["losses"]]  # a resumed run's whole curve
     result.update(status="trained", training={k: v for k, v in summary.items() if k != "losses"},
@@ -268,6 +292,7 @@ def score(a) -> None:
 
     p = load_pack(a.pack)
     ckpt = read_policy_checkpoint(a.checkpoint)
+    writable_file(a.out, "--out")
     set_threads(a.threads, p)
     pcfg = PolicyConfig.from_mapping(ckpt["policy_config"])
     policy = DiffusionPolicy(pcfg, ckpt["state_dim"], ckpt["action_dim"], seed=0)
@@ -290,8 +315,8 @@ def read_policy_checkpoint(path: str) -> dict:
     from simeval.models.diffusion_policy import load_checkpoint
 
     if not Path(path).is_file():
-        raise UserError(f"--checkpoint {path}: no such file (a policy's last.ckpt, e.g. "
-                        "outputs/policies/<key>/last.ckpt)")
+        what = "a folder; give the last.ckpt inside it" if Path(path).is_dir() else "no such file"
+        raise UserError(f"--checkpoint {path}: {what} (a policy's last.ckpt, e.g. outputs/policies/<key>/last.ckpt)")
     try:
         return load_checkpoint(path)
     except UserError:
@@ -329,24 +354,35 @@ def unpack_bytes(blob: bytes) -> bytes:
 
 
 def export(a) -> None:
+    key = Path(a.checkpoint).parent.name
+    if not KEY.fullmatch(key):
+        raise UserError(f"--checkpoint {a.checkpoint}: not inside its <key>/ folder (16 hex digits, e.g. "
+                        "outputs/policies/a999b0acce361a4b/last.ckpt): the key names where import puts it")
+    folder_or_absent(a.out_dir, "--out-dir")
+    out = Path(a.out_dir)
+    earlier = sorted(q.name for q in out.glob("weights.*")) if out.is_dir() else []
+    if earlier:
+        raise UserError(f"--out-dir {a.out_dir}: holds an earlier or interrupted export ({', '.join(earlier[:3])}"
+                        f"{', ...' if len(earlier) > 3 else ''}); remove it or give an empty folder")
     ckpt = read_policy_checkpoint(a.checkpoint)
     if ckpt["step"] != ckpt["train"]["train_steps"]:
         raise UserError(f"--checkpoint {a.checkpoint}: training stopped at step {ckpt['step']} of "
-                        f"{ckpt['train']['train_steps']}; finish it first (the train command resumes it)")
-    trained_on = ckpt.get("extra", {}).get("trained_on", {})
+                        f"{ckpt['train']['train_steps']}; finish it first: rerun train with the same --pack, --seed "
+                        "and --steps (other values are another key)")
+    trained_on = ckpt.get("trained_on") or ckpt.get("extra", {}).get("trained_on") or {}
     weights, counts = rounded_weights(ckpt["ema_model"])
     slim = {k: ckpt[k] for k in ("version", "policy_config", "train", "state_dim", "action_dim", "step", "losses",
                                  "train_seconds")}
     slim.update(ema_model=weights, extra={k: v for k, v in ckpt.get("extra", {}).items()},
                 weights={"kind": "EMA weights of a finished training, exported without its training state",
                          "rounding": f"tensors of >= {ROUND_MIN_NUMEL} elements to float16, the rest float32",
-                         **counts, "trained_on": ", ".join(f"{k} {v}" for k, v in trained_on.items()) or None})
+                         **counts, "trained_on": ", ".join(f"{k} {v}" for k, v in trained_on.items()) or
+                         "not recorded (a checkpoint written before simeval recorded it)"})
     buf = io.BytesIO()
     torch.save(slim, buf)
     data = buf.getvalue()
     packed = pack_bytes(data)
     part = int(a.part_mib * 2**20)
-    out = Path(a.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     parts = []
     for i in range(0, len(packed), part):
@@ -355,7 +391,8 @@ def export(a) -> None:
         with atomic_path(out / name) as tmp:
             Path(tmp).write_bytes(chunk)
         parts.append({"name": name, "bytes": len(chunk), "sha256": hashlib.sha256(chunk).hexdigest()})
-    manifest = {"format": WEIGHTS_FORMAT, "checkpoint_key": Path(a.checkpoint).parent.name, "step": ckpt["step"],
+    # the manifest last: a folder with parts and no weights.json is an interrupted export
+    manifest = {"format": WEIGHTS_FORMAT, "checkpoint_key": key, "step": ckpt["step"],
                 "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(), "packed_bytes": len(packed),
                 "packing": "pack_bytes (zlib of the even, then the odd bytes)", "parts": parts,
                 "weights": slim["weights"]}
@@ -365,18 +402,43 @@ def export(a) -> None:
           f"{out}: {counts['float16_elements']:,} elements float16, {counts['float32_elements']:,} float32", flush=True)
 
 
+def check_manifest(manifest, path: Path) -> None:
+    """The fields import reads, of the types export writes, or a UserError naming the first that is not; the key
+    and part names of the forms export gives, so a manifest cannot send a write outside --checkpoint-dir."""
+    if not isinstance(manifest, dict) or manifest.get("format") != WEIGHTS_FORMAT:
+        raise UserError(f"--manifest {path}: not an export manifest of format {WEIGHTS_FORMAT} (weights.json)")
+    key, parts, sha = manifest.get("checkpoint_key"), manifest.get("parts"), manifest.get("sha256")
+    if not isinstance(key, str) or not KEY.fullmatch(key):
+        raise UserError(f"--manifest {path}: checkpoint_key {key!r} is not a key (16 hex digits); export it again")
+    if not isinstance(sha, str) or not isinstance(manifest.get("step"), int) \
+            or not isinstance(manifest.get("weights"), dict):
+        raise UserError(f"--manifest {path}: sha256, step or weights missing or of the wrong type; export it again")
+    if not isinstance(parts, list) or not parts or not all(
+            isinstance(q, dict) and isinstance(q.get("name"), str) and PART.fullmatch(q["name"])
+            and isinstance(q.get("sha256"), str) for q in parts):
+        raise UserError(f"--manifest {path}: parts should be a list of {{name: weights.partNN, sha256}}; export it "
+                        "again")
+
+
 def import_weights(a) -> None:
     from simeval.models.checkpoints import save_checkpoint
     from simeval.models.diffusion_policy import load_checkpoint
 
     path = Path(a.manifest)
+    if not path.is_file():
+        what = "a folder; give the weights.json inside it" if path.is_dir() else "no such file"
+        raise UserError(f"--manifest {path}: {what} (the weights.json that export wrote)")
     try:
         manifest = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
+    except (OSError, UnicodeDecodeError, ValueError) as e:
         raise UserError(f"--manifest {path}: not readable as JSON ({type(e).__name__}); give the weights.json "
                         "that export wrote") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != WEIGHTS_FORMAT:
-        raise UserError(f"--manifest {path}: not an export manifest of format {WEIGHTS_FORMAT} (weights.json)")
+    check_manifest(manifest, path)
+    folder_or_absent(a.checkpoint_dir, "--checkpoint-dir")
+    target = Path(a.checkpoint_dir) / manifest["checkpoint_key"] / "last.ckpt"
+    if target.exists() or (target.parent.exists() and not target.parent.is_dir()):
+        raise UserError(f"{target}: exists; move it away or give another --checkpoint-dir (an import never "
+                        "overwrites a checkpoint)")
     missing = [q["name"] for q in manifest["parts"] if not (path.parent / q["name"]).is_file()]
     if missing:
         raise UserError(f"--manifest {path}: {len(missing)} of {len(manifest['parts'])} parts missing beside it "
@@ -394,14 +456,21 @@ def import_weights(a) -> None:
         data = b""
     if hashlib.sha256(data).hexdigest() != manifest["sha256"]:
         raise UserError(f"--manifest {path}: the joined parts do not match the manifest's SHA-256")
-    target = Path(a.checkpoint_dir) / manifest["checkpoint_key"] / "last.ckpt"
-    if target.exists():
-        raise UserError(f"{target}: exists; move it away or give another --checkpoint-dir (an import never "
-                        "overwrites a checkpoint)")
     ckpt = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     save_checkpoint(target, ckpt)
     load_checkpoint(target)  # the product's own reader accepts it
     print(f"imported step {manifest['step']} into {target}: {manifest['weights']['rounding']}", flush=True)
+
+
+def mib(text: str) -> float:
+    """An argparse type: a part size in MiB, 0.01 to 2048 (argparse turns the ValueError into one usage line)."""
+    value = float(text)
+    if not 0.01 <= value <= 2048:  # also false for nan
+        raise ValueError(text)
+    return value
+
+
+mib.__name__ = "size in MiB, 0.01 to 2048"
 
 
 def whole(low: int):
@@ -415,39 +484,51 @@ def whole(low: int):
     return parse
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Defaults shown, the usage block kept as written."""
+
+
 def main() -> None:
-    ap = OneLineParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True)
-    pk = sub.add_parser("pack", help="a task group's training and held-out steps, read as src/generalization.py reads "
-                                     "them with the same overrides")
-    pk.add_argument("--out", required=True)
+    usage = __doc__.split("\n\nWhy:")[0]
+    ap = OneLineParser(description=usage, formatter_class=HelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    def command(name: str, help: str):
+        return sub.add_parser(name, help=help, description=help, formatter_class=HelpFormatter)
+
+    pk = command("pack", "a task group's training and held-out steps, read as src/generalization.py reads them with "
+                         "the same overrides, into one file (on the machine with the episode store)")
+    pk.add_argument("--out", required=True, help="the pack file to write, e.g. pack.pt")
     pk.add_argument("overrides", nargs="*", help="src/generalization.py's overrides (pipeline=, policy=, task_group=, "
                                                  "tasks=, episodes_per_task=, seed=, store=, ...)")
-    tr = sub.add_parser("train", help="train the pack's policy on its steps, then score it on its held-out steps")
-    tr.add_argument("--pack", required=True)
-    tr.add_argument("--out", required=True)
-    tr.add_argument("--device", default="auto")
+    tr = command("train", "train the pack's policy on its steps (resuming its checkpoint if one is there), then score "
+                          "it on its held-out steps")
+    tr.add_argument("--pack", required=True, help="a file the pack command wrote")
+    tr.add_argument("--out", required=True, help="a JSON file: the curve, written as it trains, then the score")
+    tr.add_argument("--device", default="auto", help="auto (cuda if torch sees a GPU, else cpu) | cpu | cuda | cuda:N")
     tr.add_argument("--seed", type=whole(0), default=None, help="default: the pack's (its seed= override)")
     tr.add_argument("--steps", type=whole(1), default=None, help="override the preset's train_steps (another key)")
     tr.add_argument("--threads", type=whole(1), default=None,
                     help="torch threads (default: the pack's torch_threads, else torch's); on the CPU the weights "
                          "depend on it in the last bits")
     tr.add_argument("--checkpoint-dir", default=None,
-                    help="write <dir>/<key>/last.ckpt, the folder src/generalization.py checkpoint_dir=<dir> reuses")
-    sc = sub.add_parser("score", help="score a trained checkpoint on a pack's held-out steps")
-    sc.add_argument("--pack", required=True)
-    sc.add_argument("--checkpoint", required=True)
-    sc.add_argument("--device", default="auto")
+                    help="write <dir>/<key>/last.ckpt, the folder src/generalization.py checkpoint_dir=<dir> reuses; "
+                         "without it nothing is kept to resume or export")
+    sc = command("score", "score a trained checkpoint on a pack's held-out steps")
+    sc.add_argument("--pack", required=True, help="a file the pack command wrote")
+    sc.add_argument("--checkpoint", required=True, help="a policy's last.ckpt (full or imported)")
+    sc.add_argument("--device", default="auto", help="auto (cuda if torch sees a GPU, else cpu) | cpu | cuda | cuda:N")
     sc.add_argument("--threads", type=whole(1), default=None, help="torch threads (default: the pack's, else torch's)")
-    sc.add_argument("--out", required=True)
-    ex = sub.add_parser("export", help="a finished checkpoint's EMA weights (large tensors float16) in parts small "
-                                       "enough to copy, with a manifest")
-    ex.add_argument("--checkpoint", required=True)
-    ex.add_argument("--out-dir", required=True)
-    ex.add_argument("--part-mib", type=float, default=15.8, help="the largest part, MiB")
-    im = sub.add_parser("import", help="join an export's parts into <checkpoint-dir>/<key>/last.ckpt")
+    sc.add_argument("--out", required=True, help="a JSON file for the score")
+    ex = command("export", "a finished checkpoint's EMA weights (large tensors float16), packed, in parts small enough "
+                           "to copy, with a manifest (weights.json)")
+    ex.add_argument("--checkpoint", required=True,
+                    help="<checkpoint-dir>/<key>/last.ckpt of a finished training, in its <key>/ folder")
+    ex.add_argument("--out-dir", required=True, help="an empty or new folder for weights.json and weights.partNN")
+    ex.add_argument("--part-mib", type=mib, default=15.8, help="the largest part, MiB (0.01 to 2048)")
+    im = command("import", "join an export's parts into <checkpoint-dir>/<key>/last.ckpt, checking each")
     im.add_argument("--manifest", required=True, help="the weights.json export wrote, its parts beside it")
-    im.add_argument("--checkpoint-dir", required=True)
+    im.add_argument("--checkpoint-dir", required=True,
+                    help="the checkpoint_dir= src/generalization.py will be given (default there: outputs/policies)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")  # the library's lines, "resuming ..." among them
     try:

@@ -146,8 +146,10 @@ def test_transfer_faults_are_one_line_and_write_nothing(packed, tmp_path):
     manifest = ex / "weights.json"
     unfinished = torch.load(trained["checkpoint"], weights_only=False)
     unfinished["step"] = 10
-    torch.save(unfinished, tmp_path / "unfinished.ckpt")
-    cases = [(("export", "--checkpoint", str(tmp_path / "unfinished.ckpt"), "--out-dir", str(tmp_path / "x")),
+    (tmp_path / "0123456789abcdef").mkdir()
+    torch.save(unfinished, tmp_path / "0123456789abcdef" / "last.ckpt")
+    cases = [(("export", "--checkpoint", str(tmp_path / "0123456789abcdef" / "last.ckpt"), "--out-dir",
+               str(tmp_path / "x")),
               "step 10 of 20"),
              (("export", "--checkpoint", str(root / "pack.pt"), "--out-dir", str(tmp_path / "x")), "--checkpoint")]
     (tmp_path / "garbage.json").write_text("{not json")
@@ -162,9 +164,37 @@ def test_transfer_faults_are_one_line_and_write_nothing(packed, tmp_path):
     cases.append((("import", "--manifest", str(manifest), "--checkpoint-dir", str(tmp_path / "ck")),
                   "weights.part02"))
     cases.append((("import", "--manifest", str(broken / "weights.json"), "--checkpoint-dir", str(root / "ck")),
-                  "does not match"))
+                  "exists"))  # refused before any part is read
+    # a checkpoint out of its <key>/ folder would be imported under another key and trained again: refused
+    shutil.copy(trained["checkpoint"], tmp_path / "mine.ckpt")
+    cases.append((("export", "--checkpoint", str(tmp_path / "mine.ckpt"), "--out-dir", str(tmp_path / "x")),
+                  "not inside its <key>/ folder"))
+    cases.append((("export", "--checkpoint", trained["checkpoint"], "--out-dir", str(ex)), "earlier or interrupted"))
+    cases.append((("export", "--checkpoint", trained["checkpoint"], "--out-dir", str(tmp_path / "garbage.json")),
+                  "is a file"))
+    for size in ("0", "nan", "-1", "inf"):
+        cases.append((("export", "--checkpoint", trained["checkpoint"], "--out-dir", str(tmp_path / "x"),
+                       "--part-mib", size), "--part-mib"))
+    escaping = json.loads(manifest.read_text()) | {"checkpoint_key": "../../escaped"}
+    (tmp_path / "escaping.json").write_text(json.dumps(escaping))
+    cases.append((("import", "--manifest", str(tmp_path / "escaping.json"), "--checkpoint-dir", str(tmp_path / "ck")),
+                  "is not a key"))
+    (tmp_path / "partless.json").write_text(json.dumps({k: v for k, v in escaping.items() if k != "parts"}
+                                                       | {"checkpoint_key": "0123456789abcdef"}))
+    cases.append((("import", "--manifest", str(tmp_path / "partless.json"), "--checkpoint-dir", str(tmp_path / "ck")),
+                  "parts should be"))
+    cases.append((("import", "--manifest", str(ex), "--checkpoint-dir", str(tmp_path / "ck")), "a folder"))
+    cases.append((("import", "--manifest", str(broken / "weights.json"), "--checkpoint-dir",
+                   str(tmp_path / "garbage.json")), "is a file"))
+    for cmd in (("train", "--pack", str(root / "pack.pt"), "--out", str(tmp_path)),
+                ("score", "--pack", str(root / "pack.pt"), "--checkpoint", trained["checkpoint"], "--out",
+                 str(tmp_path))):
+        cases.append((cmd, "is a folder"))  # before any work, not at the first write after it
+    cases.append((("train", "--pack", str(root / "pack.pt"), "--out", str(tmp_path / "t.json"), "--checkpoint-dir",
+                   str(tmp_path / "garbage.json")), "is a file"))
     assert_one_line_errors(cases)
-    assert not (tmp_path / "x").exists() and not (tmp_path / "ck").exists()
+    assert not (tmp_path / "x").exists() and not (tmp_path / "ck").exists() and not (tmp_path / "t.json").exists()
+    assert not (tmp_path.parent / "escaped").exists()
     # an import never overwrites: the original full checkpoint stays where it is
     (tmp_path / "away").rename(ex / "weights.part02")
     p = offline("import", "--manifest", str(manifest), "--checkpoint-dir", str(root / "ck"))

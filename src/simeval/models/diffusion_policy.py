@@ -38,7 +38,7 @@ from torch.nn import functional as F
 
 from simeval.errors import UserError, require_whole_fields
 from simeval.models.checkpoints import read_checkpoint, save_checkpoint
-from simeval.models.device import module_device, resolve_device, to_cpu, to_device
+from simeval.models.device import describe_device, module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
 from simeval.models.trainer import refuse_other_settings, run_steps
 
@@ -325,7 +325,11 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         ema.to(device)  # EMAModel keeps the loaded (CPU) shadow weights where they are
         gen.set_state(ckpt["generator"])
         step, losses, t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
-        log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
+        if step >= settings.train_steps:
+            log.info("policy training in %s finished at step %d/%d: reused, nothing to train", ckpt_path, step,
+                     settings.train_steps)
+        else:
+            log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
 
     def save(step: int) -> None:
         if ckpt_path is None:
@@ -339,7 +343,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
             "model": to_cpu(policy.state_dict()), "ema_model": to_cpu(ema_model.state_dict()),
             "ema": to_cpu(ema.state_dict()), "optimizer": to_cpu(optimizer.state_dict()),
             "lr_scheduler": lr_sched.state_dict(), "generator": gen.get_state(), "step": step, "losses": losses,
-            "train_seconds": t_train, "extra": dict(extra or {})})
+            "train_seconds": t_train, "trained_on": describe_device(device), "extra": dict(extra or {})})
 
     def take_step(batch, step: int) -> dict:  # the noise comes from `gen`, not from the step count
         loss = policy.compute_loss(batch, generator=gen)
@@ -402,12 +406,12 @@ def finished_weights(policy: DiffusionPolicy, ckpt: Mapping, path: Path,
                         f"{settings.train_steps} steps, so it cannot be resumed; delete it to train here")
     policy.load_state_dict(ckpt["ema_model"])  # float16-rounded tensors are copied into the float32 parameters
     losses = list(ckpt["losses"])
-    log.info("policy weights from %s: a finished training (%d steps, %s) reused", path, ckpt["step"],
-             ckpt["weights"].get("trained_on", "?"))
+    trained_on = ckpt["weights"].get("trained_on") or "where it trained not recorded"
+    log.info("policy weights from %s: a finished training (%d steps, %s) reused", path, ckpt["step"], trained_on)
     return policy.eval(), {"steps": ckpt["step"], "losses": losses, "final_loss": losses[-1][1] if losses else None,
                            "train_seconds": ckpt["train_seconds"],
                            "seconds_per_step": ckpt["train_seconds"] / max(ckpt["step"], 1),
-                           "device": ckpt["weights"].get("trained_on"), "weights": dict(ckpt["weights"])}
+                           "device": trained_on, "weights": dict(ckpt["weights"])}
 
 
 # --- execution -------------------------------------------------------------------------------------------------
