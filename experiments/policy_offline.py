@@ -421,7 +421,6 @@ def check_manifest(manifest, path: Path) -> None:
 
 
 def import_weights(a) -> None:
-    from simeval.models.checkpoints import save_checkpoint
     from simeval.models.diffusion_policy import load_checkpoint
 
     path = Path(a.manifest)
@@ -456,9 +455,13 @@ def import_weights(a) -> None:
         data = b""
     if hashlib.sha256(data).hexdigest() != manifest["sha256"]:
         raise UserError(f"--manifest {path}: the joined parts do not match the manifest's SHA-256")
-    ckpt = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
-    save_checkpoint(target, ckpt)
-    load_checkpoint(target)  # the product's own reader accepts it
+    with atomic_path(target) as tmp:  # the bytes export serialised, as they were: nothing to load and save again
+        Path(tmp).write_bytes(data)
+    try:
+        load_checkpoint(target)  # the product's own reader accepts it
+    except UserError:
+        target.unlink()
+        raise
     print(f"imported step {manifest['step']} into {target}: {manifest['weights']['rounding']}", flush=True)
 
 

@@ -355,7 +355,7 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         # read at the log step: a .item() here would make the CPU wait for each step's kernels on a GPU
         return {"loss": loss.detach()}
 
-    window: list[float] = []
+    window: list[torch.Tensor] = []  # the losses since the last log step, still on the device
 
     def after_step(step: int, metrics: dict, seconds: float) -> None:
         nonlocal t_train, window
@@ -390,9 +390,12 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
         bar.close()
     ema_policy = copy.deepcopy(policy)
     ema.copy_to(ema_policy.parameters())
-    summary = {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,
-               "train_seconds": t_train, "seconds_per_step": t_train / max(step, 1), "device": str(device)}
-    return ema_policy.eval(), summary
+    return ema_policy.eval(), training_summary(step, losses, t_train, str(device))
+
+
+def training_summary(step: int, losses: list, train_seconds: float, device: str) -> dict:
+    return {"steps": step, "losses": losses, "final_loss": losses[-1][1] if losses else None,
+            "train_seconds": train_seconds, "seconds_per_step": train_seconds / max(step, 1), "device": device}
 
 
 def finished_weights(policy: DiffusionPolicy, ckpt: Mapping, path: Path,
@@ -405,13 +408,10 @@ def finished_weights(policy: DiffusionPolicy, ckpt: Mapping, path: Path,
         raise UserError(f"{path}: holds only the EMA weights at step {ckpt['step']}, not a finished training of "
                         f"{settings.train_steps} steps, so it cannot be resumed; delete it to train here")
     policy.load_state_dict(ckpt["ema_model"])  # float16-rounded tensors are copied into the float32 parameters
-    losses = list(ckpt["losses"])
     trained_on = ckpt["weights"].get("trained_on") or "where it trained not recorded"
     log.info("policy weights from %s: a finished training (%d steps, %s) reused", path, ckpt["step"], trained_on)
-    return policy.eval(), {"steps": ckpt["step"], "losses": losses, "final_loss": losses[-1][1] if losses else None,
-                           "train_seconds": ckpt["train_seconds"],
-                           "seconds_per_step": ckpt["train_seconds"] / max(ckpt["step"], 1),
-                           "device": trained_on, "weights": dict(ckpt["weights"])}
+    summary = training_summary(ckpt["step"], list(ckpt["losses"]), ckpt["train_seconds"], trained_on)
+    return policy.eval(), {**summary, "weights": dict(ckpt["weights"])}
 
 
 # --- execution -------------------------------------------------------------------------------------------------
