@@ -34,9 +34,10 @@ SPLITS = ("train", "eval", "heldout")
 
 
 def progress_values(record: dict, split: str, drop: set[str]) -> list[float]:
-    """Every rollout's progress in `split` of one generalization result.json, tasks in `drop` left out."""
+    """Every rollout's progress in `split` of one generalization result.json, tasks in `drop` left out, and the
+    seeds left out as unvaried (the eval variation left their scene as the train split's: nothing was rolled out)."""
     return [float(e["progress"]) for t in record["values"]["tasks"] if t["split"] == split and t["task"] not in drop
-            for e in t["episodes"]]
+            for e in t["episodes"] if not e.get("unvaried")]
 
 
 def compare(policy: list[float], chance: list[float], n_boot: int = 10_000, seed: int = 0) -> dict:
@@ -72,7 +73,7 @@ def read_run(folder: Path, policy: str | None = None) -> dict:
         fail(f"error: {path} is not a src/generalization.py result (its metric is {metric!r}, not 'generalization')")
     try:
         if not all(isinstance(t["task"], str) and isinstance(t["split"], str) and
-                   all(isinstance(e["progress"], (int, float)) for e in t["episodes"])
+                   all(e.get("unvaried") or isinstance(e["progress"], (int, float)) for e in t["episodes"])
                    for t in record["values"]["tasks"]):
             raise TypeError("a task, split or progress of the wrong type")
     except (KeyError, TypeError) as e:

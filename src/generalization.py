@@ -42,7 +42,8 @@ def main(cfg: DictConfig) -> None:
             progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf,
             demonstrations=cfg.demonstrations)
         path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)
-        logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()})
+        logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()
+                            if v["success"]["n"]})  # none rolled out: every scene was the train split's
     log_splits(values)
     log.info("policy %s; wrote %s", cfg.policy.name, path)
 

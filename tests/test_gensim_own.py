@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -282,7 +283,8 @@ def test_a_primitive_that_does_not_return_ends_the_rollout_as_failed_and_the_nex
 
 def test_generalization_trains_on_gensims_own_episodes_and_rolls_out_in_its_own_env(own_store, tmp_path):
     """src/generalization.py pipeline=gensim_own: a (tiny) pick/place policy trained on GenSim's own episodes, rolled
-    out through GenSim's own environment on the train split and on GenSim's test-time mode (the eval split)."""
+    out through GenSim's own environment on the train split; the eval split (GenSim's test mode with its unseen
+    colours) leaves place-red-in-green's scene as it was (its colours are fixed), so nothing is rolled out again."""
     r = subprocess.run([sys.executable, str(ROOT / "src" / "generalization.py"), "pipeline=gensim_own",
                         f"pipeline.root={GENSIM}", "debug=tiny", "task_group=placement", f"tasks=[{TASK}]",
                         f"store={own_store}", f"checkpoint_dir={tmp_path / 'ck'}", "eval.splits=[train,eval]",
@@ -291,13 +293,17 @@ def test_generalization_trains_on_gensims_own_episodes_and_rolls_out_in_its_own_
     assert r.returncode == 0, r.stderr[-3000:]
     result = json.loads((tmp_path / "run" / "result.json").read_text())
     assert result["identity"]["pipeline"] == "gensim_own"
-    assert result["identity"]["variations"] == {TASK: {"mode": "test"}}
+    assert result["identity"]["variations"] == {TASK: {"mode": "test", "unseen_colors": True}}
     assert result["identity"]["settings"]["model"]["action_space"] == "pick_place"  # the recorded primitives
     rows = {(t["task"], t["split"]): t for t in result["values"]["tasks"]}
     assert set(rows) == {(TASK, "train"), (TASK, "eval")}
-    for row in rows.values():  # one rollout each, ended by GenSim (its done) or the task's max_steps
-        (episode,) = row["episodes"]
-        assert 1 <= episode["steps"] <= 10 and 0.0 <= episode["progress"] <= 1.0
+    (train,) = rows[TASK, "train"]["episodes"]  # one rollout, ended by GenSim (its done) or the task's max_steps
+    assert 1 <= train["steps"] <= 10 and 0.0 <= train["progress"] <= 1.0
+    assert rows[TASK, "eval"]["episodes"] == [{"seed": train["seed"], "start": train["start"], "unvaried": True}]
+    assert result["values"]["splits"]["eval"] == {"success": {"k": 0, "n": 0, "rate": None, "ci": [0.0, 1.0]},
+                                                  "mean_progress": None, "tasks": 1, "unvaried": 1}
+    assert "split eval, place-red-in-green: the variation" in r.stdout + r.stderr
+    assert "nothing rolled out" in r.stdout + r.stderr
     assert result["values"]["training"]["trained_tasks"] == [TASK]
     # as GenSim's demos.py: the oracle's successful episodes only (pipeline=gensim_own's default)
     assert result["identity"]["demonstrations"] == "successful"
@@ -399,3 +405,37 @@ def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_sett
         refused = control(*extra)
         assert refused.returncode == 2 and "Traceback" not in refused.stderr, extra
         assert said in refused.stderr.strip().splitlines()[-1], refused.stderr
+
+
+def test_the_eval_split_rolls_out_only_the_scenes_its_variation_changed():
+    """GenSim's checkout draws its train colours in every task.mode, so mode=test alone changes no scene; with
+    unseen_colors a task that passes its mode to utils.get_colors (separating-piles) draws EVAL_COLORS and is
+    rolled out, one with fixed colours (place-red-in-green) starts from the train split's scene and is not. Checked
+    on the first observations (run_splits compares them with the train rollouts') and on the pixels themselves."""
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.experiment import run_splits
+    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+
+    pipeline = GensimOwnPipeline.from_config({"name": "gensim_own", "root": str(GENSIM), "native": {}})
+    policy = RandomActions("pick_place", image_size=(32, 32))
+    piles, unseen, test_only = "separating-piles", {"mode": "test", "unseen_colors": True}, {"mode": "test"}
+    plan = {"train": [(TASK, {}), (piles, {})], "eval": [(TASK, unseen), (piles, unseen), (piles, test_only)]}
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = run_splits(policy, plan, [100000], 1, Path(tmp) / "rollouts.json", 0, make_env=pipeline.make_env,
+                          environment=pipeline.environment_id())
+    assert len({e["start"] for r in rows if r["task"] == TASK for e in r["episodes"]}) == 1  # one scene in both splits
+    train_piles, eval_piles, eval_test_only = (r for r in rows if r["task"] == piles)
+    assert eval_piles["episodes"][0]["start"] != train_piles["episodes"][0]["start"]
+    assert eval_piles["unvaried"] == 0 and eval_piles["episodes"][0]["steps"] == 1
+    assert eval_test_only["unvaried"] == 1 and eval_test_only["episodes"][0]["start"] == train_piles["episodes"][0]["start"]
+    assert ev.summarize(rows)["eval"]["success"]["n"] == 1 and ev.summarize(rows)["eval"]["unvaried"] == 2
+    # the digests say what the pixels say: EVAL_COLORS on separating-piles' zones and blocks, not on the fixed ones
+    images = {}
+    for label, variation in (("train", {}), ("unseen", unseen)):
+        env = pipeline.make_env(piles, "pick_place", variation, (32, 32), ["front"], 1)
+        try:
+            images[label] = env.reset(seed=100000)[0]["rgb"]["front"]
+        finally:
+            env.close()
+    assert not np.array_equal(images["train"], images["unseen"])

@@ -286,3 +286,49 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     cache.write_text("[]")
     with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(a JSON list, expected an object\\)"):
         run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+
+
+def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_path):
+    """The eval split reads the policy on scenes its variation changed. A seed whose first observation is the train
+    rollout's (a variation that varies nothing) is recorded as unvaried and not rolled out; one that moves the
+    robot's start is rolled out. The train starts come from the train rows, or, for train rows cached before they
+    recorded them, from resetting the train environment."""
+    import json
+
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.experiment import run_splits
+    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.sim import make_env
+
+    task, seeds = "bbsea-block-in-bin", [0, 1]
+    env = make_env(task, action_space="ee_pose", image_size=(16, 16), cameras=("top",))
+    try:  # the digest against the observation itself: equal for the same seed, not for one pixel changed
+        obs = env.reset(seed=0)[0]
+        assert ev.observation_digest(env.reset(seed=0)[0]) == ev.observation_digest(obs)
+        changed = {"rgb": {"top": obs["rgb"]["top"].copy()}, "state": obs["state"]}
+        changed["rgb"]["top"][3, 5, 1] ^= 1
+        assert ev.observation_digest(changed) != ev.observation_digest(obs)
+    finally:
+        env.close()
+    policy = RandomActions("ee_pose", cameras=["top"], image_size=(16, 16))
+    nothing, robot = {}, {"robot": {"home_noise": 0.3}}
+    cache = tmp_path / "rollouts.json"
+    run_splits(policy, {"train": [(task, nothing)]}, seeds, 2, cache, 0)
+    stored = json.loads(cache.read_text())  # as a cache written before rollouts recorded their start
+    for row in stored.values():
+        for episode in row["episodes"]:
+            del episode["start"]
+    cache.write_text(json.dumps(stored))
+    plan = {"train": [(task, nothing)], "eval": [(task, nothing), (task, robot)]}
+    train, same, moved = run_splits(policy, plan, seeds, 2, cache, 0)
+    starts = [ev.observation_digest(make_env(task, action_space="ee_pose", image_size=(16, 16),
+                                             cameras=("top",)).reset(seed=s)[0]) for s in seeds]
+    assert same["episodes"] == [{"seed": s, "start": d, "unvaried": True} for s, d in zip(seeds, starts)]
+    assert same["success"]["n"] == 0 and same["mean_progress"] is None and same["unvaried"] == 2
+    assert [e["start"] != d and e["steps"] >= 1 for e, d in zip(moved["episodes"], starts)] == [True, True]
+    assert moved["unvaried"] == 0 and moved["success"]["n"] == 2
+    summary = ev.summarize([train, same, moved])["eval"]
+    assert (summary["success"]["n"], summary["unvaried"], summary["tasks"]) == (2, 2, 2)
+    assert summary["mean_progress"] == np.mean([e["progress"] for e in moved["episodes"]])
+    fresh = ev.rollout_task(policy, task, seeds, max_steps=2)  # a train rollout records its start
+    assert [e["start"] for e in fresh["episodes"]] == starts and fresh["unvaried"] == 0

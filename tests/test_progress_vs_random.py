@@ -69,3 +69,12 @@ def test_the_cli_pools_seeds_drops_a_task_and_refuses_a_wrong_folder_in_one_line
                                  cwd=ROOT)
         assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
         assert said in refused.stderr and refused.stdout == "", (said, refused.stderr)
+
+
+def test_eval_rollouts_left_out_as_unvaried_are_not_counted():
+    """An eval seed whose scene the variation left as the train split's was not rolled out (no progress): the
+    comparison reads the others."""
+    mod = load_script(SCRIPT)
+    record = {"values": {"tasks": [{"task": "t1", "split": "eval", "episodes": [
+        {"seed": 1, "success": False, "progress": 0.5}, {"seed": 2, "start": "0123456789abcdef", "unvaried": True}]}]}}
+    assert mod.progress_values(record, "eval", set()) == [0.5]

@@ -192,3 +192,35 @@ def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
     b = dict(a, path="elsewhere/result.json")
     with pytest.raises(UserError, match="seed 0"):
         build([a, b])
+
+
+def test_rollouts_left_out_as_unvaried_count_nowhere():
+    """Eval rollouts whose scene the variation left as the train split's (evaluate.rollout_task's unvaried) are not
+    rolled out: Table 5 and its detail count the others, and a group where none changed has no eval cell."""
+    from simeval.report.table5 import build
+
+    def record(seed, eval_episodes):
+        rec = _record("cpu", [("train", "a", [(True, 1.0), (False, 0.5)])], seed=seed)
+        done = [e for e in eval_episodes if not e.get("unvaried")]
+        rec["values"]["tasks"].append({"split": "eval", "task": "a", "episodes": eval_episodes,
+                                       "success": {"k": sum(e["success"] for e in done), "n": len(done)}})
+        rec["values"]["splits"] = {
+            "train": {"success": {"k": 1, "n": 2}, "mean_progress": 0.75},
+            "eval": {"success": {"k": sum(e["success"] for e in done), "n": len(done)},
+                     "mean_progress": float(np.mean([e["progress"] for e in done])) if done else None,
+                     "unvaried": len(eval_episodes) - len(done)}}
+        return rec
+
+    unvaried = {"seed": 1, "start": "0123456789abcdef", "unvaried": True}
+    ran = {"seed": 0, "start": "fedcba9876543210", "success": True, "progress": 1.0, "steps": 3}
+    (row,) = [r for r in build([record(0, [ran, unvaried]), record(1, [unvaried, unvaried])])
+              if r["pipeline"] == "bbsea" and r["group"] == "drawer" and r["runs"]]
+    assert (row["eval"]["k"], row["eval"]["n"], row["eval_progress"]) == (1, 1, 1.0)
+    lines = [r for r in detail_rows([record(0, [ran, unvaried]), record(1, [unvaried, unvaried])])
+             if r["split"] == "eval"]
+    assert [(r["task"], r["k"], r["n"], r["progress"]) for r in lines] == [("*", 1, 1, 1.0), ("a", 1, 1, 1.0)]
+    assert lines[0]["run_rates"] == {0: 1.0, 1: None}
+    (row,) = [r for r in build([record(0, [unvaried])]) if r["pipeline"] == "bbsea" and r["group"] == "drawer"
+              and r["runs"]]
+    assert row["eval"] is None and row["eval_progress"] is None and row["train"]["n"] == 2
+    assert not [r for r in detail_rows([record(0, [unvaried])]) if r["split"] == "eval"]

@@ -72,6 +72,12 @@ def _setting(rec: dict) -> dict:
     return base
 
 
+def rolled_out(episodes: list[dict]) -> list[dict]:
+    """A task's episodes that were rolled out (as simeval.models.policy.evaluate.rolled_out, which the report does
+    not import: it would load torch to read JSON)."""
+    return [e for e in episodes if not e.get("unvaried")]
+
+
 def build(records: list[dict], policy: str | None = None) -> list[dict]:
     """One row per paper cell and policy preset (then per other group run): {pipeline, group, paper, policy, runs,
     demonstrations (all | successful; None untrained), eval, train, heldout}, a split being {k, n, rate, ci} pooled over the cell's runs, or None when not run.
@@ -98,6 +104,8 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         cell["seeds"][seed] = rec["path"]
         cell["runs"].append(rec["path"])
         for split, v in rec["values"].get("splits", {}).items():
+            if not v["success"]["n"]:  # every rollout left out: the variation changed no scene (evaluate.rollout_task)
+                continue
             k, n = cell["counts"].get(split, (0, 0))
             cell["counts"][split] = (k + v["success"]["k"], n + v["success"]["n"])
             if split == "eval":  # progress summed over rollouts, so runs of other sizes weigh by their rollouts;
@@ -226,6 +234,9 @@ def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:],
              ("Eval progress: the mean over the eval rollouts of each task's progress at the rollout's end (1.0 = "
               "success; for GenSim the step-wise reward, the quantity of the paper's GenSim column)"),
+             ("Eval counts the rollouts whose scene the variation changed: a seed whose first observation is its "
+              "train rollout's is left out, and a group where no scene changed shows '-' (GenSim's own task.mode "
+              "changes no scene in most of its tasks; rows built before 2026-11-30 count such rollouts)"),
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed state)",
              ("Demonstrations: the episodes the policy trained on: 'all' stored, or only the 'successful' ones (as "
               "GenSim's demos.py keeps them); '-' = nothing trained"),
@@ -257,7 +268,7 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
         cell["runs"] += 1
         cell["seeds"].append(rec["identity"].get("seed"))
         for t in rec["values"].get("tasks", []):
-            eps = t.get("episodes") or []
+            eps = rolled_out(t.get("episodes") or [])
             per_run = cell["tasks"].setdefault((t["split"], t["task"]), {})
             k, n, prog = per_run.get(run, (0, 0, 0.0))
             per_run[run] = (k + t["success"]["k"], n + t["success"]["n"], prog + sum(e["progress"] for e in eps))
@@ -267,7 +278,8 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
         cell = cells[key]
         runs = range(cell["runs"])
         for split in SPLITS:
-            tasks = sorted((t, v) for (sp, t), v in cell["tasks"].items() if sp == split)
+            tasks = sorted((t, v) for (sp, t), v in cell["tasks"].items()
+                           if sp == split and sum(n for _, n, _ in v.values()))  # not every rollout left out
             if not tasks:
                 continue
             # (runs, tasks) counts; a run that did not roll a task out adds 0 of 0 there

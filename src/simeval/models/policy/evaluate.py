@@ -1,10 +1,14 @@
 """Evaluation of a trained Diffusion Policy: closed-loop rollouts per task and split, and the offline comparison of
 samplers on held-out windows.
 
-    rollout_task(policy, task, seeds, ...) -> {"task", "split", "episodes": [{"seed", "success", "progress",
-        "steps"}], "success": {"k", "n", "rate", "ci"}, "mean_progress"} (Wilson 95% interval, see
-        simeval.metrics.intervals); optionally the frames of each episode for a video.
-    summarize(rows) -> per split and per group: pooled successes with a Wilson interval, mean progress.
+    rollout_task(policy, task, seeds, ...) -> {"task", "split", "episodes": [{"seed", "start", "success",
+        "progress", "steps"}], "success": {"k", "n", "rate", "ci"}, "mean_progress", "unvaried"} (Wilson 95%
+        interval, see simeval.metrics.intervals); optionally the frames of each episode for a video. "start": the
+        first observation's digest (observation_digest). With `unvaried_if` ({seed: the train split's start}), a
+        seed whose scene the variation left as it was is not rolled out: its episode is {"seed", "start",
+        "unvaried": true} and the success, progress and counts are over the other seeds ("unvaried": how many).
+    summarize(rows) -> per split and per group: pooled successes with a Wilson interval, mean progress, and the
+        unvaried rollouts left out.
     sampler_action_error(policy, dataset, ...) -> {sampler: mean squared error of the executed actions, in the
         normalised [-1, 1] action units, against the demonstrations}: how close DDIM with k steps comes to DDPM
         with all steps without rollouts.
@@ -14,6 +18,7 @@ one policy call on the policy's device whose actions come back to the CPU.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from collections.abc import Mapping, Sequence
@@ -39,15 +44,45 @@ def _make_env(task: str, action_space: str, variation, image_size, cameras, max_
                     cameras=tuple(cameras), **kwargs)
 
 
+def observation_digest(obs: Mapping) -> str:
+    """16 hex digits of SHA-256 over an observation's images (every camera, by name) and its state: two rollouts
+    with one digest start from the same scene as the policy sees it. How the eval split tells a variation that
+    changed nothing (GenSim's task.mode in most of its tasks) from one that changed the scene."""
+    h = hashlib.sha256()
+    for camera in sorted(obs["rgb"]):
+        image = np.ascontiguousarray(obs["rgb"][camera])
+        h.update(f"{camera}:{image.dtype}:{image.shape}".encode())
+        h.update(image.tobytes())
+    if obs.get("state") is not None:
+        h.update(np.ascontiguousarray(obs["state"], dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def first_observations(policy, task: str, seeds: Sequence[int], *, variation: Mapping | None = None,
+                       max_steps: int | None = None, make_env=None) -> dict[int, str]:
+    """{seed: observation_digest of the first observation} of `task` under `variation`, nothing rolled out (for a
+    train split rolled out before rollouts recorded their start)."""
+    cfg = policy.cfg
+    env = (make_env or _make_env)(task, cfg.action_space, dict(variation or {}), cfg.image_size, list(cfg.cameras),
+                                  max_steps)
+    try:
+        return {int(seed): observation_digest(env.reset(seed=int(seed))[0]) for seed in seeds}
+    finally:
+        env.close()
+
+
 def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, split: str = "train",
                  variation: Mapping | None = None, max_steps: int | None = None, keep_frames: bool = False,
                  video_camera: str | None = None, scheduler: str | None = None, steps: int | None = None,
-                 make_env=None) -> dict:
+                 make_env=None, unvaried_if: Mapping[int, str] | None = None) -> dict:
     """`make_env(task, action_space, variation, image_size, cameras, max_steps)`: the pipeline's environment
-    (simeval.pipelines.base.Pipeline.make_env); default simeval's suites'."""
+    (simeval.pipelines.base.Pipeline.make_env); default simeval's suites'. `unvaried_if`: {seed: start digest} of
+    the same task's train rollouts; a seed that starts from the same observation here is left out (a rollout from a
+    train scene says nothing about the variation)."""
     cfg = policy.cfg
     cams = list(dict.fromkeys([*cfg.cameras, *([video_camera] if video_camera else [])]))
     env = (make_env or _make_env)(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
+    unvaried_if = {int(k): v for k, v in (unvaried_if or {}).items()}
     # a trained policy acts through receding-horizon chunks; a baseline (random_baseline.RandomActions) brings its own
     runner = policy.runner(env) if hasattr(policy, "runner") else RecedingHorizonRunner(policy, scheduler=scheduler,
                                                                                          steps=steps)
@@ -55,6 +90,10 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
     try:
         for seed in seeds:
             obs, info = env.reset(seed=int(seed))
+            start = observation_digest({"rgb": {c: obs["rgb"][c] for c in cfg.cameras}, "state": obs.get("state")})
+            if unvaried_if.get(int(seed)) == start:
+                episodes.append({"seed": int(seed), "start": start, "unvaried": True})
+                continue
             runner.reset(seed=int(seed))
             frames = [obs["rgb"][video_camera or cfg.cameras[0]]] if keep_frames else None
             n, done = 0, False
@@ -64,29 +103,38 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                 done = terminated or truncated
                 if frames is not None:
                     frames.append(obs["rgb"][video_camera or cfg.cameras[0]])
-            episodes.append({"seed": int(seed), "success": bool(info["success"]),
+            episodes.append({"seed": int(seed), "start": start, "success": bool(info["success"]),
                              "progress": float(info["progress"]), "steps": n,
                              **({"error": str(info["error"])} if info.get("error") else {})})  # the env's own failure
             if frames is not None:
                 videos[int(seed)] = np.stack(frames)
     finally:
         env.close()
+    ran = rolled_out(episodes)
     out = {"task": task, "split": split, "episodes": episodes,
-           "success": success_summary(e["success"] for e in episodes),
-           "mean_progress": float(np.mean([e["progress"] for e in episodes])) if episodes else None}
+           "success": success_summary(e["success"] for e in ran),
+           "mean_progress": float(np.mean([e["progress"] for e in ran])) if ran else None,
+           "unvaried": len(episodes) - len(ran)}
     if keep_frames:
         out["frames"] = videos
     return out
 
 
+def rolled_out(episodes: Sequence[Mapping]) -> list[Mapping]:
+    """The episodes that were rolled out: all but those left out as unvaried (rollout_task's `unvaried_if`)."""
+    return [e for e in episodes if not e.get("unvaried")]
+
+
 def summarize(rows: Sequence[Mapping]) -> dict:
-    """rows: rollout_task results (without frames). Per split: every episode of the split's tasks pooled."""
+    """rows: rollout_task results (without frames). Per split: every rolled-out episode of the split's tasks pooled;
+    "unvaried": the episodes left out because the variation changed nothing (see rollout_task)."""
     out = {}
     for split in dict.fromkeys(r["split"] for r in rows):
-        eps = [e for r in rows if r["split"] == split for e in r["episodes"]]
+        every = [e for r in rows if r["split"] == split for e in r["episodes"]]
+        eps = rolled_out(every)
         out[split] = {"success": success_summary(e["success"] for e in eps),
                       "mean_progress": float(np.mean([e["progress"] for e in eps])) if eps else None,
-                      "tasks": len([r for r in rows if r["split"] == split])}
+                      "tasks": len([r for r in rows if r["split"] == split]), "unvaried": len(every) - len(eps)}
     return out
 
 

@@ -127,6 +127,7 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
+    train_variation = {t: dict(v or {}) for t, v in plan.get("train", [])}
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
         key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler, dict(environment or {})],
@@ -134,10 +135,19 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         if key in cache:
             reused += 1
         else:
+            starts = None
+            if split == "eval" and task in train_variation:
+                starts = train_starts(policy, task, seeds, rows, train_variation[task], max_steps, make_env)
             cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps,
-                                      make_env=make_env)
+                                      make_env=make_env, unvaried_if=starts)
             atomic_write_text(cache_file, dumps_strict(cache))
-        rows.append({**cache[key], "variation": var})
+        row = cache[key]
+        if row.get("unvaried"):
+            log.warning("split %s, %s: the variation %s left the scene as the train split's at %d of %d seeds (the "
+                        "same first observation); those are not rolled out, the split counts the other %d",
+                        split, task, json.dumps(var, sort_keys=True), row["unvaried"], len(row["episodes"]),
+                        len(row["episodes"]) - row["unvaried"])
+        rows.append({**row, "variation": var})
         if bar is not None:
             bar.update(1)
             bar.set_postfix(task=task, split=split, success=cache[key]["success"]["rate"])
@@ -147,6 +157,19 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         log.info("reused %d of %d (split, task) rollouts from %s (same checkpoint step, seeds, variation, step limit "
                  "and sampler); delete that file to roll them out again", reused, len(todo), cache_file)
     return rows
+
+
+def train_starts(policy, task: str, seeds: Sequence[int], rows: Sequence[Mapping], variation: Mapping,
+                 max_steps: int | None, make_env) -> dict[int, str]:
+    """{seed: first-observation digest} of `task`'s train rollouts: from its train row in `rows` where that row
+    recorded them, else from resetting the train environment at each seed (a train split rolled out, and cached,
+    before rollouts recorded their start)."""
+    from simeval.models.policy.evaluate import first_observations
+
+    for row in rows:
+        if row["split"] == "train" and row["task"] == task and all("start" in e for e in row["episodes"]):
+            return {e["seed"]: e["start"] for e in row["episodes"]}
+    return first_observations(policy, task, seeds, variation=variation, max_steps=max_steps, make_env=make_env)
 
 
 def read_rollout_cache(path: Path) -> dict:
@@ -295,5 +318,9 @@ def log_splits(values: Mapping) -> None:
     """One line per evaluated split: success k/n with its interval, and mean progress."""
     for split, v in values["splits"].items():
         sr = v["success"]
-        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f", split, sr["k"], sr["n"], sr["rate"],
-                 *sr["ci"], v["mean_progress"])
+        unvaried = f"  ({v['unvaried']} rollouts left out: their scene was the train split's)" if v.get("unvaried") else ""
+        if not sr["n"]:
+            log.info("%-10s nothing rolled out%s", split, unvaried)
+            continue
+        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f%s", split, sr["k"], sr["n"], sr["rate"],
+                 *sr["ci"], v["mean_progress"], unvaried)

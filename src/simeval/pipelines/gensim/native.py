@@ -37,7 +37,8 @@ WORKER = Path(__file__).with_name("worker.py")
 CAMERAS = ("top", "front")  # top: GenSim's Oracle camera (the heightmap view: its depth range shows only what is
 # within ~0.3 m of the table, so the tool when it comes down, not the arm); front: its first RealSense D415 camera
 EXIT_TASK_RAISED, EXIT_UNUSABLE = 3, 4  # as in worker.py (which imports nothing of simeval)
-GENSIM_EVAL_VARIATION = {"mode": "test"}  # the eval split: GenSim's own test-time task mode (its unseen colours)
+GENSIM_EVAL_VARIATION = {"mode": "test", "unseen_colors": True}  # the eval split: GenSim's test-time task mode
+# with its unseen colour set drawn (GensimSettings.unseen_colors): test mode alone changes no scene in most tasks
 SCRATCH_PREFIX = ".gensim-work-"  # <store>/.gensim-work-<collector pid>/: the workers' outputs before they are stored
 
 
@@ -65,8 +66,14 @@ class GensimSettings:
     python: str | None = None
     timeout_s: float = 600.0
     step_timeout_s: float = 120.0
-    mode: str = "train"  # GenSim's task.mode: train | val | test (its seen/unseen colour sets)
+    mode: str = "train"  # GenSim's task.mode: train | val | test
     clock: str = "simulated"  # what GenSim's 5-second timeouts read: simulated (physics steps / hz) | wall
+    # GenSim's utils.get_colors_names returns TRAIN_COLORS in every mode, so its test mode draws the train colours
+    # and EVAL_COLORS (orange, purple, pink, white beside blue, red, green) are never used. True: outside train mode
+    # the worker draws EVAL_COLORS, the rule CLIPort's seen/unseen-colour tasks were written for (set in the
+    # worker's memory: the checkout's files are not touched). Only tasks that pass their mode to utils.get_colors
+    # change; the eval split leaves out the scenes that stay as they were (evaluate.rollout_task)
+    unseen_colors: bool = False
 
     @property
     def control_hz(self) -> float:
@@ -97,6 +104,8 @@ def check_settings(s: GensimSettings, control_hz: float) -> None:
                         f"frame_every = {s.hz}/{s.frame_every} = {s.control_hz:g} Hz: make them agree")
     if s.mode not in ("train", "val", "test"):
         raise UserError(f"pipeline.native.mode must be train, val or test (GenSim's task.mode), got {s.mode!r}")
+    if not isinstance(s.unseen_colors, bool):
+        raise UserError(f"pipeline.native.unseen_colors must be true or false, got {s.unseen_colors!r}")
     if s.clock not in ("simulated", "wall"):
         raise UserError(f"pipeline.native.clock must be simulated or wall, got {s.clock!r}")
     for key, value in (("timeout_s", s.timeout_s), ("step_timeout_s", s.step_timeout_s)):
@@ -117,7 +126,7 @@ def worker_request(settings: GensimSettings, task: str, image_size: Sequence[int
     """What a worker (recording or serving) is asked to run; `more`: seed and out for a recording."""
     return {"root": settings.root, "task": task, "image_size": list(image_size), "cameras": list(cameras),
             "hz": settings.hz, "frame_every": settings.frame_every, "mode": settings.mode, "clock": settings.clock,
-            "parent": os.getpid(), **more}
+            "unseen_colors": settings.unseen_colors, "parent": os.getpid(), **more}
 
 
 def worker_environment() -> dict:
@@ -182,7 +191,8 @@ def to_episode(arrays: dict, meta: dict, group: str, cameras: Sequence[str], set
     description = meta["docstring"] if meta["docstring"] is not None else "None"
     extra = {"gensim": {k: meta[k] for k in ("lang_goal", "total_reward", "done", "primitives", "max_steps",
                                                 "physics_steps", "hz", "frame_every", "mode", "task_class",
-                                                "stood_in", "clock", "movej_timeouts")},
+                                                "stood_in", "clock", "movej_timeouts")}
+                       | ({"unseen_colors": True} if meta.get("unseen_colors") else {}),  # absent: GenSim's rule
              "checkout": Path(settings.root).name}
     return Episode(
         pipeline=pipeline, task=meta["task"], description=description, group=group, seed=int(meta["seed"]),

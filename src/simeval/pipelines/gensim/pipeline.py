@@ -22,7 +22,8 @@ class GensimOwnPipeline(Pipeline):
     """GenSim's own tasks for the closed-loop experiments: groups from its registry (the authors' substring rule),
     held-out tasks from `heldout` (group -> names) or the command line, and GenSim's own environment with its
     pick/place action (simeval.pipelines.gensim.env.GensimEnv). The `eval` split is GenSim's own test-time
-    variation: the same tasks in task.mode "test" (its held-out colours, where a task has them)."""
+    variation: the same tasks in task.mode "test" with its unseen colour set drawn (GensimSettings.unseen_colors;
+    tasks whose scene that leaves as it was are not rolled out again: evaluate.rollout_task)."""
 
     requires = ("native",)
     collect_args = " pipeline.root=<checkout>"
@@ -50,7 +51,10 @@ class GensimOwnPipeline(Pipeline):
         return f" pipeline.root={shlex.quote(str(self.settings.root))}"
 
     def environment_id(self):
-        return {"name": self.name, **asdict(self.settings)}  # its checkout, rates, task mode, clock, timeouts
+        ident = {"name": self.name, **asdict(self.settings)}  # its checkout, rates, task mode, clock, timeouts
+        if not ident["unseen_colors"]:  # as before the setting existed: cached rollouts keep their keys
+            del ident["unseen_colors"]
+        return ident
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         group = plan_tasks(Path(self.settings.root), None, task_group)
@@ -58,9 +62,11 @@ class GensimOwnPipeline(Pipeline):
 
     def split_tasks(self, specs, split, heldout, *, eval_override=None):
         variation = dict(eval_override or GENSIM_EVAL_VARIATION)
-        if split == "eval" and (set(variation) - {"mode"} or variation.get("mode") not in ("train", "val", "test")):
-            raise UserError(f"eval.variation={variation}: GenSim's own tasks vary by {{mode: train | val | test}} "
-                            "(task.mode: its seen / unseen colour sets) only")
+        if split == "eval" and (set(variation) - {"mode", "unseen_colors"}
+                                or variation.get("mode", "train") not in ("train", "val", "test")
+                                or not isinstance(variation.get("unseen_colors", False), bool)):
+            raise UserError(f"eval.variation={variation}: GenSim's own tasks vary by {{mode: train | val | test, "
+                            "unseen_colors: true | false}} only (task.mode; EVAL_COLORS drawn outside train mode)")
         return split_by_heldout(specs, split, heldout, variation)
 
     def make_env(self, task, action_space, variation, image_size, cameras, max_steps):
@@ -68,5 +74,7 @@ class GensimOwnPipeline(Pipeline):
             raise UserError(f"policy.model.action_space={action_space}: GenSim's own environment takes its "
                             "pick/place action only (policy=authors_gensim or authors_gensim_cpu, or "
                             "policy.model.action_space=pick_place)")
-        mode = dict(variation or {}).get("mode", self.settings.mode)
-        return GensimEnv(task, replace(self.settings, mode=mode), image_size, cameras, max_steps)
+        variation = dict(variation or {})
+        settings = replace(self.settings, mode=variation.get("mode", self.settings.mode),
+                           unseen_colors=variation.get("unseen_colors", self.settings.unseen_colors))
+        return GensimEnv(task, settings, image_size, cameras, max_steps)

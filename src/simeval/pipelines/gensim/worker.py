@@ -114,6 +114,18 @@ def _camera(config: dict, size: tuple[int, int]) -> dict:
     return dict(config, image_size=tuple(size), intrinsics=(fx * s, 0, cx * s, 0, fy * s, cy * s, *rest))
 
 
+def draw_unseen_colors() -> None:
+    """GenSim's utils.get_colors_names returns its TRAIN_COLORS whatever the mode; replaced in this process by the
+    rule its two colour sets were made for (TRAIN_COLORS in train mode, EVAL_COLORS in val and test), so a task that
+    passes its mode to utils.get_colors draws unseen colours outside train mode. The checkout's file is untouched."""
+    from cliport.utils import utils
+
+    def get_colors_names(mode):
+        return utils.TRAIN_COLORS if mode == "train" else utils.EVAL_COLORS
+
+    utils.get_colors_names = get_colors_names
+
+
 class Session:
     """One GenSim task in one Environment, hooked for recording: `reset(seed)` as cliport/demos.py starts an
     episode, `primitive(action)` runs one pick/place through `env.step`, `observe()` renders the cameras at the
@@ -133,6 +145,8 @@ class Session:
         self.cams = {c: _camera(views[c], tuple(req["image_size"])) for c in req["cameras"]}
         self.task = tasks.names[req["task"]]()
         self.task.mode = req.get("mode", "train")
+        if req.get("unseen_colors"):
+            draw_unseen_colors()
         assets = os.path.join(req["root"], "cliport", "environments", "assets")
         self.env = env = environment.Environment(assets, disp=False, hz=int(req["hz"]),
                                                  record_cfg={"save_video": False, "blender_render": False})
@@ -245,7 +259,7 @@ def record(req: dict) -> dict:
     arrays["high_level_action"] = np.asarray(high_level, np.float32).reshape(-1, 14)
     arrays["high_level_step"] = np.asarray(high_level_step, np.int64)
     task = session.task
-    meta = {"task": req["task"], "seed": seed, "mode": task.mode, "lang_goal": lang_goal, "lang_goals": languages,
+    meta = {"task": req["task"], "seed": seed, "mode": task.mode, "unseen_colors": bool(req.get("unseen_colors")), "lang_goal": lang_goal, "lang_goals": languages,
             "total_reward": session.total_reward, "success": session.total_reward >= 0.99, "done": session.done,
             "primitives": session.primitives, "max_steps": int(task.max_steps),
             "physics_steps": session.physics_steps, "hz": int(req["hz"]), "frame_every": int(req["frame_every"]),
