@@ -1,0 +1,96 @@
+"""The generalization gap on paired scenes: each eval rollout's progress against the train rollout of the same
+task and seed, from src/generalization.py runs.
+
+    python experiments/eval_vs_train.py RUN [RUN ...] [--drop-task NAME ...]
+
+Each RUN is a run folder (its result.json), one per training seed. The eval and train splits roll out the same
+trained tasks on the same seeds; the eval one under the task's variation (unseen colours, counts, a moved robot).
+So every eval rollout has a train twin that differs only by the variation, and the gap is read pair by pair:
+
+    pairs        (task, seed, run) with an eval rollout; eval rollouts left out as unvaried (the variation changed
+                 no scene: simeval.models.policy.evaluate.rollout_task) have no pair
+    d (n,)       eval progress - train progress, per pair (progress: GenSim's step-wise reward; success 0/1 where
+                 a task has no reward)
+    gap          mean(d)
+    its interval 2.5 and 97.5 percentiles of mean(d*) over 10,000 resamples of the pairs with replacement
+    p-value      two-sided Wilcoxon signed-rank test of d (scipy.stats.wilcoxon; zero differences dropped, as its
+                 default); '-' when every difference is zero
+
+Pooled over runs, the pairs of one task and seed share their scene across training seeds: the interval says how
+the policy's weights vary on these scenes more than how scenes vary. Why a task is dropped: GenSim draws some
+tasks' scenes alike (separating-piles-seen-colors repeats separating-piles, seed for seed), counting one scene twice.
+Table 5 pools each split's rollouts on its own; this compares them where they can be compared, scene by scene.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from simeval.cli import OneLineParser
+
+
+def _sibling(name: str):
+    """experiments/<name>.py as a module: its run reading and checks are this script's too."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def paired_progress(record: dict, drop: set[str]) -> list[tuple[str, int, float, float]]:
+    """(task, seed, train progress, eval progress) for every eval rollout of one result.json that has a train
+    rollout of the same task and seed; tasks in `drop` and unvaried eval seeds left out."""
+    train = {(t["task"], e["seed"]): e for t in record["values"]["tasks"] if t["split"] == "train"
+             for e in t["episodes"] if not e.get("unvaried")}
+    return [(t["task"], e["seed"], float(train[t["task"], e["seed"]]["progress"]), float(e["progress"]))
+            for t in record["values"]["tasks"] if t["split"] == "eval" and t["task"] not in drop
+            for e in t["episodes"] if not e.get("unvaried") and (t["task"], e["seed"]) in train]
+
+
+def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int = 0) -> dict:
+    """Means, the paired gap with its percentile interval, and the two-sided Wilcoxon p (formulas above)."""
+    from scipy.stats import wilcoxon
+
+    from simeval.metrics.bootstrap import percentile_interval
+
+    t, v = np.asarray(train, float), np.asarray(varied, float)
+    d = v - t
+    rng = np.random.default_rng(seed)
+    lo, hi = percentile_interval(d[rng.integers(0, len(d), (n_boot, len(d)))].mean(1))
+    p = float(wilcoxon(v, t).pvalue) if np.any(d != 0) else None
+    return {"n": len(d), "train_mean": float(t.mean()), "eval_mean": float(v.mean()), "gap": float(d.mean()),
+            "interval": [float(lo), float(hi)], "p_two_sided": p}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", type=Path, nargs="+", help="run folders of src/generalization.py (one per training seed)")
+    ap.add_argument("--drop-task", nargs="*", default=[], help="tasks left out (e.g. one that repeats another's scenes)")
+    args = ap.parse_args(argv)
+    reading = _sibling("progress_vs_random")
+    records = [reading.read_run(f) for f in args.runs]
+    drop = set(args.drop_task)
+    tasks = {t["task"] for rec in records for t in rec["values"]["tasks"]}
+    if drop - tasks:  # a misspelt name would silently keep the rollouts it meant to leave out
+        reading.fail(f"error: --drop-task {' '.join(sorted(drop - tasks))}: no such task in these runs; they have "
+                     f"{', '.join(sorted(tasks))}")
+    pairs = [p for rec in records for p in paired_progress(rec, drop)]
+    if not pairs:
+        reading.fail("error: no eval rollout has a train rollout of the same task and seed in these runs (run "
+                     "src/generalization.py with eval.splits=[train,eval]; after --drop-task)")
+    print("| tasks | pairs | train mean | eval mean | gap (eval - train) [95% interval] | two-sided Wilcoxon p |")
+    print("|---|---|---|---|---|---|")
+    for label, chosen in [("all", pairs), *((task, [p for p in pairs if p[0] == task])
+                                            for task in sorted({p[0] for p in pairs}))]:
+        g = gap([p[2] for p in chosen], [p[3] for p in chosen])
+        p = "-" if g["p_two_sided"] is None else f"{g['p_two_sided']:.3f}"
+        print(f"| {label} | {g['n']} | {g['train_mean']:.3f} | {g['eval_mean']:.3f} | {g['gap']:+.3f} "
+              f"[{g['interval'][0]:+.3f}, {g['interval'][1]:+.3f}] | {p} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
