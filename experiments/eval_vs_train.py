@@ -1,9 +1,11 @@
-"""The generalization gap on paired scenes: each eval rollout's progress against the train rollout of the same
-task and seed, from src/generalization.py runs.
+"""The generalization gap scene by scene: each eval rollout against the train rollout of the same task and seed.
+
+From src/generalization.py runs.
 
     python experiments/eval_vs_train.py RUN [RUN ...] [--drop-task NAME ...]
 
-Each RUN is a run folder (its result.json), one per training seed. The eval and train splits roll out the same
+Each RUN is a run folder (its result.json), one per training seed, all of one setting (pipeline, tasks, policy,
+variations, rollout seeds and step limit: what Table 5 pools into one cell). The eval and train splits roll out the same
 trained tasks on the same seeds; the eval one under the task's variation (unseen colours, counts, a moved robot).
 So every eval rollout has a train twin that differs only by the variation, and the gap is read pair by pair:
 
@@ -66,6 +68,28 @@ def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int
             "interval": [float(lo), float(hi)], "p_two_sided": p}
 
 
+def check_one_setting(folders: list[Path], records: list[dict], fail) -> None:
+    """The runs differ only by their training seed (Table 5's rule for one cell, simeval.report.table5), each given
+    once: pooling another variation, policy or step limit, or one run twice, would read a gap that is no one's."""
+    from simeval.report.table5 import cell_setting
+    from simeval.results import identity_difference
+
+    seen: dict = {}
+    for folder, rec in zip(folders, records):
+        where = folder.resolve()
+        if where in seen.values():
+            fail(f"error: {folder}: given twice; each run counts once")
+        seed = (rec.get("identity") or {}).get("seed")
+        if seed in seen:
+            fail(f"error: {folder} and {seen[seed]}: two runs of training seed {seed}; give one run per seed")
+        seen[seed] = where
+    first = cell_setting(records[0])
+    for folder, rec in zip(folders[1:], records[1:]):
+        if (other := cell_setting(rec)) != first:
+            fail(f"error: {folder}: another setting than {folders[0]} (differs in "
+                 f"{identity_difference(first, other)}); pool runs of one setting, one per training seed")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", type=Path, nargs="+", help="run folders of src/generalization.py (one per training seed)")
@@ -73,6 +97,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     reading = _sibling("progress_vs_random")
     records = [reading.read_run(f) for f in args.runs]
+    check_one_setting(args.runs, records, reading.fail)
     drop = set(args.drop_task)
     tasks = {t["task"] for rec in records for t in rec["values"]["tasks"]}
     if drop - tasks:  # a misspelt name would silently keep the rollouts it meant to leave out
@@ -80,6 +105,11 @@ def main(argv: list[str] | None = None) -> None:
                      f"{', '.join(sorted(tasks))}")
     pairs = [p for rec in records for p in paired_progress(rec, drop)]
     if not pairs:
+        evals = [e for rec in records for t in rec["values"]["tasks"] if t["split"] == "eval" and t["task"] not in drop
+                 for e in t["episodes"]]
+        if evals and all(e.get("unvaried") for e in evals):
+            reading.fail(f"error: every eval rollout of these runs ({len(evals)}) was left out as unvaried: the "
+                         "variation changed no scene, so there is no gap to read")
         reading.fail("error: no eval rollout has a train rollout of the same task and seed in these runs (run "
                      "src/generalization.py with eval.splits=[train,eval]; after --drop-task)")
     print("| tasks | pairs | train mean | eval mean | gap (eval - train) [95% interval] | two-sided Wilcoxon p |")

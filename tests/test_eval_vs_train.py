@@ -14,12 +14,14 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "experiments" / "eval_vs_train.py"
 
 
-def _record(rows: dict) -> dict:
-    """{(task, split): [(seed, progress or None for an unvaried seed), ...]} as a generalization result.json."""
+def _record(rows: dict, seed: int = 0, variation: str = "own") -> dict:
+    """{(task, split): [(seed, progress or None for an unvaried seed), ...]} as a generalization result.json of
+    training seed `seed`."""
     tasks = [{"task": t, "split": s, "episodes": [{"seed": seed, "start": "0" * 16, "unvaried": True} if p is None
                                                   else {"seed": seed, "success": p == 1.0, "progress": p}
                                                   for seed, p in eps]} for (t, s), eps in rows.items()]
-    return {"metric": "generalization", "identity": {"policy": "cpu"}, "values": {"tasks": tasks}}
+    return {"metric": "generalization", "values": {"tasks": tasks},
+            "identity": {"pipeline": "bbsea", "policy": "cpu", "seed": seed, "variations": {"a": variation}}}
 
 
 def test_the_paired_gap_by_hand():
@@ -43,16 +45,22 @@ def test_pairs_match_task_and_seed_and_skip_unvaried_and_dropped_tasks():
 
 
 def test_the_cli_pools_runs_and_refuses_what_it_cannot_pair_in_one_line(tmp_path):
-    for name, rows in (("s0", {("a", "train"): [(1, 0.0)], ("a", "eval"): [(1, 0.5)]}),
-                       ("s1", {("a", "train"): [(1, 0.2)], ("a", "eval"): [(1, 0.2)]}),
-                       ("unpaired", {("a", "train"): [(1, 0.2)], ("a", "eval"): [(1, None)]})):
+    for name, rows, seed, variation in (("s0", {("a", "train"): [(1, 0.0)], ("a", "eval"): [(1, 0.5)]}, 0, "own"),
+                                        ("s1", {("a", "train"): [(1, 0.2)], ("a", "eval"): [(1, 0.2)]}, 1, "own"),
+                                        ("other", {("a", "train"): [(1, 0.2)], ("a", "eval"): [(1, 0.2)]}, 2, "robot"),
+                                        ("unpaired", {("a", "train"): [(1, 0.2)], ("a", "eval"): [(1, None)]}, 0,
+                                         "own")):
         (tmp_path / name).mkdir()
-        (tmp_path / name / "result.json").write_text(json.dumps(_record(rows)))
+        (tmp_path / name / "result.json").write_text(json.dumps(_record(rows, seed, variation)))
     out = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "s0"), str(tmp_path / "s1")],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert "| all | 2 | 0.100 | 0.350 | +0.250 [" in out.stdout and "| a | 2 |" in out.stdout
-    for args, said in (([str(tmp_path / "unpaired")], "no eval rollout has a train rollout of the same task and seed"),
+    for args, said in (([str(tmp_path / "unpaired")], "every eval rollout of these runs (1) was left out as unvaried"),
+                       ([str(tmp_path / "s0"), str(tmp_path / "other")],
+                        "another setting than {} (differs in variations.a ('own' vs 'robot'))".format(tmp_path / "s0")),
+                       ([str(tmp_path / "s0"), str(tmp_path / "s0") + "/"], "given twice"),
+                       ([str(tmp_path / "s0"), str(tmp_path / "unpaired")], "two runs of training seed 0"),
                        ([str(tmp_path / "s0"), "--drop-task", "b"], "--drop-task b: no such task in these runs"),
                        ([str(tmp_path / "none")], "result.json: no such file")):
         refused = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120,

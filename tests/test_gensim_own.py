@@ -439,3 +439,21 @@ def test_the_eval_split_rolls_out_only_the_scenes_its_variation_changed():
         finally:
             env.close()
     assert not np.array_equal(images["train"], images["unseen"])
+
+
+def test_a_gensim_eval_variation_is_checked_key_by_key():
+    """eval.variation for GenSim's own tasks: one line naming the key, and unseen colours refused in train mode
+    (where GenSim draws the train colours: it would vary nothing)."""
+    from simeval.errors import UserError
+    from simeval.pipelines.gensim.pipeline import check_eval_variation
+
+    check_eval_variation({"mode": "test", "unseen_colors": True})
+    check_eval_variation({"mode": "val"})
+    for variation, said in (({"mode": "test", "colours": True}, "eval.variation.colours: not a variation of GenSim's"),
+                            ({"mode": "tests"}, ("eval.variation.mode='tests': GenSim's own tasks vary by {mode: "
+                                                 "train | val | test, unseen_colors: true | false} only")),
+                            ({"mode": "test", "unseen_colors": "true"}, "eval.variation.unseen_colors='true'"),
+                            ({"unseen_colors": True}, "in train mode draws the train colours")):
+        with pytest.raises(UserError) as e:
+            check_eval_variation(variation)
+        assert said in str(e.value) and "\n" not in str(e.value), (variation, str(e.value))

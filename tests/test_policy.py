@@ -332,3 +332,33 @@ def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_pat
     assert summary["mean_progress"] == np.mean([e["progress"] for e in moved["episodes"]])
     fresh = ev.rollout_task(policy, task, seeds, max_steps=2)  # a train rollout records its start
     assert [e["start"] for e in fresh["episodes"]] == starts and fresh["unvaried"] == 0
+
+    # an eval row cached before its seeds were compared (rolled out in full, no starts), read again with the train
+    # split: its seeds are compared then, the cache corrected; and without the train split in the run
+    old = ev.rollout_task(policy, task, seeds, split="eval", variation=nothing, max_steps=2)
+    for episode in old["episodes"]:
+        del episode["start"]
+    old.pop("unvaried")
+    for plan, compare in (({"train": [(task, nothing)], "eval": [(task, nothing)]}, None),
+                          ({"eval": [(task, nothing)]}, {task: nothing})):
+        cache = tmp_path / f"old_{len(plan)}.json"
+        key = json.dumps([0, "eval", task, seeds, nothing, 2, ["uniform-random", 0], {}], sort_keys=True)
+        cache.write_text(json.dumps({key: old}))
+        *_, marked = run_splits(policy, plan, seeds, 2, cache, 0, compare_starts=compare)
+        assert marked["episodes"] == same["episodes"] and marked["success"]["n"] == 0 and marked["unvaried"] == 2
+        assert json.loads(cache.read_text())[key]["unvaried"] == 2
+    # compare_starts={} compares nothing: what a variation with a knob the first observation cannot show gets
+    (kept,) = run_splits(policy, {"eval": [(task, nothing)]}, seeds, 2, tmp_path / "none.json", 0, compare_starts={})
+    assert kept["unvaried"] == 0 and kept["success"]["n"] == 2
+
+
+def test_a_variation_of_friction_is_one_a_first_observation_cannot_show():
+    """Friction changes no pixel and no joint at the start (spec.py draws it last for that reason): the eval split
+    must roll such a variation out on every seed, not leave it out as unvaried."""
+    from simeval.pipelines.base import SuitePipeline
+    from simeval.sim.tasks.spec import SUITES_DIR
+
+    suite = SuitePipeline("bbsea", SUITES_DIR / "bbsea")
+    assert suite.unseen_knobs({"block": {"friction": [0.05, 0.1], "colors": ["red"]}, "robot": {"home_noise": 0.1}}) \
+        == ["block.friction"]
+    assert suite.unseen_knobs({"robot": {"home_noise": 0.1}}) == [] and suite.unseen_knobs({}) == []

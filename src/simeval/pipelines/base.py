@@ -58,6 +58,13 @@ class Pipeline(ABC):
                     ) -> list[tuple[object, dict]]:
         """[(task, variation)] that evaluation split `split` (train | eval | heldout) rolls out."""
 
+    def unseen_knobs(self, variation: Mapping) -> list[str]:
+        """The knobs of `variation` that change what a first observation cannot show (friction, masses): the eval
+        split leaves out a seed whose first observation is its train rollout's (the variation changed nothing the
+        policy sees), which is right only for a variation without such knobs; one with them is rolled out on every
+        seed. None by default; a pipeline with dynamics knobs names them."""
+        return []
+
     def environment_id(self) -> dict:
         """What this pipeline's environments depend on besides a rollout's task, variation, action space, frames and
         step limit: part of the key under which a rollout is cached (a cached rollout is reused only where it
@@ -129,6 +136,12 @@ class SuitePipeline(Pipeline):
 
     def environment_id(self):
         return {"name": self.name, "suite": self.suite_dir.name}
+
+    def unseen_knobs(self, variation):
+        from simeval.sim.tasks.spec import UNSEEN_KNOBS
+
+        return [f"{name}.{knob}" for name, knobs in dict(variation or {}).items() if isinstance(knobs, Mapping)
+                for knob in knobs if knob in UNSEEN_KNOBS]
 
     def group_and_heldout(self, task_group, tasks=None, heldout=None):
         from simeval.sim.tasks.splits import group_and_heldout

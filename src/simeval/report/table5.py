@@ -55,7 +55,7 @@ def _cell(rec: dict, policy: str | None) -> tuple | None:
 _NOT_A_SETTING = {"seed", "checkpoint_every", "log_every"}  # settings.train keys runs of one cell may differ in
 
 
-def _setting(rec: dict) -> dict:
+def cell_setting(rec: dict) -> dict:
     """A run's identity without its training seed (top-level `seed`, and `settings.train.seed` where the run
     records its training settings) and without the training's bookkeeping (how often it logs and checkpoints: a
     resumed training gets the same weights at any checkpoint interval), with the demonstrations it trained on
@@ -89,7 +89,7 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
         key = _cell(rec, policy)
         if key is None:
             continue
-        base = _setting(rec)
+        base = cell_setting(rec)
         if key in cells and cells[key]["identity"] != base:
             diff = identity_difference(cells[key]["identity"], base)
             raise UserError(f"{rec['path']}: runs of {key[:2]} with policy {key[2]} differ in {diff}; a cell pools "

@@ -110,14 +110,33 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                 videos[int(seed)] = np.stack(frames)
     finally:
         env.close()
-    ran = rolled_out(episodes)
-    out = {"task": task, "split": split, "episodes": episodes,
-           "success": success_summary(e["success"] for e in ran),
-           "mean_progress": float(np.mean([e["progress"] for e in ran])) if ran else None,
-           "unvaried": len(episodes) - len(ran)}
+    out = {"task": task, "split": split, **episodes_summary(episodes)}
     if keep_frames:
         out["frames"] = videos
     return out
+
+
+def episodes_summary(episodes: Sequence[Mapping]) -> dict:
+    """A task row's episodes with their success (Wilson interval), mean progress and unvaried count, the unvaried
+    ones left out of both."""
+    ran = rolled_out(episodes)
+    return {"episodes": list(episodes), "success": success_summary(e["success"] for e in ran),
+            "mean_progress": float(np.mean([e["progress"] for e in ran])) if ran else None,
+            "unvaried": len(episodes) - len(ran)}
+
+
+def mark_unvaried(row: Mapping, train_starts: Mapping[int, str], starts: Mapping[int, str]) -> dict:
+    """An eval row rolled out before its seeds were compared (a cached one; `starts`: its first observations where
+    its episodes lack them) with every episode that started from its train rollout's observation marked unvaried
+    (its outcome dropped) and its summary recomputed."""
+    episodes = []
+    for e in row["episodes"]:
+        start = e.get("start", starts.get(int(e["seed"])))
+        if e.get("unvaried") or start is None or start != train_starts.get(int(e["seed"])):
+            episodes.append(e if start is None or "start" in e else {**e, "start": start})
+        else:
+            episodes.append({"seed": int(e["seed"]), "start": start, "unvaried": True})
+    return dict(row) if episodes == list(row["episodes"]) else {**row, **episodes_summary(episodes)}
 
 
 def rolled_out(episodes: Sequence[Mapping]) -> list[Mapping]:

@@ -109,13 +109,16 @@ def checkpoint_key(metas: Sequence, policy_cfg: Mapping, train_cfg: Mapping, see
 
 def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds: Sequence[int],
                max_steps: int | None, cache_file: str | os.PathLike, policy_step: int,
-               progress: bool = False, make_env=None, environment: Mapping | None = None) -> list[dict]:
+               progress: bool = False, make_env=None, environment: Mapping | None = None,
+               compare_starts: Mapping[str, Mapping] | None = None) -> list[dict]:
     """plan: {split: [(task, variation), ...]} (Pipeline.split_tasks); every (split, task) is rolled out on `seeds`
     (in `make_env`'s environments: the pipeline's), its row cached in `cache_file` so a killed evaluation resumes.
     Each row records its variation. `environment`: what else the rollouts depend on (the pipeline's
     `environment_id`, and for a policy whose cache folder is shared, as the chance baseline's, its settings), part
-    of each row's key: two pipelines can name a task alike (simeval's GenSim-style suite and GenSim's own code)."""
-    from simeval.models.policy.evaluate import rollout_task
+    of each row's key: two pipelines can name a task alike (simeval's GenSim-style suite and GenSim's own code).
+    `compare_starts`: {task: its train variation} for the eval tasks whose seeds are compared with the train
+    split's (evaluate.rollout_task's unvaried; cached rows too); None: every eval task the plan's train split has."""
+    from simeval.models.policy.evaluate import first_observations, mark_unvaried, rollout_task
 
     cache_file = Path(cache_file)
     cache = read_rollout_cache(cache_file)
@@ -127,26 +130,35 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
-    train_variation = {t: dict(v or {}) for t, v in plan.get("train", [])}
+    if compare_starts is None:
+        compare_starts = {t: dict(v or {}) for t, v in plan.get("train", [])}
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
         key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler, dict(environment or {})],
                          sort_keys=True, default=str)
+        starts = None
+        if split == "eval" and task in compare_starts:
+            starts = train_starts(policy, task, seeds, rows, compare_starts[task], max_steps, make_env)
         if key in cache:
             reused += 1
+            if starts is not None:  # rolled out before its seeds were compared, or without the train split
+                row = cache[key]
+                missing = [int(e["seed"]) for e in row["episodes"] if "start" not in e and not e.get("unvaried")]
+                found = (first_observations(policy, task, missing, variation=var, max_steps=max_steps,
+                                            make_env=make_env) if missing else {})
+                if (marked := mark_unvaried(row, starts, found)) != row:
+                    cache[key] = marked
+                    atomic_write_text(cache_file, dumps_strict(cache))
         else:
-            starts = None
-            if split == "eval" and task in train_variation:
-                starts = train_starts(policy, task, seeds, rows, train_variation[task], max_steps, make_env)
             cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps,
                                       make_env=make_env, unvaried_if=starts)
             atomic_write_text(cache_file, dumps_strict(cache))
         row = cache[key]
         if row.get("unvaried"):
-            log.warning("split %s, %s: the variation %s left the scene as the train split's at %d of %d seeds (the "
-                        "same first observation); those are not rolled out, the split counts the other %d",
-                        split, task, json.dumps(var, sort_keys=True), row["unvaried"], len(row["episodes"]),
-                        len(row["episodes"]) - row["unvaried"])
+            n, left = len(row["episodes"]), row["unvaried"]
+            log.warning("split %s, %s: the variation %s left %d of %d scenes as the train split's (the same first "
+                        "observation at that seed): %s", split, task, json.dumps(var, sort_keys=True), left, n,
+                        "none rolled out" if left == n else f"the other {n - left} rolled out")
         rows.append({**row, "variation": var})
         if bar is not None:
             bar.update(1)
@@ -232,6 +244,9 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
+    if evaluation.get("variation") and not isinstance(evaluation["variation"], Mapping):
+        raise UserError(f"eval.variation={evaluation['variation']!r}: expected a mapping of knobs, e.g. "
+                        "eval.variation='{robot: {home_noise: 0.1}}' (null: each task's own eval variation)")
     override = dict(evaluation["variation"]) if evaluation.get("variation") else None
     plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
             for split in names(evaluation["splits"])}  # split names and variation keys are checked before training
@@ -239,6 +254,15 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
         log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
                  else "no task of the group has an eval variation" if split == "eval" else "no trained task")
     plan = {split: pairs for split, pairs in plan.items() if pairs}
+    compare = {}  # eval tasks whose seeds are compared with the train split's (see run_splits)
+    if plan.get("eval"):
+        trained_variation = {s.name: dict(v or {}) for s, v in pipeline.split_tasks(specs, "train", heldout)}
+        for task, var in plan["eval"]:
+            if unseen := pipeline.unseen_knobs(var):
+                log.info("split eval, %s: its variation changes what a first observation cannot show (%s): every "
+                         "seed rolled out", task, ", ".join(unseen))
+            elif task in trained_variation:
+                compare[task] = trained_variation[task]
     model = dict(model)
     if chance:
         policy = RandomActions(resolve_action_space(model["action_space"], specs), model["cameras"],
@@ -253,7 +277,8 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
     environment = {"pipeline": pipeline.environment_id(), **({"policy": settings_id} if chance else {})}
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
-                      progress=progress, make_env=pipeline.make_env, environment=environment)
+                      progress=progress, make_env=pipeline.make_env, environment=environment,
+                      compare_starts=compare)
     values.update(tasks=rows, splits=ev.summarize(rows))
     if evaluation["videos"] and rows and not chance:
         values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], evaluation["max_steps"],
@@ -265,7 +290,9 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     identity = {"pipeline": pipeline.name, "task_group": task_group, "tasks": group, "policy": policy_name,
                 "heldout_tasks": heldout, "episodes_per_task": episodes_per_task,
                 "variations": {t: v for t, v in plan.get("eval", [])},
-                "eval_seeds": evaluation["seeds"], "settings": settings_id}
+                "eval_seeds": evaluation["seeds"], "settings": settings_id,
+                # absent = the environment's own limit (as every run recorded before the key), so those still pool
+                **({"eval_max_steps": evaluation["max_steps"]} if evaluation["max_steps"] is not None else {})}
     if demonstrations != "all" and not chance:  # absent = all (the runs made before the key), so those still pool
         identity["demonstrations"] = demonstrations  # runs trained on other data are not pooled into one cell
     return values, identity
@@ -318,7 +345,8 @@ def log_splits(values: Mapping) -> None:
     """One line per evaluated split: success k/n with its interval, and mean progress."""
     for split, v in values["splits"].items():
         sr = v["success"]
-        unvaried = f"  ({v['unvaried']} rollouts left out: their scene was the train split's)" if v.get("unvaried") else ""
+        unvaried = (f"  ({v['unvaried']} left out: {'its' if v['unvaried'] == 1 else 'their'} scene was the train "
+                    "split's)" if v.get("unvaried") else "")
         if not sr["n"]:
             log.info("%-10s nothing rolled out%s", split, unvaried)
             continue

@@ -18,6 +18,22 @@ from simeval.pipelines.gensim.native import (
 )
 
 
+def check_eval_variation(variation: Mapping) -> None:
+    """eval.variation for GenSim's own tasks: {mode: train | val | test, unseen_colors: true | false}, unseen
+    colours only outside train mode (where GenSim draws them); a UserError naming the key otherwise."""
+    valid = "GenSim's own tasks vary by {mode: train | val | test, unseen_colors: true | false} only"
+    stray = sorted(set(variation) - {"mode", "unseen_colors"})
+    if stray:
+        raise UserError(f"eval.variation.{stray[0]}: not a variation of GenSim's own tasks; {valid}")
+    if variation.get("mode", "train") not in ("train", "val", "test"):
+        raise UserError(f"eval.variation.mode={variation['mode']!r}: {valid}")
+    if not isinstance(variation.get("unseen_colors", False), bool):
+        raise UserError(f"eval.variation.unseen_colors={variation['unseen_colors']!r}: {valid}")
+    if variation.get("unseen_colors") and variation.get("mode", "train") == "train":
+        raise UserError("eval.variation={unseen_colors: true} in train mode draws the train colours: unseen colours "
+                        "are drawn in mode val or test, e.g. eval.variation='{mode: test, unseen_colors: true}'")
+
+
 class GensimOwnPipeline(Pipeline):
     """GenSim's own tasks for the closed-loop experiments: groups from its registry (the authors' substring rule),
     held-out tasks from `heldout` (group -> names) or the command line, and GenSim's own environment with its
@@ -62,11 +78,8 @@ class GensimOwnPipeline(Pipeline):
 
     def split_tasks(self, specs, split, heldout, *, eval_override=None):
         variation = dict(eval_override or GENSIM_EVAL_VARIATION)
-        if split == "eval" and (set(variation) - {"mode", "unseen_colors"}
-                                or variation.get("mode", "train") not in ("train", "val", "test")
-                                or not isinstance(variation.get("unseen_colors", False), bool)):
-            raise UserError(f"eval.variation={variation}: GenSim's own tasks vary by {{mode: train | val | test, "
-                            "unseen_colors: true | false}} only (task.mode; EVAL_COLORS drawn outside train mode)")
+        if split == "eval":
+            check_eval_variation(variation)
         return split_by_heldout(specs, split, heldout, variation)
 
     def make_env(self, task, action_space, variation, image_size, cameras, max_steps):

@@ -345,6 +345,8 @@ def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, gr
 
 OBJECT_KNOBS = ("colors", "count", "scale", "joint_init_noise", "size", "friction")  # size: [x, y, z] m, every instance
 ROBOT_KNOBS = ("home_noise",)
+UNSEEN_KNOBS = ("friction",)  # object knobs a first observation cannot show (dynamics): a variation with one is
+# rolled out in the eval split whatever its first observation (simeval.pipelines.base.Pipeline.unseen_knobs)
 SCENE_KNOBS = ("initial_state", "pose_range")
 
 
