@@ -59,6 +59,9 @@ def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, 
     (["policy=nope"], "policy=nope: no conf/policy/nope.yaml; valid: authors_gensim, authors_gensim_cpu, cpu, official, random, tiny"),
     (["eval.variation={robot: {home_noise: 0.2}"], "override 'eval.variation={robot: {home_noise: 0.2}'"),
     (["eval.variation={robot: {home_nois: 0.2}}"], "variation.robot: unknown knob(s) ['home_nois']"),
+    (["eval.variation=[1]"], "eval.variation=[1]: expected a mapping of knobs"),
+    (["eval.variation={}"], "eval.variation={}: expected a mapping of knobs"),  # would vary nothing
+    (["eval.variation=false"], "eval.variation=False: expected a mapping of knobs"),
     (["eval.splits=[train,tst]"], "eval.splits: split 'tst' is not one of train, eval, heldout"),
     (["eval.splits=tst"], "eval.splits: split 'tst' is not one of"),  # one name, not the letters t, s, t
     (["heldout_tasks=nope"], "heldout_tasks=['nope']: ['nope'] not in task_group=stacking"),

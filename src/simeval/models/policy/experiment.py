@@ -244,8 +244,9 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
-    if evaluation.get("variation") and not isinstance(evaluation["variation"], Mapping):
-        raise UserError(f"eval.variation={evaluation['variation']!r}: expected a mapping of knobs, e.g. "
+    given = evaluation.get("variation")
+    if given is not None and not (isinstance(given, Mapping) and given):  # {} would vary nothing: eval = train
+        raise UserError(f"eval.variation={given!r}: expected a mapping of knobs, e.g. "
                         "eval.variation='{robot: {home_noise: 0.1}}' (null: each task's own eval variation)")
     override = dict(evaluation["variation"]) if evaluation.get("variation") else None
     plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
