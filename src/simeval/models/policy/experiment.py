@@ -139,6 +139,11 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         starts = None
         if split == "eval" and task in compare_starts:
             starts = train_starts(policy, task, seeds, rows, compare_starts[task], max_steps, make_env)
+        elif key in cache and cache[key].get("unvaried"):  # left out by a comparison this run does not make (a
+            # variation with a knob no first observation shows): roll those seeds out
+            log.info("split %s, %s: %d cached rollouts left out as unvaried are rolled out (their variation is not "
+                     "compared by first observation)", split, task, cache[key]["unvaried"])
+            del cache[key]
         if key in cache:
             reused += 1
             if starts is not None:  # rolled out before its seeds were compared, or without the train split
