@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from simeval.cli import OneLineParser
+from simeval.results import rolled_out
 
 
 def _sibling(name: str):
@@ -47,10 +48,10 @@ def paired_progress(record: dict, drop: set[str]) -> list[tuple[str, int, float,
     """(task, seed, train progress, eval progress) for every eval rollout of one result.json that has a train
     rollout of the same task and seed; tasks in `drop` and unvaried eval seeds left out."""
     train = {(t["task"], e["seed"]): e for t in record["values"]["tasks"] if t["split"] == "train"
-             for e in t["episodes"] if not e.get("unvaried")}
+             for e in rolled_out(t["episodes"])}
     return [(t["task"], e["seed"], float(train[t["task"], e["seed"]]["progress"]), float(e["progress"]))
             for t in record["values"]["tasks"] if t["split"] == "eval" and t["task"] not in drop
-            for e in t["episodes"] if not e.get("unvaried") and (t["task"], e["seed"]) in train]
+            for e in rolled_out(t["episodes"]) if (t["task"], e["seed"]) in train]
 
 
 def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int = 0) -> dict:

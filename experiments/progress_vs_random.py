@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from simeval.cli import OneLineParser
+from simeval.results import rolled_out
 
 SPLITS = ("train", "eval", "heldout")
 
@@ -37,7 +38,7 @@ def progress_values(record: dict, split: str, drop: set[str]) -> list[float]:
     """Every rollout's progress in `split` of one generalization result.json, tasks in `drop` left out, and the
     seeds left out as unvaried (the eval variation left their scene as the train split's: nothing was rolled out)."""
     return [float(e["progress"]) for t in record["values"]["tasks"] if t["split"] == split and t["task"] not in drop
-            for e in t["episodes"] if not e.get("unvaried")]
+            for e in rolled_out(t["episodes"])]
 
 
 def compare(policy: list[float], chance: list[float], n_boot: int = 10_000, seed: int = 0) -> dict:

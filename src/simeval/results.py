@@ -293,3 +293,9 @@ def read_results(root: str | os.PathLike, metric: str | None = None) -> list[dic
             rec["path"] = str(path)
             records.append(rec)
     return records
+
+
+def rolled_out(episodes: list[Mapping]) -> list[Mapping]:
+    """A generalization row's episodes that were rolled out: all but those left out as unvaried (the eval variation
+    left their scene as the train split's: simeval.models.policy.evaluate.rollout_task)."""
+    return [e for e in episodes if not e.get("unvaried")]

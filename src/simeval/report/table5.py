@@ -28,7 +28,7 @@ from simeval.report.paper_groups import suite_group
 from simeval.report.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.report.paper_values import TABLE5_MEANING
 from simeval.report.tables import Rebuilt, kept_only_hint, read_csv, read_kept, refuse_committed, write_table
-from simeval.results import identity_difference, read_results
+from simeval.results import identity_difference, read_results, rolled_out
 
 METRIC = "generalization"
 SPLITS = ("eval", "train", "heldout")  # table column order: the paper's protocol first
@@ -70,12 +70,6 @@ def cell_setting(rec: dict) -> dict:
     if isinstance(train, dict):
         base["settings"] = {**base["settings"], "train": {k: v for k, v in train.items() if k not in _NOT_A_SETTING}}
     return base
-
-
-def rolled_out(episodes: list[dict]) -> list[dict]:
-    """A task's episodes that were rolled out (as simeval.models.policy.evaluate.rolled_out, which the report does
-    not import: it would load torch to read JSON)."""
-    return [e for e in episodes if not e.get("unvaried")]
 
 
 def build(records: list[dict], policy: str | None = None) -> list[dict]:

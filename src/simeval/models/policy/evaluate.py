@@ -31,6 +31,7 @@ from simeval.media import write_video
 from simeval.metrics.intervals import success_summary
 from simeval.models.device import module_device, to_device
 from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
+from simeval.results import rolled_out
 
 log = logging.getLogger(__name__)
 
@@ -139,21 +140,14 @@ def mark_unvaried(row: Mapping, train_starts: Mapping[int, str], starts: Mapping
     return dict(row) if episodes == list(row["episodes"]) else {**row, **episodes_summary(episodes)}
 
 
-def rolled_out(episodes: Sequence[Mapping]) -> list[Mapping]:
-    """The episodes that were rolled out: all but those left out as unvaried (rollout_task's `unvaried_if`)."""
-    return [e for e in episodes if not e.get("unvaried")]
-
-
 def summarize(rows: Sequence[Mapping]) -> dict:
     """rows: rollout_task results (without frames). Per split: every rolled-out episode of the split's tasks pooled;
     "unvaried": the episodes left out because the variation changed nothing (see rollout_task)."""
     out = {}
     for split in dict.fromkeys(r["split"] for r in rows):
-        every = [e for r in rows if r["split"] == split for e in r["episodes"]]
-        eps = rolled_out(every)
-        out[split] = {"success": success_summary(e["success"] for e in eps),
-                      "mean_progress": float(np.mean([e["progress"] for e in eps])) if eps else None,
-                      "tasks": len([r for r in rows if r["split"] == split]), "unvaried": len(every) - len(eps)}
+        pooled = episodes_summary([e for r in rows if r["split"] == split for e in r["episodes"]])
+        out[split] = {"success": pooled["success"], "mean_progress": pooled["mean_progress"],
+                      "tasks": len([r for r in rows if r["split"] == split]), "unvaried": pooled["unvaried"]}
     return out
 
 
