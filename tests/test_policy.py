@@ -241,9 +241,9 @@ def test_a_trained_checkpoint_is_reused_with_another_sampler_but_not_with_other_
 
 def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cache_is_named(tmp_path, monkeypatch,
                                                                                           caplog):
-    """run_splits keeps each (split, task)'s rollouts in a cache beside the checkpoint, so a killed evaluation resumes;
-    a rerun that reuses them logs how many (its numbers are not fresh rollouts), and a cache that is not one is one
-    line naming the file. The rollout itself is replaced by a counter: what is tested is the cache."""
+    """run_splits keeps each rollout in a cache beside the checkpoint, so a killed evaluation resumes; a rerun that
+    reuses them logs how many (its numbers are not fresh rollouts), and a cache that is not one is one line naming
+    the file. The rollout itself is replaced by a counter: what is tested is the cache."""
     import logging
     from types import SimpleNamespace
 
@@ -253,21 +253,23 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
 
     calls = []
 
-    def fake_rollout(policy, task, seeds, *, split, **_):
+    def fake_rollout(policy, task, seeds, *, split, on_episode, **_):
         calls.append((split, task))
-        return {"task": task, "split": split, "episodes": [], "success": {"k": 1, "n": len(seeds)}}
+        for s in seeds:
+            on_episode({"seed": s, "success": True, "progress": 1.0, "steps": 1})
 
     monkeypatch.setattr(evaluate, "rollout_task", fake_rollout)
     policy = SimpleNamespace(cfg=SimpleNamespace(inference_scheduler="ddim", num_inference_steps=16))
     plan = {"train": [("a", None)], "eval": [("a", {"colors": "eval"})]}
     cache = tmp_path / "rollouts.json"
-    first = run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    first = run_splits(policy, plan, [0, 1], None, cache, policy_step=100, compare_starts={})
     assert calls == [("train", "a"), ("eval", "a")] and cache.is_file()
+    assert [(r["split"], r["success"]["k"], r["success"]["n"]) for r in first] == [("train", 2, 2), ("eval", 2, 2)]
     with caplog.at_level(logging.INFO, logger="simeval.models.policy.experiment"):
-        again = run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+        again = run_splits(policy, plan, [0, 1], None, cache, policy_step=100, compare_starts={})
     assert len(calls) == 2 and again == first
-    assert f"reused 2 of 2 (split, task) rollouts from {cache}" in caplog.text
-    run_splits(policy, plan, [0, 1], None, cache, policy_step=200)  # another checkpoint step: rolled out again
+    assert f"reused 4 of 4 rollouts from {cache}" in caplog.text
+    run_splits(policy, plan, [0, 1], None, cache, policy_step=200, compare_starts={})  # another step: rolled out again
     assert len(calls) == 4
     # the same task name in another pipeline's environments (simeval's GenSim-style suite and GenSim's own code
     # share names; the chance baseline's cache folder is shared by every pipeline): rolled out again, then reused
@@ -277,7 +279,7 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     suite = SuitePipeline("gensim", SUITES_DIR / "gensim").environment_id()
     other = {**suite, "name": "gensim_own"}
     for environment in (suite, other, other):
-        run_splits(policy, plan, [0, 1], None, cache, policy_step=200, environment=environment)
+        run_splits(policy, plan, [0, 1], None, cache, policy_step=200, environment=environment, compare_starts={})
     assert len(calls) == 8
 
     cache.write_text('{"cut short": ')
@@ -286,6 +288,71 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     cache.write_text("[]")
     with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(a JSON list, expected an object\\)"):
         run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    cache.write_text('{"[1, 2]": {"episodes": []}}')
+    with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(entry '\\[1, 2\\]'"):
+        run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+
+
+def test_a_killed_evaluation_keeps_each_finished_rollout_and_more_seeds_roll_out_only_the_new_ones(tmp_path,
+                                                                                                   monkeypatch):
+    """Each rollout is cached as it ends: an evaluation killed in a task's third seed resumes at that seed, and a
+    larger eval.seeds rolls out only the seeds not cached. Real rollouts (the chance baseline in simeval's BBSEA
+    suite): the resumed and extended rows equal one uninterrupted evaluation's, episode for episode. A cache of the
+    build before (one row per seed list) is read as its seeds' rollouts."""
+    import json
+
+    from simeval.models.policy import evaluate as ev
+    from simeval.models.policy.experiment import read_rollout_cache, rollout_key, run_splits
+    from simeval.models.policy.random_baseline import RandomActions
+
+    task, var = "bbsea-block-in-bin", {"robot": {"home_noise": 0.3}}
+    policy = RandomActions("ee_pose", cameras=["top"], image_size=(16, 16))
+    plan = {"eval": [(task, var)]}
+    whole = run_splits(policy, plan, [0, 1, 2, 3], 2, tmp_path / "whole.json", 0, compare_starts={})
+    real_rollout = ev.rollout_task
+
+    class Killed(Exception):
+        pass
+
+    def killed_in_third_rollout(*args, on_episode, **kwargs):
+        ended = []
+
+        def keep(episode):
+            ended.append(episode["seed"])
+            if len(ended) == 3:  # killed before the third rollout is kept
+                raise Killed
+            on_episode(episode)
+        return real_rollout(*args, on_episode=keep, **kwargs)
+
+    cache = tmp_path / "rollouts.json"
+    monkeypatch.setattr(ev, "rollout_task", killed_in_third_rollout)
+    with pytest.raises(Killed):
+        run_splits(policy, plan, [0, 1, 2, 3], 2, cache, 0, compare_starts={})
+    key = rollout_key(0, "eval", task, var, 2, ["uniform-random", 0], None)
+    assert sorted(read_rollout_cache(cache)[key]["episodes"]) == ["0", "1"]
+
+    rolled = []
+
+    def counted(policy, task, seeds, **kwargs):
+        rolled.extend(seeds)
+        return real_rollout(policy, task, seeds, **kwargs)
+
+    monkeypatch.setattr(ev, "rollout_task", counted)
+    (resumed,) = run_splits(policy, plan, [0, 1, 2, 3], 2, cache, 0, compare_starts={})
+    assert rolled == [2, 3] and resumed == whole[0]
+    (more,) = run_splits(policy, plan, [0, 1, 2, 3, 4, 5], 2, cache, 0, compare_starts={})
+    assert rolled == [2, 3, 4, 5] and more["episodes"][:4] == whole[0]["episodes"]
+    (fewer,) = run_splits(policy, plan, [1, 2], 2, cache, 0, compare_starts={})
+    assert rolled == [2, 3, 4, 5] and fewer["episodes"] == whole[0]["episodes"][1:3]
+
+    # the build before kept one row per seed list: its seeds are reused, the rest rolled out, the file rewritten
+    old_key = json.dumps([0, "eval", task, [0, 1], var, 2, ["uniform-random", 0], {}], sort_keys=True)
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({old_key: {"task": task, "split": "eval",
+                                         **ev.episodes_summary(whole[0]["episodes"][:2])}}))
+    (upgraded,) = run_splits(policy, plan, [0, 1, 2, 3], 2, old, 0, compare_starts={})
+    assert rolled == [2, 3, 4, 5, 2, 3] and upgraded == whole[0]
+    assert list(json.loads(old.read_text())) == [key]
 
 
 def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_path):
@@ -316,7 +383,7 @@ def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_pat
     run_splits(policy, {"train": [(task, nothing)]}, seeds, 2, cache, 0)
     stored = json.loads(cache.read_text())  # as a cache written before rollouts recorded their start
     for row in stored.values():
-        for episode in row["episodes"]:
+        for episode in row["episodes"].values():
             del episode["start"]
     cache.write_text(json.dumps(stored))
     plan = {"train": [(task, nothing)], "eval": [(task, nothing), (task, robot)]}
@@ -346,12 +413,20 @@ def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_pat
         cache.write_text(json.dumps({key: old}))
         *_, marked = run_splits(policy, plan, seeds, 2, cache, 0, compare_starts=compare)
         assert marked["episodes"] == same["episodes"] and marked["success"]["n"] == 0 and marked["unvaried"] == 2
-        assert json.loads(cache.read_text())[key]["unvaried"] == 2
+        assert cached_unvaried(cache) == 2
     # compare_starts={} compares nothing: what a variation with a knob the first observation cannot show gets; a
     # cached row with seeds left out by a comparison (an earlier build's) is rolled out again
     (kept,) = run_splits(policy, {"eval": [(task, nothing)]}, seeds, 2, cache, 0, compare_starts={})
     assert kept["unvaried"] == 0 and kept["success"]["n"] == 2
-    assert json.loads(cache.read_text())[key]["unvaried"] == 0
+    assert cached_unvaried(cache) == 0
+
+
+def cached_unvaried(cache) -> int:
+    """How many rollouts the cache file keeps as unvaried."""
+    import json
+
+    return sum(bool(e.get("unvaried")) for row in json.loads(cache.read_text()).values()
+               for e in row["episodes"].values())
 
 
 def test_a_variation_of_friction_is_one_a_first_observation_cannot_show():

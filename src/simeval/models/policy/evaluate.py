@@ -75,11 +75,12 @@ def first_observations(policy, task: str, seeds: Sequence[int], *, variation: Ma
 def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, split: str = "train",
                  variation: Mapping | None = None, max_steps: int | None = None, keep_frames: bool = False,
                  video_camera: str | None = None, scheduler: str | None = None, steps: int | None = None,
-                 make_env=None, unvaried_if: Mapping[int, str] | None = None) -> dict:
+                 make_env=None, unvaried_if: Mapping[int, str] | None = None, on_episode=None) -> dict:
     """`make_env(task, action_space, variation, image_size, cameras, max_steps)`: the pipeline's environment
     (simeval.pipelines.base.Pipeline.make_env); default simeval's suites'. `unvaried_if`: {seed: start digest} of
     the same task's train rollouts; a seed that starts from the same observation here is left out (a rollout from a
-    train scene says nothing about the variation)."""
+    train scene says nothing about the variation). `on_episode(episode)`: called as each seed's rollout ends (the
+    caller's cache: a killed evaluation keeps the rollouts it finished)."""
     cfg = policy.cfg
     cams = list(dict.fromkeys([*cfg.cameras, *([video_camera] if video_camera else [])]))
     env = (make_env or _make_env)(task, cfg.action_space, dict(variation or {}), cfg.image_size, cams, max_steps)
@@ -94,6 +95,8 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
             start = observation_digest({"rgb": {c: obs["rgb"][c] for c in cfg.cameras}, "state": obs.get("state")})
             if unvaried_if.get(int(seed)) == start:
                 episodes.append({"seed": int(seed), "start": start, "unvaried": True})
+                if on_episode is not None:
+                    on_episode(episodes[-1])
                 continue
             runner.reset(seed=int(seed))
             frames = [obs["rgb"][video_camera or cfg.cameras[0]]] if keep_frames else None
@@ -109,6 +112,8 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                              **({"error": str(info["error"])} if info.get("error") else {})})  # the env's own failure
             if frames is not None:
                 videos[int(seed)] = np.stack(frames)
+            if on_episode is not None:
+                on_episode(episodes[-1])
     finally:
         env.close()
     out = {"task": task, "split": split, **episodes_summary(episodes)}

@@ -6,8 +6,9 @@
         demos.py, which saves only completed demonstrations), "all" keeps them.
     checkpoint_key(...) -> a short hash of what determines the trained weights (episode files and their sizes,
         policy and training settings, seed): the checkpoint folder, so a rerun resumes or reuses the training.
-    run_splits(policy, plan, ...) -> rollout rows per (split, task), cached per row in a JSON file beside the
-        checkpoint (keyed by the policy's training step), so a killed evaluation resumes where it stopped.
+    run_splits(policy, plan, ...) -> rollout rows per (split, task), each rollout cached by seed in a JSON file
+        beside the checkpoint (keyed by the policy's training step), so a killed evaluation resumes where it stopped
+        and more seeds roll out only the new ones.
 """
 
 from __future__ import annotations
@@ -112,13 +113,17 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
                progress: bool = False, make_env=None, environment: Mapping | None = None,
                compare_starts: Mapping[str, Mapping] | None = None) -> list[dict]:
     """plan: {split: [(task, variation), ...]} (Pipeline.split_tasks); every (split, task) is rolled out on `seeds`
-    (in `make_env`'s environments: the pipeline's), its row cached in `cache_file` so a killed evaluation resumes.
-    Each row records its variation. `environment`: what else the rollouts depend on (the pipeline's
-    `environment_id`, and for a policy whose cache folder is shared, as the chance baseline's, its settings), part
-    of each row's key: two pipelines can name a task alike (simeval's GenSim-style suite and GenSim's own code).
+    (in `make_env`'s environments: the pipeline's). Each rollout is cached in `cache_file` as it ends, by seed, so a
+    killed evaluation loses at most the rollout it was in and more seeds (a larger `eval.seeds`) roll out only the
+    seeds not cached. A rollout depends on its seed alone (the environment's reset and the actor's noise are seeded
+    by it), so seeds rolled out in different calls pool. Each row records its variation. `environment`: what else
+    the rollouts depend on (the pipeline's `environment_id`, and for a policy whose cache folder is shared, as the
+    chance baseline's, its settings), part of each row's key: two pipelines can name a task alike (simeval's
+    GenSim-style suite and GenSim's own code).
     `compare_starts`: {task: its train variation} for the eval tasks whose seeds are compared with the train
-    split's (evaluate.rollout_task's unvaried; cached rows too); None: every eval task the plan's train split has."""
-    from simeval.models.policy.evaluate import first_observations, mark_unvaried, rollout_task
+    split's (evaluate.rollout_task's unvaried; cached rollouts too); None: every eval task the plan's train split
+    has."""
+    from simeval.models.policy.evaluate import episodes_summary, first_observations, mark_unvaried, rollout_task
 
     cache_file = Path(cache_file)
     cache = read_rollout_cache(cache_file)
@@ -132,48 +137,67 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         bar = tqdm(total=len(todo), desc="rollouts", unit="task")
     if compare_starts is None:
         compare_starts = {t: dict(v or {}) for t, v in plan.get("train", [])}
+
+    def save() -> None:
+        atomic_write_text(cache_file, dumps_strict(cache))
+
     for split, task, var in todo:
         sampler = [policy.cfg.inference_scheduler, policy.cfg.num_inference_steps]
-        key = json.dumps([policy_step, split, task, list(seeds), var, max_steps, sampler, dict(environment or {})],
-                         sort_keys=True, default=str)
+        key = rollout_key(policy_step, split, task, var, max_steps, sampler, environment)
+        done = cache.setdefault(key, {"task": task, "split": split, "episodes": {}})["episodes"]
         starts = None
         if split == "eval" and task in compare_starts:
             starts = train_starts(policy, task, seeds, rows, compare_starts[task], max_steps, make_env)
-        elif key in cache and cache[key].get("unvaried"):  # left out by a comparison this run does not make (a
-            # variation with a knob no first observation shows): roll those seeds out
-            log.info("split %s, %s: %d cached rollouts left out as unvaried are rolled out (their variation is not "
-                     "compared by first observation)", split, task, cache[key]["unvaried"])
-            del cache[key]
-        if key in cache:
-            reused += 1
-            if starts is not None:  # rolled out before its seeds were compared, or without the train split
-                row = cache[key]
-                missing = [int(e["seed"]) for e in row["episodes"] if "start" not in e and not e.get("unvaried")]
-                found = (first_observations(policy, task, missing, variation=var, max_steps=max_steps,
-                                            make_env=make_env) if missing else {})
-                if (marked := mark_unvaried(row, starts, found)) != row:
-                    cache[key] = marked
-                    atomic_write_text(cache_file, dumps_strict(cache))
-        else:
-            cache[key] = rollout_task(policy, task, seeds, split=split, variation=var, max_steps=max_steps,
-                                      make_env=make_env, unvaried_if=starts)
-            atomic_write_text(cache_file, dumps_strict(cache))
-        row = cache[key]
-        if row.get("unvaried"):
-            n, left = len(row["episodes"]), row["unvaried"]
+        else:  # left out by a comparison this run does not make (a variation with a knob no first observation
+            # shows): roll those seeds out
+            dropped = [s for s in seeds if done.get(str(s), {}).get("unvaried")]
+            if dropped:
+                log.info("split %s, %s: %d cached rollouts left out as unvaried are rolled out (their variation is "
+                         "not compared by first observation)", split, task, len(dropped))
+                for s in dropped:
+                    del done[str(s)]
+        cached = [int(s) for s in seeds if str(s) in done]
+        reused += len(cached)
+        if starts is not None and cached:  # rolled out before its seeds were compared, or without the train split
+            row = {"episodes": [done[str(s)] for s in cached]}
+            missing = [int(e["seed"]) for e in row["episodes"] if "start" not in e and not e.get("unvaried")]
+            found = (first_observations(policy, task, missing, variation=var, max_steps=max_steps,
+                                        make_env=make_env) if missing else {})
+            marked = mark_unvaried(row, starts, found)
+            if marked != row:
+                done.update({str(e["seed"]): e for e in marked["episodes"]})
+                save()
+        left = [int(s) for s in seeds if str(s) not in done]
+        if left:
+            def keep(episode: Mapping, done=done) -> None:
+                done[str(episode["seed"])] = dict(episode)
+                save()
+
+            rollout_task(policy, task, left, split=split, variation=var, max_steps=max_steps, make_env=make_env,
+                         unvaried_if=starts, on_episode=keep)
+        row = {"task": task, "split": split, **episodes_summary([done[str(s)] for s in seeds])}
+        if row["unvaried"]:
+            n, out = len(row["episodes"]), row["unvaried"]
             log.warning("split %s, %s: the variation %s left %d of %d scenes as the train split's (the same first "
-                        "observation at that seed): %s", split, task, json.dumps(var, sort_keys=True), left, n,
-                        "none rolled out" if left == n else f"the other {n - left} rolled out")
+                        "observation at that seed): %s", split, task, json.dumps(var, sort_keys=True), out, n,
+                        "none rolled out" if out == n else f"the other {n - out} rolled out")
         rows.append({**row, "variation": var})
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(task=task, split=split, success=cache[key]["success"]["rate"])
+            bar.set_postfix(task=task, split=split, success=row["success"]["rate"])
     if bar is not None:
         bar.close()
     if reused:  # a resumed or repeated evaluation: say so, or its numbers look freshly rolled out
-        log.info("reused %d of %d (split, task) rollouts from %s (same checkpoint step, seeds, variation, step limit "
-                 "and sampler); delete that file to roll them out again", reused, len(todo), cache_file)
+        log.info("reused %d of %d rollouts from %s (same checkpoint step, seed, variation, step limit and sampler); "
+                 "delete that file to roll them out again", reused, len(todo) * len(seeds), cache_file)
     return rows
+
+
+def rollout_key(policy_step: int, split: str, task: str, variation: Mapping, max_steps: int | None,
+                sampler: Sequence, environment: Mapping | None) -> str:
+    """The cache key of a (split, task)'s rollouts: everything a rollout depends on but its seed."""
+    return json.dumps([policy_step, split, task, dict(variation), max_steps, list(sampler), dict(environment or {})],
+                      sort_keys=True, default=str)
 
 
 def train_starts(policy, task: str, seeds: Sequence[int], rows: Sequence[Mapping], variation: Mapping,
@@ -190,8 +214,10 @@ def train_starts(policy, task: str, seeds: Sequence[int], rows: Sequence[Mapping
 
 
 def read_rollout_cache(path: Path) -> dict:
-    """The rollouts a killed or finished evaluation kept (run_splits' cache): {key: row}; none when the file is
-    absent. A file that is not such a mapping is a UserError naming it (rolling out again would overwrite it)."""
+    """The rollouts a killed or finished evaluation kept (run_splits' cache): {rollout_key: {"task", "split",
+    "episodes": {seed: episode}}}; none when the file is absent. Rows of the build before per-seed caching (keyed by
+    their seed list, "episodes" a list) are read as their seeds' rollouts. A file that is not such a mapping is a
+    UserError naming it (rolling out again would overwrite it)."""
     if not path.is_file():
         return {}
     try:
@@ -201,7 +227,21 @@ def read_rollout_cache(path: Path) -> dict:
     if not isinstance(cache, dict):
         raise UserError(f"{path}: not a rollout cache (a JSON {type(cache).__name__}, expected an object); delete it "
                         "to roll the evaluation out again")
-    return cache
+    out: dict = {}
+    for key, row in cache.items():
+        try:
+            if isinstance(row["episodes"], dict):
+                out.setdefault(key, {**row, "episodes": {}})["episodes"].update(row["episodes"])
+                continue
+            step, split, task, _seeds, var, max_steps, sampler, environment = json.loads(key)
+            new = rollout_key(step, split, task, var, max_steps, sampler, environment)
+            episodes = out.setdefault(new, {"task": task, "split": split, "episodes": {}})["episodes"]
+            for e in row["episodes"]:
+                episodes.setdefault(str(int(e["seed"])), e)
+        except (KeyError, TypeError, ValueError) as e:
+            raise UserError(f"{path}: not a rollout cache (entry {key[:80]!r}: {e!r}); delete it to roll the "
+                            "evaluation out again") from e
+    return out
 
 
 def resolve_action_space(requested: str, specs) -> str:
