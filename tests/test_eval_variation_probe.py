@@ -50,11 +50,22 @@ def test_a_robot_start_changes_every_scene_and_friction_none_and_is_named(tmp_pa
     assert (tmp_path / "friction" / "eval_variation_bbsea_table.json").read_text() == before
     for bad, says in [(["pipeline=bbsea", "task_group=table", "tasks=[no-such-task]", "policy=tiny"], "no-such-task"),
                       (["pipeline=nowhere"], "pipeline=nowhere"),
-                      ([*suite, "eval.variation=[1]"], "eval.variation=[1]")]:
-        refused = probe(tmp_path / "bad", *bad)
-        assert refused.returncode == 2 and says in refused.stderr, refused.stderr[-2000:]
-        assert len(refused.stderr.strip().splitlines()) == 1 and "Traceback" not in refused.stderr
+                      ([*suite, "eval.variation=[1]"], "eval.variation=[1]"),
+                      ([*suite, "eval.seeds=0"], "eval.seeds must be a whole number >= 1, got 0"),
+                      ([*suite, "eval.seeds=abc"], "eval.seeds must be a whole number >= 1, got 'abc'"),
+                      ([*suite, "eval.seed_offset=-3"], "eval.seed_offset must be a whole number >= 0, got -3"),
+                      ([*suite, "eval.max_steps=-1"], "eval.max_steps must be a whole number >= 1, got -1")]:
+        for out in (tmp_path / "bad", tmp_path / "friction"):  # the mistake is named, not "already there"
+            refused = probe(out, *bad)
+            assert refused.returncode == 2 and says in refused.stderr, refused.stderr[-2000:]
+            assert len(refused.stderr.strip().splitlines()) == 1 and "Traceback" not in refused.stderr
         assert not (tmp_path / "bad").exists()
+
+    # without --out-dir the tables go where paths.root puts them
+    rooted = subprocess.run([sys.executable, str(SCRIPT), *suite, f"paths.root={tmp_path / 'root'}"],
+                            capture_output=True, text=True, timeout=600, cwd=tmp_path, env=ENV)
+    assert rooted.returncode == 0, rooted.stderr[-2000:]
+    assert (tmp_path / "root" / "tables" / "eval_variation_bbsea_table.md").is_file()
 
 
 @pytest.mark.skipif(not (GENSIM / "cliport").is_dir(), reason="../shared/gensim is not beside this checkout")

@@ -2,6 +2,7 @@
 receding-horizon execution, windows, and that the policy reproduces a demonstrated trajectory."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -286,11 +287,22 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     with pytest.raises(UserError, match="rollouts.json: not a rollout cache .*delete it"):
         run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
     cache.write_text("[]")
-    with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(a JSON list, expected an object\\)"):
+    with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(a JSON array, expected an object\\)"):
         run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
-    cache.write_text('{"[1, 2]": {"episodes": []}}')
-    with pytest.raises(UserError, match="rollouts.json: not a rollout cache \\(entry '\\[1, 2\\]'"):
-        run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
+    for text, says in [("null", "a JSON null, expected an object"),
+                       ('{"[1, 2]": {"episodes": []}}', "entry '[1, 2]': not a key this product writes"),
+                       ('{"k": {"episodes": null}}', "entry 'k': expected an object with its episodes, got null"),
+                       ('{"k": 5}', "entry 'k': expected an object with its episodes, got number"),
+                       ('{"k": {"episodes": {"0": 5}}}', "entry 'k', seed '0': expected an episode object, got number"),
+                       ('{"k": {"episodes": {"0": {}}}}', "entry 'k', seed '0': its episode records seed None"),
+                       ('{"k": {"episodes": {"abc": {"seed": 0}}}}', "entry 'k', seed 'abc': not a seed"),
+                       ('{"k": {"episodes": {"0": {"seed": 0, "success": "yes", "progress": 1}}}}',
+                        "entry 'k', seed '0': success 'yes' is not true or false"),
+                       ('{"k": {"episodes": {"0": {"seed": 0, "success": true, "progress": null}}}}',
+                        "entry 'k', seed '0': progress None is not a number")]:
+        cache.write_text(text)  # valid JSON, not a cache: one line naming the file and the entry, not a traceback
+        with pytest.raises(UserError, match=re.escape(f"rollouts.json: not a rollout cache ({says}")):
+            run_splits(policy, plan, [0, 1], None, cache, policy_step=100)
 
 
 def test_a_killed_evaluation_keeps_each_finished_rollout_and_more_seeds_roll_out_only_the_new_ones(tmp_path,

@@ -216,32 +216,68 @@ def train_starts(policy, task: str, seeds: Sequence[int], rows: Sequence[Mapping
 def read_rollout_cache(path: Path) -> dict:
     """The rollouts a killed or finished evaluation kept (run_splits' cache): {rollout_key: {"task", "split",
     "episodes": {seed: episode}}}; none when the file is absent. Rows of the build before per-seed caching (keyed by
-    their seed list, "episodes" a list) are read as their seeds' rollouts. A file that is not such a mapping is a
-    UserError naming it (rolling out again would overwrite it)."""
+    their seed list, "episodes" a list) are read as their seeds' rollouts. A file that is not such a mapping of
+    rollouts is a UserError naming it and the entry (rolling out again would overwrite it)."""
     if not path.is_file():
         return {}
+
+    def broken(what: str) -> UserError:
+        return UserError(f"{path}: not a rollout cache ({what}); delete it to roll the evaluation out again")
+
     try:
         cache = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise UserError(f"{path}: not a rollout cache ({e}); delete it to roll the evaluation out again") from e
+        raise broken(str(e)) from e
     if not isinstance(cache, dict):
-        raise UserError(f"{path}: not a rollout cache (a JSON {type(cache).__name__}, expected an object); delete it "
-                        "to roll the evaluation out again")
+        raise broken(f"a JSON {json_kind(cache)}, expected an object")
     out: dict = {}
     for key, row in cache.items():
-        try:
-            if isinstance(row["episodes"], dict):
-                out.setdefault(key, {**row, "episodes": {}})["episodes"].update(row["episodes"])
-                continue
-            step, split, task, _seeds, var, max_steps, sampler, environment = json.loads(key)
-            new = rollout_key(step, split, task, var, max_steps, sampler, environment)
-            episodes = out.setdefault(new, {"task": task, "split": split, "episodes": {}})["episodes"]
-            for e in row["episodes"]:
-                episodes.setdefault(str(int(e["seed"])), e)
-        except (KeyError, TypeError, ValueError) as e:
-            raise UserError(f"{path}: not a rollout cache (entry {key[:80]!r}: {e!r}); delete it to roll the "
-                            "evaluation out again") from e
+        episodes = row.get("episodes") if isinstance(row, dict) else None
+        if isinstance(episodes, dict):  # this build's: {seed: episode}
+            pairs = list(episodes.items())
+            new = key
+        elif isinstance(episodes, list):  # the build before: the key holds the seed list
+            try:
+                step, split, task, _seeds, var, max_steps, sampler, environment = json.loads(key)
+                new = rollout_key(step, split, task, var, max_steps, sampler, environment)
+            except (TypeError, ValueError) as e:
+                raise broken(f"entry {key[:80]!r}: not a key this product writes ({e})") from e
+            pairs = [(e.get("seed") if isinstance(e, dict) else None, e) for e in episodes]
+        else:
+            raise broken(f"entry {key[:80]!r}: expected an object with its episodes, got "
+                         f"{json_kind(episodes if isinstance(row, dict) else row)}")
+        kept = out.setdefault(new, {"task": row.get("task"), "split": row.get("split"), "episodes": {}})["episodes"]
+        for seed, episode in pairs:
+            if problem := episode_problem(seed, episode):
+                raise broken(f"entry {key[:80]!r}, seed {seed!r}: {problem}")
+            kept.setdefault(str(int(seed)), episode)
     return out
+
+
+def episode_problem(seed, episode) -> str | None:
+    """Why a cached rollout is not one (None where it is): a seed, and either a rollout's success and progress or
+    the unvaried mark."""
+    if not isinstance(episode, dict):
+        return f"expected an episode object, got {json_kind(episode)}"
+    try:
+        if isinstance(seed, bool) or int(seed) != episode.get("seed") or int(seed) < 0:
+            return f"its episode records seed {episode.get('seed')!r}"
+    except (TypeError, ValueError):
+        return "not a seed"
+    if episode.get("unvaried") is True:
+        return None
+    if not isinstance(episode.get("success"), bool):
+        return f"success {episode.get('success')!r} is not true or false"
+    progress = episode.get("progress")
+    if isinstance(progress, bool) or not isinstance(progress, (int, float)) or not math.isfinite(progress):
+        return f"progress {progress!r} is not a number"
+    return None
+
+
+def json_kind(value) -> str:
+    """The JSON name of a parsed value's type, for messages."""
+    return {dict: "object", list: "array", str: "string", bool: "boolean", int: "number", float: "number",
+            type(None): "null"}.get(type(value), type(value).__name__)
 
 
 def resolve_action_space(requested: str, specs) -> str:
