@@ -35,19 +35,16 @@ def plan(pipeline, task_group: str, tasks, heldout_tasks, evaluation: dict, mode
     """What the probe resets, every setting checked as src/generalization.py checks it (nothing reset yet):
     ([(eval task, its eval variation)], {task: its train variation}, the eval seeds, the policy's action space)."""
     from simeval.errors import require_whole
-    from simeval.models.policy.experiment import names, resolve_action_space
+    from simeval.models.policy.experiment import eval_override, names, resolve_action_space
 
     require_whole("eval.seeds", evaluation["seeds"], 1)
     require_whole("eval.seed_offset", evaluation["seed_offset"], 0)
     if evaluation["max_steps"] is not None:
         require_whole("eval.max_steps", evaluation["max_steps"], 1)
     specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
-    given = evaluation.get("variation")
-    if given is not None and not (isinstance(given, dict) and given):
-        raise UserError(f"eval.variation={given!r}: expected a mapping of knobs (null: each task's own eval variation)")
     train = {s.name: dict(v or {}) for s, v in pipeline.split_tasks(specs, "train", heldout)}
     pairs = [(s.name, dict(v or {})) for s, v in pipeline.split_tasks(specs, "eval", heldout,
-                                                                         eval_override=dict(given) if given else None)]
+                                                                         eval_override=eval_override(evaluation))]
     if not pairs:
         raise UserError(f"task_group={task_group}: no task of the group has an eval variation; nothing to probe")
     seeds = list(range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"]))

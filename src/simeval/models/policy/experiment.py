@@ -307,6 +307,16 @@ def refuse_replaced_chance_baseline(chosen: str | None, policy_name: str) -> Non
                         "policy=random eval.seeds=2 eval.max_steps=40")
 
 
+def eval_override(evaluation: Mapping) -> dict | None:
+    """The eval section's `variation`: one variation for every eval task, or None (each task's own). An empty or
+    non-mapping value is a UserError ({} would vary nothing: eval = train)."""
+    given = evaluation.get("variation")
+    if given is not None and not (isinstance(given, Mapping) and given):
+        raise UserError(f"eval.variation={given!r}: expected a mapping of knobs, e.g. "
+                        "eval.variation='{robot: {home_noise: 0.1}}' (null: each task's own eval variation)")
+    return dict(given) if given else None
+
+
 def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
                        model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
                        episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
@@ -325,11 +335,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
-    given = evaluation.get("variation")
-    if given is not None and not (isinstance(given, Mapping) and given):  # {} would vary nothing: eval = train
-        raise UserError(f"eval.variation={given!r}: expected a mapping of knobs, e.g. "
-                        "eval.variation='{robot: {home_noise: 0.1}}' (null: each task's own eval variation)")
-    override = dict(evaluation["variation"]) if evaluation.get("variation") else None
+    override = eval_override(evaluation)
     plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
             for split in names(evaluation["splits"])}  # split names and variation keys are checked before training
     for split in [s for s, pairs in plan.items() if not pairs]:
