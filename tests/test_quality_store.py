@@ -34,23 +34,27 @@ def store(tmp_path) -> EpisodeStore:
     store = EpisodeStore(tmp_path / "store")
     store.write(_episode("stack-two-blocks", 0, success=True, progress=1.0))
     store.write(_episode("stack-block-tower", 1, success=False, progress=0.25))
+    # a success whose shaped progress stays below 1 (Meta-World's reward / 10 at success): complete all the same
+    store.write(_episode("align-rope", 2, success=True, progress=0.7))
     store.write(_episode("put-block-in-zone", 0, success=False, progress=None))  # success only
     store.write(_episode("open-laptop", 3, success=False, progress=None, success_known=False))  # nothing known
     return store
 
 
 def expected_from_files(store: EpisodeStore) -> tuple[dict[str, float], set[str]]:
-    """What the oracle should give, from the HDF5 files themselves: 10 x final progress where progress is known,
-    else 10 x success where success is known; the rest has no ground truth."""
+    """What the oracle should give, from the HDF5 files themselves: 10 where a success is recorded, else 10 x final
+    progress where progress is known, else 0 for a recorded failure; the rest has no ground truth."""
     scores, unknown = {}, set()
     for path in store.root.rglob("episode_*.h5"):
         with h5py.File(path, "r") as f:
             a = f.attrs
             name = f"{a['task']}#{a['seed']}"
-            if a["progress_known"]:
+            if a["success_known"] and a["success"]:
+                scores[name] = 10.0
+            elif a["progress_known"]:
                 scores[name] = 10.0 * float(f["progress"][-1])
             elif a["success_known"]:
-                scores[name] = 10.0 if a["success"] else 0.0
+                scores[name] = 0.0
             else:
                 unknown.add(name)
     return scores, unknown
@@ -63,7 +67,8 @@ def _quality(*args):
 
 def test_oracle_scores_the_store_episodes_from_their_recorded_ground_truth(store, tmp_path):
     want, unknown = expected_from_files(store)
-    assert want == {"stack-two-blocks#0": 10.0, "stack-block-tower#1": 2.5, "put-block-in-zone#0": 0.0}
+    assert want == {"stack-two-blocks#0": 10.0, "stack-block-tower#1": 2.5, "align-rope#2": 10.0,
+                    "put-block-in-zone#0": 0.0}
     assert unknown == {"open-laptop#3"}
     res = _quality("judge=oracle", f"episodes.store={store.root}", f"hydra.run.dir={tmp_path / 'q'}")
     assert res.returncode == 0, res.stderr[-2000:]
@@ -73,7 +78,7 @@ def test_oracle_scores_the_store_episodes_from_their_recorded_ground_truth(store
     assert set(rec["errors"]) == unknown and "no ground truth" in rec["errors"]["open-laptop#3"]
     assert rec["tasks"]["stack-block-tower#1"] == {"pipeline": "gensim"}
     assert not (tmp_path / "q" / "bundles").exists()  # read from the store: no PNG exported, none read back
-    assert "quality (oracle): 4 tasks, 3 scored, 1 failed (open-laptop#3)" in res.stdout + res.stderr
+    assert "quality (oracle): 5 tasks, 4 scored, 1 failed (open-laptop#3)" in res.stdout + res.stderr
 
 
 def test_one_task_and_seed_under_two_pipelines_is_an_error_naming_both_files(store, tmp_path):
@@ -95,7 +100,7 @@ def test_a_vlm_judge_gets_the_store_episodes_as_bundles(store, openai_server, tm
                    f"cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path / 'q'}")
     assert res.returncode == 0, res.stderr[-2000:]
     rec = json.loads((tmp_path / "q" / "result.json").read_text())
-    assert set(rec["values"]["task_completion"]) == {"stack-two-blocks#0", "stack-block-tower#1",
+    assert set(rec["values"]["task_completion"]) == {"stack-two-blocks#0", "stack-block-tower#1", "align-rope#2",
                                                             "put-block-in-zone#0", "open-laptop#3"}
     bundle = tmp_path / "q" / "bundles" / "stack-two-blocks__seed0"
     assert len(list((bundle / "scene").glob("*.png"))) == 4 and len(list((bundle / "frames").glob("*.png"))) == 6

@@ -25,7 +25,8 @@ from simeval.quality.bundle import (METRICS, SCALES, BundleError, TaskBundle, lo
                                     validate_ground_truth)
 
 log = logging.getLogger(__name__)
-VERSION = "1.1"  # 1.1: tasks with no valid score are failed tasks; ground truth validated; progress not clipped
+VERSION = "1.2"  # 1.1: tasks with no valid score are failed tasks; ground truth validated; progress not clipped;
+# 1.2: the oracle scores a recorded success 10 whatever its progress (Meta-World's shaped progress is < 1 at success)
 
 
 def completion_items(bundles: list[TaskBundle], template: PromptTemplate, n_frames: int = 8
@@ -77,14 +78,21 @@ def caption_items(bundles: list[TaskBundle], template: PromptTemplate) -> tuple[
 
 
 def oracle_completion(bundles: list[TaskBundle]) -> dict[str, dict]:
-    """Completion 0-10 from simulator ground truth: 10 x progress (partial reward in [0, 1]), else 10 x success."""
+    """Completion 0-10 from simulator ground truth: 10 for a recorded success, else 10 x progress (partial reward
+    in [0, 1]), else 0 for a recorded failure; nothing recorded is not scored.
+
+    Success decides before progress because a task's success criterion is its definition of complete, and some
+    sources' progress is a shaped reward that stays below 1 at success (Meta-World's reward / 10: 0.66-0.9 on
+    successful expert episodes of shelf-place, pick-place, button-press-topdown)."""
     out = {}
     for b in bundles:
         gt = validate_ground_truth(b.ground_truth, str(b.path))
-        if "progress" in gt:
+        if gt.get("success") is True:
+            score = 10.0
+        elif "progress" in gt:
             score = 10.0 * gt["progress"]
         elif "success" in gt:
-            score = 10.0 if gt["success"] else 0.0
+            score = 0.0
         else:
             continue
         out[b.name] = {"mean": score, "var": None, "n_valid": 1, "n_invalid": 0, "scores": [score]}

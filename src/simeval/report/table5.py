@@ -227,7 +227,8 @@ def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
     notes = ["Success rate with Wilson 95% interval (successes/rollouts); '-' = not run",
              TABLE5_MEANING[0].upper() + TABLE5_MEANING[1:],
              ("Eval progress: the mean over the eval rollouts of each task's progress at the rollout's end (1.0 = "
-              "success; for GenSim the step-wise reward, the quantity of the paper's GenSim column)"),
+              "success; for GenSim the step-wise reward, the quantity of the paper's GenSim column; for Meta-World its "
+              "shaped reward / 10, which can stay below 1.0 at a success)"),
              ("Eval counts the rollouts whose scene the variation changed: a seed whose first observation is its "
               "train rollout's is left out, and a group where no scene changed shows '-' (GenSim's own task.mode "
               "changes no scene in most of its tasks; rows built before 2026-11-30 count such rollouts: which "
