@@ -43,6 +43,21 @@ def test_debug_overlay_policy_is_the_tiny_preset():
     assert cpu.name == "cpu" and cpu.model.num_inference_steps == 16 and list(cpu.model.down_dims) == [64, 128, 256]
 
 
+def test_the_chance_baseline_renders_what_the_policies_beside_it_render():
+    """The eval split leaves out a scene whose first observation, as rendered for the policy, is its train scene's;
+    a baseline rendering smaller frames leaves out scenes its policy row keeps (at 32x32 one recoloured mix-piles
+    scene of GenSim's looked unchanged), so the two rows would not be read on the same scenes."""
+    from simeval.models.policy.random_baseline import RandomActions
+
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        views = {name: compose("generalization", overrides=[f"policy={name}"]).policy.model
+                 for name in ("random", "cpu", "authors_gensim_cpu", "authors_gensim")}
+    for name, model in views.items():
+        assert (list(model.cameras), list(model.image_size)) == (["top"], [64, 64]), name
+    default = RandomActions("joint").cfg  # the library's default, for callers without Hydra
+    assert (default.cameras, default.image_size) == (["top"], [64, 64])
+
+
 def test_the_random_action_baseline_runs_from_the_command_line_without_a_training_section(tmp_path):
     """policy=random (conf/policy/random.yaml has no train:) rolls out uniform random actions and writes a result
     with no training: the chance row of Table 5 (a regression once: the entrypoint read policy.train)."""

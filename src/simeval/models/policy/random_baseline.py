@@ -18,7 +18,7 @@ class RandomActions:
     """A policy stand-in for simeval.models.policy.evaluate.rollout_task: `cfg` carries what the rollout and its
     cache key read (action space, cameras, frame size, sampler), `runner(env)` the per-rollout actor."""
 
-    def __init__(self, action_space: str, cameras=("top",), image_size=(32, 32)) -> None:
+    def __init__(self, action_space: str, cameras=("top",), image_size=(64, 64)) -> None:
         self.cfg = SimpleNamespace(action_space=action_space, cameras=list(cameras), image_size=list(image_size),
                                    inference_scheduler="uniform-random", num_inference_steps=0)
 
