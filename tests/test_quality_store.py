@@ -106,3 +106,20 @@ def test_a_vlm_judge_gets_the_store_episodes_as_bundles(store, openai_server, tm
     assert len(list((bundle / "scene").glob("*.png"))) == 4 and len(list((bundle / "frames").glob("*.png"))) == 6
     sent = openai_server.requests[0]["payload"]["messages"][1]["content"]
     assert sum(part["type"] == "image_url" for part in sent) == 6  # every frame of the 6-step episode
+
+
+@pytest.mark.parametrize("args, says", [
+    (["episodes.store={tmp}/nowhere"], "episodes.store={tmp}/nowhere: no such folder"),
+    (["episodes.store={store}", "episodes.pipeline=nosuch"],
+     "episodes.store={store} has no episodes of episodes.pipeline=nosuch, episodes.group=None; it holds: "
+     "gensim (stacking)"),
+    (["episodes.store={store}", "episodes.group=nosuch"],
+     "has no episodes of episodes.pipeline=None, episodes.group=nosuch; it holds: gensim (stacking)"),
+    (["episodes.store={store}", "episodes.per_task=5"],
+     "episodes.store={store}: task 'align-rope' has 1 episodes, fewer than the 5 asked for (episodes.per_task=5;"),
+])
+def test_a_store_that_cannot_give_the_episodes_asked_for_is_one_line_naming_the_key(store, tmp_path, args, says):
+    fill = {"tmp": tmp_path, "store": store.root}
+    res = _quality("judge=oracle", *(a.format(**fill) for a in args), f"hydra.run.dir={tmp_path / 'q'}")
+    assert res.returncode == 2 and res.stderr.startswith("error: ") and res.stderr.count("\n") == 1, res.stderr
+    assert says.format(**fill) in res.stderr

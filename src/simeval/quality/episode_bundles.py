@@ -30,16 +30,24 @@ def task_identity(task: str, seed: int, variation_id: str = "") -> str:
 
 
 def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
+    if not Path(store_root).is_dir():
+        raise UserError(f"episodes.store={store_root}: no such folder (a store src/collect.py or src/import_data.py "
+                        "wrote, e.g. outputs/episodes)")
     store = EpisodeStore(store_root)
     try:  # the first k of each task of each pipeline (a task name may exist under several pipelines)
         pipelines = [pipeline] if pipeline else sorted({m["pipeline"] for m in store.index(None, group)})
         metas = [m for p in pipelines for m in store.first_k_per_task(per_task, p, group)]
-    except UserError:
-        raise
-    except ValueError as e:  # fewer episodes than episodes.per_task asks for
-        raise UserError(f"{store_root}: {e} (episodes.per_task={per_task})") from e
+    except UserError as e:
+        if "fewer than the" not in str(e):
+            raise
+        raise UserError(f"episodes.store={store_root}: {e} (episodes.per_task={per_task}; collect more or ask "
+                        "for fewer)") from e
     if not metas:
-        raise UserError(f"no episodes in {store_root} (pipeline={pipeline}, group={group})")
+        held = {(m["pipeline"], m["group"]) for m in store.index()}
+        holds = ", ".join(f"{p} ({', '.join(sorted(g for q, g in held if q == p))})"
+                          for p in sorted({p for p, _ in held})) or "nothing"
+        raise UserError(f"episodes.store={store_root} has no episodes of episodes.pipeline={pipeline}, "
+                        f"episodes.group={group}; it holds: {holds}")
     seen: dict[str, str] = {}
     for m in metas:
         ident = task_identity(m["task"], m["seed"], m.get("variation_id", ""))
