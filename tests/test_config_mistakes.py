@@ -117,6 +117,7 @@ def test_an_override_of_a_key_the_config_lacks_is_one_line_naming_the_valid_keys
 def test_a_typo_in_a_nested_key_in_a_sweep_names_the_closest_keys(tmp_path):
     line = one_line_exit_2(run("diversity", "-m", "world_model.train.epoks=3", "episodes=1,2", cwd=tmp_path))
     assert "override world_model.train.epoks: no such key (did you mean " in line and "epochs" in line.split("?")[0]
+    assert "+world_model" not in line  # '+key=' of a typo adds a key nothing reads: the run would go on without it
     assert not (tmp_path / "sweep").exists() or not list((tmp_path / "sweep").glob("*/result.json"))
 
 

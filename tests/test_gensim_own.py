@@ -132,7 +132,9 @@ def test_a_folder_that_is_not_a_gensim_checkout_is_one_line(tmp_path):
 
 def test_an_unknown_task_and_a_mismatched_rate_are_one_line(tmp_path):
     line = _error_line(_collect(tmp_path, "tasks=[no-such-task]", f"store={tmp_path / 'store'}"))
-    assert "no-such-task" in line and "registry" in line
+    assert "no-such-task" in line and "registry" in line and " tasks in cliport/tasks/" in line
+    line = _error_line(_collect(tmp_path, "tasks=[place-red-in-purple]", f"store={tmp_path / 'store'}"))
+    assert "did you mean place-red-in-green" in line  # a name in the checkout's registry (cliport/tasks/__init__.py)
     line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "pipeline.native.frame_every=6",
                                 f"store={tmp_path / 'store'}"))
     assert "record.control_hz=30" in line and "240/6" in line

@@ -206,6 +206,14 @@ def test_mistakes_give_one_line(tmp_path, args, env, expect):
     assert len(lines) == 1 and expect in lines[0] and "Traceback" not in r.stderr, r.stderr[-2000:]
 
 
+def test_an_empty_mujoco_gl_renders_offscreen_as_an_unset_one(tmp_path):
+    """`MUJOCO_GL=` (set, empty) is how a script unsets it; mujoco would read it as its onscreen glfw."""
+    r = _run("collect", tmp_path, "tasks=[reach-v3]", "episodes=1", "workers=1", "record.image_size=[32,32]",
+             f"store={tmp_path / 'store'}", env={**ENV, "MUJOCO_GL": ""})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert EpisodeStore(tmp_path / "store").exists("metaworld", "reach-v3", 0)
+
+
 def test_collect_takes_the_held_out_tasks_alone_and_generalization_names_a_store_that_is_a_file(mw_store, tmp_path):
     r = _run("collect", tmp_path, "tasks=[drawer-open-v3]", "variation=heldout", "episodes=1", "workers=1",
              "record.image_size=[32,32]", f"store={mw_store}")

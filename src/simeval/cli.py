@@ -422,6 +422,8 @@ def composition_error_line(exc: BaseException, config_name: str | None = None, c
         valid = [str(k) for k in parent.keys() if k != "hydra"]
         close = difflib.get_close_matches(str(key), valid, n=2, cutoff=0.6)
         mean = f"did you mean {' or '.join(close)}? " if close else ""
+        if close:  # a typo: '+key=...' would add the misspelt key, which nothing reads, and the run would go on
+            return f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)})"
         append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
         return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
                 f"write {append}")

@@ -30,6 +30,8 @@ def task_identity(task: str, seed: int, variation_id: str = "") -> str:
 
 
 def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
+    if not isinstance(per_task, int) or isinstance(per_task, bool) or per_task < 1:
+        raise UserError(f"episodes.per_task must be a whole number >= 1, got {per_task!r}")
     if not Path(store_root).is_dir():
         raise UserError(f"episodes.store={store_root}: no such folder (a store src/collect.py or src/import_data.py "
                         "wrote, e.g. outputs/episodes)")
@@ -46,8 +48,11 @@ def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
         held = {(m["pipeline"], m["group"]) for m in store.index()}
         holds = ", ".join(f"{p} ({', '.join(sorted(g for q, g in held if q == p))})"
                           for p in sorted({p for p, _ in held})) or "nothing"
-        raise UserError(f"episodes.store={store_root} has no episodes of episodes.pipeline={pipeline}, "
-                        f"episodes.group={group}; it holds: {holds}")
+        def shown(value):  # as the user would write it on the command line
+            return "null" if value is None else value
+
+        raise UserError(f"episodes.store={store_root} has no episodes of episodes.pipeline={shown(pipeline)}, "
+                        f"episodes.group={shown(group)}; it holds: {holds}")
     seen: dict[str, str] = {}
     for m in metas:
         ident = task_identity(m["task"], m["seed"], m.get("variation_id", ""))

@@ -289,8 +289,12 @@ def plan_tasks(root: Path, tasks: list[str] | str | None, group: str) -> dict[st
         known = set(registered_names(root))
         unknown = [n for n in names if n not in known]
         if unknown:
-            raise UserError(f"tasks: {unknown} not in GenSim's registry at {root} (cliport/tasks/__init__.py "
-                            f"`names` and cliport/generated_tasks)")
+            import difflib
+
+            close = list(dict.fromkeys(c for n in unknown for c in difflib.get_close_matches(n, known, n=3, cutoff=0.6)))
+            mean = f"did you mean {', '.join(close)}? " if close else ""
+            raise UserError(f"tasks: {unknown} not in GenSim's registry at {root} ({mean}{len(known)} tasks in "
+                            f"cliport/tasks/__init__.py `names` and cliport/generated_tasks)")
         if group != "all":
             raise UserError("give tasks= or task_group=, not both (leave task_group=all with tasks=)")
         return {n: (gensim_groups(n) or ["ungrouped"])[0] for n in names}

@@ -75,7 +75,8 @@ class MetaworldSettings:
 def import_metaworld():
     """(mujoco, goal-observable env classes by task, expert classes by task); a UserError naming the set-up when
     Meta-World or MuJoCo is missing."""
-    os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: it picks its GL backend then
+    if not os.environ.get("MUJOCO_GL", "").strip():  # unset or empty (MUJOCO_GL= in a script): mujoco picks its
+        os.environ["MUJOCO_GL"] = "egl"  # GL backend on import, and an empty value would mean its onscreen glfw
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # its INFO lines ("no OpenGL_accelerate", "failed to load
     # libOSMesa" before the error below says it) would stand in every run's log
     try:
