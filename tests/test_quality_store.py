@@ -79,6 +79,8 @@ def test_oracle_scores_the_store_episodes_from_their_recorded_ground_truth(store
     assert rec["tasks"]["stack-block-tower#1"] == {"pipeline": "gensim"}
     assert not (tmp_path / "q" / "bundles").exists()  # read from the store: no PNG exported, none read back
     assert "quality (oracle): 5 tasks, 4 scored, 1 failed (open-laptop#3)" in res.stdout + res.stderr
+    mean = sum(want.values()) / len(want)  # from the files' ground truth, as `want` above
+    assert f"; task_completion {mean:.2f} (mean of 4)" in res.stdout + res.stderr
 
 
 def test_one_task_and_seed_under_two_pipelines_is_an_error_naming_both_files(store, tmp_path):

@@ -279,6 +279,17 @@ def _summary_line(judge: str, scored: list[str], failed: list[str], cost: dict |
     return line
 
 
+def _means_line(values: dict) -> str:
+    """'; task_completion 9.73 (mean of 750)': each metric's mean over the items it scored, so the run's headline
+    number is in its log, not only in result.json."""
+    parts = []
+    for metric, per_item in sorted(values.items()):
+        means = [e["mean"] for e in per_item.values() if e.get("n_valid") and e.get("mean") is not None]
+        if means:
+            parts.append(f"{metric} {sum(means) / len(means):.2f} (mean of {len(means)})")
+    return "".join(f"; {p}" for p in parts)
+
+
 def log_task_table(logger, result_path: Path) -> None:
     """`quality/tasks` (per-task scores with the scene views and judged frames, lowest first), rebuilt from the
     written result.json as every report table is. The run's result is already written: a table that cannot be drawn
@@ -376,7 +387,7 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
         cost = ledger.totals()
         extra = {"cost": cost, "reliability": judge_reliability(records)}
     scored, failed = _outcome_of(values, names, errors)
-    summary = _summary_line(judge, scored, failed, cost)
+    summary = _summary_line(judge, scored, failed, cost) + _means_line(values)
     status, error = "ok", None
     if not scored:
         status = "failed"
