@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from simeval.episodes.store import EpisodeStore, read_episode
-from simeval.errors import UserError
+from simeval.errors import UserError, require_whole
 from simeval.quality.bundle import BundleError, TaskBundle, validate_ground_truth
 from simeval.results import atomic_write_text
 
@@ -30,8 +30,7 @@ def task_identity(task: str, seed: int, variation_id: str = "") -> str:
 
 
 def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
-    if not isinstance(per_task, int) or isinstance(per_task, bool) or per_task < 1:
-        raise UserError(f"episodes.per_task must be a whole number >= 1, got {per_task!r}")
+    require_whole("episodes.per_task", per_task)
     if not Path(store_root).is_dir():
         raise UserError(f"episodes.store={store_root}: no such folder (a store src/collect.py or src/import_data.py "
                         "wrote, e.g. outputs/episodes)")
@@ -48,11 +47,9 @@ def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
         held = {(m["pipeline"], m["group"]) for m in store.index()}
         holds = ", ".join(f"{p} ({', '.join(sorted(g for q, g in held if q == p))})"
                           for p in sorted({p for p, _ in held})) or "nothing"
-        def shown(value):  # as the user would write it on the command line
-            return "null" if value is None else value
-
-        raise UserError(f"episodes.store={store_root} has no episodes of episodes.pipeline={shown(pipeline)}, "
-                        f"episodes.group={shown(group)}; it holds: {holds}")
+        pipeline, group = ("null" if v is None else v for v in (pipeline, group))  # as a command line writes them
+        raise UserError(f"episodes.store={store_root} has no episodes of episodes.pipeline={pipeline}, "
+                        f"episodes.group={group}; it holds: {holds}")
     seen: dict[str, str] = {}
     for m in metas:
         ident = task_identity(m["task"], m["seed"], m.get("variation_id", ""))

@@ -291,7 +291,7 @@ def plan_tasks(root: Path, tasks: list[str] | str | None, group: str) -> dict[st
         if unknown:
             import difflib
 
-            close = list(dict.fromkeys(c for n in unknown for c in difflib.get_close_matches(n, known, n=3, cutoff=0.6)))
+            close = list(dict.fromkeys(c for n in unknown for c in difflib.get_close_matches(n, known, cutoff=0.6)))
             mean = f"did you mean {', '.join(close)}? " if close else ""
             raise UserError(f"tasks: {unknown} not in GenSim's registry at {root} ({mean}{len(known)} tasks in "
                             f"cliport/tasks/__init__.py `names` and cliport/generated_tasks)")
