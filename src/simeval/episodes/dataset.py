@@ -189,8 +189,9 @@ class ArraySource:
     def has_robot_masks(self) -> bool:
         return bool(self.arrays) and all("robot_mask" in a for a in self.arrays)
 
-    def read_full(self, e: int, key: str) -> np.ndarray:
-        return self.arrays[e][key]
+    def read_full(self, e: int, key: str) -> np.ndarray | None:
+        """One array of episode e whole; "object_poses" is None where the episode has none."""
+        return self.arrays[e].get(key) if key == "object_poses" else self.arrays[e][key]
 
 
 class StoreSource:
@@ -259,9 +260,13 @@ class StoreSource:
         carry them only then, so one model's evaluation never mixes masked and unmasked episodes)."""
         return self._masks
 
-    def read_full(self, e: int, key: str) -> np.ndarray:
+    def read_full(self, e: int, key: str) -> np.ndarray | None:
+        """One array of episode e whole: image (this source's camera), state, action, or object_poses (None where
+        the episode did not record them)."""
         with self._damage_named(e):
             f = self._file(e)
+            if key == "object_poses":
+                return f["obs/object_poses"][()] if "obs/object_poses" in f else None
             return f[{"state": "obs/state", "action": "action", "image": f"obs/rgb/{self.camera}"}[key]][()]
 
     @contextlib.contextmanager

@@ -35,6 +35,7 @@ from simeval.episodes.dataset import (
 from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
+from simeval.models.gate import GateConfig, pixel_gate
 from simeval.models.training import TrainConfig, evaluate, load_checkpoint, train
 from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
 
@@ -108,7 +109,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
                      steps: int | None = None, horizon: int | None = None, lr: float | None = None,
                      mask_margin: int = 0, exclude_robot_from_loss: bool = False,
-                     evaluate_only: bool = False) -> dict:
+                     evaluate_only: bool = False, gate: GateConfig | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -134,7 +135,10 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     model learns nothing of the robot's looks (the visual control failed without it); episodes without masks train
     on the full frame, and `values["protocol"]["robot_excluded_from_loss"]` says which happened.
     `heldout_episodes` is not used by "heldout" (its evaluation is held out). `evaluate_only` (heldout): a
-    UserError instead of training when the run's checkpoint is not there (to score finished runs again)."""
+    UserError instead of training when the run's checkpoint is not there (to score finished runs again).
+    `gate` (heldout): the validity gate's settings (simeval.models.gate; None: its defaults): `values["gate"]` says
+    whether the model beats both baselines on the held-out frames, per task and for the group; where it does not,
+    the run's numbers are no reading of diversity and the log line says so in their place."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
         raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -146,7 +150,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile, capture=capture,
-            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only)
+            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only, gate=gate)
     setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
                      checkpoint_dir, how_to_get_more)
     infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
@@ -234,7 +238,8 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                               exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
                               eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
-                              capture: bool, how_to_get_more, evaluate_only: bool = False) -> dict:
+                              capture: bool, how_to_get_more, evaluate_only: bool = False,
+                              gate: GateConfig | None = None) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.models.prediction import evaluate_prediction, task_mean_images
 
@@ -301,6 +306,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                            "trained_on": [1, k],
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
+              "gate": pixel_gate([prediction["per_episode"]], gate or GateConfig()),
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
               "train": setup.train_summary(summary, device, compile, capture), "model": setup.model_summary(),
@@ -502,10 +508,16 @@ def summary_line(values: dict) -> str:
                 f"{e['state_error']:.3f}, KL {e['kl_dyn']:.2f}, open-loop {e['open_loop_image_error']:.2f}")
     p = values["prediction"]["summary"]
     f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
+    verdict = values.get("gate", {}).get("verdict")  # runs recorded before the gate have none
+    if verdict is not None and verdict != "reads":  # the numbers are no reading of diversity: none in their place
+        return (f"held-out episodes {values['protocol']['evaluated_on']}: pixel reading: {verdict}"
+                + (f"; state reading: {values['state']['line']}" if values.get("state") else ""))
     ol, one = p["open_loop"], p["one_step"]
     milli = lambda x: "n/a" if x is None else f"{1e3 * x:.3f}"  # noqa: E731
     trained = values["protocol"].get("robot_excluded_from_loss")
-    return (f"held-out episodes {values['protocol']['evaluated_on']}: object-focused one-step error (primary, "
+    return (f"held-out episodes {values['protocol']['evaluated_on']}: "
+            + ("pixel reading (the gate: the model beats both baselines): " if verdict else "")
+            + "object-focused one-step error (primary, "
             f"x1e-3 per pixel) {milli(one['model']['object_error_per_pixel'])} (last frame "
             f"{milli(one['last']['object_error_per_pixel'])}, mean image {milli(one['mean']['object_error_per_pixel'])}"
             f"{'; robot not trained on' if trained else ''}); open-loop error {f(ol['model']['error'])} (last "
@@ -514,7 +526,8 @@ def summary_line(values: dict) -> str:
             f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}; moving pixels "
             + (f"({100 * one['moving_share']:.2g}% of kept) one-step {milli(one['model']['moving_error_per_pixel'])} "
                f"x1e-3 (skill vs last frame {f(one['moving_skill_vs_last'])})" if one.get("moving_share") else "none")
-            + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame"))
+            + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame")
+            + (f"; state reading: {values['state']['line']}" if values.get("state") else ""))
 
 
 def ranks_of(value, key: str) -> tuple[int, int] | None:
@@ -614,7 +627,8 @@ class DiversityRun:
             eval_seed=int(self.evaluation["seed"]), eval_context=int(self.evaluation["context"]),
             eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
             log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
-            compile=compile, capture=capture, how_to_get_more=how_to_get_more)
+            compile=compile, capture=capture, how_to_get_more=how_to_get_more,
+            gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "

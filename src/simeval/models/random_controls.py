@@ -247,19 +247,23 @@ def make_control_group(draw: ControlDraw, group: str, n_tasks: int = 4, episodes
     return ArraySource(infos, [{k: v for k, v in a.items() if k != "variation"} for a in arrays])
 
 
-def write_control_group(store_root, draw: ControlDraw, group: str, pipeline: str = "custom", **kw) -> list:
+def write_control_group(store_root, draw: ControlDraw, group: str, pipeline: str = "custom",
+                        state_xy: bool = False, **kw) -> list:
     """make_control_group written into an episode store as `<pipeline>/<task>` (camera "front"), what a user's
-    importer would write; returns the paths."""
+    importer would write; `state_xy` records the objects' (x, y) as obs/state (issue 50's control did) rather than
+    an empty state. Returns the paths."""
     from simeval.episodes.store import Episode, EpisodeStore
 
     src = make_control_group(draw, group, **kw)
     store, paths = EpisodeStore(store_root), []
     for info, a in zip(src.infos, src.arrays):
         n = info.n_rows
+        state = a["object_poses"][:, :, :2].reshape(n, -1) if state_xy else a["state"]
+        names = [f"object{j}_{c}" for j in range(draw.n_objects) for c in "xy"] if state_xy else []
         ep = Episode(pipeline=pipeline, task=info.task, description=f"random control {info.task}", group=group,
-                     seed=info.seed, rgb={"front": a["image"]}, state=a["state"], action=a["action"],
+                     seed=info.seed, rgb={"front": a["image"]}, state=state, action=a["action"],
                      reward=np.zeros(n, np.float32), is_first=np.arange(n) == 0, is_terminal=np.arange(n) == n - 1,
-                     action_space=dict(ACTION_SPACE), state_names=[], object_poses=a["object_poses"],
+                     action_space=dict(ACTION_SPACE), state_names=names, object_poses=a["object_poses"],
                      source="random_control")
         paths.append(store.write(ep))
     return paths

@@ -1,0 +1,138 @@
+"""The validity gate of dynamics-diversity readings (simeval.models.gate): skills and verdicts computed by hand, and a
+stand-in world model that draws the task's mean image gets "no reading" through the whole evaluation path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from simeval.errors import UserError
+from simeval.models.gate import GateConfig, fall_verdict, gate, pixel_gate
+
+
+def test_skill_and_verdict_by_hand():
+    tasks = np.array(["a", "a", "b", "b"])
+    model = np.array([[1.0, 1.0, 1.0, 1.0]])
+    last = np.array([[2.0, 2.0, 2.0, 2.0]])  # skill 1 - 4/8 = 0.5, the same in every resample
+    mean = np.array([[4.0, 4.0, 4.0, 4.0]])  # skill 0.75
+    g = gate(model, {"last": last, "mean": mean}, tasks)
+    assert g["passes"] and g["verdict"] == "reads" and g["tasks_passing"] == 2
+    assert g["baselines"]["last"]["skill"] == pytest.approx(0.5)
+    assert g["baselines"]["last"]["interval"] == pytest.approx([0.5, 0.5])
+    assert g["baselines"]["mean"]["skill"] == pytest.approx(0.75)
+
+
+def test_a_model_as_good_as_a_baseline_gets_no_reading():
+    tasks = np.array(["a"] * 4)
+    model = np.array([[1.0, 2.0, 3.0, 4.0]])
+    g = gate(model, {"last": model * 2, "mean": model.copy()}, tasks)
+    assert not g["passes"]
+    assert g["verdict"].startswith("no reading: the model does not beat the mean image (skill 0.000")
+
+
+def test_below_the_margin_or_an_interval_reaching_zero_fails():
+    tasks = np.array(["a"] * 4)
+    model = np.array([[0.97, 0.97, 0.97, 0.97]])
+    assert not gate(model, {"last": np.ones((1, 4))}, tasks)["passes"]  # skill 0.03 < margin 0.05
+    assert gate(model, {"last": np.ones((1, 4))}, tasks, GateConfig(margin=0.02))["passes"]
+    # skill 0.2 overall but worse than the baseline on half the episodes: the interval reaches below zero
+    noisy = np.array([[0.1, 0.1, 1.5, 1.5]])
+    g = gate(noisy, {"last": np.array([[0.1, 4.0, 1.0, 0.0]])}, tasks)
+    lo = g["baselines"]["last"]["interval"][0]
+    assert g["baselines"]["last"]["skill"] == pytest.approx(1 - 3.2 / 5.1) and lo < 0 and not g["passes"]
+
+
+def test_a_group_with_a_task_that_does_not_read_gets_no_reading_unless_fewer_tasks_are_required():
+    tasks = np.array(["a", "a", "b", "b"])
+    model = np.array([[1.0, 1.0, 3.0, 3.0]])
+    last = np.array([[4.0, 4.0, 3.0, 3.0]])  # the group's skill 1 - 8/14 > 0.05; task b's skill 0
+    g = gate(model, {"last": last}, tasks)
+    assert g["baselines"]["last"]["passes"] and not g["passes"]
+    assert g["verdict"] == "no reading: the model does not beat the last frame on 1 of 2 tasks (b)"
+    assert gate(model, {"last": last}, tasks, GateConfig(min_task_share=0.5))["passes"]
+
+
+def test_config_mistakes_are_user_errors():
+    with pytest.raises(UserError, match="gate.margin=1.5"):
+        GateConfig(margin=1.5)
+    with pytest.raises(UserError, match="unknown key"):
+        GateConfig.from_dict({"margn": 0.1})
+
+
+def test_fall_verdicts():
+    reads = {10: {"passes": True}, 40: {"passes": True}}
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5), "mean": (0.2, 1.0)}, reads) == "falls"
+    # the mean image fell as much: the model's fall is what any predictor trained on more episodes would show
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5), "mean": (-0.2, 0.4)}, reads) == "no fall"
+    assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-1.5, -0.5)}, reads) == "rises"
+    gated = {10: {"passes": False, "verdict": "no reading: the model does not beat the last frame"}, 40: reads[40]}
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5)}, gated) == \
+        "no reading: the model does not beat the last frame at 10 episodes"
+
+
+class _MeanImageModel:
+    """A stand-in world model whose every decoded frame is the task's mean training image (one task): it has
+    learned nothing of the dynamics, so its skill against the mean image is 0 exactly."""
+
+    def __init__(self, frame: torch.Tensor) -> None:
+        self.frame, self.rssm = frame, self
+
+    @staticmethod
+    def _images(batch):
+        return batch["image"].float() / 255
+
+    def embed(self, image, state):
+        return image
+
+    def observe(self, embed, prev_action, is_first, generator=None):
+        return embed, embed
+
+    @staticmethod
+    def features(state):
+        return state
+
+    def image_decoder(self, features):
+        return self.frame.expand_as(features)
+
+
+def test_a_model_that_outputs_the_mean_image_gets_no_reading():
+    from simeval.models.prediction import step_sums, summarise
+
+    from simeval.models.random_controls import make_control_group, one_disk_control
+
+    src = make_control_group(one_disk_control(), "varied", n_tasks=1, episodes=6, n_actions=8, size=16)
+    frames = np.concatenate([a["image"] for a in src.arrays[:3]]).astype(np.float64) / 255
+    mean = torch.as_tensor(frames.mean(0), dtype=torch.float32)
+    model = _MeanImageModel(mean)
+    per_episode = []
+    for e in range(3, 6):
+        a = src.arrays[e]
+        L = len(a["image"])
+        batch = {"image": torch.as_tensor(a["image"])[None], "state": torch.zeros(1, L, 0),
+                 "prev_action": torch.zeros(1, L, 2), "is_first": torch.zeros(1, L, dtype=torch.bool),
+                 "mask": torch.ones(1, L, dtype=torch.bool), "task": torch.zeros(1, dtype=torch.long)}
+        sums = {k: float(v[0]) for k, v in step_sums(model, batch, mean[None]).items()}
+        per_episode.append({"task": src.infos[e].task, "seed": src.infos[e].seed, "sums": sums})
+    total = {k: sum(p["sums"][k] for p in per_episode) for k in per_episode[0]["sums"] if "open_loop" not in k}
+    total.update({k: 0.0 for k in ("open_loop/frames", "open_loop/kept_pixels", "open_loop/moving_pixels")})
+    total.update({f"open_loop/{p}/{part}": 0.0 for p in ("model", "last", "mean")
+                  for part in ("full", "object", "moving")})
+    assert summarise(total, 16)["one_step"]["skill_vs_mean"] == pytest.approx(0.0, abs=1e-6)
+    g = pixel_gate([per_episode])
+    assert not g["passes"] and g["verdict"].startswith("no reading: the model does not beat the last frame")
+    assert " nor the mean image (skill 0.000 " in g["verdict"]
+
+
+def test_order_between_groups_by_hand():
+    from simeval.models.gate import order_between_groups
+
+    tasks = np.array(["t"] * 4)
+    base = np.ones((1, 4))
+    a = (np.full((1, 4), 0.8), base, tasks)  # relative error 0.8 in every resample
+    b = (np.full((1, 4), 0.5), base, tasks)  # 0.5
+    out = order_between_groups(a, b)
+    assert out["difference"] == pytest.approx(0.3) and out["interval"] == pytest.approx([0.3, 0.3])
+    assert out["order"] == "a > b" and order_between_groups(b, a)["order"] == "a < b"
+    noisy = (np.array([[0.1, 1.0, 0.2, 0.9]]), base, tasks)  # 0.55 with a wide interval around b's 0.5
+    assert order_between_groups(noisy, b)["order"] == "none"
