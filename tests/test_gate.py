@@ -46,7 +46,7 @@ def test_below_the_margin_or_an_interval_reaching_zero_fails():
 def test_a_group_with_a_task_that_does_not_read_gets_no_reading_unless_fewer_tasks_are_required():
     tasks = np.array(["a", "a", "b", "b"])
     model = np.array([[1.0, 1.0, 3.0, 3.0]])
-    last = np.array([[4.0, 4.0, 3.0, 3.0]])  # the group's skill 1 - 8/14 > 0.05; task b's skill 0
+    last = np.array([[4.0, 4.0, 3.0, 3.1]])  # the group's skill 1 - 8/14.1 > 0.05; task b's 1 - 6/6.1 < 0.05
     g = gate(model, {"last": last}, tasks)
     assert g["baselines"]["last"]["passes"] and not g["passes"]
     assert g["verdict"] == "no reading: the model does not beat the last frame on 1 of 2 tasks (b)"

@@ -36,6 +36,7 @@ from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
 from simeval.models.gate import GateConfig, pixel_gate
+from simeval.models.state_dynamics import StateModelConfig, read_states, state_reading
 from simeval.models.training import TrainConfig, evaluate, load_checkpoint, train
 from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
 
@@ -109,7 +110,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
                      steps: int | None = None, horizon: int | None = None, lr: float | None = None,
                      mask_margin: int = 0, exclude_robot_from_loss: bool = False,
-                     evaluate_only: bool = False, gate: GateConfig | None = None) -> dict:
+                     evaluate_only: bool = False, gate: GateConfig | None = None,
+                     state_model: StateModelConfig | None = None) -> dict:
     """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
     `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
     With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
@@ -138,7 +140,9 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     UserError instead of training when the run's checkpoint is not there (to score finished runs again).
     `gate` (heldout): the validity gate's settings (simeval.models.gate; None: its defaults): `values["gate"]` says
     whether the model beats both baselines on the held-out frames, per task and for the group; where it does not,
-    the run's numbers are no reading of diversity and the log line says so in their place."""
+    the run's numbers are no reading of diversity and the log line says so in their place. `state_model`
+    (heldout; None: no state reading): `values["state"]` is the state-space reading on the same training and
+    held-out episodes (simeval.models.state_dynamics), gated on its own."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
         raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -150,7 +154,7 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
             eval_batch_size=eval_batch_size,
             checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
             progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile, capture=capture,
-            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only, gate=gate)
+            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only, gate=gate, state_model=state_model)
     setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
                      checkpoint_dir, how_to_get_more)
     infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
@@ -239,7 +243,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                               eval_batch_size: int, checkpoint_dir,
                               log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
                               capture: bool, how_to_get_more, evaluate_only: bool = False,
-                              gate: GateConfig | None = None) -> dict:
+                              gate: GateConfig | None = None, state_model: StateModelConfig | None = None) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.models.prediction import evaluate_prediction, task_mean_images
 
@@ -307,12 +311,22 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
               "gate": pixel_gate([prediction["per_episode"]], gate or GateConfig()),
+              "state": None if state_model is None else _state_reading(source, setup, evaluated, state_model, gate),
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
               "train": setup.train_summary(summary, device, compile, capture), "model": setup.model_summary(),
               "tasks": sorted(set(setup.tasks)),
               "checkpoint": str(setup.checkpoint) if setup.checkpoint is not None else None}
     return values
+
+
+def _state_reading(source, setup, evaluated: np.ndarray, cfg: StateModelConfig, gate: GateConfig | None) -> dict:
+    train_idx, eval_idx = np.flatnonzero(setup.train_mask).tolist(), np.flatnonzero(evaluated).tolist()
+    states = read_states(source, train_idx + eval_idx)
+    started = time.perf_counter()
+    out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig())
+    out["seconds"] = time.perf_counter() - started
+    return out
 
 
 @dataclass
@@ -368,6 +382,10 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
     state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
     torch.manual_seed(train_cfg.seed)
     model = WorldModel(model_cfg, state_dim, action_dim)
+    if model_cfg.pixel_norm != "none":
+        from simeval.models.prediction import pixel_stats
+
+        model.set_pixel_stats(*pixel_stats(source, train_mask, model_cfg.image_size))
     meta = {"version": VERSION, "model": model_cfg.to_dict(), "train": asdict(train_cfg), "window": asdict(window),
             "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
             "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
@@ -572,7 +590,9 @@ class DiversityRun:
     def configs(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
         """The model, training and window configs, every protocol value checked (once; read it before any data is
         read so a bad value stops there)."""
-        model_cfg = WorldModelConfig.from_dict(self.world_model["model"])
+        heldout = self.protocol["name"] == "heldout"  # its model settings (pixel_norm) over the preset's
+        model_cfg = WorldModelConfig.from_dict({**self.world_model["model"],
+                                                **((self.protocol.get("model") or {}) if heldout else {})})
         train_cfg = TrainConfig.from_dict({**self.world_model["train"], "seed": int(self.seed)})
         window = WindowSpec(**self.world_model["window"])
         check_eval_context(int(self.evaluation["context"]), window)
@@ -628,7 +648,9 @@ class DiversityRun:
             eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
             log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
             compile=compile, capture=capture, how_to_get_more=how_to_get_more,
-            gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")))
+            gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
+            state_model=None if paper or self.protocol.get("state_model") is None else
+            StateModelConfig.from_dict(self.protocol["state_model"]))
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "

@@ -12,7 +12,9 @@ x_b[r, e] (a baseline does not depend on the seed; it is given per run all the s
     its interval       the 95% percentile interval over resamples of seeds and, within each task, held-out
                        episodes (simeval.metrics.resample.draws; the same draws for every baseline)
     passes             for every baseline b: skill_b >= margin and the interval's lower end > 0
-    per task           the same on that task's episodes alone; the group's reading needs the group to pass and at
+    per task           skill_b >= margin on that task's episodes alone (its interval is reported, not required: a
+                       task's 10 held-out episodes give intervals as wide for a model that learned as for one
+                       that did not); the group's reading needs the group to pass and at
                        least `min_task_share` of its tasks to pass (default: every task: a group whose reading
                        mixes learned and unlearned tasks averages numbers that mean different things)
 
@@ -68,12 +70,12 @@ def _skill(x: np.ndarray, xb: np.ndarray, draws) -> tuple[float, list[float]]:
     return point, resample.percentile(reps)
 
 
-def _check(x: np.ndarray, bases: dict[str, np.ndarray], strata, cfg: GateConfig) -> dict:
+def _check(x: np.ndarray, bases: dict[str, np.ndarray], strata, cfg: GateConfig, interval: bool = True) -> dict:
     draws = resample.draws(x.shape[0], strata, cfg.n_boot, cfg.seed)
     out, failed = {}, []
     for name, xb in bases.items():
         point, (lo, hi) = _skill(x, xb, draws)
-        ok = bool(np.isfinite(point) and point >= cfg.margin and np.isfinite(lo) and lo > 0)
+        ok = bool(np.isfinite(point) and point >= cfg.margin and (not interval or (np.isfinite(lo) and lo > 0)))
         out[name] = {"skill": point, "interval": [lo, hi], "passes": ok}
         if not ok:
             failed.append(name)
@@ -102,7 +104,8 @@ def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateCo
     per_task = {}
     for t in sorted(set(tasks.tolist())):
         cols = tasks == t
-        per_task[str(t)] = _check(x[:, cols], {k: v[:, cols] for k, v in bases.items()}, tasks[cols], cfg)
+        per_task[str(t)] = _check(x[:, cols], {k: v[:, cols] for k, v in bases.items()}, tasks[cols], cfg,
+                                  interval=False)
     passing = sum(r["passes"] for r in per_task.values())
     enough = passing >= cfg.min_task_share * len(per_task) - 1e-9
     if not group["passes"]:

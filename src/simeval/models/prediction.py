@@ -166,6 +166,22 @@ def task_mean_images(source, episodes: np.ndarray, image_size: int) -> dict[str,
     return {t: (sums[t] / counts[t] / 255.0).astype(np.float32) for t in sorted(sums)}
 
 
+def pixel_stats(source, episodes: np.ndarray, image_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, deviation), each (H, W, 3) in [0, 1]: over every frame of the episodes where `episodes` is True (the
+    training episodes), at the model's resolution (WorldModel.set_pixel_stats)."""
+    from simeval.episodes.dataset import resize_frames
+
+    total, squares, n = 0.0, 0.0, 0
+    for e in np.flatnonzero(episodes):
+        frames = source.read_full(int(e), "image")
+        if frames.shape[1] != image_size:
+            frames = resize_frames(frames, image_size)
+        x = frames.astype(np.float64) / 255.0
+        total, squares, n = total + x.sum(0), squares + (x**2).sum(0), n + len(x)
+    mean = total / n
+    return mean.astype(np.float32), np.sqrt(np.maximum(squares / n - mean**2, 0.0)).astype(np.float32)
+
+
 def summarise(sums: dict[str, float], image_size: int) -> dict:
     """Errors and skill scores from summed SUM_KEYS (see the module docstring); None where no frame counts."""
     pixels = image_size * image_size

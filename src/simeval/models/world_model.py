@@ -7,7 +7,8 @@ The model, per step t of a window (B batch, T steps):
     posterior  q(z_t | h_t, e_t)     = Cat(unimix(softmax(MLP([h_t, e_t]))))   e_t = [CNN(image_t), MLP(symlog(state_t))]
     z_t: `stoch` categoricals of `classes` classes, a straight-through one-hot sample (forward: the one-hot; gradient:
          that of the probabilities); unimix(p) = (1 - u) p + u / classes with u = 0.01
-    decoders from [z_t, h_t]: image mean (MSE, summed over pixels) and symlog(state) (MSE, summed over dimensions)
+    decoders from [z_t, h_t]: image mean (MSE, summed over pixels) and symlog(state) (MSE, summed over dimensions);
+    with pixel_norm "standardise" the image enters, is drawn and is scored as z = (o - mu) / sd per pixel
 Where `is_first` is set, (h, z) are reset to the learned initial state and a_{t-1} to zero before the step.
 Actions enter as a / max(|a|, 1) (DreamerV3's bound), after the dataset has standardised them.
 
@@ -42,6 +43,7 @@ from simeval.errors import UserError, require_whole_fields
 from simeval.models.device import module_device, to_device
 
 VERSION = "1.0"
+PIXEL_NORMS = ("none", "standardise")
 
 
 @dataclass
@@ -62,6 +64,14 @@ class WorldModelConfig:
     rep_scale: float = 0.1
     image_scale: float = 1.0
     state_scale: float = 1.0
+    # "none": frames in [0, 1] (the encoder sees o - 0.5, the decoder draws o), the loss their squared error;
+    # "standardise": per pixel and channel z = (o - mu) / max(sd, pixel_std_floor) over the training frames
+    # (set_pixel_stats): the encoder sees z, the decoder draws z (decoded frames mu + sd z), the loss is z's
+    # squared error. Why: with "none" an object's pull on the loss scales with its area times its contrast
+    # squared, and a small or faint one (a 2% disk) leaves the model on the mean image for 1,000s of steps
+    # (README, "Dynamics diversity: why the model did not learn one disk")
+    pixel_norm: str = "none"
+    pixel_std_floor: float = 0.05
 
     def __post_init__(self) -> None:
         require_whole_fields(self, "world_model.model", ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth",
@@ -77,6 +87,10 @@ class WorldModelConfig:
         for name in ("free_nats", "dyn_scale", "rep_scale", "image_scale", "state_scale"):
             if getattr(self, name) < 0:
                 raise UserError(f"world_model.{name}={getattr(self, name)}: expected >= 0")
+        if self.pixel_norm not in PIXEL_NORMS:
+            raise UserError(f"world_model.pixel_norm={self.pixel_norm!r}: expected one of {', '.join(PIXEL_NORMS)}")
+        if not 0 < self.pixel_std_floor <= 1:
+            raise UserError(f"world_model.pixel_std_floor={self.pixel_std_floor}: expected a deviation in (0, 1]")
 
     @property
     def stages(self) -> int:
@@ -176,6 +190,23 @@ class ChannelLayerNorm(nn.Module):
         return rearrange(self.norm(rearrange(x, "n c h w -> n h w c")), "n h w c -> n c h w")
 
 
+class PixelNorm(nn.Module):
+    """Per pixel and channel mean and deviation (H, W, 3) of the training frames (WorldModelConfig.pixel_norm);
+    buffers, so a checkpoint carries them. Until set_pixel_stats: mean 0.5, deviation 1 (the "none" layout)."""
+
+    def __init__(self, size: int, standardise: bool) -> None:
+        super().__init__()
+        self.standardise = standardise
+        self.register_buffer("mean", torch.full((size, size, 3), 0.5))
+        self.register_buffer("scale", torch.ones(size, size, 3))
+
+    def to_z(self, image: torch.Tensor) -> torch.Tensor:
+        return (image - self.mean) / self.scale
+
+    def from_z(self, z: torch.Tensor) -> torch.Tensor:
+        return self.mean + self.scale * z
+
+
 class ConvEncoder(nn.Module):
     def __init__(self, cfg: WorldModelConfig) -> None:
         super().__init__()
@@ -191,7 +222,8 @@ class ConvEncoder(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:  # (B, T, H, W, 3) in [0, 1] -> (B, T, E)
         b = image.shape[0]
-        x = self.layers(rearrange(image - 0.5, "b t h w c -> (b t) c h w"))
+        norm = self.__dict__.get("pixel_norm")  # the model's PixelNorm (not a submodule here: one copy of buffers)
+        x = self.layers(rearrange(image - 0.5 if norm is None else norm.to_z(image), "b t h w c -> (b t) c h w"))
         return rearrange(x, "(b t) c h w -> b t (c h w)", b=b)
 
 
@@ -218,7 +250,9 @@ class ConvDecoder(nn.Module):
     def forward(self, feat: torch.Tensor) -> torch.Tensor:  # (B, T, F) -> (B, T, H, W, 3), mean image
         b = feat.shape[0]
         x = rearrange(self.linear(feat), "b t (c h w) -> (b t) c h w", h=self.minres, w=self.minres)
-        return rearrange(self.layers(x), "(b t) c h w -> b t h w c", b=b) + 0.5
+        z = rearrange(self.layers(x), "(b t) c h w -> b t h w c", b=b)
+        norm = self.__dict__.get("pixel_norm")
+        return z + 0.5 if norm is None else norm.from_z(z)
 
 
 class GRUCell(nn.Module):
@@ -361,6 +395,10 @@ class WorldModel(nn.Module):
         self.rssm = RSSM(cfg, action_dim, embed_dim)
         feat = cfg.stoch * cfg.classes + cfg.deter
         self.image_decoder = ConvDecoder(cfg, feat)
+        if cfg.pixel_norm == "standardise":
+            self.pixel_norm = PixelNorm(cfg.image_size, True)
+            for part in (self.encoder, self.image_decoder):
+                part.__dict__["pixel_norm"] = self.pixel_norm
         self.state_decoder = mlp(feat, cfg.mlp_units, cfg.mlp_layers, out=state_dim) if state_dim else None
         dreamer_init(self)
         for out in (self.rssm.prior_head, self.rssm.post_head, self.image_decoder.layers[-1]):
@@ -397,6 +435,16 @@ class WorldModel(nn.Module):
             raise UserError(f"compile=true: torch.compile could not build the model's steps ({type(e).__name__}: "
                             f"{first}); run with compile=false") from e
 
+    @torch.no_grad()
+    def set_pixel_stats(self, mean: np.ndarray, std: np.ndarray) -> None:
+        """The training frames' per pixel and channel mean and deviation (H, W, 3) in [0, 1] (pixel_norm
+        "standardise"; the deviation floored at pixel_std_floor so a pixel that never changes does not weigh
+        without bound)."""
+        if self.cfg.pixel_norm != "standardise":
+            return
+        self.pixel_norm.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        self.pixel_norm.scale.copy_(torch.as_tensor(std, dtype=torch.float32).clamp_min(self.cfg.pixel_std_floor))
+
     def n_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
 
@@ -420,7 +468,10 @@ class WorldModel(nn.Module):
         post, prior = self.rssm.observe(self.embed(image, batch["state"]), batch["prev_action"], batch["is_first"],
                                         generator=generator, noise=noise, resets=resets)
         feat = self.rssm.features(post)
-        se = (self.image_decoder(feat) - image).pow(2)
+        if self.cfg.pixel_norm == "standardise":  # the loss in standardised units (WorldModelConfig.pixel_norm)
+            se = (self.image_decoder(feat) - image).div(self.pixel_norm.scale).pow(2)
+        else:
+            se = (self.image_decoder(feat) - image).pow(2)
         robot = batch.get("robot_mask")
         if robot is not None:  # pixels the robot covers carry no loss: the model spends nothing on its looks
             se = se * (~robot.bool()).to(se.dtype)[..., None]

@@ -1,0 +1,319 @@
+"""Dynamics-diversity controls drawn at random (simeval.models.random_controls), for both readings: the pixel world
+model of the heldout protocol and the state-space model (simeval.models.state_dynamics).
+
+    python experiments/random_controls.py                        # every draw, both families, both readings
+    python experiments/random_controls.py --readings state       # the state reading alone (a minute)
+    python experiments/random_controls.py --draws 0 1 --jobs 2   # some draws, two runs at a time
+    python experiments/random_controls.py --replot               # table and figure again from the saved runs
+
+A draw (its seed in DRAW_SEEDS, fixed before any was run) fixes 1-4 objects of 2-12% of the frame, colours,
+background, texture, camera scale, action kind (force, velocity, pose) and the dynamics knobs. Per draw three groups
+of 4 tasks x 50 episodes: "shared" (the base knobs and looks everywhere), "varied" (the draw's varied knobs drawn per
+episode; the same looks) and "looks" (the base dynamics; colours, background and texture drawn per episode). Each
+group is trained on the first `--episodes` episodes of each task and scored on episodes 41-50 (the protocol's
+budget, learning rate, context and settings; conf/protocol/heldout.yaml), each group with its own gate.
+
+The criterion, written down before the first draw ran. The order statistic is the relative one-step error, the
+share of a physics-free predictor's error the model leaves (simeval.models.gate.relative_error): pixels, the
+object-focused error over the last frame's; states, the error over constant velocity's (a group whose objects move
+further has larger errors for every predictor; the ratio compares groups whose motions differ in size). With the
+difference d = relative error of the varied (or looks) group - the shared group's, and its 95% interval over
+independent resamples of each group's seeds and held-out episodes:
+    dynamics family   right: d's interval above 0;  wrong: below 0;  no order: it contains 0
+    visual family     right: d's interval does not lie above 0 (the looks must not read as more diverse); wrong:
+                      above 0
+    gated             either group's reading fails its gate: "no reading", whatever d is
+A draw that is wrong is a finding: report it, change the protocol, rerun every draw (never drop one).
+
+Outputs: runs under OUT/controls/random/runs/ (one JSON per draw x group x reading x seed: a killed sweep resumes;
+pixel models are checkpointed under OUT/checkpoints/random_controls), and outputs/tables/random_controls.{json,md},
+outputs/figures/random_controls.png. Committed tables and figures are not replaced unless --overwrite is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from dynamics_controls import fail, refuse_to_replace_committed  # noqa: E402
+
+from simeval.cli import OneLineParser  # noqa: E402
+
+DRAW_SEEDS = tuple(range(12))  # fixed before any draw was run; never drop one
+GROUPS = {"shared": ("shared", "dynamics"), "varied": ("varied", "dynamics"), "looks": ("varied", "visual")}
+FAMILIES = {"dynamics": "varied", "visual": "looks"}  # family -> the group compared with "shared"
+READINGS = ("pixel", "state")
+N_TASKS, EPISODES, N_ACTIONS, HELDOUT = 4, 50, 40, (41, 50)
+
+
+def protocol() -> dict:
+    import yaml
+
+    return yaml.safe_load((ROOT / "conf" / "protocol" / "heldout.yaml").read_text())
+
+
+def settings(args) -> dict:
+    """What a saved run's numbers depend on besides its draw, group, reading and seed."""
+    return {"preset": args.preset, "episodes": args.episodes, "protocol": protocol(), "tasks": N_TASKS,
+            "actions": N_ACTIONS, "heldout": list(HELDOUT)}
+
+
+def group_source(draw_seed: int, group: str, size: int):
+    from simeval.models.random_controls import draw_control, make_control_group
+
+    which, kind = GROUPS[group]
+    return make_control_group(draw_control(draw_seed), which, n_tasks=N_TASKS, episodes=EPISODES,
+                              n_actions=N_ACTIONS, size=size, kind=kind)
+
+
+def run_one(job: dict) -> dict:
+    """One draw x group x reading (x seed for pixels): its record (the per-episode sums the table needs)."""
+    import numpy as np
+    import torch
+    import yaml
+
+    from simeval.episodes.dataset import WindowSpec
+    from simeval.models.dynamics_diversity import fit_and_evaluate
+    from simeval.models.gate import GateConfig
+    from simeval.models.state_dynamics import StateModelConfig, read_states, state_reading
+    from simeval.models.training import TrainConfig
+    from simeval.models.world_model import WorldModelConfig
+
+    torch.set_num_threads(1)
+    p = job["settings"]["protocol"]
+    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{job['settings']['preset']}.yaml").read_text())
+    k = job["settings"]["episodes"]
+    started = time.perf_counter()
+    gate_cfg = GateConfig.from_dict(p.get("gate"))
+    if job["reading"] == "state":
+        src = group_source(job["draw"], job["group"], 16)  # the states do not depend on the frames' size
+        tasks = [i.task for i in src.infos]
+        train = [e for e, i in enumerate(src.infos) if i.seed < k]
+        held = [e for e, i in enumerate(src.infos) if HELDOUT[0] - 1 <= i.seed < HELDOUT[1]]
+        r = state_reading(read_states(src, train + held), tasks, train, held,
+                          StateModelConfig.from_dict(p["state_model"]), gate_cfg)
+        rows = r["per_episode"]
+        record = {"model": [[row["model"][s] for row in rows] for s in range(len(r["seeds"]))],
+                  "baseline": [row["constant_velocity"] for row in rows], "tasks": [row["task"] for row in rows],
+                  "gate": r["gate"], "summary": r["summary"], "training": r["training"]}
+    else:
+        src = group_source(job["draw"], job["group"], wm["model"]["image_size"])
+        model_cfg = WorldModelConfig.from_dict({**wm["model"], **(p.get("model") or {})})
+        values = fit_and_evaluate(
+            src, episodes_per_task=k, model_cfg=model_cfg,
+            train_cfg=TrainConfig.from_dict({**wm["train"], "seed": job["seed"]}), window=WindowSpec(**wm["window"]),
+            eval_episodes=(HELDOUT[0] - 1, HELDOUT[1]), protocol="heldout", steps=p["steps"], horizon=p["horizon"],
+            lr=p["lr"], mask_margin=p["mask_margin"], exclude_robot_from_loss=p["exclude_robot_from_loss"],
+            eval_context=5, eval_seed=job["seed"], progress=False, device="cpu", gate=gate_cfg,
+            checkpoint_dir=job["checkpoints"])
+        rows = sorted(values["prediction"]["per_episode"], key=lambda e: (e["task"], e["seed"]))
+        one = values["prediction"]["summary"]["one_step"]
+        record = {"model": [[row["sums"]["one_step/model/object"] for row in rows]],
+                  "baseline": [row["sums"]["one_step/last/object"] for row in rows],
+                  "tasks": [row["task"] for row in rows], "gate": values["gate"],
+                  "summary": {"skill_vs_last": one["object_skill_vs_last"], "skill_vs_mean": one["object_skill_vs_mean"],
+                              "moving_share": one["moving_share"],
+                              "reconstruction": values["prediction"]["summary"]["reconstruction"]["model"]["error"],
+                              "reconstruction_mean": values["prediction"]["summary"]["reconstruction"]["mean"]["error"]},
+                  "training": {"steps": values["train"]["steps"], "seconds": values["train"]["seconds"]}}
+    record.update({key: job[key] for key in ("draw", "group", "reading", "seed")}, settings=job["settings"],
+                  seconds=round(time.perf_counter() - started, 1))
+    record["gate"] = {key: record["gate"][key] for key in ("passes", "verdict", "baselines", "tasks_passing", "tasks")}
+    del np
+    return record
+
+
+def jobs_for(args) -> list[dict]:
+    runs = args.out / "controls" / "random" / "runs"
+    jobs = []
+    for reading in args.readings:
+        for draw in args.draws:
+            groups = ["shared"] + [FAMILIES[f] for f in args.families]
+            for group in groups:
+                for seed in (args.seeds if reading == "pixel" else [0]):
+                    path = runs / f"draw{draw:02d}_{group}_{reading}_s{seed}.json"
+                    jobs.append({"draw": draw, "group": group, "reading": reading, "seed": seed, "path": str(path),
+                                 "settings": settings(args),
+                                 "checkpoints": str(args.out / "checkpoints" / "random_controls")})
+    return jobs
+
+
+def run_and_save(job: dict) -> str:
+    from simeval.results import atomic_write_text
+
+    record = run_one(job)
+    atomic_write_text(Path(job["path"]), json.dumps(record, indent=1))
+    g = record["gate"]
+    return (f"draw {job['draw']} {job['group']} {job['reading']} seed {job['seed']}: {g['verdict']} "
+            f"({record['seconds']:.0f} s)")
+
+
+def run_all(args) -> None:
+    todo = []
+    for job in jobs_for(args):
+        path = Path(job["path"])
+        if path.exists():
+            stored = json.loads(path.read_text()).get("settings")
+            if stored != job["settings"]:
+                fail(f"error: {path} was run with other settings; give another --out, or delete it to redo it")
+            continue
+        todo.append(job)
+    Path(args.out / "controls" / "random" / "runs").mkdir(parents=True, exist_ok=True)
+    print(f"{len(todo)} runs to do ({sum(j['reading'] == 'pixel' for j in todo)} pixel models, ~6 min each on "
+          "one core)", flush=True)
+    todo.sort(key=lambda j: (j["reading"] != "state", j["draw"]))  # the fast readings first
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for line in pool.map(run_and_save, todo):
+                print(line, flush=True)
+    else:
+        for job in todo:
+            print(run_and_save(job), flush=True)
+
+
+def verdict_of(family: str, a: dict, b: dict, order: dict) -> str:
+    if not (a["passes"] and b["passes"]):
+        return "gated"
+    if family == "dynamics":
+        return {"a > b": "right", "a < b": "wrong", "none": "no order"}[order["order"]]
+    return "wrong" if order["order"] == "a > b" else "right"
+
+
+def build(args) -> dict:
+    import numpy as np
+
+    from simeval.models.gate import order_between_groups
+
+    runs = args.out / "controls" / "random" / "runs"
+    records = [json.loads(p.read_text()) for p in sorted(runs.glob("*.json"))]
+    by = {}
+    for r in records:
+        by.setdefault((r["draw"], r["group"], r["reading"]), []).append(r)
+    from simeval.models.random_controls import draw_control
+
+    rows = []
+    for draw in sorted({r["draw"] for r in records}):
+        for family, group in FAMILIES.items():
+            for reading in READINGS:
+                a, b = by.get((draw, group, reading)), by.get((draw, "shared", reading))
+                if not a or not b:
+                    continue
+
+                def arrays(recs):
+                    recs = sorted(recs, key=lambda r: r["seed"])
+                    model = np.concatenate([np.asarray(r["model"], float) for r in recs])
+                    base = np.tile(np.asarray(recs[0]["baseline"], float), (len(model), 1))
+                    return model, base, recs[0]["tasks"]
+
+                order = order_between_groups(arrays(a), arrays(b))
+                gates = {"a": a[0]["gate"], "b": b[0]["gate"]}
+                if len(a) > 1 or len(b) > 1:  # pixel seeds: every seed's gate must pass
+                    gates = {"a": min((r["gate"] for r in a), key=lambda g: g["passes"]),
+                             "b": min((r["gate"] for r in b), key=lambda g: g["passes"])}
+                rows.append({"draw": draw, "describe": draw_control(draw).describe(), "family": family,
+                             "reading": reading, "seeds": len(a), "difference": order["difference"],
+                             "interval": order["interval"], "relative_errors": order["relative_errors"],
+                             "gate_" + group: gates["a"]["verdict"], "gate_shared": gates["b"]["verdict"],
+                             "verdict": verdict_of(family, gates["a"], gates["b"], order)})
+    counts = {}
+    for row in rows:
+        c = counts.setdefault(f"{row['family']}/{row['reading']}", {"draws": 0, "right": 0, "gated": 0,
+                                                                       "no order": 0, "wrong": 0})
+        c["draws"] += 1
+        c[row["verdict"]] += 1
+    return {"rows": rows, "counts": counts, "draw_seeds": list(DRAW_SEEDS)}
+
+
+def markdown(table: dict) -> str:
+    lines = ["# Random dynamics-diversity controls", "",
+             "Per family and reading: draws, how many read the right order, how many were gated (no reading), how "
+             "many read no order, how many read the wrong order (must be 0). Built by "
+             "`python experiments/random_controls.py` (criterion in its docstring).", "",
+             "| family / reading | draws | right | gated | no order | wrong |", "|---|---|---|---|---|---|"]
+    for name, c in sorted(table["counts"].items()):
+        lines.append(f"| {name} | {c['draws']} | {c['right']} | {c['gated']} | {c['no order']} | {c['wrong']} |")
+    lines += ["", "| draw | family | reading | relative error (other / shared) | difference [95%] | verdict | "
+              "gate (other; shared) |", "|---|---|---|---|---|---|---|"]
+    for r in table["rows"]:
+        other = FAMILIES[r["family"]]
+        lo, hi = r["interval"]
+        lines.append(f"| {r['describe']} | {r['family']} | {r['reading']} | {r['relative_errors'][0]:.3f} / "
+                     f"{r['relative_errors'][1]:.3f} | {r['difference']:+.3f} [{lo:+.3f}, {hi:+.3f}] | "
+                     f"{r['verdict']} | {r['gate_' + other]}; {r['gate_shared']} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(table: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"right": "tab:green", "gated": "tab:gray", "no order": "tab:orange", "wrong": "tab:red"}
+    panels = [(f, r) for f in FAMILIES for r in READINGS if any(x["family"] == f and x["reading"] == r
+                                                                for x in table["rows"])]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 4.2), squeeze=False)
+    for ax, (family, reading) in zip(axes[0], panels):
+        rows = [r for r in table["rows"] if r["family"] == family and r["reading"] == reading]
+        for i, r in enumerate(rows):
+            lo, hi = r["interval"]
+            ax.errorbar([i], [r["difference"]], yerr=[[r["difference"] - lo], [hi - r["difference"]]], fmt="o",
+                        color=colors[r["verdict"]], capsize=3)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(range(len(rows)), [str(r["draw"]) for r in rows])
+        ax.set_xlabel("draw")
+        other = FAMILIES[family]
+        ax.set_title(f"{family} family, {reading} reading\n{other} - shared relative one-step error", fontsize=9)
+        c = table["counts"][f"{family}/{reading}"]
+        ax.text(0.02, 0.98, f"right {c['right']}, gated {c['gated']}, no order {c['no order']}, wrong "
+                f"{c['wrong']}", transform=ax.transAxes, va="top", fontsize=8)
+    handles = [plt.Line2D([], [], marker="o", ls="", color=v, label=k) for k, v in colors.items()]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--draws", type=int, nargs="+", default=list(DRAW_SEEDS))
+    ap.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES))
+    ap.add_argument("--readings", nargs="+", choices=READINGS, default=list(READINGS))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="pixel models' training seeds")
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--preset", default="cpu")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs")
+    ap.add_argument("--tables", type=Path, default=ROOT / "outputs")
+    ap.add_argument("--replot", action="store_true", help="table and figure from the saved runs only")
+    ap.add_argument("--overwrite", action="store_true", help="replace committed tables and figures")
+    args = ap.parse_args(argv)
+    bad = sorted(set(args.draws) - set(DRAW_SEEDS))
+    if bad:
+        fail(f"error: --draws {' '.join(map(str, bad))}: not among the fixed draw seeds {DRAW_SEEDS[0]}.."
+             f"{DRAW_SEEDS[-1]}")
+    if not args.replot:
+        run_all(args)
+    table = build(args)
+    stem = args.tables / "tables" / "random_controls"
+    text, data = markdown(table), json.dumps(table, indent=1)
+    refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")],
+                                [text.encode(), data.encode()], args.overwrite)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    stem.with_suffix(".md").write_text(text)
+    stem.with_suffix(".json").write_text(data)
+    figure = args.tables / "figures" / "random_controls.png"
+    plot(table, figure)
+    print(text)
+    print(f"wrote {stem}.md, {stem}.json, {figure}")
+
+
+if __name__ == "__main__":
+    main()
