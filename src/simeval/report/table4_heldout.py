@@ -35,6 +35,7 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.metrics import resample
+from simeval.models.gate import GateConfig, fall_verdict, gate
 from simeval.models.prediction import MIN_MOVING_PIXELS
 from simeval.report.table4 import one_setting
 from simeval.report.tables import read_csv, to_csv, to_markdown
@@ -121,7 +122,8 @@ def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float
     return point, reps
 
 
-def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dict]:
+def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
+          gate_cfg: GateConfig = GateConfig()) -> list[dict]:
     """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring). Runs
     of one seed found twice (a sweep run again: it resumes and evaluates again) count once, the newest."""
     cells: dict = defaultdict(lambda: defaultdict(list))
@@ -142,7 +144,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
         counts = sorted(by_k)
         one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
         row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
-        reps_by_k = {}
+        reps_by_k, gates = {}, {}
         for k in counts:
             recs = sorted(by_k[k], key=lambda r: int(r["identity"].get("seed", 0)))
             sums, tasks = sum_arrays(recs)
@@ -152,6 +154,16 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
             row[f"runs_{k}"] = len(recs)
             row[f"heldout_episodes_{k}"] = len(tasks)
             row[f"robot_mask_{k}"] = all(r["values"]["prediction"].get("robot_mask") for r in recs)
+            g = gate(sums["one_step/model/object"], {b: sums[f"one_step/{b}/object"] for b in ("last", "mean")},
+                     tasks, gate_cfg)
+            row[f"gate_{k}"], row[f"gate_passes_{k}"] = g["verdict"], g["passes"]
+            gates[k] = g
+            state = recs[0]["values"].get("state")  # the same in every seed's run (its own seeds inside)
+            if state and state.get("gate"):
+                row[f"state_gate_{k}"] = state["gate"]["verdict"]
+                row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
+                for key, v in state["summary"].items():
+                    row[f"state_{key}_{k}"] = v
             for name, v in point.items():
                 row[f"{name}_{k}"] = v
                 # a moving ratio's interval only where nearly every resample had enough moving pixels to read
@@ -166,22 +178,54 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0) -> list[dic
                 row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
                 row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
                     reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
+            # the primary number's fall, read only where both counts pass the gate and the fall exceeds what the
+            # baselines' own change gives on the same resamples (the mean image changes with the training episodes)
+            fall = reps_by_k[lo][PRIMARY] - reps_by_k[hi][PRIMARY]
+            excess = {b: resample.percentile(fall - (reps_by_k[lo][f"{PRIMARY}_{b}"] - reps_by_k[hi][f"{PRIMARY}_{b}"]))
+                      for b in ("last", "mean")}
+            row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
+                                                row[f"drop_{PRIMARY}_hi"]), excess, {k: gates[k] for k in (lo, hi)})
         rows.append(row)
     return rows
 
 
 ROW_KEY = ("pipeline", "group", "preset", "steps")
-TEXT_COLUMNS = ("pipeline", "group", "preset", "counts")
+REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
+TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict")  # fall_verdict: rows written before the gate have none
+
+
+def is_text(column: str) -> bool:
+    return column in TEXT_COLUMNS or column.startswith(("gate_", "state_gate_")) and "_passes_" not in column
+
+
+def is_flag(column: str) -> bool:
+    return column.startswith(("robot_mask_", "gate_passes_", "state_gate_passes_"))
+
+
+def row_gate(row: dict, k: int, margin: float = GateConfig.margin) -> tuple[bool, str]:
+    """The gate of a count of a row: its own (`gate_<k>`, from the runs' per-episode sums) or, for a kept row
+    written before the gate, the group's gate from the row's skills and their intervals (no per-task check)."""
+    if f"gate_{k}" in row:
+        return bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
+    failed = []
+    for b, name in (("last", "the last frame"), ("mean", "the mean image")):
+        v, lo = row.get(f"one_step_object_skill_{b}_{k}"), row.get(f"one_step_object_skill_{b}_{k}_lo")
+        if v is None or not np.isfinite(v) or v < margin or lo is None or not np.isfinite(lo) or lo <= 0:
+            failed.append(f"{name} (skill {v:.2f})" if v is not None and np.isfinite(v) else name)
+    if failed:
+        return False, f"no reading: the model does not beat {' nor '.join(failed)} (group only)"
+    return True, "reads (group only: per-task sums not kept)"
 
 
 def read_rows(path: str | Path) -> list[dict]:
     """The rows of a table `write` made, from its CSV, as `build` returns them (for `merge`): an empty cell is a
     number the row's runs did not record (runs made before it was summed), so it stays absent, as in `build`."""
     lines = [cells for cells in read_csv(path) if cells]  # blank lines (an editor's trailing newline) say nothing
-    if len(lines) < 2 or not {*TEXT_COLUMNS, *ROW_KEY} <= set(lines[0]):
+    needed = {*REQUIRED_COLUMNS, *ROW_KEY}
+    if len(lines) < 2 or not needed <= set(lines[0]):
         raise UserError(f"{path}: not a held-out Table 4 CSV (written by src/report.py "
                         "report=table4_heldout): " + ("no rows" if len(lines) < 2 else "its header lacks "
-                                                   + ",".join(sorted({*TEXT_COLUMNS, *ROW_KEY} - set(lines[0])))))
+                                                   + ",".join(sorted(needed - set(lines[0])))))
     header = lines[0]
     rows = []
     for i, cells in enumerate(lines[1:], start=2):
@@ -197,16 +241,16 @@ def read_rows(path: str | Path) -> list[dict]:
                 row[column] = _cell_value(column, text)
             except (KeyError, ValueError):
                 raise UserError(f"{path}, line {i}, column {column}: {text!r} is not a "
-                                + ("True/False" if column.startswith("robot_mask_") else "number")) from None
+                                + ("True/False" if is_flag(column) else "number")) from None
         rows.append(row)
     return rows
 
 
 def _cell_value(column: str, text: str):
     """A CSV cell as `build` made it: names as text, robot_mask_* as bools, counts as ints, the rest floats."""
-    if column in TEXT_COLUMNS:
+    if is_text(column):
         return text
-    if column.startswith("robot_mask_"):
+    if is_flag(column):
         return {"True": True, "False": False}[text]
     if column == "steps" or column.startswith(("runs_", "heldout_episodes_")):
         return int(text)
@@ -246,32 +290,61 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
     the open-loop error with its skill against the last frame, and the reconstruction, each with its 95% interval;
     where any row's runs summed them, the moving pixels' share of the kept pixels and their one-step and open-loop
     skill against the last frame (runs recorded before they were summed give the table they gave then)."""
-    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "object-focused one-step (x1e-3/pixel)",
+    header = ["Method", "Task group", "preset (steps)", "episodes", "seeds", "gate (pixels)",
+              "object-focused one-step (x1e-3/pixel)",
               "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
               "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
-              "reconstruction"]
+              "reconstruction", "state reading (one-step state error; skill vs last state / constant velocity)"]
     moving = has_moving(rows)
     if moving:
         header += ["moving pixels (% of kept: one step / open loop)", "moving-pixel one-step (x1e-3/pixel)",
                    "its skill vs last frame", "its fall first->last (x1e-3)", "moving-pixel open-loop skill vs last"]
     body = []
     for r in rows:
-        for i, k in enumerate(int(c) for c in r["counts"].split("/")):
-            obj = _milli(r, f"one_step_object_{k}")
-            if obj != "—" and not r[f"robot_mask_{k}"]:
+        counts = [int(c) for c in r["counts"].split("/")]
+        for i, k in enumerate(counts):
+            passes, verdict = row_gate(r, k)
+            obj = _milli(r, f"one_step_object_{k}") if passes else "no reading"
+            if obj not in ("—", "no reading") and not r[f"robot_mask_{k}"]:
                 obj += " (no masks: full frame)"
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
-                         f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]), obj,
-                         _ci(r, f"one_step_object_skill_last_{k}", 2), _ci(r, f"one_step_object_skill_mean_{k}", 2),
-                         _milli(r, "drop_one_step_object") if i == 0 else "",
+                         f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]), verdict,
+                         obj, _ci(r, f"one_step_object_skill_last_{k}", 2), _ci(r, f"one_step_object_skill_mean_{k}", 2),
+                         _fall(r, counts) if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
                          _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
-                         _ci(r, f"reconstruction_{k}", 1)]
+                         _ci(r, f"reconstruction_{k}", 1), _state(r, k)]
                         + ([_shares(r, k), _milli(r, f"one_step_moving_{k}"),
                             _ci(r, f"one_step_moving_skill_last_{k}", 2),
                             _milli(r, "drop_one_step_moving") if i == 0 else "",
                             _ci(r, f"open_loop_moving_skill_last_{k}", 2)] if moving else []))
     return header, body
+
+
+def _fall(row: dict, counts: list[int]) -> str:
+    """The primary number's fall first -> last count, where it is read (fall_verdict; a kept row written before
+    the gate: gated by its rows' skills, the baselines' own change not checked)."""
+    number = _milli(row, "drop_one_step_object")
+    verdict = row.get("fall_verdict")
+    if verdict is None:
+        gated = [k for k in (counts[0], counts[-1]) if not row_gate(row, k)[0]]
+        if gated:
+            return f"no reading (gated at {gated[0]} episodes)"
+        return f"{number} (baselines' change not checked)"
+    if verdict.startswith("no reading"):
+        return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
+    return number if verdict in ("falls", "rises") else f"no fall: {number}"
+
+
+def _state(row: dict, k: int) -> str:
+    """The state-space reading of a count ('—' for runs without one: recorded before it, or no state)."""
+    verdict = row.get(f"state_gate_{k}")
+    if verdict is None:
+        return "—"
+    if not row[f"state_gate_passes_{k}"]:
+        return verdict
+    return (f"{row[f'state_model_{k}']:.3g} ({row[f'state_skill_vs_last_state_{k}']:.2f} / "
+            f"{row[f'state_skill_vs_constant_velocity_{k}']:.2f})")
 
 
 def has_moving(rows: list[dict]) -> bool:
@@ -299,7 +372,11 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "per frame; " + ("moving pixels: kept pixels whose colour changed from the last observed frame (no "
                              f"reading where fewer than {MIN_MOVING_PIXELS} moved); " if has_moving(rows) else "")
             + "[95% interval over training seeds and held-out episodes]; skill = 1 - error / baseline "
-            "error (< 0: worse than the baseline).")
+            "error (< 0: worse than the baseline). Gate (simeval.models.gate): a count reads only where the "
+            f"object-focused one-step skill is >= {GateConfig.margin:g} against both the last frame and the mean "
+            "image with its interval above 0, for the group and each task; elsewhere its number is 'no reading'. "
+            "A fall is read only where both counts read and its interval, and that of its excess over each "
+            "baseline's own change, exclude 0.")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
@@ -364,15 +441,19 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 6.4),
                              layout="constrained")
     ax1, ax2, ax3 = axes[:3]
+    n_gated = 0  # rows with a count that fails the gate (simeval.models.gate)
     row_keys, moving_drawn = [], []  # one key per row for the whole figure (below); the moving panel's lines
     # a row: its colour and its marker shape in every panel (two of tab20's shades alone were hard to tell apart)
     for r, color, marker in zip(rows, distinct_colors(len(rows)), row_markers(len(rows)), strict=True):
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
         masked = all(r.get(f"robot_mask_{k}") for k in ks)
+        gated = [str(k) for k in ks if not row_gate(r, k)[0]]
         row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
                                label=name + ("" if masked else " (no masks: full frame)")
+                               + (f" [no reading at {'/'.join(gated)}]" if gated else "")
                                + _missing_readings(r, ks, bool(moving))))
+        n_gated += bool(gated)
         bars(ax1, r, "one_step_object", ks, "-", color, marker, f"{name}: model", scale=1e3)
         ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], "-.", marker=marker, ms=3, lw=0.9,
                  color=color, label=f"{name}: last frame")
@@ -435,7 +516,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False, handlelength=4,
                title="reading (line style)", title_fontsize=8, alignment="left")
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title + (f"\n{n_gated} of {len(rows)} rows have counts that fail the gate ([no reading at ...]: "
+                          "the model does not beat the last frame or the mean image; their numbers read nothing)"
+                          if n_gated else ""), fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
     return out
