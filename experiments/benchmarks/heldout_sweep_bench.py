@@ -10,6 +10,13 @@ simeval's suites (tasks and mean rows per episode as collected), the cost of a 1
     heldout   3 seeds x 3 counts x `protocol.steps` steps + 10 T episodes evaluated per run
 windows(k) = k T episodes x (rows - 20) / 10 + 1 windows each (windows of 20 every 10 rows). The ratio heldout /
 paper is measured in this one run; absolute seconds depend on the machine and its load (recorded).
+
+Issue 50 changed the heldout protocol's model (`pixel_norm: standardise`) and added a state-space reading to every
+run (simeval.models.state_dynamics), so both steps are timed here in one process, `before` (the preset's model,
+`pixel_norm: none`, no state reading: the protocol until then) and `now` (the protocol's model, plus the state
+reading of each run, timed on the same episodes' states at the protocol's settings: its training stops on its own
+validation loss, so its seconds are measured, not derived); `now_over_before` per group is the ratio of the two
+sweep costs (the issue allows up to 2x).
 """
 
 from __future__ import annotations
@@ -33,7 +40,8 @@ def main(argv: list[str] | None = None) -> None:
     import yaml
 
     from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask
-    from simeval.models.prediction import evaluate_prediction, task_mean_images
+    from simeval.models.prediction import evaluate_prediction, pixel_stats, task_mean_images
+    from simeval.models.state_dynamics import StateModelConfig, read_states, state_reading
     from simeval.models.synthetic import make_physics_group
     from simeval.models.training import collate, epoch_batches, evaluate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
@@ -51,20 +59,35 @@ def main(argv: list[str] | None = None) -> None:
     window = WindowSpec(**wm["window"])
     train = WindowDataset(src, window, rank_mask(ranks, 0, 10), image_size=cfg.image_size)
     train.stats = stats = train.fit_stats()
-    torch.manual_seed(0)
-    model = WorldModel(cfg, len(stats.state_mean), len(stats.action_mean))
-    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
     batches = epoch_batches(train.windows(0), 8, 0, 0)
-    times = []
-    for i in range(a.steps + 2):
-        batch = to_torch(collate([train[w] for w in batches[i % len(batches)]]))
-        t0 = time.perf_counter()
-        loss, _ = model.loss(batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        times.append(time.perf_counter() - t0)
-    step_s = float(np.median(times[2:]))
+
+    def step_seconds(model_cfg: WorldModelConfig):
+        torch.manual_seed(0)
+        model = WorldModel(model_cfg, len(stats.state_mean), len(stats.action_mean))
+        if model_cfg.pixel_norm != "none":
+            model.set_pixel_stats(*pixel_stats(src, rank_mask(ranks, 0, 10), model_cfg.image_size))
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+        times = []
+        for i in range(a.steps + 2):
+            batch = to_torch(collate([train[w] for w in batches[i % len(batches)]]))
+            t0 = time.perf_counter()
+            loss, _ = model.loss(batch)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            times.append(time.perf_counter() - t0)
+        return model, float(np.median(times[2:]))
+
+    now_cfg = WorldModelConfig.from_dict({**wm["model"], **(protocol.get("model") or {})})
+    model, step_s = step_seconds(cfg)
+    _, now_step_s = step_seconds(now_cfg)
+    states = read_states(src, range(len(src.infos)))
+    tasks = [i.task for i in src.infos]
+    t0 = time.perf_counter()
+    reading = state_reading(states, tasks, np.flatnonzero(rank_mask(ranks, 0, 10)).tolist(),
+                            np.flatnonzero(rank_mask(ranks, 40, 50)).tolist(),
+                            StateModelConfig.from_dict(protocol["state_model"]))
+    state_s = time.perf_counter() - t0
 
     context, horizon = 5, protocol["horizon"]
 
@@ -93,14 +116,20 @@ def main(argv: list[str] | None = None) -> None:
         paper_s = paper_steps * step_s + 3 * 40 * tasks * rows * paper_frame_s
         held_train = 9 * protocol["steps"] * step_s
         held_eval = 9 * 10 * tasks * rows * heldout_frame_s
+        # the state reading's cost grows with the rows it fits on: scaled from the measured group's rows
+        state_run_s = state_s * (10 * tasks * rows) / (10 * 4 * 41)
+        now_s = 9 * protocol["steps"] * now_step_s + held_eval + 9 * state_run_s
         groups[name] = {"tasks": tasks, "rows": rows, "paper_steps": paper_steps, "paper_minutes": paper_s / 60,
                         "heldout_steps": 9 * protocol["steps"], "heldout_minutes": (held_train + held_eval) / 60,
                         "heldout_eval_share": held_eval / (held_train + held_eval),
-                        "heldout_over_paper": (held_train + held_eval) / paper_s}
+                        "heldout_over_paper": (held_train + held_eval) / paper_s,
+                        "now_minutes": now_s / 60, "now_over_before": now_s / (held_train + held_eval)}
     save("heldout_sweep", {
         "what": "cost of a 10/20/40 dynamics-diversity sweep per protocol at the cpu preset (heldout: 3 seeds)",
         "machine": machine(), "threads": a.threads, "load_average": os.getloadavg()[0],
-        "step_s": step_s, "heldout_eval_s_per_frame": heldout_frame_s, "paper_eval_s_per_frame": paper_frame_s,
+        "step_s": step_s, "now_step_s": now_step_s, "now_step_over_before": now_step_s / step_s,
+        "state_reading_s": state_s, "state_reading_steps_used": [t["steps_used"] for t in reading["training"]],
+        "heldout_eval_s_per_frame": heldout_frame_s, "paper_eval_s_per_frame": paper_frame_s,
         "heldout_eval_over_paper_eval_per_frame": heldout_frame_s / paper_frame_s,
         "protocol_steps": protocol["steps"], "groups": groups})
 

@@ -1,0 +1,75 @@
+"""The random dynamics-diversity controls (simeval.models.random_controls): draws are fixed by their seed and cover
+the ranges they state, objects stay in the arena, the varied group differs from the shared one in its dynamics
+alone (same looks, same actions), the looks family in its frames alone (same states), and the dynamics are the
+module docstring's, stepped by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simeval.models.random_controls import (ACTION_KINDS, KNOB_RANGES, KNOBS_USED, draw_control,
+                                            make_control_group, one_disk_control, radius_of, render, step_object,
+                                            write_control_group)
+
+
+def test_draws_are_fixed_by_their_seed_and_cover_their_ranges():
+    draws = [draw_control(s) for s in range(40)]
+    assert draw_control(3) == draws[3]
+    assert {d.n_objects for d in draws} == {1, 2, 3, 4}
+    assert {d.action_kind for d in draws} == set(ACTION_KINDS)
+    for d in draws:
+        assert 0.02 <= d.area <= 0.12 and 0.6 <= d.camera_scale <= 1.0
+        assert d.varied_knobs[0] in ("rotation", "gain")
+        assert set(d.varied_knobs) <= set(KNOBS_USED[d.action_kind])
+        for knobs in d.base:
+            assert all(KNOB_RANGES[k][0] <= v <= KNOB_RANGES[k][1] for k, v in knobs.items())
+
+
+def test_force_step_by_hand():
+    knobs = {"rotation": 90.0, "gain": 1.0, "damping": 0.5, "restitution": 0.5, "mass": 2.0, "friction": 0.0}
+    p, v = step_object("force", knobs, np.array([0.5, 0.5]), np.array([0.02, 0.0]), np.array([1.0, 0.0]), 0.1)
+    # v <- 0.5 * (0.02, 0) + 0.03 * 1 / 2 * R(90)(1, 0) = (0.01, 0.015)
+    np.testing.assert_allclose(v, [0.01, 0.015], atol=1e-12)
+    np.testing.assert_allclose(p, [0.51, 0.515], atol=1e-12)
+    # a wall at 1 - r: reflected, that velocity component reversed and scaled by the restitution
+    p, v = step_object("velocity", {**knobs, "rotation": 0.0, "mass": 1.0}, np.array([0.88, 0.5]), np.zeros(2),
+                       np.array([1.0, 0.0]), 0.1)
+    np.testing.assert_allclose(p, [0.9 - (0.93 - 0.9), 0.5])
+    np.testing.assert_allclose(v, [-0.025, 0.0])
+
+
+@pytest.mark.parametrize("seed", [0, 5, 11])
+def test_groups_differ_in_what_their_family_varies_alone(seed):
+    d = draw_control(seed)
+    kw = dict(n_tasks=2, episodes=3, n_actions=12, size=32)
+    shared, varied = make_control_group(d, "shared", **kw), make_control_group(d, "varied", **kw)
+    looks = make_control_group(d, "varied", kind="visual", **kw)
+    for a, b, c in zip(shared.arrays, varied.arrays, looks.arrays):
+        np.testing.assert_array_equal(a["action"], b["action"])  # the same pushes
+        np.testing.assert_array_equal(a["object_poses"], c["object_poses"])  # the same motion, other looks
+        assert not np.array_equal(a["image"], c["image"])
+        np.testing.assert_array_equal(a["object_poses"][0], b["object_poses"][0])  # the same start
+        r = radius_of(d)
+        assert (b["object_poses"][..., :2] >= r - 1e-6).all() and (b["object_poses"][..., :2] <= 1 - r + 1e-6).all()
+    assert any(not np.array_equal(a["object_poses"], b["object_poses"]) for a, b in zip(shared.arrays, varied.arrays))
+
+
+def test_an_object_covers_its_share_of_the_frame():
+    d = one_disk_control()
+    frame = render(d, d.look, np.array([[[0.5, 0.5]]]), 64)[0].astype(float)
+    covered = np.abs(frame - np.array(d.look.background)).sum(-1) / np.abs(
+        np.subtract(d.look.colors[0], d.look.background)).sum()
+    assert covered.sum() / 64**2 == pytest.approx(d.area, rel=0.03)
+
+
+def test_written_groups_read_back_through_the_store(tmp_path):
+    from simeval.episodes.dataset import StoreSource
+
+    d = one_disk_control()
+    paths = write_control_group(tmp_path, d, "varied", state_xy=True, n_tasks=1, episodes=2, n_actions=6, size=16)
+    src = StoreSource(paths, "front")
+    mem = make_control_group(d, "varied", n_tasks=1, episodes=2, n_actions=6, size=16)
+    np.testing.assert_array_equal(src.read_full(0, "image"), mem.arrays[0]["image"])
+    np.testing.assert_allclose(src.read_full(0, "state"), mem.arrays[0]["object_poses"][:, 0, :2])
+    np.testing.assert_allclose(src.read_full(0, "object_poses"), mem.arrays[0]["object_poses"])
