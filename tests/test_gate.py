@@ -136,3 +136,18 @@ def test_order_between_groups_by_hand():
     assert out["order"] == "a > b" and order_between_groups(b, a)["order"] == "a < b"
     noisy = (np.array([[0.1, 1.0, 0.2, 0.9]]), base, tasks)  # 0.55 with a wide interval around b's 0.5
     assert order_between_groups(noisy, b)["order"] == "none"
+
+
+def test_the_html_report_shows_the_verdict_in_place_of_a_gated_runs_numbers():
+    from simeval.report.html import headline_values
+
+    one = {"model": {"object_error_per_pixel": 0.002}, "object_skill_vs_last": -3.0, "object_skill_vs_mean": 0.01}
+    values = {"prediction": {"summary": {"one_step": one}},
+              "gate": {"passes": False, "verdict": "no reading: the model does not beat the last frame"},
+              "state": {"line": "one-step state error 0.001 (...)"}}
+    shown = headline_values({"metric": "dynamics_diversity", "values": values})
+    assert shown == [("pixel reading", "no reading: the model does not beat the last frame"),
+                     ("state reading", "one-step state error 0.001 (...)")]
+    values["gate"] = {"passes": True, "verdict": "reads"}
+    shown = dict(headline_values({"metric": "dynamics_diversity", "values": values}))
+    assert shown["object-focused one-step error (x1e-3/pixel)"] == pytest.approx(2.0)

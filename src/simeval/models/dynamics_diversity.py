@@ -386,7 +386,10 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
         from simeval.models.prediction import pixel_stats
 
         model.set_pixel_stats(*pixel_stats(source, train_mask, model_cfg.image_size))
-    meta = {"version": VERSION, "model": model_cfg.to_dict(), "train": asdict(train_cfg), "window": asdict(window),
+    model_key = model_cfg.to_dict()
+    if model_cfg.pixel_norm == "none":  # the settings from before pixel_norm existed keep their checkpoints' names
+        model_key = {k: v for k, v in model_key.items() if k not in ("pixel_norm", "pixel_std_floor")}
+    meta = {"version": VERSION, "model": model_key, "train": asdict(train_cfg), "window": asdict(window),
             "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
             "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
             "action_space": train_ds.action_space}

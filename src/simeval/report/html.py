@@ -213,6 +213,8 @@ def headline_values(rec: dict, limit: int = HEADLINE_VALUES) -> list[tuple[str, 
         pooled = [v for v in values if isinstance(v, dict) and v.get("pipeline") == "all"] or values
         return [(f"{v.get('table')} {v.get('judge')} ({v.get('pipeline')}) r/MAE", v.get("r_over_mae"))
                 for v in pooled[:limit] if isinstance(v, dict)]
+    if rec.get("metric") == "dynamics_diversity" and isinstance(values, dict) and "prediction" in values:
+        return dynamics_headline(values)
     flat: list[tuple[str, object]] = []
 
     def walk(x, prefix):
@@ -226,6 +228,22 @@ def headline_values(rec: dict, limit: int = HEADLINE_VALUES) -> list[tuple[str, 
 
     walk(values, "")
     return flat[:limit]
+
+
+def dynamics_headline(values: dict) -> list[tuple[str, object]]:
+    """A held-out dynamics-diversity run: its gate's verdict in place of its numbers where the model does not beat
+    the baselines (simeval.models.gate), else the primary number and its skills; then the state reading's line."""
+    gate = values.get("gate")
+    one = values["prediction"]["summary"]["one_step"]
+    if gate is not None and not gate["passes"]:
+        out = [("pixel reading", gate["verdict"])]
+    else:
+        out = [("object-focused one-step error (x1e-3/pixel)", 1e3 * one["model"]["object_error_per_pixel"]),
+               ("skill vs last frame", one.get("object_skill_vs_last")),
+               ("skill vs mean image", one.get("object_skill_vs_mean"))]
+    if values.get("state"):
+        out.append(("state reading", values["state"]["line"]))
+    return out
 
 
 def _run_name(rec: dict, runs_dir: Path) -> str:
