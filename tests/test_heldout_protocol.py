@@ -302,6 +302,12 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
         assert rec["values"]["protocol"]["evaluated_on"] == [5, 6]
         assert {e["seed"] for e in rec["values"]["prediction"]["per_episode"]} == {4, 5}  # ranks 5-6 (seeds 4, 5)
     assert "skill" in r.stdout  # the log line of each run names its skill scores
+    # each run's line gives the gate's verdict beside (here: in place of) its numbers, and the state reading
+    assert r.stdout.count("pixel reading: no reading: the model does not beat") == 4, r.stdout[-3000:]
+    assert r.stdout.count("; state reading: ") == 4
+    for rec in recs:
+        assert rec["values"]["gate"]["passes"] is False and rec["values"]["state"]["dims"] > 0
+        assert all(t["steps_used"] <= 3000 for t in rec["values"]["state"]["training"])
     from simeval.report.tidy import run_rows
 
     rows = run_rows(recs)  # the notebook's DataFrame: the one-step error is each run's headline
@@ -313,7 +319,8 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     t = subprocess.run([*report, f"report.figure={tmp_path / 't.png'}"], capture_output=True, text=True, timeout=300)
     assert t.returncode == 0, t.stderr
     md = out.with_suffix(".md").read_text()
-    assert "gensim | diverse | tiny (40) | 2 | 2 |" in md and (tmp_path / "t.png").stat().st_size > 10_000
+    assert "gensim | diverse | tiny (40) | 2 | 2 | no reading: the model does not beat" in md
+    assert (tmp_path / "t.png").stat().st_size > 10_000
     # the sweep itself ended with the same table and a figure in its folder
     assert (tmp_path / "sweep" / "table4_heldout.md").read_text() == md
     assert (tmp_path / "sweep" / "table4_heldout.png").read_bytes() == (tmp_path / "t.png").read_bytes()
