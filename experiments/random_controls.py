@@ -113,14 +113,14 @@ def run_one(job: dict) -> dict:
             eval_context=5, eval_seed=job["seed"], progress=False, device="cpu", gate=gate_cfg,
             checkpoint_dir=job["checkpoints"])
         rows = sorted(values["prediction"]["per_episode"], key=lambda e: (e["task"], e["seed"]))
-        one = values["prediction"]["summary"]["one_step"]
+        summary = values["prediction"]["summary"]
+        one, rec = summary["one_step"], summary["reconstruction"]
         record = {"model": [[row["sums"]["one_step/model/object"] for row in rows]],
                   "baseline": [row["sums"]["one_step/last/object"] for row in rows],
                   "tasks": [row["task"] for row in rows], "gate": values["gate"],
-                  "summary": {"skill_vs_last": one["object_skill_vs_last"], "skill_vs_mean": one["object_skill_vs_mean"],
-                              "moving_share": one["moving_share"],
-                              "reconstruction": values["prediction"]["summary"]["reconstruction"]["model"]["error"],
-                              "reconstruction_mean": values["prediction"]["summary"]["reconstruction"]["mean"]["error"]},
+                  "summary": {"skill_vs_last": one["object_skill_vs_last"],
+                              "skill_vs_mean": one["object_skill_vs_mean"], "moving_share": one["moving_share"],
+                              "reconstruction": rec["model"]["error"], "reconstruction_mean": rec["mean"]["error"]},
                   "training": {"steps": values["train"]["steps"], "seconds": values["train"]["seconds"]}}
     record.update({key: job[key] for key in ("draw", "group", "reading", "seed")}, settings=job["settings"],
                   seconds=round(time.perf_counter() - started, 1))

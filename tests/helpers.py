@@ -197,3 +197,29 @@ def synthetic_store(root, per_task: int = 3, T: int = 30) -> Path:
                 is_first=np.arange(T) == 0, is_terminal=np.arange(T) == T - 1, progress=np.zeros(T, np.float32),
                 action_space=joint_action_space(30.0)))  # every stored episode declares its action space
     return root
+
+
+class ConstantImageModel:
+    """A stand-in world model whose every decoded frame is one constant image `frame` (H, W, 3) in [0, 1] (the
+    prior, the posterior and the imagination all decode to it), for what simeval.models.prediction scores."""
+
+    def __init__(self, frame) -> None:
+        self.frame = frame
+        self.rssm = self
+
+    @staticmethod
+    def _images(batch):
+        return batch["image"].float() / 255
+
+    def embed(self, image, state):
+        return image
+
+    def observe(self, embed, prev_action, is_first, generator=None):
+        return embed, embed
+
+    @staticmethod
+    def features(state):
+        return state
+
+    def image_decoder(self, features):
+        return self.frame.expand_as(features)

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import ConstantImageModel
+
 from simeval.errors import UserError
 from simeval.models.gate import GateConfig, fall_verdict, gate, pixel_gate
 
@@ -71,31 +73,6 @@ def test_fall_verdicts():
         "no reading: the model does not beat the last frame at 10 episodes"
 
 
-class _MeanImageModel:
-    """A stand-in world model whose every decoded frame is the task's mean training image (one task): it has
-    learned nothing of the dynamics, so its skill against the mean image is 0 exactly."""
-
-    def __init__(self, frame: torch.Tensor) -> None:
-        self.frame, self.rssm = frame, self
-
-    @staticmethod
-    def _images(batch):
-        return batch["image"].float() / 255
-
-    def embed(self, image, state):
-        return image
-
-    def observe(self, embed, prev_action, is_first, generator=None):
-        return embed, embed
-
-    @staticmethod
-    def features(state):
-        return state
-
-    def image_decoder(self, features):
-        return self.frame.expand_as(features)
-
-
 def test_a_model_that_outputs_the_mean_image_gets_no_reading():
     from simeval.models.prediction import step_sums, summarise
 
@@ -104,7 +81,7 @@ def test_a_model_that_outputs_the_mean_image_gets_no_reading():
     src = make_control_group(one_disk_control(), "varied", n_tasks=1, episodes=6, n_actions=8, size=16)
     frames = np.concatenate([a["image"] for a in src.arrays[:3]]).astype(np.float64) / 255
     mean = torch.as_tensor(frames.mean(0), dtype=torch.float32)
-    model = _MeanImageModel(mean)
+    model = ConstantImageModel(mean)  # the task's mean image: it has learned nothing of the dynamics
     per_episode = []
     for e in range(3, 6):
         a = src.arrays[e]

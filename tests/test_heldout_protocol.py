@@ -14,6 +14,7 @@ import torch
 import yaml
 
 import simeval.models.dynamics_diversity as dd
+from helpers import ConstantImageModel
 from simeval.episodes.dataset import ArraySource, WindowSpec
 from simeval.errors import UserError
 from simeval.metrics import resample
@@ -455,32 +456,6 @@ def test_the_run_line_names_the_moving_pixels_with_their_share():
     assert "moving pixels none" in dd.summary_line(still)
 
 
-class _ConstantModel:
-    """A stand-in world model whose every predicted frame is one constant image (the prior, the posterior and the
-    imagination all decode to it), to check what step_sums scores against sums made by hand."""
-
-    def __init__(self, frame: torch.Tensor) -> None:
-        self.frame = frame
-        self.rssm = self
-
-    @staticmethod
-    def _images(batch):
-        return batch["image"].float() / 255
-
-    def embed(self, image, state):
-        return image
-
-    def observe(self, embed, prev_action, is_first, generator=None):
-        return embed, embed
-
-    @staticmethod
-    def features(state):
-        return state
-
-    def image_decoder(self, features):
-        return self.frame.expand_as(features)
-
-
 def test_moving_sums_of_a_model_that_draws_one_constant_image_computed_by_hand():
     from simeval.models.prediction import MOTION_THRESHOLD, step_sums
 
@@ -494,7 +469,7 @@ def test_moving_sums_of_a_model_that_draws_one_constant_image_computed_by_hand()
     batch = {"image": torch.as_tensor(image), "robot_mask": torch.as_tensor(robot), "state": torch.zeros(B, L, 1),
              "prev_action": torch.zeros(B, L, 1), "is_first": torch.zeros(B, L, dtype=torch.bool),
              "mask": torch.ones(B, L, dtype=torch.bool), "task": torch.zeros(B, dtype=torch.long)}
-    out = step_sums(_ConstantModel(torch.as_tensor(frame)), batch, torch.zeros(1, H, W, 3))
+    out = step_sums(ConstantImageModel(torch.as_tensor(frame)), batch, torch.zeros(1, H, W, 3))
     o = image.astype(np.float64) / 255
     keep = ~robot[:, 1:] & ~robot[:, :-1]
     moving = keep & (((o[:, 1:] - o[:, :-1]) ** 2).sum(-1) > MOTION_THRESHOLD)

@@ -51,3 +51,14 @@ def require_folder(key: str, path: object) -> None:
         raise UserError(f"{key}={path}: cannot create the folder ({e.strerror or e})") from e
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UserError(f"{key}={path}: the folder is not writable")
+
+
+def settings_from_dict(cls, d: dict | None, key: str):
+    """A settings dataclass from a config mapping (None: its defaults); a key it does not have is a UserError
+    naming `key` and the valid ones."""
+    d = dict(d or {})
+    unknown = set(d) - set(cls.__dataclass_fields__)
+    if unknown:
+        raise UserError(f"{key}: unknown key(s) {', '.join(sorted(unknown))}; expected "
+                        f"{', '.join(cls.__dataclass_fields__)}")
+    return cls(**d)

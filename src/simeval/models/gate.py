@@ -19,8 +19,8 @@ x_b[r, e] (a baseline does not depend on the seed; it is given per run all the s
                        mixes learned and unlearned tasks averages numbers that mean different things)
 
 Verdict text (`verdict`): "reads" or "no reading: the model does not beat <baseline> (skill <s> [<lo>, <hi>])[ nor
-<baseline> (...)]; needs >= <margin>"; with tasks failing, "no reading: the model does not beat <baseline> on k of n tasks (<task>,
-...)". Baseline names are the human ones of BASELINE_NAMES.
+<baseline> (...)]; needs >= <margin>"; with tasks failing, "no reading: the model does not beat <baseline> on k of
+n tasks (<task>, ...)". Baseline names are the human ones of BASELINE_NAMES.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.errors import UserError
+from simeval.errors import UserError, settings_from_dict
 from simeval.metrics import resample
 
 BASELINE_NAMES = {"last": "the last frame", "mean": "the mean image", "last_state": "the last state",
@@ -45,21 +45,16 @@ class GateConfig:
 
     def __post_init__(self) -> None:
         if not 0 <= self.margin < 1:
-            raise UserError(f"gate.margin={self.margin}: expected a skill in [0, 1) (0.05: 5% better than each "
-                            "baseline)")
+            raise UserError(f"protocol.gate.margin={self.margin}: expected a skill in [0, 1) (0.05: 5% better than "
+                            "each baseline)")
         if not 0 < self.min_task_share <= 1:
-            raise UserError(f"gate.min_task_share={self.min_task_share}: expected a share in (0, 1]")
+            raise UserError(f"protocol.gate.min_task_share={self.min_task_share}: expected a share in (0, 1]")
         if self.n_boot < 100:
-            raise UserError(f"gate.n_boot={self.n_boot}: expected at least 100 resamples")
+            raise UserError(f"protocol.gate.n_boot={self.n_boot}: expected at least 100 resamples")
 
     @classmethod
     def from_dict(cls, d: dict | None) -> GateConfig:
-        d = dict(d or {})
-        unknown = set(d) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise UserError(f"gate: unknown key(s) {', '.join(sorted(unknown))}; expected "
-                            f"{', '.join(cls.__dataclass_fields__)}")
-        return cls(**d)
+        return settings_from_dict(cls, d, "protocol.gate")
 
 
 def _skill(x: np.ndarray, xb: np.ndarray, draws) -> tuple[float, list[float]]:

@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from simeval.errors import UserError
+from simeval.errors import UserError, settings_from_dict
 from simeval.models.gate import GateConfig, gate
 
 BASELINES = ("last_state", "mean_state", "constant_velocity")
@@ -68,23 +68,19 @@ class StateModelConfig:
 
     def __post_init__(self) -> None:
         if not 0 < self.val_share < 1:
-            raise UserError(f"state_model.val_share={self.val_share}: expected a share in (0, 1)")
+            raise UserError(f"protocol.state_model.val_share={self.val_share}: expected a share in (0, 1)")
         for key in ("hidden", "layers", "batch_size", "max_steps", "eval_every", "patience", "history"):
             if int(getattr(self, key)) < 1:
-                raise UserError(f"state_model.{key}={getattr(self, key)}: expected a positive integer")
+                raise UserError(f"protocol.state_model.{key}={getattr(self, key)}: expected a positive integer")
         if not self.seeds:
-            raise UserError("state_model.seeds: expected at least one training seed")
+            raise UserError("protocol.state_model.seeds: expected at least one training seed")
 
     @classmethod
     def from_dict(cls, d: dict | None) -> StateModelConfig:
         d = dict(d or {})
-        unknown = set(d) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise UserError(f"state_model: unknown key(s) {', '.join(sorted(unknown))}; expected "
-                            f"{', '.join(cls.__dataclass_fields__)}")
         if "seeds" in d:
             d["seeds"] = tuple(int(s) for s in d["seeds"])
-        return cls(**d)
+        return settings_from_dict(cls, d, "protocol.state_model")
 
 
 def low_dim_state(state: np.ndarray, object_poses: np.ndarray | None) -> np.ndarray:
@@ -112,7 +108,7 @@ def _steps(s: np.ndarray, a: np.ndarray, history: int):
     t = np.arange(history, n - 1)
     if not len(t):
         raise UserError(f"state reading: episodes of {n} rows are too short for a history of {history} steps; set "
-                        f"state_model.history={max(1, n - 2)} or less")
+                        f"protocol.state_model.history={max(1, n - 2)} or less")
     j = np.arange(1, history + 1)
     ti = t[:, None] - j[None] + 1  # (m, H)
     return s[t], s[ti] - s[ti - 1], a[ti], s[t + 1]

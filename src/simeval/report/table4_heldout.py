@@ -309,7 +309,8 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
                 obj += " (no masks: full frame)"
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
                          f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]), verdict,
-                         obj, _ci(r, f"one_step_object_skill_last_{k}", 2), _ci(r, f"one_step_object_skill_mean_{k}", 2),
+                         obj, _ci(r, f"one_step_object_skill_last_{k}", 2),
+                         _ci(r, f"one_step_object_skill_mean_{k}", 2),
                          _fall(r, counts) if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
                          _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
