@@ -44,6 +44,12 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.mask_margin=-1"], "protocol.mask_margin=-1: expected a whole number of pixels >= 0"),
     (["protocol.mask_margin=null"], "protocol.mask_margin=null: expected a whole number of pixels >= 0"),
     (["protocol.steps=0"], "protocol.steps=0: the heldout protocol trains every episode count"),
+    (["protocol.gate.margin=2"], "protocol.gate.margin=2: expected a skill in [0, 1)"),
+    (["protocol.gate.margin=abc"], "protocol.gate.margin='abc': expected a number"),
+    (["protocol.state_model.max_steps=abc"], "protocol.state_model.max_steps must be a whole number >= 1"),
+    (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
+    (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
+    (["protocol.model.pixel_norm=zscore"], "world_model.pixel_norm='zscore': expected one of none, standardise"),
 ])
 def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):
     (tmp_path / "a_file").write_text("")

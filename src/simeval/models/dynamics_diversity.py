@@ -602,6 +602,9 @@ class DiversityRun:
         if self.protocol["name"] == "heldout":
             check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
                                    self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)
+            GateConfig.from_dict(self.protocol.get("gate"))
+            if self.protocol.get("state_model") is not None:
+                StateModelConfig.from_dict(self.protocol["state_model"])
         return model_cfg, train_cfg, window
 
     @property

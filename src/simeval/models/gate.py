@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.errors import UserError, settings_from_dict
+from simeval.errors import UserError, require_whole_fields, settings_from_dict
 from simeval.metrics import resample
 
 BASELINE_NAMES = {"last": "the last frame", "mean": "the mean image", "last_state": "the last state",
@@ -44,6 +44,11 @@ class GateConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        for key in ("margin", "min_task_share"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise UserError(f"protocol.gate.{key}={v!r}: expected a number")
+        require_whole_fields(self, "protocol.gate", ("n_boot", "seed"), low=0)
         if not 0 <= self.margin < 1:
             raise UserError(f"protocol.gate.margin={self.margin}: expected a skill in [0, 1) (0.05: 5% better than "
                             "each baseline)")

@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from simeval.errors import UserError, settings_from_dict
+from simeval.errors import UserError, require_whole, require_whole_fields, settings_from_dict
 from simeval.models.gate import GateConfig, gate
 
 BASELINES = ("last_state", "mean_state", "constant_velocity")
@@ -67,19 +67,24 @@ class StateModelConfig:
     history: int = 4  # H: past changes and actions the model sees
 
     def __post_init__(self) -> None:
+        require_whole_fields(self, "protocol.state_model", ("hidden", "layers", "batch_size", "max_steps",
+                                                             "eval_every", "patience", "history"))
+        for key in ("lr", "val_share"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0:
+                raise UserError(f"protocol.state_model.{key}={v!r}: expected a positive number")
         if not 0 < self.val_share < 1:
             raise UserError(f"protocol.state_model.val_share={self.val_share}: expected a share in (0, 1)")
-        for key in ("hidden", "layers", "batch_size", "max_steps", "eval_every", "patience", "history"):
-            if int(getattr(self, key)) < 1:
-                raise UserError(f"protocol.state_model.{key}={getattr(self, key)}: expected a positive integer")
         if not self.seeds:
             raise UserError("protocol.state_model.seeds: expected at least one training seed")
+        for seed in self.seeds:
+            require_whole("protocol.state_model.seeds[]", seed, 0)
 
     @classmethod
     def from_dict(cls, d: dict | None) -> StateModelConfig:
         d = dict(d or {})
         if "seeds" in d:
-            d["seeds"] = tuple(int(s) for s in d["seeds"])
+            d["seeds"] = tuple(d["seeds"]) if isinstance(d["seeds"], (list, tuple)) else (d["seeds"],)
         return settings_from_dict(cls, d, "protocol.state_model")
 
 
