@@ -73,3 +73,39 @@ def test_written_groups_read_back_through_the_store(tmp_path):
     np.testing.assert_array_equal(src.read_full(0, "image"), mem.arrays[0]["image"])
     np.testing.assert_allclose(src.read_full(0, "state"), mem.arrays[0]["object_poses"][:, 0, :2])
     np.testing.assert_allclose(src.read_full(0, "object_poses"), mem.arrays[0]["object_poses"])
+
+
+def _record(draw, group, reading, ratio, passes=True):
+    base = [1.0, 2.0, 1.5, 1.0]
+    return {"draw": draw, "group": group, "reading": reading, "seed": 0, "model": [[ratio * b for b in base]],
+            "baseline": base, "tasks": ["a", "a", "b", "b"],
+            "gate": {"passes": passes, "verdict": "reads" if passes else "no reading: the model does not beat x"}}
+
+
+def test_the_controls_table_applies_its_written_criterion(tmp_path):
+    import json
+    from pathlib import Path
+
+    from helpers import load_script
+
+    rc = load_script(Path(__file__).resolve().parents[1] / "experiments" / "random_controls.py")
+    runs = tmp_path / "controls" / "random" / "runs"
+    runs.mkdir(parents=True)
+    recs = [_record(0, "shared", "state", 0.5), _record(0, "varied", "state", 0.8), _record(0, "looks", "state", 0.9),
+            _record(0, "shared", "pixel", 0.5), _record(0, "varied", "pixel", 0.3),
+            _record(0, "looks", "pixel", 3.0, passes=False)]
+    for i, r in enumerate(recs):
+        (runs / f"r{i}.json").write_text(json.dumps(r))
+    table = rc.build(type("Args", (), {"out": tmp_path})())
+    verdict = {(r["family"], r["reading"]): r["verdict"] for r in table["rows"]}
+    # varied above shared: right; looks above shared: wrong; varied below shared: wrong; a gated group: gated
+    assert verdict == {("dynamics", "state"): "right", ("visual", "state"): "wrong",
+                       ("dynamics", "pixel"): "wrong", ("visual", "pixel"): "gated"}
+    assert table["counts"]["dynamics/pixel"]["wrong"] == 1
+    # a change of the pixel model's settings leaves the saved state runs valid, and the other way round
+    s = {"preset": "cpu", "protocol": {"steps": 1000, "model": {"pixel_norm": "standardise"}, "gate": {},
+                                       "state_model": {"history": 4}}}
+    t = {**s, "protocol": {**s["protocol"], "model": {"pixel_norm": "none"}}}
+    assert rc.relevant(s, "state") == rc.relevant(t, "state") and rc.relevant(s, "pixel") != rc.relevant(t, "pixel")
+    u = {**s, "protocol": {**s["protocol"], "state_model": {"history": 2}}}
+    assert rc.relevant(s, "pixel") == rc.relevant(u, "pixel") and rc.relevant(s, "state") != rc.relevant(u, "state")
