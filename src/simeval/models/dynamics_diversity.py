@@ -518,6 +518,12 @@ def headline(values: dict) -> dict:
                 out.update({f"{kind}/{name}_{k}": x for k, x in v.items() if isinstance(x, float)})
             elif isinstance(v, float):  # a skill score
                 out[f"{kind}/{name}"] = v
+    if values.get("gate") is not None:  # 1: the numbers read; 0: no reading (the dashboard's filter)
+        out["gate/passes"] = float(values["gate"]["passes"])
+    state = values.get("state") or {}
+    if state.get("gate") is not None:
+        out["state/gate_passes"] = float(state["gate"]["passes"])
+        out.update({f"state/{k}": v for k, v in state["summary"].items() if isinstance(v, float)})
     return {"heldout": out}
 
 
