@@ -63,11 +63,8 @@ class GateConfig:
 
 
 def _skill(x: np.ndarray, xb: np.ndarray, draws) -> tuple[float, list[float]]:
-    total = xb.sum()
-    point = float(1 - x.sum() / total) if total > 0 else float("nan")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        reps = np.array([1 - x[s][:, e].sum() / xb[s][:, e].sum() for s, e in draws])
-    return point, resample.percentile(reps)
+    """1 - sum x / sum x_b and its interval: resample's ratio of sums, with the baseline's error as the denominator."""
+    return 1 - resample.ratio(x, xb), resample.percentile(1 - resample.replicates(x, xb, draws))
 
 
 def _check(x: np.ndarray, bases: dict[str, np.ndarray], strata, cfg: GateConfig, interval: bool = True) -> dict:
@@ -172,8 +169,7 @@ def fall_verdict(model_fall: tuple[float, float, float], baseline_excess: dict[s
 def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:
     """sum model / sum baseline (R, E) each: the share of a physics-free predictor's error the model leaves (1 -
     skill); a unit-free reading that two groups whose objects move by different amounts can compare."""
-    total = float(np.sum(baseline))
-    return float(np.sum(model) / total) if total > 0 else float("nan")
+    return resample.ratio(np.atleast_2d(model), np.atleast_2d(baseline))
 
 
 def order_between_groups(a: tuple, b: tuple, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> dict:
@@ -186,9 +182,7 @@ def order_between_groups(a: tuple, b: tuple, n_boot: int = 2000, seed: int = 0, 
     for k, (x, xb, tasks) in enumerate((a, b)):
         x, xb = np.atleast_2d(np.asarray(x, float)), np.atleast_2d(np.asarray(xb, float))
         points.append(relative_error(x, xb))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            reps.append(np.array([x[s][:, e].sum() / xb[s][:, e].sum()
-                                  for s, e in resample.draws(x.shape[0], tasks, n_boot, seed + 7919 * k)]))
+        reps.append(resample.replicates(x, xb, resample.draws(x.shape[0], tasks, n_boot, seed + 7919 * k)))
     diff = points[0] - points[1]
     lo, hi = resample.percentile(reps[0] - reps[1], level)
     order = "a > b" if lo > 0 else "a < b" if hi < 0 else "none"

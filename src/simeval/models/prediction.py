@@ -149,18 +149,23 @@ def open_loop_sums(model, batch: dict, context: int, task_means: torch.Tensor,
     return out
 
 
+def _frames_at(source, episodes: np.ndarray, image_size: int):
+    """(episode, its frames (n, S, S, 3) uint8) for every episode where `episodes` is True, resized as the dataset
+    resizes them."""
+    from simeval.episodes.dataset import resize_frames
+
+    for e in np.flatnonzero(episodes):
+        frames = source.read_full(int(e), "image")
+        yield int(e), frames if frames.shape[1] == image_size else resize_frames(frames, image_size)
+
+
 def task_mean_images(source, episodes: np.ndarray, image_size: int) -> dict[str, np.ndarray]:
     """{task: (H, W, 3) float32 in [0, 1]}: the mean of every frame of the task's episodes where `episodes` is True
     (the training episodes), at the model's resolution (frames resized as the dataset resizes them)."""
-    from simeval.episodes.dataset import resize_frames
-
     sums: dict[str, np.ndarray] = {}
     counts: dict[str, int] = {}
-    for e in np.flatnonzero(episodes):
-        frames = source.read_full(int(e), "image")
-        if frames.shape[1] != image_size:
-            frames = resize_frames(frames, image_size)
-        task = source.infos[int(e)].task
+    for e, frames in _frames_at(source, episodes, image_size):
+        task = source.infos[e].task
         sums[task] = sums.get(task, 0.0) + frames.astype(np.float64).sum(0)
         counts[task] = counts.get(task, 0) + len(frames)
     return {t: (sums[t] / counts[t] / 255.0).astype(np.float32) for t in sorted(sums)}
@@ -169,13 +174,8 @@ def task_mean_images(source, episodes: np.ndarray, image_size: int) -> dict[str,
 def pixel_stats(source, episodes: np.ndarray, image_size: int) -> tuple[np.ndarray, np.ndarray]:
     """(mean, deviation), each (H, W, 3) in [0, 1]: over every frame of the episodes where `episodes` is True (the
     training episodes), at the model's resolution (WorldModel.set_pixel_stats)."""
-    from simeval.episodes.dataset import resize_frames
-
     total, squares, n = 0.0, 0.0, 0
-    for e in np.flatnonzero(episodes):
-        frames = source.read_full(int(e), "image")
-        if frames.shape[1] != image_size:
-            frames = resize_frames(frames, image_size)
+    for _, frames in _frames_at(source, episodes, image_size):
         x = frames.astype(np.float64) / 255.0
         total, squares, n = total + x.sum(0), squares + (x**2).sum(0), n + len(x)
     mean = total / n

@@ -194,9 +194,8 @@ class PixelNorm(nn.Module):
     """Per pixel and channel mean and deviation (H, W, 3) of the training frames (WorldModelConfig.pixel_norm);
     buffers, so a checkpoint carries them. Until set_pixel_stats: mean 0.5, deviation 1 (the "none" layout)."""
 
-    def __init__(self, size: int, standardise: bool) -> None:
+    def __init__(self, size: int) -> None:
         super().__init__()
-        self.standardise = standardise
         self.register_buffer("mean", torch.full((size, size, 3), 0.5))
         self.register_buffer("scale", torch.ones(size, size, 3))
 
@@ -396,7 +395,7 @@ class WorldModel(nn.Module):
         feat = cfg.stoch * cfg.classes + cfg.deter
         self.image_decoder = ConvDecoder(cfg, feat)
         if cfg.pixel_norm == "standardise":
-            self.pixel_norm = PixelNorm(cfg.image_size, True)
+            self.pixel_norm = PixelNorm(cfg.image_size)
             for part in (self.encoder, self.image_decoder):
                 part.__dict__["pixel_norm"] = self.pixel_norm
         self.state_decoder = mlp(feat, cfg.mlp_units, cfg.mlp_layers, out=state_dim) if state_dim else None
