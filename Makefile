@@ -22,7 +22,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 # Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
 
-.PHONY: help setup gensim-env metaworld-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
+.PHONY: help setup gensim-env metaworld-env lerobot-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
@@ -41,7 +41,7 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-test: setup gensim-env metaworld-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
+test: setup gensim-env metaworld-env lerobot-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25
 
 METAWORLD_STAMP := $(VENV)/.metaworld-installed
@@ -49,6 +49,16 @@ metaworld-env: $(METAWORLD_STAMP) ## Meta-World and MuJoCo beside simeval's pins
 $(METAWORLD_STAMP): requirements-metaworld.txt $(STAMP)
 	$(PY) -m pip install -q -c requirements.txt -r requirements-metaworld.txt
 	touch $(METAWORLD_STAMP)
+
+LEROBOT_STAMP := $(VENV)/.lerobot-installed
+lerobot-env: $(LEROBOT_STAMP) ## lerobot 0.4.4's dataset code beside simeval's pins, for the tests that check the LeRobotDataset reader/writer against it (requirements-lerobot.txt)
+$(LEROBOT_STAMP): requirements-lerobot.txt $(STAMP)
+	@# torchcodec, lerobot's video decoder, loads FFmpeg's shared libraries (Debian's ffmpeg package)
+	@if ! ldconfig -p | grep -q 'libavcodec\.so'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then apt-get update -qq && apt-get install -y -qq ffmpeg >/dev/null; \
+	  else echo "lerobot-env: torchcodec needs FFmpeg's libraries: install Debian's ffmpeg package (apt-get install ffmpeg)"; exit 1; fi; fi
+	$(PY) -m pip install -q --no-deps -r requirements-lerobot.txt
+	touch $(LEROBOT_STAMP)
 
 GENSIM_STAMP := $(VENV)/.gensim-installed
 gensim-env: $(GENSIM_STAMP) ## GenSim's own imports beside simeval's, for pipeline=gensim_own (requirements-gensim.txt)

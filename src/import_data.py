@@ -1,4 +1,5 @@
-"""Import demonstrations (Ravens/CLIPort, the paper authors' GenSim/BBSEA/RoboGen files) into the episode store."""
+"""Import demonstrations (Ravens/CLIPort, the paper authors' GenSim/BBSEA/RoboGen files, LeRobotDataset folders) into
+the episode store."""
 
 import inspect
 import logging
@@ -26,7 +27,7 @@ def main(cfg: DictConfig) -> None:
     importer = IMPORTERS[cfg.format]
     size = OmegaConf.to_container(cfg.image_size) if OmegaConf.is_config(cfg.image_size) else cfg.image_size
     options = {"image_size": image_size_option(size, "image_size"),
-               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions)}
+               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions), "name": cfg.name}
     accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
                                 **{k: v for k, v in options.items() if k in accepted})

@@ -12,6 +12,7 @@ Formats (each file is a pickle: only import files you trust, as with any pickle)
   gensim_pt  the paper authors' GenSim files <task>/episode_<i:03>_<len_high>_<len_low>.pt (torch.save'd dict)
   bbsea_pt   the authors' BBSEA files <scene>/<task description>/<episode_id>_<True|False>.pt
   robogen_pt the authors' RoboGen files <task>/episode_<i>_<len>.pt
+  lerobot    a LeRobotDataset folder, v2.0/v2.1/v3.0 (simeval.pipelines.lerobot_format)
 """
 
 from __future__ import annotations
@@ -28,35 +29,12 @@ import numpy as np
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.episodes.store import read_meta
 from simeval.errors import UserError
+from simeval.pipelines.import_parts import (IsStored, NoDemonstrations, Stored,  # noqa: F401 (image_size_option:
+                                            image_size_option, never_stored, resize_frames)  # import_data's)
+from simeval.pipelines.lerobot_format import import_lerobot
 from simeval.sim.action_spaces import pick_place_action_space
 from simeval.tasks.bbsea import bbsea_group, utf8_name
 from simeval.tasks.gensim import gensim_groups
-
-
-# (pipeline, task, seed) -> already in the store? Importers ask before loading a file, so a resumed import
-# does not re-read what it already wrote.
-IsStored = Callable[[str, str, int], bool]
-
-
-def _never(pipeline: str, task: str, seed: int) -> bool:
-    return False
-
-
-@dataclass(frozen=True)
-class Stored:
-    """An episode the store already holds; its source file was not loaded."""
-
-    pipeline: str
-    task: str
-    seed: int
-
-
-class NoDemonstrations(EpisodeFormatError):
-    """`root` holds none of a format's files; `what` says what it should hold (import_into_store names its key)."""
-
-    def __init__(self, root: Path, what: str) -> None:
-        super().__init__(f"{root}: {what}")
-        self.what = what
 
 
 def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tuple[Path, re.Match]]:
@@ -66,18 +44,6 @@ def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tup
     if not found:
         raise NoDemonstrations(root, f"no episode files ({layout})")
     return found
-
-
-def image_size_option(value, key: str = "image_size") -> tuple[int, int] | None:
-    """None (keep the source resolution) or [H, W] with both >= 1, as a tuple; else a UserError naming `key`."""
-    if value is None:
-        return None
-    ok = (isinstance(value, (list, tuple)) and len(value) == 2
-          and all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) and x >= 1 for x in value))
-    if not ok:
-        raise UserError(f"{key} must be null (keep the source size) or [H, W] with whole numbers H, W >= 1, "
-                        f"got {value!r}")
-    return int(value[0]), int(value[1])
 
 
 def _uint8_images(v, path: Path, key: str) -> np.ndarray:
@@ -99,16 +65,6 @@ def _uint8_images(v, path: Path, key: str) -> np.ndarray:
         seen = "not numbers"
     raise EpisodeFormatError(f"{path}: images '{key}' are {v.dtype}, {seen}; expected uint8, or floats in [0, 1] or "
                              "[0, 255]")
-
-
-def _resize(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
-    size = image_size_option(size)
-    if size is None or tuple(frames.shape[1:3]) == tuple(size):
-        return np.ascontiguousarray(frames, dtype=np.uint8)
-    from PIL import Image
-
-    h, w = size
-    return np.stack([np.asarray(Image.fromarray(f).resize((w, h), Image.BILINEAR)) for f in frames]).astype(np.uint8)
 
 
 def _load_pickle(path: Path):
@@ -192,7 +148,7 @@ def _ravens_pose14(action, path: Path, index: int) -> np.ndarray:
 
 def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                   groups: dict | None = None, descriptions: dict | None = None,
-                  stored: IsStored = _never) -> Iterator[Episode | Stored]:
+                  stored: IsStored = never_stored) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
     dirs = sorted(p for p in root.iterdir() if p.is_dir() and (p / "action").is_dir()) if root.is_dir() else []
     if not dirs:
@@ -236,13 +192,13 @@ def import_ravens(root: str | os.PathLike, *, image_size: tuple[int, int] | None
             yield Episode(
                 pipeline="gensim", task=task, description=description,
                 group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=seed,
-                rgb={f"color_{c}": _resize(color[:, c], image_size) for c in range(color.shape[1])},
+                rgb={f"color_{c}": resize_frames(color[:, c], image_size) for c in range(color.shape[1])},
                 depth={f"color_{c}": _resize_depth(depth[:, c], image_size) for c in range(depth.shape[1])}
                 if depth is not None else None,
                 state=np.zeros((t + 1, 0), np.float32), action=np.concatenate([hl, hl[-1:]]),  # last row: padding
                 reward=np.r_[reward, 0.0].astype(np.float32), progress=progress,
                 is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(reward.sum() > 0.99),
-                high_level_action=hl, high_level_step=np.arange(t), scene_views=_resize(color[0], image_size),
+                high_level_action=hl, high_level_step=np.arange(t), scene_views=resize_frames(color[0], image_size),
                 source=f"ravens:{d}", action_space=pick_place_action_space(), high_level_space=pick_place_action_space(),
                 state_names=[], language=language, object_poses=poses,
                 extra={"mode": d.name[len(task) + 1 :] or None, "episode": int(m.group(1)),
@@ -264,12 +220,12 @@ def import_gensim_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | N
         hl = np.concatenate([_arr(high, "pose0", path, np.float32), _arr(high, "pose1", path, np.float32)], axis=1)
         obs_high = d.get("obs_high") or {}
         views = [obs_high[f"color_{c}"][0] for c in range(3) if f"color_{c}" in obs_high]
-        views = [_resize(_uint8_images(v, path, "obs_high.color")[None], image_size)[0] for v in views]
+        views = [resize_frames(_uint8_images(v, path, "obs_high.color")[None], image_size)[0] for v in views]
         same_shape = len({v.shape for v in views}) == 1  # the authors' cameras differ in size unless resized
         yield Episode(
             pipeline="gensim", task=task, description=(descriptions or {}).get(task, task),
             group=_group(groups, task, (gensim_groups(task) or ["ungrouped"])[0]), seed=int(d.get("seed", 0)),
-            rgb={"rgb": _resize(rgb, image_size)}, state=_arr(low, "state", path, np.float32),
+            rgb={"rgb": resize_frames(rgb, image_size)}, state=_arr(low, "state", path, np.float32),
             action=_arr(d, "action_low", path, np.float32), reward=np.zeros(n, np.float32),
             is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
             high_level_action=hl, high_level_step=np.asarray(d.get("high_step"), np.int64),
@@ -286,14 +242,14 @@ def _image_state_episode(path: Path, d: dict, image_size, **fields) -> Episode:
     action = _arr(d, "action", path, np.float32)
     fields.setdefault("action_space",
                       _source_action_space(fields["pipeline"] + "_pt", action.reshape(len(action), -1).shape[1]))
-    return Episode(rgb={"image": _resize(image, image_size)}, state=state,
+    return Episode(rgb={"image": resize_frames(image, image_size)}, state=state,
                    action=action, reward=np.zeros(len(image), np.float32),
                    is_first=_arr(d, "is_first", path, bool), is_terminal=_arr(d, "is_terminal", path, bool),
-                   scene_views=_resize(image[:1], image_size), **fields)
+                   scene_views=resize_frames(image[:1], image_size), **fields)
 
 
 def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
-                    stored: IsStored = _never) -> Iterator[Episode | Stored]:
+                    stored: IsStored = never_stored) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
     for path, m in _episode_files(root, "*/*/*.pt", r"(\d+)_(True|False)\.pt",
                                   "BBSEA: <scene>/<task description>/<id>_<True|False>.pt"):
@@ -309,7 +265,7 @@ def import_bbsea_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | No
 
 def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                       groups: dict | None = None, descriptions: dict | None = None,
-                      stored: IsStored = _never) -> Iterator[Episode | Stored]:
+                      stored: IsStored = never_stored) -> Iterator[Episode | Stored]:
     root = Path(root).expanduser()
     for path, m in _episode_files(root, "*/episode_*.pt", r"episode_(\d+)_(\d+)\.pt",
                                   "RoboGen: <task>/episode_<i>_<len>.pt"):
@@ -324,7 +280,7 @@ def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | 
 
 
 IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt": import_bbsea_pt,
-             "robogen_pt": import_robogen_pt}
+             "robogen_pt": import_robogen_pt, "lerobot": import_lerobot}
 
 
 def _naming_src(items: Iterator, src) -> Iterator:
@@ -350,7 +306,7 @@ that does not exist or is a file is a UserError before any progress output."""
     if not folder.is_dir():
         raise UserError(f"src={src}: is a file, not a folder; give the folder that holds the demonstrations")
     if "stored" in inspect.signature(importer).parameters:
-        options["stored"] = _never if overwrite else store.exists_intact  # an unreadable file is moved aside
+        options["stored"] = never_stored if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0
     per_task: dict[str, dict] = {}
     # delay: a folder without the format's layout fails at once, with its one line and no progress bar before it
