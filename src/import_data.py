@@ -1,5 +1,5 @@
-"""Import demonstrations (Ravens/CLIPort, the paper authors' GenSim/BBSEA/RoboGen files, LeRobotDataset folders) into
-the episode store."""
+"""Import demonstrations (Ravens/CLIPort, the paper authors' GenSim/BBSEA/RoboGen files, LeRobotDataset folders,
+robomimic HDF5 files) into the episode store."""
 
 import inspect
 import logging
@@ -27,7 +27,8 @@ def main(cfg: DictConfig) -> None:
     importer = IMPORTERS[cfg.format]
     size = OmegaConf.to_container(cfg.image_size) if OmegaConf.is_config(cfg.image_size) else cfg.image_size
     options = {"image_size": image_size_option(size, "image_size"),
-               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions), "name": cfg.name}
+               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions), "name": cfg.name,
+               "filter_key": cfg.filter_key}
     accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
                                 **{k: v for k, v in options.items() if k in accepted})

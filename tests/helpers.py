@@ -223,3 +223,15 @@ class ConstantImageModel:
 
     def image_decoder(self, features):
         return self.frame.expand_as(features)
+
+
+def one_line_error(res: subprocess.CompletedProcess, *expected: str) -> None:
+    """An entrypoint's user error: exit status 2 and one line `error: ...` holding each of `expected` (progress
+    bars before it, which show how far the run got, are not counted)."""
+    import re
+
+    assert res.returncode == 2, res.stderr[-2000:]
+    lines = [x for x in res.stderr.strip().splitlines() if not re.search(r"(it|episode)/s\]$", x)]
+    assert "Traceback" not in res.stderr and len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    for text in expected:
+        assert text in lines[0], lines[0]

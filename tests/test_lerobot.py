@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -17,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import one_line_error
 from simeval.episodes.store import EpisodeStore, read_episode
-from simeval.pipelines.lerobot_format import task_name
+from simeval.pipelines.import_parts import task_name
 
 ROOT = Path(__file__).resolve().parents[1]
 STAND_INS = ROOT / "tests" / "stand_ins"
@@ -62,14 +62,6 @@ def _import(tmp_path: Path, src: Path, *args: str, store: str = "store", **kw) -
     return subprocess.run([sys.executable, str(ROOT / "src" / "import_data.py"), "format=lerobot", f"src={src}",
                            f"store={tmp_path / store}", f"hydra.run.dir={tmp_path / 'run'}", *args], cwd=ROOT,
                           capture_output=True, text=True, **kw)
-
-
-def _one_line_error(res, *expected: str) -> None:
-    assert res.returncode == 2, res.stderr[-2000:]
-    lines = [x for x in res.stderr.strip().splitlines() if not re.match(r"(importing|exporting).*(it|episode)/s]", x)]
-    assert "Traceback" not in res.stderr and len(lines) == 1 and lines[0].startswith("error: "), res.stderr
-    for text in expected:
-        assert text in lines[0], lines[0]
 
 
 def _episodes(store: Path, pipeline: str) -> list:
@@ -242,28 +234,28 @@ def _edit_info(root: Path, change) -> None:
 def test_bad_datasets_are_one_line_naming_the_file_or_feature(lerobot_written, tmp_path):
     root, _ = lerobot_written
     (tmp_path / "empty").mkdir()
-    _one_line_error(_import(tmp_path, tmp_path / "empty"), f"src={tmp_path / 'empty'}: ", "no meta/info.json",
+    one_line_error(_import(tmp_path, tmp_path / "empty"), f"src={tmp_path / 'empty'}: ", "no meta/info.json",
                     "not a LeRobotDataset folder")
     old = _copy(root, tmp_path / "old")
     _edit_info(old, lambda i: i.update(codebase_version="v1.6"))
-    _one_line_error(_import(tmp_path, old), f"{old / 'meta' / 'info.json'}: codebase_version 'v1.6'",
+    one_line_error(_import(tmp_path, old), f"{old / 'meta' / 'info.json'}: codebase_version 'v1.6'",
                     "v2.1, v3.0")
     depth = _copy(root, tmp_path / "depth")
     _edit_info(depth, lambda i: [i["features"][k]["info"].update({"video.is_depth_map": True}) for k in
                                  ["observation.images.front"]] and i["features"].pop("observation.images.wrist"))
-    _one_line_error(_import(tmp_path, depth), "features: no RGB camera (observation.images.front: depth maps")
+    one_line_error(_import(tmp_path, depth), "features: no RGB camera (observation.images.front: depth maps")
     cut = _copy(root, tmp_path / "cut_parquet")
     data = cut / "data" / "chunk-000" / "file-000.parquet"
     data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
-    _one_line_error(_import(tmp_path, cut), f"{data}: not a readable parquet file")
+    one_line_error(_import(tmp_path, cut), f"{data}: not a readable parquet file")
     cut = _copy(root, tmp_path / "cut_mp4")
     video = cut / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4"
     video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
-    _one_line_error(_import(tmp_path, cut, store="store_cut"), f"{video}: ")
+    one_line_error(_import(tmp_path, cut, store="store_cut"), f"{video}: ")
     gone = _copy(root, tmp_path / "no_camera_file")
     missing = gone / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4"
     missing.unlink()
-    _one_line_error(_import(tmp_path, gone, store="store_gone"), f"{missing}: missing")
+    one_line_error(_import(tmp_path, gone, store="store_gone"), f"{missing}: missing")
 
 
 def test_a_killed_import_resumes_to_the_store_an_uninterrupted_one_writes(tmp_path):

@@ -4,6 +4,9 @@ store holds already, the error for a folder without a format's files, and the re
 
 from __future__ import annotations
 
+import hashlib
+import re
+
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,3 +62,27 @@ def resize_frames(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarra
 
     h, w = size
     return np.stack([np.asarray(Image.fromarray(f).resize((w, h), Image.BILINEAR)) for f in frames]).astype(np.uint8)
+
+
+def pipeline_name(name: str) -> str:
+    """The pipeline name an imported dataset is stored under by default: its folder's or file's name, with anything
+    but letters, digits, '-' and '_' made '_'."""
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", name).strip("_") or "imported"
+
+
+def task_name(text: str) -> str:
+    """A store task name for a task text: its words in lower case joined by '-', at most 64 characters; a text cut
+    short (or with no letters) gets 8 characters of its hash, so two long texts never share a name."""
+    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
+    if slug and len(slug) <= 64:
+        return slug
+    return f"{slug[:55].rstrip('-')}-{hashlib.sha1(text.encode()).hexdigest()[:8]}".lstrip("-")
+
+
+def sparse_success(rewards: np.ndarray) -> tuple[bool, bool]:
+    """(success, known) from a reward sequence: where every reward is 0 or 1 (a sparse success reward, as
+    robosuite's and many LeRobot datasets'), success is a reward of 1 anywhere; otherwise unknown."""
+    r = np.asarray(rewards, float).ravel()
+    if r.size and np.isin(r, (0.0, 1.0)).all():
+        return bool((r == 1.0).any()), True
+    return False, False

@@ -13,6 +13,7 @@ Formats (each file is a pickle: only import files you trust, as with any pickle)
   bbsea_pt   the authors' BBSEA files <scene>/<task description>/<episode_id>_<True|False>.pt
   robogen_pt the authors' RoboGen files <task>/episode_<i>_<len>.pt
   lerobot    a LeRobotDataset folder, v2.0/v2.1/v3.0 (simeval.pipelines.lerobot_format)
+  robomimic  a robomimic / robosuite HDF5 file (simeval.pipelines.robomimic_format)
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import os
 import pickle
 import re
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from simeval.errors import UserError
 from simeval.pipelines.import_parts import (IsStored, NoDemonstrations, Stored,  # noqa: F401 (image_size_option:
                                             image_size_option, never_stored, resize_frames)  # import_data's)
 from simeval.pipelines.lerobot_format import import_lerobot
+from simeval.pipelines.robomimic_format import import_robomimic
 from simeval.sim.action_spaces import pick_place_action_space
 from simeval.tasks.bbsea import bbsea_group, utf8_name
 from simeval.tasks.gensim import gensim_groups
@@ -280,7 +281,8 @@ def import_robogen_pt(root: str | os.PathLike, *, image_size: tuple[int, int] | 
 
 
 IMPORTERS = {"ravens": import_ravens, "gensim_pt": import_gensim_pt, "bbsea_pt": import_bbsea_pt,
-             "robogen_pt": import_robogen_pt, "lerobot": import_lerobot}
+             "robogen_pt": import_robogen_pt, "lerobot": import_lerobot,
+             "robomimic": import_robomimic}
 
 
 def _naming_src(items: Iterator, src) -> Iterator:
@@ -303,8 +305,11 @@ that does not exist or is a file is a UserError before any progress output."""
     folder = Path(src).expanduser()
     if not folder.exists():  # before any progress output: a typo is not "no demos found"
         raise UserError(f"src={src} does not exist; give the folder that holds the demonstrations")
-    if not folder.is_dir():
+    reads_files = getattr(importer, "reads_files", False)
+    if not folder.is_dir() and not reads_files:
         raise UserError(f"src={src}: is a file, not a folder; give the folder that holds the demonstrations")
+    if folder.is_dir() and reads_files:
+        raise UserError(f"src={src}: is a folder; give the file that holds the demonstrations")
     if "stored" in inspect.signature(importer).parameters:
         options["stored"] = never_stored if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0

@@ -19,7 +19,7 @@ Mapping into the store (simeval.episodes.store's rows), frame t of an episode of
   obs/rgb/<camera> (T+1, H, W, 3), the key without "observation.images."; obs/state = observation.state
   [+ observation.environment_state], state_names from info's feature names; action = action, row T keeping the
   dataset's last action (no transition reads it); reward[t] = next.reward[t] (0 without it); success: any
-  next.success, else, where next.reward is 0/1 only, a final reward of 1; otherwise unknown (success_known
+  next.success, else, where next.reward is 0/1 only, any reward of 1; otherwise unknown (success_known
   False), as the authors' GenSim files; progress unknown; control_hz = fps; the episode's task text (its first
   task) is the description and names the task (task_name); seed = episode_index; the action space's kind is
   "lerobot:<robot_type>" and its dims the action's names.
@@ -27,11 +27,9 @@ Mapping into the store (simeval.episodes.store's rows), frame t of an episode of
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +38,8 @@ import numpy as np
 
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.errors import UserError
-from simeval.pipelines.import_parts import NoDemonstrations, Stored, resize_frames
+from simeval.pipelines.import_parts import (NoDemonstrations, Stored, pipeline_name, resize_frames, sparse_success,
+                                            task_name)
 
 log = logging.getLogger(__name__)
 
@@ -49,15 +48,6 @@ WRITES = "v3.0"
 LEROBOT_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 CAMERA_PREFIX = "observation.images."
 ENV_STATE = "observation.environment_state"
-
-
-def task_name(text: str) -> str:
-    """A store task name for a task text: its words in lower case joined by '-', at most 64 characters; a text cut
-    short (or with no letters) gets 8 characters of its hash, so two long texts never share a name."""
-    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
-    if slug and len(slug) <= 64:
-        return slug
-    return f"{slug[:55].rstrip('-')}-{hashlib.sha1(text.encode()).hexdigest()[:8]}".lstrip("-")
 
 
 def _names(feature: dict, n: int) -> list[str]:
@@ -304,9 +294,7 @@ def _success(rows: dict, path: Path) -> tuple[bool, bool]:
     if "next.success" in rows:
         return bool(_column(rows, "next.success", path, 1).any()), True
     if "next.reward" in rows:
-        r = _column(rows, "next.reward", path, 1).ravel()
-        if np.isin(r, (0.0, 1.0)).all():
-            return bool(r[-1] == 1.0), True
+        return sparse_success(_column(rows, "next.reward", path, 1))
     return False, False
 
 
@@ -317,7 +305,7 @@ def import_lerobot(root: str | os.PathLike, *, image_size: tuple[int, int] | Non
     folder's name); `groups`: task name or text -> group (default "all")."""
     root = Path(root).expanduser()
     info = LeRobotInfo.read(root)
-    pipeline = name or task_name(root.resolve().name)
+    pipeline = name or pipeline_name(root.resolve().name)
     texts = task_texts(info)
     features = info.features
     tables = _FrameTables()
