@@ -17,28 +17,14 @@ log = logging.getLogger("export_data")
 def main(cfg: DictConfig) -> None:
     from pathlib import Path
 
-    from simeval.episodes.store import EpisodeStore
+    from simeval.episodes.store import pipeline_episodes
     from simeval.pipelines.lerobot_format import export_lerobot
     from simeval.results import RunFolder
 
     require_choice("format", cfg.format, ("lerobot",))
-    src = cfg.episodes
-    if not src.pipeline:
-        raise UserError(f"episodes.pipeline is not set: episodes.pipeline=<a pipeline of the store {src.store}>")
     if not cfg.out:
         raise UserError("out is not set: out=/path/to/new_dataset")
-    if not Path(str(src.store)).is_dir():
-        raise UserError(f"episodes.store={src.store}: no such folder")
-    store = EpisodeStore(src.store)
-    held = sorted(p.name for p in Path(str(src.store)).iterdir() if p.is_dir() and store.paths(p.name))
-    if src.pipeline not in held:
-        raise UserError(f"episodes.pipeline={src.pipeline}: the store {src.store} holds no episodes of it (it holds "
-                        f"{', '.join(held) or 'none'})")
-    metas = store.index(src.pipeline, src.group)
-    if not metas:
-        groups = sorted({m["group"] for m in store.index(src.pipeline)})
-        raise UserError(f"episodes.group={src.group}: pipeline {src.pipeline} has no such group (it has "
-                        f"{', '.join(groups)})")
+    metas = pipeline_episodes(cfg.episodes.store, cfg.episodes.pipeline, cfg.episodes.group)
     out = Path(str(cfg.out)).expanduser()
     if out.exists() and any(out.iterdir()) and not cfg.overwrite:
         raise UserError(f"out={cfg.out} exists and is not empty; give another folder, or overwrite=true to replace "

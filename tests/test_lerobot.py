@@ -285,3 +285,26 @@ def test_a_killed_import_resumes_to_the_store_an_uninterrupted_one_writes(tmp_pa
                 for p in sorted(store.glob("*/*/episode_*.h5"))}
 
     assert digests(tmp_path / "killed") == digests(tmp_path / "whole") and len(digests(tmp_path / "whole")) == 24
+
+
+def test_export_mistakes_are_one_line(lerobot_written, tmp_path):
+    root, _ = lerobot_written
+    assert _import(tmp_path, root, "name=mine").returncode == 0
+
+    def export(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(ROOT / "src" / "export_data.py"),
+                               f"episodes.store={tmp_path / 'store'}", f"hydra.run.dir={tmp_path / 'ex'}", *args],
+                              cwd=ROOT, capture_output=True, text=True)
+
+    one_line_error(export(f"out={tmp_path / 'x'}"), "episodes.pipeline is not set")
+    one_line_error(export("episodes.pipeline=yours", f"out={tmp_path / 'x'}"), "episodes.pipeline=yours",
+                   "(it holds mine)")
+    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'x'}", "episodes.group=drawer"),
+                   "episodes.group=drawer: pipeline mine has no such group (it has all)")
+    one_line_error(export("episodes.pipeline=mine"), "out is not set")
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "notes.txt").write_text("mine")
+    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'taken'}"), "exists and is not empty",
+                   "overwrite=true")
+    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'y'}", "format=rlds"), "format='rlds'")
+    assert (tmp_path / "taken" / "notes.txt").read_text() == "mine"

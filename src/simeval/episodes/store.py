@@ -282,6 +282,27 @@ class EpisodeStore:
         return out
 
 
+def pipeline_episodes(store_root: str | os.PathLike, pipeline: str | None, group: str = "all") -> list[dict]:
+    """Every episode's metadata of one pipeline (and group) of a store, or a UserError naming the config key
+    (episodes.store, episodes.pipeline, episodes.group) and what the store holds: what the entrypoints that read a
+    user's own pipeline from the store (src/export_data.py, src/evaluate.py) start from."""
+    if not pipeline:
+        raise UserError(f"episodes.pipeline is not set: episodes.pipeline=<a pipeline of the store {store_root}>")
+    root = Path(store_root)
+    if not root.is_dir():
+        raise UserError(f"episodes.store={store_root}: no such folder")
+    store = EpisodeStore(root)
+    held = sorted(p.name for p in root.iterdir() if p.is_dir() and store.paths(p.name))
+    if pipeline not in held:
+        raise UserError(f"episodes.pipeline={pipeline}: the store {store_root} holds no episodes of it (it holds "
+                        f"{', '.join(held) or 'none'})")
+    metas = store.index(pipeline, group)
+    if not metas:
+        groups = sorted({m["group"] for m in store.index(pipeline)})
+        raise UserError(f"episodes.group={group}: pipeline {pipeline} has no such group (it has {', '.join(groups)})")
+    return metas
+
+
 @contextlib.contextmanager
 def _damage_names(path: Path) -> Iterator[None]:
     """h5py reports a damaged dataset or chunk as KeyError/OSError without the file name; add it."""

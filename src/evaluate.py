@@ -1,0 +1,156 @@
+"""A scorecard of one pipeline's episodes in the store: every aspect simeval measures that the episodes allow, each
+beside the committed reference rows (simeval.report.scorecard). See conf/evaluate.yaml.
+
+The measures run as the entrypoints a user would type (src/quality.py, src/diversity.py), as subprocesses writing
+into `out`/<stage>/, so a scorecard's numbers are those runs' result.json files; a stage whose result.json exists
+is not run again. Text diversity runs here (one embedding call)."""
+
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
+
+log = logging.getLogger("evaluate")
+SRC = Path(__file__).resolve().parent
+
+
+def _stage(cmd: list[str], log_path: Path) -> None:
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with log_path.open("a") as f:
+        res = subprocess.run([sys.executable, *cmd], stdout=f, stderr=subprocess.STDOUT)
+    if res.returncode != 0:
+        tail = log_path.read_text().strip().splitlines()[-1:] or ["(no output)"]
+        raise UserError(f"{cmd[0]} failed (exit {res.returncode}; log {log_path}): {tail[0]}")
+
+
+def _text(metas, cfg) -> dict:
+    from hydra.utils import instantiate
+
+    from simeval.diversity import text_diversity_by_group
+    from simeval.embeddings import CachedEmbedder, EmbeddingCache
+    from simeval.report.scorecard import aspect
+    from simeval.tasks.records import Task
+
+    texts = {}
+    for m in metas:
+        texts.setdefault(m["description"], m["task"])
+    if len(texts) < 2:
+        return aspect("text_diversity", "no reading", f"{len(texts)} distinct task text; Eq. 1 needs at least 2")
+    tasks = [Task(pipeline=cfg.episodes.pipeline, group="all", name=name, description=text, text=text)
+             for text, name in texts.items()]
+    Path(cfg.cache_dir).mkdir(parents=True, exist_ok=True)
+    embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(f"{cfg.cache_dir}/embeddings.sqlite"))
+    v = text_diversity_by_group(tasks, embedder.encode, "all", subsample_n=None)["all"]
+    lo, hi = v["div_ci"] if "div_ci" in v else (None, None)
+    interval = f" [{lo:.2f}, {hi:.2f}]" if lo is not None else ""
+    return aspect("text_diversity", "reads", f"{v['div']:.2f}{interval} over {len(texts)} task texts "
+                  f"({cfg.embedding.name})", value=float(v["div"]))
+
+
+def _quality(metas, cfg, out: Path, per_task: int) -> dict:
+    from simeval.report.scorecard import aspect
+
+    if not all(m["success_known"] for m in metas):
+        unknown = sum(not m["success_known"] for m in metas)
+        return aspect("quality", "skipped", f"{unknown} of {len(metas)} episodes record no success, so the oracle "
+                      "judge cannot score them; a VLM judge can: python src/quality.py judge=openai "
+                      f"episodes.store={cfg.episodes.store} episodes.pipeline={cfg.episodes.pipeline}")
+    run = out / "quality"
+    if not (run / "result.json").is_file():
+        _stage([str(SRC / "quality.py"), "judge=oracle", f"episodes.store={cfg.episodes.store}",
+                f"episodes.pipeline={cfg.episodes.pipeline}", f"episodes.group={cfg.episodes.group}",
+                f"episodes.per_task={per_task}", f"cache_dir={cfg.cache_dir}", f"hydra.run.dir={run}",
+                *cfg.quality.overrides], out / "logs" / "quality.log")
+    import json
+
+    values = json.loads((run / "result.json").read_text())["values"]
+    scores = [v["mean"] for v in values.get("task_completion", {}).values() if v.get("mean") is not None]
+    mean = sum(scores) / len(scores) if scores else None
+    if mean is None:
+        return aspect("quality", "no reading", f"the oracle judge scored no task (see {run / 'result.json'})")
+    return aspect("quality", "reads", f"{mean:.2f} / 10 task completion (oracle judge, recorded success; "
+                  f"{len(scores)} episodes scored)", value=float(mean))
+
+
+def _dynamics(metas, cfg, out: Path, camera: str) -> dict:
+    from simeval.report.scorecard import aspect
+
+    per_task: dict[str, int] = {}
+    for m in metas:
+        per_task[m["task"]] = per_task.get(m["task"], 0) + 1
+    n = min(per_task.values())
+    held = int(cfg.dynamics.heldout)
+    counts = [int(k) for k in cfg.dynamics.counts if int(k) + held <= n]
+    if not counts:
+        return aspect("dynamics_diversity", "no reading", f"{n} episodes per task (fewest); the held-out protocol "
+                      f"needs {int(cfg.dynamics.counts[0])} to train on and {held} to score")
+    sweep = out / "dynamics"
+    seeds = [int(s) for s in cfg.dynamics.seeds]
+    if len(list(sweep.glob("*/result.json"))) < len(counts) * len(seeds):
+        _stage([str(SRC / "diversity.py"), "-m", "pipeline=custom", f"pipeline.name={cfg.episodes.pipeline}",
+                f"task_group={cfg.episodes.group}", f"camera={camera}", f"store={cfg.episodes.store}",
+                f"eval_episodes=[{n - held + 1},{n}]", f"episodes={','.join(map(str, counts))}",
+                f"seed={','.join(map(str, seeds))}", f"hydra.sweep.dir={sweep}", *cfg.dynamics.overrides],
+               out / "logs" / "dynamics.log")
+    from simeval.report.table4_heldout import build
+    from simeval.results import read_results
+
+    rows = build([r for r in read_results(sweep, "dynamics_diversity") if r.get("status", "ok") == "ok"])
+    if not rows:
+        return aspect("dynamics_diversity", "no reading", f"no held-out run under {sweep}")
+    row = rows[0]
+
+    def short(verdict: str) -> str:  # the verdict without its numbers (the sweep's table has them)
+        return verdict if verdict == "reads" else verdict.split(" (skill")[0].split(" on ")[0]
+
+    pixel = "; ".join(f"{k}: {short(row[f'gate_{k}'])}" for k in counts)
+    state = "; ".join(f"{k}: {short(row[f'state_gate_{k}'])}" for k in counts if f"state_gate_{k}" in row)
+    fall = row.get("fall_verdict", "")
+    fall = f"; its fall {counts[0]} -> {counts[-1]}: {fall}" if fall and not fall.startswith("no reading") else ""
+    reads = [k for k in counts if row[f"gate_passes_{k}"]]
+    line = (f"pixel reading by training episodes per task, {pixel}{fall}" + (f"; state reading, {state}" if state else
+            "") + f" (held-out episodes {n - held + 1}-{n} of each task; numbers: {sweep / 'table4_heldout.md'})")
+    return aspect("dynamics_diversity", "reads" if reads else "no reading", line)
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@exit_cleanly_on_user_error
+def main(cfg: DictConfig) -> None:
+    from simeval.cli import require_whole_keys
+    from simeval.episodes.store import pipeline_episodes
+    from simeval.report import scorecard
+    from simeval.report.scorecard import aspect
+    from simeval.results import RunFolder
+
+    require_whole_keys(cfg, {"dynamics.heldout": 1})
+    src = cfg.episodes
+    metas = pipeline_episodes(src.store, src.pipeline, src.group)
+    cameras = metas[0]["cameras"]
+    camera = cfg.camera or cameras[0]
+    if camera not in cameras:
+        raise UserError(f"camera={camera}: the episodes record {', '.join(cameras)}")
+    out = Path(str(cfg.out)).resolve()
+    per_task: dict[str, int] = {}
+    for m in metas:
+        per_task[m["task"]] = per_task.get(m["task"], 0) + 1
+    aspects = [_text(metas, cfg), _quality(metas, cfg, out, min(per_task.values())),
+               _dynamics(metas, cfg, out, camera),
+               aspect("generalization", "skipped", "no environment to roll a policy out in: imported episodes have "
+                      "none (Table 5 runs on a pipeline with a simulator: src/generalization.py pipeline=<name>)")]
+    card = scorecard.build(src.pipeline, aspects, cfg.tables)
+    paths = scorecard.write(card, out)
+    RunFolder.of(cfg).write(metric="scorecard", version="1.0", values=card)
+    for line in scorecard.lines(card):
+        print(line)
+    print(f"scorecard: {paths['html']} (and .md, .csv, .json, .png beside it)")
+    log.info("wrote %s", ", ".join(str(p) for p in paths.values()))
+
+
+if __name__ == "__main__":
+    launch(main)
