@@ -109,6 +109,7 @@ bench: setup ## benchmarks; results under outputs/bench/
 	$(PY) experiments/benchmarks/world_model_bench.py
 	$(PY) experiments/benchmarks/heldout_sweep_bench.py
 	$(PY) experiments/benchmarks/robot_loss_bench.py
+	$(MAKE) --no-print-directory lerobot-env && $(PY) experiments/benchmarks/lerobot_import_bench.py
 	$(MAKE) --no-print-directory metaworld-env && $(PY) experiments/benchmarks/metaworld_bench.py
 	$(if $(GENSIM_CHECKOUT),$(MAKE) --no-print-directory gensim-env && $(PY) experiments/benchmarks/gensim_own_bench.py --root $(GENSIM_CHECKOUT),@echo "note: no GenSim checkout (GENSIM_ROOT=...), so gensim_own_bench.py is skipped")
 

@@ -4,6 +4,7 @@ PYTHONPATH, for the torchvision stand-in), so the tests compare simeval's reader
     python lerobot_io.py write ROOT SPEC.json   # LeRobotDataset.create / add_frame / save_episode / finalize; the
                                                 # frames, states and actions it was given go to ROOT.given.npz
     python lerobot_io.py read ROOT OUT.npz      # LeRobotDataset(root=ROOT)[i] for every i, as arrays
+    python lerobot_io.py time ROOT              # seconds to load the dataset and to read every item (JSON)
 """
 
 import json
@@ -83,5 +84,19 @@ def read(root: str, out: str) -> None:
     np.savez(out, **arrays)
 
 
+def time_reading(root: str) -> None:
+    import time
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    t0 = time.perf_counter()
+    ds = LeRobotDataset("local/simeval_test", root=root, video_backend="torchcodec")
+    t1 = time.perf_counter()
+    for i in range(len(ds)):
+        ds[i]
+    t2 = time.perf_counter()
+    print(json.dumps({"frames": len(ds), "load_s": t1 - t0, "read_s": t2 - t1}))
+
+
 if __name__ == "__main__":
-    {"write": write, "read": read}[sys.argv[1]](*sys.argv[2:])
+    {"write": write, "read": read, "time": time_reading}[sys.argv[1]](*sys.argv[2:])
