@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
 SCHEDULERS = ("ddpm", "ddim")
 SAMPLING_FIELDS = ("inference_scheduler", "num_inference_steps")  # inference only: not part of a checkpoint's identity
-POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place", "metaworld")
+POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place", "metaworld", "recorded")
 
 
 @dataclass
@@ -55,7 +55,8 @@ class PolicyConfig:
 
     # native (the task group's own: joint for GenSim-style, ee_delta for RoboGen-style, ee_pose for BBSEA-style
     # tasks; resolved by simeval.models.policy.experiment.resolve_action_space) | joint | ee_delta | ee_pose (one
-    # action per control step) | pick_place (14-d poses, one per primitive) | metaworld (Meta-World's 4-d action)
+    # action per control step) | pick_place (14-d poses, one per primitive) | metaworld (Meta-World's 4-d action) |
+    # recorded (the episodes' own actions, one per step, whatever kind: a Gymnasium pipeline's)
     action_space: str = "joint"
     cameras: list = field(default_factory=lambda: ["top"])
     image_size: list = field(default_factory=lambda: [64, 64])

@@ -65,6 +65,11 @@ class Pipeline(ABC):
         seed. None by default; a pipeline with dynamics knobs names them."""
         return []
 
+    def cameras(self) -> list[str] | None:
+        """The camera names its environment offers (checked before a policy trains), or None where any recorded
+        one can be rendered."""
+        return None
+
     def environment_id(self) -> dict:
         """What this pipeline's environments depend on besides a rollout's task, variation, action space, frames and
         step limit: part of the key under which a rollout is cached (a cached rollout is reused only where it

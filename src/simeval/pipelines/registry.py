@@ -1,6 +1,6 @@
-"""Which Pipeline (simeval.pipelines.base) a `conf/pipeline/<name>.yaml` describes: its `kind`, or, where it names
-none, its own code when it has `native:` settings (GenSim's checkout, the one such kind so far) else its simeval
-suite. A new kind of pipeline is one entry in KINDS."""
+"""Which Pipeline (simeval.pipelines.base) a `conf/pipeline/<name>.yaml` describes: its `_target_` (a Pipeline class
+on the user's PYTHONPATH: a plugin, no edit to simeval), else its `kind` (KINDS: simeval's own kinds), or, where it
+names neither, its own code when it has `native:` settings (GenSim's checkout) else its simeval suite."""
 
 from __future__ import annotations
 
@@ -9,14 +9,30 @@ from collections.abc import Mapping
 from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, SuitePipeline
 from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.gymnasium.pipeline import GymnasiumPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 
 KINDS: dict[str, type[Pipeline]] = {"suite": SuitePipeline, "gensim_checkout": GensimOwnPipeline,
-                                    "metaworld": MetaworldPipeline}
+                                    "metaworld": MetaworldPipeline, "gymnasium": GymnasiumPipeline}
+
+
+def plugin_class(target: str) -> type[Pipeline]:
+    """The Pipeline class a config's `_target_` names (module.Class, importable from the user's PYTHONPATH)."""
+    from hydra.utils import get_class
+
+    try:
+        cls = get_class(target)
+    except (ImportError, AttributeError, ValueError) as e:
+        raise UserError(f"pipeline._target_={target}: cannot be imported ({e}); put its module on PYTHONPATH") from None
+    if not (isinstance(cls, type) and issubclass(cls, Pipeline)):
+        raise UserError(f"pipeline._target_={target}: is not a simeval.pipelines.base.Pipeline class")
+    return cls
 
 
 def pipeline_class(pipeline: Mapping, needs: str = "closed-loop evaluation") -> type[Pipeline]:
     """The Pipeline class of a pipeline config; a UserError naming the key when it has none (`needs`: what for)."""
+    if pipeline.get("_target_"):
+        return plugin_class(str(pipeline["_target_"]))
     kind = pipeline.get("kind") or ("gensim_checkout" if pipeline.get("native") else
                                     "suite" if pipeline.get("suite") else None)
     if kind is None:

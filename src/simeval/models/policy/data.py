@@ -29,7 +29,8 @@ from torch.nn import functional as F
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError
 
-LOW_LEVEL = ("joint", "ee_delta", "ee_pose", "metaworld")  # one stored action per control step
+LOW_LEVEL = ("joint", "ee_delta", "ee_pose", "metaworld", "recorded")  # one stored action per control step
+RECORDED = "recorded"  # the episodes' own kind, whatever it is (a Gymnasium pipeline's): PolicyDataset checks one
 ACTION_SPACES = (*LOW_LEVEL, "pick_place")
 
 
@@ -57,7 +58,7 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
         KINDS = {**SUITE_KINDS, "metaworld": METAWORLD_KIND}
 
         stored = (ep.action_space or {}).get("kind")  # None: an episode built in memory, not read from a store
-        if stored is not None and stored != KINDS[action_space]:
+        if stored is not None and action_space != RECORDED and stored != KINDS[action_space]:
             native = {kind: name for name, kind in KINDS.items()}.get(stored, stored)
             raise UserError(f"{ep.task} seed {ep.seed}: its actions were recorded as {stored!r}, the policy's "
                             f"action_space={action_space} needs {KINDS[action_space]!r}; set policy.model."
@@ -79,6 +80,10 @@ class PolicyDataset:
         if not episodes:
             raise UserError("no training episodes: the task group has none in the store (run src/collect.py first)")
         self.cameras, self.horizon, self.n_obs_steps = tuple(cameras), int(horizon), int(n_obs_steps)
+        kinds = {(ep.action_space or {}).get("kind") for ep in episodes} - {None}
+        if action_space == RECORDED and len(kinds) > 1:
+            raise UserError(f"policy.model.action_space={RECORDED}: the training episodes were recorded in "
+                            f"{len(kinds)} action spaces ({', '.join(sorted(kinds))}); one policy acts in one")
         rgb = {c: [] for c in self.cameras}
         states, actions, lengths = [], [], []
         for ep in episodes:

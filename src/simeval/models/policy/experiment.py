@@ -317,6 +317,21 @@ def eval_override(evaluation: Mapping) -> dict | None:
     return dict(given) if given else None
 
 
+def check_cameras(pipeline, model: Mapping, evaluation: Mapping) -> None:
+    """The policy's cameras and the video's among those the pipeline's environment offers, where it says which
+    (Pipeline.cameras): a UserError before training, not after it."""
+    offered = pipeline.cameras()
+    if offered is None:
+        return
+    missing = [c for c in model["cameras"] if c not in offered]
+    if missing:
+        raise UserError(f"policy.model.cameras={list(model['cameras'])}: pipeline {pipeline.name}'s environment has "
+                        f"cameras {', '.join(offered)}")
+    if evaluation.get("videos") and evaluation.get("video_camera") not in offered:
+        raise UserError(f"eval.video_camera={evaluation.get('video_camera')}: pipeline {pipeline.name}'s environment "
+                        f"has cameras {', '.join(offered)} (or eval.videos=false)")
+
+
 def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
                        model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
                        episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
@@ -331,6 +346,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     from simeval.models.policy import evaluate as ev
     from simeval.models.policy.random_baseline import RandomActions
     check_demonstrations(demonstrations)  # before anything is logged or loaded
+    check_cameras(pipeline, model, evaluation)
     specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]

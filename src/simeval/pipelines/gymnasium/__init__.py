@@ -1,0 +1,1 @@
+"""Any Gymnasium environment as a pipeline, by its config alone (simeval.pipelines.gymnasium.pipeline)."""
