@@ -66,6 +66,13 @@ def test_a_plugin_pipeline_collects_and_runs_diversity_and_generalization(user):
     assert set(splits) == {"train", "eval", "heldout"}  # eval: the gain varied; heldout: reach-up
     rows = _result(user / "generalization")["values"]["tasks"]
     assert {(r["split"], r["task"]) for r in rows} >= {("heldout", "reach-up"), ("eval", "reach-left")}
+    # text diversity reads the descriptions the yaml lists (pipeline.source: config)
+    env = {**os.environ, "PYTHONPATH": str(user / "mine")}
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"), "pipeline=reach",
+                          f"hydra.searchpath=[file://{user / 'mine' / 'conf'}]", f"cache_dir={user / 'cache'}",
+                          f"hydra.run.dir={user / 'texts'}"], cwd=user, capture_output=True, text=True, env=env)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert _result(user / "texts")["values"]["reach"]["n"] == 3
     res = _run(user, "generalization", "pipeline=reach", "policy=random", "policy.model.cameras=[top]",
                "eval.video_camera=top", "eval.seeds=2", "eval.max_steps=10", f"checkpoint_dir={user / 'pol'}",
                f"hydra.run.dir={user / 'random'}")

@@ -1,4 +1,5 @@
-"""simeval.pipelines.registry: which Pipeline class a `conf/pipeline/<name>.yaml` selects (its `kind`, else its
+"""simeval.pipelines.registry: which Pipeline class a `conf/pipeline/<name>.yaml` selects (its `_target_`, else its
+`kind`, else its
 own code where it has `native:` settings, else its simeval suite), and the one-line errors where it selects none;
 src/collect.py goes through it, so a pipeline without a collector is refused there in one line."""
 
@@ -27,7 +28,9 @@ def test_a_suite_pipeline_and_a_native_one_get_their_classes():
     assert pipeline_class({"name": "gensim_own", "suite": None, "native": {"hz": 240}}) is GensimOwnPipeline
     assert pipeline_class({"name": "x", "kind": "suite", "suite": "gensim", "native": {"hz": 240}}) is SuitePipeline
     assert pipeline_class({"name": "metaworld", "kind": "metaworld", "suite": None}) is MetaworldPipeline
-    assert set(KINDS) == {"suite", "gensim_checkout", "metaworld"}
+    assert set(KINDS) == {"suite", "gensim_checkout", "metaworld", "gymnasium"}
+    assert pipeline_class({"name": "p", "_target_": "simeval.pipelines.base.SuitePipeline", "kind": "metaworld"}) \
+        is SuitePipeline  # a plugin's _target_ is its class, whatever else the config says
 
 
 def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
@@ -37,7 +40,11 @@ def test_a_pipeline_with_nothing_to_run_or_an_unknown_kind_is_one_line():
                             "run (pipeline.native): collection needs one")
     with pytest.raises(UserError) as e:
         pipeline_class({"name": "mine", "kind": "mujoco"})
-    assert str(e.value) == "pipeline.kind='mujoco': expected one of gensim_checkout, metaworld, suite"
+    assert str(e.value) == "pipeline.kind='mujoco': expected one of gensim_checkout, gymnasium, metaworld, suite"
+    with pytest.raises(UserError) as e:
+        pipeline_class({"name": "mine", "_target_": "simeval.errors.UserError"})
+    assert str(e.value) == ("pipeline._target_=simeval.errors.UserError: is not a simeval.pipelines.base.Pipeline "
+                            "class")
     for config, needs in (({"name": "custom", "kind": "suite", "suite": None}, "pipeline.suite"),
                           ({"name": "gensim", "kind": "gensim_checkout", "suite": "gensim"}, "pipeline.native")):
         with pytest.raises(UserError) as e:
@@ -58,7 +65,7 @@ def test_collect_refuses_a_pipeline_without_a_collector_in_one_line(tmp_path):
                        capture_output=True, text=True, env={**os.environ, "HYDRA_FULL_ERROR": "0"}, timeout=300,
                        check=False)
     assert r.returncode == 2 and r.stderr.strip() == ("error: pipeline.kind='nope': expected one of gensim_checkout, "
-                                                      "metaworld, suite"), r.stderr[-2000:]
+                                                      "gymnasium, metaworld, suite"), r.stderr[-2000:]
 
 
 def test_a_missing_episode_message_names_the_collect_command_of_the_pipelines_own_code(tmp_path):

@@ -98,7 +98,23 @@ def source_hint(pipeline: str) -> str:
     return "set " + ", or ".join(parts)
 
 
-SOURCE_OPTIONS = ("root", "grouped_file", "tasks_path", "suite", "text_template", "group_aliases")
+SOURCE_OPTIONS = ("root", "grouped_file", "tasks_path", "suite", "text_template", "group_aliases", "tasks")
+
+
+def config_tasks(pipeline: str, tasks, text_template: str | None = None) -> list[Task]:
+    """The tasks a pipeline config lists itself (`tasks: {name: {group, description, ...}}`, a Gymnasium pipeline's
+    or a plugin's): `pipeline.source: config`, or any pipeline simeval has no loader of that lists them."""
+    out = []
+    for name, t in dict(tasks or {}).items():
+        t = dict(t or {})
+        if not t.get("group"):
+            raise TaskSourceError(f"pipeline.tasks.{name}: no group")
+        desc = str(t.get("description") or str(name).replace("-", " "))
+        out.append(Task(pipeline, str(t["group"]), str(name), desc,
+                        (text_template or "{description}").format(name=name, description=desc)))
+    if not out:
+        raise TaskSourceError(f"pipeline={pipeline}: pipeline.tasks lists no task")
+    return out
 
 
 def source_options(pipeline_config) -> dict:
@@ -109,6 +125,8 @@ def source_options(pipeline_config) -> dict:
 def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
     """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path, suite,
     text_template, group_aliases (the keys of the pipeline config)."""
+    if source == "config" or (pipeline not in SOURCES and pipeline not in NO_TASK_TEXTS and options.get("tasks")):
+        return config_tasks(pipeline, options.get("tasks"), options.get("text_template"))
     if pipeline in NO_TASK_TEXTS:
         raise TaskSourceError(f"pipeline={pipeline} has no task texts to load: {NO_TASK_TEXTS[pipeline]}")
     if pipeline not in SOURCES:
