@@ -20,13 +20,30 @@ log = logging.getLogger("evaluate")
 SRC = Path(__file__).resolve().parent
 
 
-def _stage(cmd: list[str], log_path: Path) -> None:
+def _stage(cmd: list[str], log_path: Path) -> str | None:
+    """Run an entrypoint; None when it finished, else its last line (its one-line error)."""
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("a") as f:
         res = subprocess.run([sys.executable, *cmd], stdout=f, stderr=subprocess.STDOUT)
-    if res.returncode != 0:
-        tail = log_path.read_text().strip().splitlines()[-1:] or ["(no output)"]
-        raise UserError(f"{cmd[0]} failed (exit {res.returncode}; log {log_path}): {tail[0]}")
+    if res.returncode == 0:
+        return None
+    tail = [x for x in log_path.read_text().strip().splitlines() if x.strip()][-1:] or ["(no output)"]
+    return f"{Path(cmd[0]).name} stopped (exit {res.returncode}; log {log_path}): {tail[0].removeprefix('error: ')}"
+
+
+def _stage_dir(out: Path, stage: str, settings: dict) -> Path:
+    """The folder of a stage's runs, named by what its numbers depend on (its settings and the episodes' list): a
+    rerun with the same ones reuses them, one with others runs anew beside them."""
+    import hashlib
+    import json
+
+    key = hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:10]
+    return out / f"{stage}-{key}"
+
+
+def _fingerprint(metas) -> list:
+    return sorted((m["task"], int(m["seed"]), int(m["n_steps"]), bool(m["success"]), m.get("variation_id", ""),
+                   m["description"]) for m in metas)
 
 
 def _text(metas, cfg) -> dict:
@@ -61,12 +78,14 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
         return aspect("quality", "skipped", f"{unknown} of {len(metas)} episodes record no success, so the oracle "
                       "judge cannot score them; a VLM judge can: python src/quality.py judge=openai "
                       f"episodes.store={cfg.episodes.store} episodes.pipeline={cfg.episodes.pipeline}")
-    run = out / "quality"
+    args = ["judge=oracle", f"episodes.store={cfg.episodes.store}", f"episodes.pipeline={cfg.episodes.pipeline}",
+            f"episodes.group={cfg.episodes.group}", f"episodes.per_task={per_task}", *cfg.quality.overrides]
+    run = _stage_dir(out, "quality", {"args": args, "episodes": _fingerprint(metas)})
     if not (run / "result.json").is_file():
-        _stage([str(SRC / "quality.py"), "judge=oracle", f"episodes.store={cfg.episodes.store}",
-                f"episodes.pipeline={cfg.episodes.pipeline}", f"episodes.group={cfg.episodes.group}",
-                f"episodes.per_task={per_task}", f"cache_dir={cfg.cache_dir}", f"hydra.run.dir={run}",
-                *cfg.quality.overrides], out / "logs" / "quality.log")
+        stopped = _stage([str(SRC / "quality.py"), *args, f"cache_dir={cfg.cache_dir}", f"hydra.run.dir={run}"],
+                         out / "logs" / "quality.log")
+        if stopped:
+            return aspect("quality", "no reading", stopped)
     import json
 
     values = json.loads((run / "result.json").read_text())["values"]
@@ -85,19 +104,22 @@ def _dynamics(metas, cfg, out: Path, camera: str) -> dict:
     for m in metas:
         per_task[m["task"]] = per_task.get(m["task"], 0) + 1
     n = min(per_task.values())
-    held = int(cfg.dynamics.heldout)
-    counts = [int(k) for k in cfg.dynamics.counts if int(k) + held <= n]
+    held, wanted, seeds = dynamics_settings(cfg)
+    counts = [k for k in wanted if k + held <= n]
     if not counts:
         return aspect("dynamics_diversity", "no reading", f"{n} episodes per task (fewest); the held-out protocol "
-                      f"needs {int(cfg.dynamics.counts[0])} to train on and {held} to score")
-    sweep = out / "dynamics"
-    seeds = [int(s) for s in cfg.dynamics.seeds]
+                      f"needs {wanted[0]} to train on and {held} to score (dynamics.counts, dynamics.heldout)")
+    args = ["pipeline=custom", f"pipeline.name={cfg.episodes.pipeline}", f"task_group={cfg.episodes.group}",
+            f"camera={camera}", f"store={cfg.episodes.store}", f"eval_episodes=[{n - held + 1},{n}]",
+            f"episodes={','.join(map(str, counts))}", f"seed={','.join(map(str, seeds))}",
+            *([f"debug={cfg.dynamics.debug}"] if cfg.dynamics.debug != "none" else []), *cfg.dynamics.overrides]
+    sweep = _stage_dir(out, "dynamics", {"args": args, "episodes": _fingerprint(metas)})
     if len(list(sweep.glob("*/result.json"))) < len(counts) * len(seeds):
-        _stage([str(SRC / "diversity.py"), "-m", "pipeline=custom", f"pipeline.name={cfg.episodes.pipeline}",
-                f"task_group={cfg.episodes.group}", f"camera={camera}", f"store={cfg.episodes.store}",
-                f"eval_episodes=[{n - held + 1},{n}]", f"episodes={','.join(map(str, counts))}",
-                f"seed={','.join(map(str, seeds))}", f"hydra.sweep.dir={sweep}", *cfg.dynamics.overrides],
-               out / "logs" / "dynamics.log")
+        stopped = _stage([str(SRC / "diversity.py"), "-m", *args, f"hydra.sweep.dir={sweep}"],
+                         out / "logs" / "dynamics.log")
+        if stopped:  # the world model could not run on these episodes: no reading, and the card is still written
+            return aspect("dynamics_diversity", "no reading", stopped + " (its settings: dynamics.overrides=[...], "
+                          "e.g. 'dynamics.overrides=[\"world_model.window.length=7\"]')")
     from simeval.report.table4_heldout import build
     from simeval.results import read_results
 
@@ -115,20 +137,43 @@ def _dynamics(metas, cfg, out: Path, camera: str) -> dict:
     fall = f"; its fall {counts[0]} -> {counts[-1]}: {fall}" if fall and not fall.startswith("no reading") else ""
     reads = [k for k in counts if row[f"gate_passes_{k}"]]
     line = (f"pixel reading by training episodes per task, {pixel}{fall}" + (f"; state reading, {state}" if state else
-            "") + f" (held-out episodes {n - held + 1}-{n} of each task; numbers: {sweep / 'table4_heldout.md'})")
+            "") + f" (held-out episodes {n - held + 1}-{n} of each task; numbers: {sweep.name}/table4_heldout.md)")
     return aspect("dynamics_diversity", "reads" if reads else "no reading", line)
+
+
+def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
+    """(heldout, counts, seeds) of `dynamics`, checked (one line naming the key)."""
+    from omegaconf import OmegaConf
+
+    from simeval.errors import require_whole
+
+    require_whole("dynamics.heldout", cfg.dynamics.heldout)
+    out = []
+    for key, low in (("counts", 1), ("seeds", 0)):
+        values = OmegaConf.to_container(cfg.dynamics[key]) if OmegaConf.is_config(cfg.dynamics[key]) else \
+            cfg.dynamics[key]
+        if not isinstance(values, list) or not values:
+            raise UserError(f"dynamics.{key}={values!r}: expected a list of whole numbers >= {low}, e.g. "
+                            + ("[10,20,40]" if key == "counts" else "[0,1,2]"))
+        for v in values:
+            require_whole(f"dynamics.{key}", v, low)
+        out.append(sorted(set(values)))
+    overrides = cfg.dynamics.overrides
+    if not OmegaConf.is_list(overrides) or not all(isinstance(x, str) for x in overrides):
+        raise UserError("dynamics.overrides: expected a list of quoted overrides for src/diversity.py, e.g. "
+                        "'dynamics.overrides=[\"world_model=paper\",\"device=cuda\"]'")
+    return int(cfg.dynamics.heldout), out[0], out[1]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.cli import require_whole_keys
     from simeval.episodes.store import pipeline_episodes
     from simeval.report import scorecard
     from simeval.report.scorecard import aspect
     from simeval.results import RunFolder
 
-    require_whole_keys(cfg, {"dynamics.heldout": 1})
+    dynamics_settings(cfg)  # before anything runs
     src = cfg.episodes
     metas = pipeline_episodes(src.store, src.pipeline, src.group)
     cameras = metas[0]["cameras"]

@@ -3,6 +3,7 @@ robomimic HDF5 files) into the episode store."""
 
 import inspect
 import logging
+import re
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -24,6 +25,8 @@ def main(cfg: DictConfig) -> None:
         raise UserError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
     if not cfg.src:
         raise UserError("src is not set: src=/path/to/demonstrations")
+    if cfg.name is not None and not re.fullmatch(r"[A-Za-z0-9_-]+", str(cfg.name)):
+        raise UserError(f"name={cfg.name}: letters, digits, '-' and '_' only (it names the store's folder)")
     importer = IMPORTERS[cfg.format]
     size = OmegaConf.to_container(cfg.image_size) if OmegaConf.is_config(cfg.image_size) else cfg.image_size
     options = {"image_size": image_size_option(size, "image_size"),
@@ -33,7 +36,8 @@ def main(cfg: DictConfig) -> None:
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
                                 **{k: v for k, v in options.items() if k in accepted})
     RunFolder.of(cfg).write(metric="import", version="1.0", values=summary)
-    log.info("%s: %d written, %d already in %s", cfg.format, summary["written"], summary["skipped"], cfg.store)
+    log.info("%s: %d written, %d already in %s (pipeline %s)", cfg.format, summary["written"], summary["skipped"],
+             cfg.store, ", ".join(summary["pipelines"]) or "none")
 
 
 if __name__ == "__main__":

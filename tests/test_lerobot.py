@@ -252,6 +252,13 @@ def test_bad_datasets_are_one_line_naming_the_file_or_feature(lerobot_written, t
     video = cut / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4"
     video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
     one_line_error(_import(tmp_path, cut, store="store_cut"), f"{video}: ")
+    # a second dataset under a name the store holds from the first is refused, not mixed into it
+    other = _copy(root, tmp_path / "tabletop_v2" / "tabletop")
+    assert _import(tmp_path, root, store="store_names").returncode == 0
+    one_line_error(_import(tmp_path, other, store="store_names"), "name=tabletop: the store",
+                   f"imported from {root.resolve()}", "give another name=")
+    one_line_error(_import(tmp_path, root, "name=../evil"), "name=../evil: letters, digits")
+    one_line_error(_import(tmp_path, cut, store="store_cut"), "episodes written", "the same command resumes")
     gone = _copy(root, tmp_path / "no_camera_file")
     missing = gone / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4"
     missing.unlink()
@@ -306,5 +313,9 @@ def test_export_mistakes_are_one_line(lerobot_written, tmp_path):
     (tmp_path / "taken" / "notes.txt").write_text("mine")
     one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'taken'}"), "exists and is not empty",
                    "overwrite=true")
-    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'y'}", "format=rlds"), "format='rlds'")
+    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'y'}", "format=rlds"),
+                   "format='rlds': expected lerobot")
+    one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'taken' / 'notes.txt'}"), "is a file")
+    for fps in ("abc", "-3", "0"):
+        one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'z'}", f"fps={fps}"), "fps=")
     assert (tmp_path / "taken" / "notes.txt").read_text() == "mine"

@@ -106,6 +106,7 @@ def test_bad_robomimic_files_are_one_line_naming_the_file_or_key(tmp_path):
     path = tmp_path / "demos.hdf5"
     write_robosuite_style(path, demos=2, steps=3)
     one_line_error(_import(tmp_path, tmp_path), f"src={tmp_path}: is a folder; give the file")
+    one_line_error(_import(tmp_path, tmp_path / "nope.hdf5"), "does not exist; give the file")
     one_line_error(_import(tmp_path, path, "filter_key=test"), f"{path}: no mask/test (filter keys: train, valid)")
     with h5py.File(tmp_path / "nodata.hdf5", "w") as f:
         f.create_dataset("demos", data=np.zeros(3))

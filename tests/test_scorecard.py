@@ -72,7 +72,7 @@ def test_the_readmes_commands_give_a_scorecard_of_a_lerobot_dataset(user):
     assert "pixel reading" in lines["dynamics_diversity"] and "state reading" in lines["dynamics_diversity"]
     assert by["dynamics_diversity"]["reading"] in ("reads", "no reading")
     assert by["generalization"]["reading"] == "skipped" and "no environment" in lines["generalization"]
-    assert len(list((out / "dynamics").glob("*/result.json"))) == 2  # counts 2 and 4, one seed
+    assert len(list(out.glob("dynamics-*/*/result.json"))) == 2  # counts 2 and 4, one seed
     for aspect in ("text_diversity", "quality", "dynamics_diversity", "generalization"):
         assert by[aspect]["references"], f"{aspect}: no reference rows"
     assert {"GenSim", "RoboGen"} <= {r["pipeline"] for r in by["text_diversity"]["references"]}
@@ -100,3 +100,32 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
     one_line_error(_run(user, evaluate, "episodes.pipeline=mine", "camera=wrist"), "camera=wrist: the episodes "
                                                                                     "record top")
     one_line_error(_run(user, evaluate, "episodes.pipeline=mine", "dynamics.heldout=0"), "dynamics.heldout")
+    for bad, key in (("dynamics.counts=[abc]", "dynamics.counts"), ("dynamics.counts=[]", "dynamics.counts=[]"),
+                     ("dynamics.seeds=[x]", "dynamics.seeds"), ("dynamics.counts=5", "dynamics.counts=5")):
+        one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad), key)
+
+
+def test_a_measure_that_cannot_run_is_no_reading_and_the_card_is_still_written(tmp_path):
+    """robomimic demos of 4 steps: the world model has no window to train on; the scorecard says why."""
+    import h5py
+
+    with h5py.File(tmp_path / "short.hdf5", "w") as f:
+        data = f.create_group("data")
+        data.attrs["env_args"] = json.dumps({"env_name": "Lift", "env_kwargs": {"control_freq": 20}})
+        rng = np.random.default_rng(0)
+        for d in range(8):
+            g = data.create_group(f"demo_{d}")
+            g.create_dataset("obs/agentview_image", data=rng.integers(0, 256, (4, 32, 32, 3), dtype=np.uint8))
+            g.create_dataset("obs/robot0_eef_pos", data=rng.normal(size=(4, 3)))
+            g.create_dataset("actions", data=rng.uniform(-1, 1, (4, 7)))
+            g.create_dataset("rewards", data=np.r_[np.zeros(3), 1.0])
+    res = _run(tmp_path, str(ROOT / "src" / "import_data.py"), "format=robomimic", "src=short.hdf5")
+    assert res.returncode == 0, res.stderr[-2000:]
+    res = _run(tmp_path, str(ROOT / "src" / "evaluate.py"), "episodes.pipeline=short", "debug=tiny",
+               f"tables={ROOT / 'outputs' / 'tables'}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    card = json.loads((tmp_path / "outputs" / "scorecards" / "short" / "scorecard.json").read_text())
+    by = {a["aspect"]: a for a in card["aspects"]}
+    assert by["dynamics_diversity"]["reading"] == "no reading"
+    assert "diversity.py stopped" in by["dynamics_diversity"]["line"] and "window" in by["dynamics_diversity"]["line"]
+    assert by["quality"]["value"] == pytest.approx(10.0)  # every demo reached the sparse reward of 1

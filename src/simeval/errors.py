@@ -30,7 +30,8 @@ def require_whole_fields(settings: object, prefix: str, names: tuple[str, ...], 
 def require_choice(key: str, value: object, choices: tuple[str, ...]) -> None:
     """Raise a UserError naming `key` and the valid values unless value is one of `choices`."""
     if value not in choices:
-        raise UserError(f"{key}={value!r}: expected {', '.join(choices[:-1])} or {choices[-1]}")
+        expected = choices[0] if len(choices) == 1 else f"{', '.join(choices[:-1])} or {choices[-1]}"
+        raise UserError(f"{key}={value!r}: expected {expected}")
 
 
 def require_folder(key: str, path: object) -> None:

@@ -18,7 +18,7 @@ def frames_of(spec: dict, episode: int, camera: int) -> np.ndarray:
     t, h, w = spec["frames"], spec["height"], spec["width"]
     img = np.zeros((t, h, w, 3), np.uint8)
     img[..., 0] = np.linspace(0, 200, w, dtype=np.uint8)[None, None, :]
-    img[..., 1] = 40 * camera + 10 * episode
+    img[..., 1] = (40 * camera + 10 * episode) % 256
     for i in range(t):
         y, x = (2 * i + episode) % (h - 6), (3 * i + 5 * camera) % (w - 6)
         img[i, y : y + 6, x : x + 6] = 255

@@ -303,9 +303,10 @@ that does not exist or is a file is a UserError before any progress output."""
     from tqdm import tqdm
 
     folder = Path(src).expanduser()
-    if not folder.exists():  # before any progress output: a typo is not "no demos found"
-        raise UserError(f"src={src} does not exist; give the folder that holds the demonstrations")
     reads_files = getattr(importer, "reads_files", False)
+    if not folder.exists():  # before any progress output: a typo is not "no demos found"
+        raise UserError(f"src={src} does not exist; give the {'file' if reads_files else 'folder'} that holds the "
+                        "demonstrations")
     if not folder.is_dir() and not reads_files:
         raise UserError(f"src={src}: is a file, not a folder; give the folder that holds the demonstrations")
     if folder.is_dir() and reads_files:
@@ -314,22 +315,47 @@ that does not exist or is a file is a UserError before any progress output."""
         options["stored"] = never_stored if overwrite else store.exists_intact  # an unreadable file is moved aside
     written = skipped = 0
     per_task: dict[str, dict] = {}
+    pipelines: set[str] = set()
     # delay: a folder without the format's layout fails at once, with its one line and no progress bar before it
     items = _naming_src(importer(src, **options), src)
-    for item in tqdm(items, desc="importing", unit="episode", disable=not progress, delay=1.0):
-        if isinstance(item, Stored):
-            meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
-            task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
-        else:
-            task, group, success, known = item.task, item.group, item.success, item.success_known
-            is_new = overwrite or not store.exists_intact(item.pipeline, item.task, item.seed)
-        stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "success_unknown": 0, "group": group})
-        stats["episodes"] += 1
-        stats["success"] += int(known and success)
-        stats["success_unknown"] += int(not known)  # the source does not say: not counted as a failure
-        if is_new:
-            store.write(item)
-            written += 1
-        else:
-            skipped += 1
-    return {"written": written, "skipped": skipped, "tasks": per_task}
+    try:
+        for item in tqdm(items, desc="importing", unit="episode", disable=not progress, delay=1.0):
+            if item.pipeline not in pipelines:
+                pipelines.add(item.pipeline)
+                if hasattr(importer, "source_of") and not overwrite:
+                    _refuse_another_source(store, item.pipeline, importer.source_of(src))
+            written, skipped = _import_one(item, store, overwrite, per_task, written, skipped)
+    except EpisodeFormatError as e:
+        if written + skipped == 0:
+            raise
+        raise EpisodeFormatError(f"{e} ({written} episodes written and {skipped} already stored before it; the same "
+                                 "command resumes after the fix)") from e
+    return {"written": written, "skipped": skipped, "tasks": per_task, "pipelines": sorted(pipelines)}
+
+
+def _refuse_another_source(store, pipeline: str, source: str) -> None:
+    """A dataset imported under a name the store already holds from another dataset would mix the two (and an
+    episode of the same task and seed would be kept as the old one): one line instead."""
+    others = sorted({m["source"] for m in store.index(pipeline)} - {source}) if store.paths(pipeline) else []
+    if others:
+        raise UserError(f"name={pipeline}: the store {store.root} holds episodes of {pipeline} imported from "
+                        f"{others[0].split(':', 1)[-1]}, not from this source; give another name= (or remove "
+                        f"{store.root / pipeline})")
+
+
+def _import_one(item, store, overwrite: bool, per_task: dict, written: int, skipped: int) -> tuple[int, int]:
+    """One item of an import: written unless the store holds it, counted in `per_task`; (written, skipped)."""
+    if isinstance(item, Stored):
+        meta = read_meta(store.path_for(item.pipeline, item.task, item.seed))
+        task, group, success, known, is_new = item.task, meta["group"], meta["success"], meta["success_known"], False
+    else:
+        task, group, success, known = item.task, item.group, item.success, item.success_known
+        is_new = overwrite or not store.exists_intact(item.pipeline, item.task, item.seed)
+    stats = per_task.setdefault(task, {"episodes": 0, "success": 0, "success_unknown": 0, "group": group})
+    stats["episodes"] += 1
+    stats["success"] += int(known and success)
+    stats["success_unknown"] += int(not known)  # the source does not say: not counted as a failure
+    if is_new:
+        store.write(item)
+        return written + 1, skipped
+    return written, skipped + 1

@@ -298,6 +298,11 @@ def _success(rows: dict, path: Path) -> tuple[bool, bool]:
     return False, False
 
 
+def source_of(root: str | os.PathLike) -> str:
+    """What an imported episode's `source` says: the dataset's folder (import_into_store refuses to mix two)."""
+    return f"lerobot:{Path(root).expanduser().resolve()}"
+
+
 def import_lerobot(root: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                    groups: dict | None = None, name: str | None = None, stored=None) -> Iterator:
     """The episodes of a LeRobotDataset folder (v2.0, v2.1 or v3.0) as store Episodes, or Stored where `stored`
@@ -350,7 +355,7 @@ def import_lerobot(root: str | os.PathLike, *, image_size: tuple[int, int] | Non
             state=np.concatenate(state, axis=1) if state else np.zeros((n, 0), np.float32),
             action=_column(rows, "action", entry.data_file, len(action_names)).astype(np.float32),
             reward=reward, is_first=np.arange(n) == 0, is_terminal=np.arange(n) == n - 1, success=success,
-            success_known=known, control_hz=info.fps, source=f"lerobot:{root}",
+            success_known=known, control_hz=info.fps, source=source_of(root),
             action_space={"kind": f"lerobot:{info.robot_type}", "dims": action_names, "units": None,
                           "control_hz": info.fps, "alignment": "lerobot: a frame's action follows its observation"},
             state_names=state_names,
@@ -550,3 +555,6 @@ def export_lerobot(paths: list[os.PathLike], out: str | os.PathLike, *, robot_ty
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return {"episodes": len(paths), "frames": index, "tasks": len(texts), "fps": rate, "out": str(out)}
+
+
+import_lerobot.source_of = source_of

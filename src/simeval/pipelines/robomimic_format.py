@@ -47,6 +47,11 @@ def _words(name: str) -> str:
     return re.sub(r"(?<=[a-z])(?=[A-Z])|[_-]+", " ", name).strip().lower()
 
 
+def source_of(path: str | os.PathLike) -> str:
+    """What an imported episode's `source` says: the file (import_into_store refuses to mix two under one name)."""
+    return f"robomimic:{Path(path).expanduser().resolve()}"
+
+
 def import_robomimic(src: str | os.PathLike, *, image_size: tuple[int, int] | None = None,
                      groups: dict | None = None, descriptions: dict | None = None, name: str | None = None,
                      filter_key: str | None = None, stored=None) -> Iterator:
@@ -127,7 +132,7 @@ def _episode(path: Path, g, demo: str, *, env_name: str, control_hz, image_size,
         rgb=rgb, state=np.concatenate(state, axis=1) if state else np.zeros((rows, 0), np.float32), action=actions,
         reward=rewards if rewards is not None else np.zeros(rows, np.float32), is_first=np.arange(rows) == 0,
         is_terminal=np.arange(rows) == rows - 1, success=success, success_known=known,
-        control_hz=float(control_hz) if control_hz else None, source=f"robomimic:{path}",
+        control_hz=float(control_hz) if control_hz else None, source=source_of(path),
         action_space={"kind": f"robomimic:{env_name}", "dims": [f"a{i}" for i in range(actions.shape[1])],
                       "units": None, "control_hz": control_hz, "alignment": "robomimic: actions[t] follows obs[t]"},
         state_names=names, scene_views=np.stack(views) if len({v.shape for v in views}) == 1 else views[0][None],
@@ -135,3 +140,4 @@ def _episode(path: Path, g, demo: str, *, env_name: str, control_hz, image_size,
 
 
 import_robomimic.reads_files = True  # src= is the HDF5 file, not a folder
+import_robomimic.source_of = source_of

@@ -152,7 +152,8 @@ def plot(card: dict, path: Path) -> None:
         if a["value"] is None and not refs or a["aspect"] == "dynamics_diversity":
             import textwrap
 
-            ax.text(0.02, 0.98, textwrap.fill(a["line"], 44), va="top", fontsize=8, transform=ax.transAxes,
+            ax.text(0.02, 0.98, textwrap.fill(a["line"], 40, break_long_words=False), va="top", fontsize=7,
+                    transform=ax.transAxes,
                     color="tab:green" if a["reading"] == "reads" else "tab:red")
             ax.axis("off")
             continue
