@@ -24,7 +24,7 @@ SHRINKS = {
     "export_data": {},
     # evaluate: the tiny world model on 2 and 4 training episodes, 2 held out, one seed
     "evaluate": {"dynamics.counts": ([10, 20, 40], [2, 4]), "dynamics.heldout": (10, 2), "dynamics.seeds": ([0, 1, 2], [0]),
-                 "dynamics.debug": ("none", "tiny")},  # writes the episodes at their own size: nothing to shrink, but debug=tiny is accepted
+                 "dynamics.debug": ("none", "tiny"), "generalization.debug": ("none", "tiny")},  # writes the episodes at their own size: nothing to shrink, but debug=tiny is accepted
     "report": {},  # reads result.json files only: nothing to shrink, but debug=tiny is accepted
     "paper": {},  # the profile sets every stage's sizes (profile=quick: tiny models); debug=tiny is accepted
     # diversity: the tiny world model (conf/world_model/tiny.yaml) over the default cpu preset

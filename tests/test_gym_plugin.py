@@ -109,3 +109,22 @@ def test_kind_gymnasium_needs_no_code_of_simeval_and_mistakes_are_one_line(user)
     # the video's camera is checked before a policy trains (the suites' default, front, is not this env's)
     one_line_error(_run(user, "generalization", "pipeline=reach_plain", "debug=tiny", "episodes_per_task=1"),
                    "eval.video_camera=front: pipeline reach_plain's environment has cameras top")
+
+
+def test_the_scorecard_of_a_plugin_pipeline_rolls_its_policy_out(user):
+    res = _run(user, "collect", "pipeline=reach", "episodes=6", "record.cameras=[top]", "record.image_size=[32,32]",
+               "workers=1", f"hydra.run.dir={user / 'collect'}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    env = {**os.environ, "PYTHONPATH": str(user / "mine")}
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "evaluate.py"), "environment=reach",
+                          f"hydra.searchpath=[file://{user / 'mine' / 'conf'}]", f"episodes.store={user / 'episodes'}",
+                          "debug=tiny", f"tables={ROOT / 'outputs' / 'tables'}"], cwd=user, capture_output=True,
+                         text=True, env=env, timeout=900)
+    assert res.returncode == 0, res.stderr[-3000:]
+    card = json.loads((user / "outputs" / "scorecards" / "reach" / "scorecard.json").read_text())
+    by = {a["aspect"]: a for a in card["aspects"]}
+    assert by["generalization"]["reading"] == "reads", by["generalization"]["line"]
+    line = by["generalization"]["line"]
+    assert "policy: eval " in line and "heldout " in line and "random: " in line
+    assert by["quality"]["value"] == pytest.approx(10.0)  # the expert reached every target
+    assert by["text_diversity"]["reading"] == "reads" and "3 task texts" in by["text_diversity"]["line"]
