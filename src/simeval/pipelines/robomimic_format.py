@@ -73,7 +73,8 @@ def import_robomimic(src: str | os.PathLike, *, image_size: tuple[int, int] | No
         masks = {k: {x.decode() if isinstance(x, bytes) else str(x) for x in f["mask"][k][()]}
                  for k in (f["mask"] if "mask" in f else [])}
         if filter_key is not None and filter_key not in masks:
-            raise EpisodeFormatError(f"{path}: no mask/{filter_key} (filter keys: {', '.join(sorted(masks)) or 'none'})")
+            keys = ", ".join(sorted(masks)) or "none"
+            raise EpisodeFormatError(f"{path}: no mask/{filter_key} (filter keys: {keys})")
         demos = sorted((k for k in data if re.fullmatch(r"demo_\d+", k)), key=lambda k: int(k.split("_")[1]))
         if filter_key is not None:
             demos = [d for d in demos if d in masks[filter_key]]
