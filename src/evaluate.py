@@ -5,6 +5,7 @@ The measures run as the entrypoints a user would type (src/quality.py, src/diver
 into `out`/<stage>/, so a scorecard's numbers are those runs' result.json files; a stage whose result.json exists
 is not run again. Text diversity runs here (one embedding call)."""
 
+import json
 import logging
 import subprocess
 import sys
@@ -84,8 +85,8 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
     if not (run / "result.json").is_file():
         stopped = _stage([str(SRC / "quality.py"), *args, f"cache_dir={cfg.cache_dir}", f"hydra.run.dir={run}"],
                          out / "logs" / "quality.log")
-        if stopped:
-            return aspect("quality", "no reading", stopped)
+        if stopped:  # a judge that cannot run is a mistake to fix, not a reading: the last card stays as it was
+            raise UserError(stopped)
     import json
 
     values = json.loads((run / "result.json").read_text())["values"]
@@ -135,13 +136,14 @@ def _dynamics(metas, cfg, out: Path, camera: str) -> dict:
     state = "; ".join(f"{k}: {short(row[f'state_gate_{k}'])}" for k in counts if f"state_gate_{k}" in row)
     fall = row.get("fall_verdict", "")
     fall = f"; its fall {counts[0]} -> {counts[-1]}: {fall}" if fall and not fall.startswith("no reading") else ""
-    reads = [k for k in counts if row[f"gate_passes_{k}"]]
+    reads = [k for k in counts if row[f"gate_passes_{k}"] or row.get(f"state_gate_passes_{k}")]
     line = (f"pixel reading by training episodes per task, {pixel}{fall}" + (f"; state reading, {state}" if state else
             "") + f" (held-out episodes {n - held + 1}-{n} of each task; numbers: {sweep.name}/table4_heldout.md)")
     return aspect("dynamics_diversity", "reads" if reads else "no reading", line)
 
 
-def _generalization(cfg, out: Path, camera: str, per_task: int) -> dict:
+def _generalization(cfg, out: Path, camera: str, per_task: int, groups: list[str]) -> dict:
+    """Table 5 on each group of the pipeline (its policy and the random baseline), where it has an environment."""
     from simeval.report.scorecard import aspect
 
     if not cfg.environment:
@@ -150,39 +152,39 @@ def _generalization(cfg, out: Path, camera: str, per_task: int) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
     searchpath = list(HydraConfig.get().searchpath)
-    args = [f"pipeline={cfg.environment}", f"store={cfg.episodes.store}",
-            *([f"task_group={cfg.episodes.group}"] if cfg.episodes.group != "all" else []),
-            f"policy.model.cameras=[{camera}]", f"eval.video_camera={camera}",
-            *([f"hydra.searchpath=[{','.join(searchpath)}]"] if searchpath else [])]
+    common = [f"pipeline={cfg.environment}", f"store={cfg.episodes.store}", f"policy.model.cameras=[{camera}]",
+              f"eval.video_camera={camera}", *([f"hydra.searchpath=[{','.join(searchpath)}]"] if searchpath else [])]
     if cfg.generalization.debug != "none":
-        args.append(f"debug={cfg.generalization.debug}")
+        sizes = [f"debug={cfg.generalization.debug}"]
     else:  # the paper's 40 demonstrations per task where the store has them, 2 more for the sampler check
-        args += [f"episodes_per_task={min(40, per_task - 2)}", "val_episodes_per_task=2"]
-    runs = {"policy": [*args, *cfg.generalization.overrides]}
-    if cfg.generalization.random_baseline:  # chance: the same rollouts with uniform random actions
-        runs["random"] = [*[a for a in args if not a.startswith("debug=")], "policy=random",
-                          *(["eval.seeds=1", "eval.max_steps=40"] if cfg.generalization.debug != "none" else [])]
-    lines, value = [], None
-    for name, run_args in runs.items():
-        folder = _stage_dir(out, f"generalization_{name}", {"args": run_args})
-        if not (folder / "result.json").is_file():
-            stopped = _stage([str(SRC / "generalization.py"), *run_args, f"checkpoint_dir={out / 'policies'}",
-                              f"hydra.run.dir={folder}"], out / "logs" / f"generalization_{name}.log")
-            if stopped:
-                return aspect("generalization", "no reading", stopped)
-        import json
-
-        splits = json.loads((folder / "result.json").read_text())["values"]["splits"]
+        sizes = [f"episodes_per_task={min(40, per_task - 2)}", "val_episodes_per_task=2"]
+    lines, rates = [], []
+    for group in groups:
+        runs = {"policy": [*common, f"task_group={group}", *sizes, *cfg.generalization.overrides]}
+        if cfg.generalization.random_baseline:  # chance: the same rollouts with uniform random actions
+            runs["random"] = [*common, f"task_group={group}", "policy=random",
+                              *(["eval.seeds=1", "eval.max_steps=40"] if cfg.generalization.debug != "none" else [])]
         parts = []
-        for split in ("eval", "train", "heldout"):
-            if split in splits:
-                s = splits[split]["success"]
-                parts.append(f"{split} {s['k']}/{s['n']} = {s['rate']:.2f} [{s['ci'][0]:.2f}, {s['ci'][1]:.2f}]")
-        lines.append(f"{name}: " + ", ".join(parts))
-        if name == "policy":
-            main = splits.get("eval") or splits.get("train")
-            value = main["success"]["rate"] if main else None
-    return aspect("generalization", "reads", "success, " + "; ".join(lines), value=value)
+        for name, run_args in runs.items():
+            folder = _stage_dir(out, f"generalization_{name}", {"args": run_args})
+            if not (folder / "result.json").is_file():
+                stopped = _stage([str(SRC / "generalization.py"), *run_args, f"checkpoint_dir={out / 'policies'}",
+                                  f"hydra.run.dir={folder}"], out / "logs" / f"generalization_{name}.log")
+                if stopped:  # the environment or the policy could not run: a mistake to fix, not a reading
+                    raise UserError(stopped)
+            splits = json.loads((folder / "result.json").read_text())["values"]["splits"]
+            shown = []
+            for split in ("eval", "train", "heldout"):
+                if split in splits:
+                    x = splits[split]["success"]
+                    shown.append(f"{split} {x['k']}/{x['n']} = {x['rate']:.2f} [{x['ci'][0]:.2f}, {x['ci'][1]:.2f}]")
+            parts.append(f"{name}: " + ", ".join(shown))
+            if name == "policy":
+                main = splits.get("eval") or splits.get("train")
+                rates.append(main["success"]["rate"] if main else None)
+        lines.append(f"group {group}: " + "; ".join(parts))
+    value = rates[0] if len(rates) == 1 else None
+    return aspect("generalization", "reads", "success (k/n, 95% interval), " + " | ".join(lines), value=value)
 
 
 def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
@@ -212,6 +214,8 @@ def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
+    from hydra.core.hydra_config import HydraConfig
+
     from simeval.episodes.store import pipeline_episodes
     from simeval.report import scorecard
     from simeval.results import RunFolder
@@ -228,8 +232,12 @@ def main(cfg: DictConfig) -> None:
     for m in metas:
         per_task[m["task"]] = per_task.get(m["task"], 0) + 1
     aspects = [_text(metas, cfg), _quality(metas, cfg, out, min(per_task.values())),
-               _dynamics(metas, cfg, out, camera), _generalization(cfg, out, camera, min(per_task.values()))]
+               _dynamics(metas, cfg, out, camera),
+               _generalization(cfg, out, camera, min(per_task.values()), sorted({m["group"] for m in metas}))]
     card = scorecard.build(src.pipeline, aspects, cfg.tables)
+    if HydraConfig.get().runtime.choices.get("debug", "none") != "none":
+        card["note"] = (f"debug={HydraConfig.get().runtime.choices['debug']}: a first look at small sizes, not a "
+                        "reading at the protocol's")
     paths = scorecard.write(card, out)
     RunFolder.of(cfg).write(metric="scorecard", version="1.0", values=card)
     for line in scorecard.lines(card):

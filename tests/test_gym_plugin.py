@@ -37,6 +37,7 @@ def _result(folder: Path) -> dict:
     return json.loads((folder / "result.json").read_text())
 
 
+@pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
 def test_a_plugin_pipeline_collects_and_runs_diversity_and_generalization(user):
     res = _run(user, "collect", "pipeline=reach", "episodes=6", "record.cameras=[top]", "record.image_size=[32,32]",
                "workers=1", f"hydra.run.dir={user / 'collect'}")
@@ -79,6 +80,7 @@ def test_a_plugin_pipeline_collects_and_runs_diversity_and_generalization(user):
     assert res.returncode == 0, res.stderr[-3000:]
 
 
+@pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
 def test_kind_gymnasium_needs_no_code_of_simeval_and_mistakes_are_one_line(user):
     conf = user / "mine" / "conf" / "pipeline"
     config = yaml.safe_load((conf / "reach.yaml").read_text())
@@ -101,9 +103,16 @@ def test_kind_gymnasium_needs_no_code_of_simeval_and_mistakes_are_one_line(user)
     one_line_error(_run(user, "collect", broken("b3", adapter={**config["adapter"], "success": "info.done"}), *args),
                    "pipeline.adapter.success=info.done: the env's info has no 'done'")
     one_line_error(_run(user, "collect", broken("b4", _target_="my_sim.NoSuchPipeline"), *args),
-                   "pipeline._target_=my_sim.NoSuchPipeline: cannot be imported")
+                   "pipeline._target_=my_sim.NoSuchPipeline: my_sim (", "has no 'NoSuchPipeline'")
     one_line_error(_run(user, "collect", broken("b5", expert={"_target_": "my_sim.nobody"}), *args),
-                   "pipeline.expert._target_=my_sim.nobody")
+                   "pipeline.expert._target_=my_sim.nobody: my_sim (", "has no 'nobody'")
+    one_line_error(_run(user, "collect", broken("b7", _target_="their_sim.Pipeline"), *args),
+                   "pipeline._target_=their_sim.Pipeline: cannot import their_sim", "PYTHONPATH")
+    # a kwarg the env refuses in the eval split: named before a policy trains
+    res = _run(user, "generalization", broken("b8", eval_variation={"friction": 0.3}), "debug=tiny",
+               "policy.model.cameras=[top]", "eval.video_camera=top", "episodes_per_task=1")
+    one_line_error(res, "the env refuses its kwargs", "friction", "pipeline.eval_variation")
+    assert "train policy" not in res.stderr
     one_line_error(_run(user, "collect", broken("b6", adapter={**config["adapter"], "cameras": {"top": "pixels"}}),
                         *args), "pipeline.adapter.cameras.top='pixels': the observation has no such key")
     # the video's camera is checked before a policy trains (the suites' default, front, is not this env's)
@@ -111,6 +120,7 @@ def test_kind_gymnasium_needs_no_code_of_simeval_and_mistakes_are_one_line(user)
                    "eval.video_camera=front: pipeline reach_plain's environment has cameras top")
 
 
+@pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
 def test_the_scorecard_of_a_plugin_pipeline_rolls_its_policy_out(user):
     res = _run(user, "collect", "pipeline=reach", "episodes=6", "record.cameras=[top]", "record.image_size=[32,32]",
                "workers=1", f"hydra.run.dir={user / 'collect'}")

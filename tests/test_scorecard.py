@@ -53,6 +53,7 @@ def _eq1(texts: list[str]) -> float:
     return float(-np.log(s[~np.eye(len(texts), dtype=bool)].mean()))
 
 
+@pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
 def test_the_readmes_commands_give_a_scorecard_of_a_lerobot_dataset(user):
     imported = _run(user, str(ROOT / "src" / "import_data.py"), "format=lerobot", "src=my_dataset", "name=mine")
     assert imported.returncode == 0, imported.stderr[-2000:]
@@ -105,6 +106,7 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
         one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad), key)
 
 
+@pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
 def test_a_measure_that_cannot_run_is_no_reading_and_the_card_is_still_written(tmp_path):
     """robomimic demos of 4 steps: the world model has no window to train on; the scorecard says why."""
     import h5py

@@ -324,7 +324,12 @@ def _state_reading(source, setup, evaluated: np.ndarray, cfg: StateModelConfig, 
     train_idx, eval_idx = np.flatnonzero(setup.train_mask).tolist(), np.flatnonzero(evaluated).tolist()
     states = read_states(source, train_idx + eval_idx)
     started = time.perf_counter()
-    out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig())
+    try:
+        out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig())
+    except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
+        why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
+        return {"dims": None, "gate": {"passes": False, "verdict": why}, "summary": {}, "line": why,
+                "seconds": time.perf_counter() - started}
     out["seconds"] = time.perf_counter() - started
     return out
 

@@ -112,8 +112,8 @@ def _steps(s: np.ndarray, a: np.ndarray, history: int):
     n = len(s)
     t = np.arange(history, n - 1)
     if not len(t):
-        raise UserError(f"state reading: episodes of {n} rows are too short for a history of {history} steps; set "
-                        f"protocol.state_model.history={max(1, n - 2)} or less")
+        raise UserError(f"state reading: an episode of {n} states is too short for a history of {history} steps "
+                        "(protocol.state_model.history)")
     j = np.arange(1, history + 1)
     ti = t[:, None] - j[None] + 1  # (m, H)
     return s[t], s[ti] - s[ti - 1], a[ti], s[t + 1]

@@ -19,6 +19,23 @@ from pathlib import Path
 from simeval.errors import UserError
 
 
+def load_target(target: str, key: str):
+    """The object a `module.name` path names (a config's _target_ or factory), importable from the user's
+    PYTHONPATH; a UserError naming `key` and why it cannot be had (no such module, no such name in it)."""
+    import importlib
+
+    module, _, name = str(target).rpartition(".")
+    if not module:
+        raise UserError(f"{key}={target}: expected module.name, e.g. my_sim.make_env")
+    try:
+        found = importlib.import_module(module)
+    except ImportError as e:
+        raise UserError(f"{key}={target}: cannot import {module} ({e}); put its folder on PYTHONPATH") from None
+    if not hasattr(found, name):
+        raise UserError(f"{key}={target}: {module} ({getattr(found, '__file__', '?')}) has no {name!r}") from None
+    return getattr(found, name)
+
+
 @dataclass(frozen=True)
 class NativeTask:
     name: str
@@ -64,6 +81,10 @@ class Pipeline(ABC):
         policy sees), which is right only for a variation without such knobs; one with them is rolled out on every
         seed. None by default; a pipeline with dynamics knobs names them."""
         return []
+
+    def check_environment(self, pairs: list[tuple[str, dict]]) -> None:
+        """Make (and reset) the environment of each (task, variation) before a policy trains, where that is cheap
+        enough to be worth it: a UserError then rather than after training. Nothing by default."""
 
     def cameras(self) -> list[str] | None:
         """The camera names its environment offers (checked before a policy trains), or None where any recorded

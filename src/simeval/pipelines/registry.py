@@ -18,12 +18,9 @@ KINDS: dict[str, type[Pipeline]] = {"suite": SuitePipeline, "gensim_checkout": G
 
 def plugin_class(target: str) -> type[Pipeline]:
     """The Pipeline class a config's `_target_` names (module.Class, importable from the user's PYTHONPATH)."""
-    from hydra.utils import get_class
+    from simeval.pipelines.base import load_target
 
-    try:
-        cls = get_class(target)
-    except (ImportError, AttributeError, ValueError) as e:
-        raise UserError(f"pipeline._target_={target}: cannot be imported ({e}); put its module on PYTHONPATH") from None
+    cls = load_target(target, "pipeline._target_")
     if not (isinstance(cls, type) and issubclass(cls, Pipeline)):
         raise UserError(f"pipeline._target_={target}: is not a simeval.pipelines.base.Pipeline class")
     return cls

@@ -23,7 +23,7 @@ from simeval.errors import UserError
 ASPECTS = ("text_diversity", "quality", "dynamics_diversity", "generalization")
 AXES = {"text_diversity": "Eq. 1 (higher: more diverse texts)",
         "quality": "oracle score (references: suites' expert success x 10)",
-        "generalization": "success rate on the varied eval scenes"}
+        "generalization": "success rate on the eval (varied) scenes, else train"}
 TITLES = {"text_diversity": "Text diversity (Table 3, Eq. 1, MiniLM)", "quality": "Quality (oracle judge, 0-10)",
           "dynamics_diversity": "Dynamics diversity (Table 4 held-out, gated)",
           "generalization": "Generalization (Table 5)"}
@@ -106,7 +106,8 @@ def lines(card: dict) -> list[str]:
 
 
 def markdown(card: dict) -> str:
-    out = [f"# Scorecard: {card['pipeline']}", "", *[f"- {x}" for x in lines(card)], ""]
+    out = [f"# Scorecard: {card['pipeline']}", "", *([f"**{card['note']}**", ""] if card.get("note") else []),
+           *[f"- {x}" for x in lines(card)], ""]
     for a in card["aspects"]:
         out += [f"## {TITLES[a['aspect']]}", "", f"**{card['pipeline']}**: {a['line']}", ""]
         if a["references"]:
@@ -122,7 +123,8 @@ def _html(card: dict) -> str:
              "<style>body{font-family:system-ui,sans-serif;max-width:1000px;margin:auto;padding:1rem}"
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px}"
              ".no{color:#a00}.reads{color:#070}</style></head><body>",
-             f"<h1>Scorecard: {e(card['pipeline'])}</h1><img src='scorecard.png' alt='scorecard figure' "
+             f"<h1>Scorecard: {e(card['pipeline'])}</h1>"
+             + (f"<p><b>{e(card['note'])}</b></p>" if card.get("note") else "") + "<img src='scorecard.png' alt='scorecard figure' "
              "style='max-width:100%'><ul>"]
     parts += [f"<li class='{'reads' if a['reading'] == 'reads' else 'no'}'>{e(a['aspect'])}: {e(a['line'])}</li>"
               for a in card["aspects"]]
@@ -163,6 +165,8 @@ def plot(card: dict, path: Path) -> None:
         if a["value"] is not None:
             names, values, colors = [card["pipeline"], *names], [a["value"], *values], ["tab:red", *colors]
         ax.barh(range(len(values)), values, color=colors)
+        for i, v in enumerate(values):  # a zero is a reading too, not a missing bar
+            ax.text(v, i, f" {v:.2f}", va="center", fontsize=6)
         ax.set_yticks(range(len(values)), names, fontsize=6)
         ax.invert_yaxis()
         label = AXES.get(a["aspect"], "")
@@ -171,7 +175,8 @@ def plot(card: dict, path: Path) -> None:
 
             label += "\n" + textwrap.fill(f"{card['pipeline']}: {a['line']}", 50)
         ax.set_xlabel(label, fontsize=7, color="k" if a["value"] is not None else "tab:red")
-    fig.suptitle(f"simeval scorecard: {card['pipeline']}", fontsize=11)
+    fig.suptitle(f"simeval scorecard: {card['pipeline']}" + (f" ({card['note']})" if card.get("note") else ""),
+                 fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

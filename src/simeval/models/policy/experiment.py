@@ -358,6 +358,7 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
         log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
                  else "no task of the group has an eval variation" if split == "eval" else "no trained task")
     plan = {split: pairs for split, pairs in plan.items() if pairs}
+    pipeline.check_environment([pair for pairs in plan.values() for pair in pairs])
     compare = {}  # eval tasks whose seeds are compared with the train split's (see run_splits)
     if plan.get("eval"):
         trained_variation = {s.name: dict(v or {}) for s, v in pipeline.split_tasks(specs, "train", heldout)}

@@ -25,6 +25,7 @@ The policy (src/generalization.py) acts in the action space the episodes were re
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from types import SimpleNamespace
@@ -36,7 +37,7 @@ import numpy as np
 
 from simeval.episodes.episode import Episode
 from simeval.errors import UserError, require_whole
-from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
+from simeval.pipelines.base import Pipeline, load_target, select_tasks, split_by_heldout
 from simeval.pipelines.import_parts import resize_frames
 
 ACTION_SPACE = "recorded"  # the policy's action space: the episodes' own (simeval.models.policy.data)
@@ -168,26 +169,21 @@ class GymSettings:
         try:
             if self.env_id:
                 return gym.make(self.env_id, disable_env_checker=True, **kwargs).unwrapped
-            from hydra.utils import get_method
-
-            return get_method(self.factory)(**kwargs)
+            return load_target(self.factory, "pipeline.env.factory")(**kwargs)
         except gym.error.Error as e:
             raise UserError(f"pipeline.env.id={self.env_id}: {e}") from None
         except (ImportError, AttributeError, ValueError) as e:
             what = f"pipeline.env.id={self.env_id}" if self.env_id else f"pipeline.env.factory={self.factory}"
             raise UserError(f"{what}: cannot be made ({type(e).__name__}: {e})") from None
         except TypeError as e:
-            raise UserError(f"pipeline {task}: the env does not take these kwargs {sorted(kwargs)} ({e})") from None
+            where = ", ".join(["pipeline.env.kwargs", f"pipeline.tasks.{task}.kwargs",
+                               *(["the split's variation (pipeline.eval_variation)"] if variation else [])])
+            raise UserError(f"task {task}: the env refuses its kwargs ({e}); they come from {where}") from None
 
     def expert_fn(self) -> Callable:
         if self.expert == "random":
             return lambda env, obs, info, rng: rng.uniform(env.action_space.low, env.action_space.high)
-        from hydra.utils import get_method
-
-        try:
-            return get_method(self.expert["_target_"])
-        except (ImportError, AttributeError, ValueError) as e:
-            raise UserError(f"pipeline.expert._target_={self.expert['_target_']}: cannot be imported ({e})") from None
+        return load_target(self.expert["_target_"], "pipeline.expert._target_")
 
 
 def action_space_of(env: gym.Env, settings: GymSettings) -> dict:
@@ -323,6 +319,21 @@ class GymnasiumPipeline(Pipeline):
 
     def cameras(self):
         return list(self.settings.adapter.cameras)
+
+    def check_environment(self, pairs):
+        """Each distinct variation's environment of the first task made and reset (a missing module, a kwarg the
+        env refuses, an adapter key the observation lacks), before a policy trains."""
+        seen = set()
+        for task, variation in pairs:
+            key = json.dumps(dict(variation or {}), sort_keys=True, default=str)
+            if key in seen:
+                continue
+            seen.add(key)
+            env = AdaptedEnv(self.settings, task, variation, (16, 16), list(self.settings.adapter.cameras))
+            try:
+                env.reset(seed=0)
+            finally:
+                env.close()
 
     def unseen_knobs(self, variation):
         """Every eval kwarg: simeval cannot tell which of an environment's kwargs a first observation shows, so the
