@@ -132,7 +132,9 @@ def main(argv=None) -> None:
             path = runs / f"row{row}.json"
             if path.exists():
                 continue
-            record = run_row(row, args.out / "checkpoints" / "plateau")
+            # a folder per row: a checkpoint's key holds the config and the episodes' list, not their pixels, so the
+            # red and the faint disk at the same settings would share one
+            record = run_row(row, args.out / "checkpoints" / "plateau" / f"row{row}")
             path.write_text(json.dumps(record, indent=1))
             print(f"{record['describe']}: {plateau_exit(record['curve'], record['steps'])}; reconstruction "
                   f"{record['reconstruction']:.2f} ({record['reconstruction_mean_image']:.2f}); {record['gate']} "
