@@ -1,9 +1,10 @@
 """A scorecard of one pipeline's episodes in the store: every aspect simeval measures that the episodes allow, each
 beside the committed reference rows (simeval.report.scorecard). See conf/evaluate.yaml.
 
-The measures run as the entrypoints a user would type (src/quality.py, src/diversity.py), as subprocesses writing
-into `out`/<stage>/, so a scorecard's numbers are those runs' result.json files; a stage whose result.json exists
-is not run again. Text diversity runs here (one embedding call)."""
+The measures run as the entrypoints a user would type (src/quality.py, src/diversity.py, src/generalization.py),
+as subprocesses writing into `out`/<stage>-<key>/ (the key: the stage's settings and the episodes), so a
+scorecard's numbers are those runs' result.json files and a finished stage with the same key is not run again.
+Text diversity runs here (one embedding call)."""
 
 import json
 import logging
@@ -36,7 +37,6 @@ def _stage_dir(out: Path, stage: str, settings: dict) -> Path:
     """The folder of a stage's runs, named by what its numbers depend on (its settings and the episodes' list): a
     rerun with the same ones reuses them, one with others runs anew beside them."""
     import hashlib
-    import json
 
     key = hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:10]
     return out / f"{stage}-{key}"
@@ -87,8 +87,6 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
                          out / "logs" / "quality.log")
         if stopped:  # a judge that cannot run is a mistake to fix, not a reading: the last card stays as it was
             raise UserError(stopped)
-    import json
-
     values = json.loads((run / "result.json").read_text())["values"]
     scores = [v["mean"] for v in values.get("task_completion", {}).values() if v.get("mean") is not None]
     mean = sum(scores) / len(scores) if scores else None
@@ -98,14 +96,11 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
                   f"{len(scores)} episodes scored)", value=float(mean))
 
 
-def _dynamics(metas, cfg, out: Path, camera: str) -> dict:
+def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, list[int], list[int]]) -> dict:
+    """Table 4 held-out on the last `held` of the `n` episodes every task has (the fewest any task has)."""
     from simeval.report.scorecard import aspect
 
-    per_task: dict[str, int] = {}
-    for m in metas:
-        per_task[m["task"]] = per_task.get(m["task"], 0) + 1
-    n = min(per_task.values())
-    held, wanted, seeds = dynamics_settings(cfg)
+    held, wanted, seeds = settings
     counts = [k for k in wanted if k + held <= n]
     if not counts:
         return aspect("dynamics_diversity", "no reading", f"{n} episodes per task (fewest); the held-out protocol "
@@ -220,7 +215,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.report import scorecard
     from simeval.results import RunFolder
 
-    dynamics_settings(cfg)  # before anything runs
+    settings = dynamics_settings(cfg)  # before anything runs
     src = cfg.episodes
     metas = pipeline_episodes(src.store, src.pipeline, src.group)
     cameras = metas[0]["cameras"]
@@ -228,12 +223,12 @@ def main(cfg: DictConfig) -> None:
     if camera not in cameras:
         raise UserError(f"camera={camera}: the episodes record {', '.join(cameras)}")
     out = Path(str(cfg.out)).resolve()
-    per_task: dict[str, int] = {}
-    for m in metas:
-        per_task[m["task"]] = per_task.get(m["task"], 0) + 1
-    aspects = [_text(metas, cfg), _quality(metas, cfg, out, min(per_task.values())),
-               _dynamics(metas, cfg, out, camera),
-               _generalization(cfg, out, camera, min(per_task.values()), sorted({m["group"] for m in metas}))]
+    from collections import Counter
+
+    fewest = min(Counter(m["task"] for m in metas).values())  # episodes of the task with the fewest
+    aspects = [_text(metas, cfg), _quality(metas, cfg, out, fewest),
+               _dynamics(metas, cfg, out, camera, fewest, settings),
+               _generalization(cfg, out, camera, fewest, sorted({m["group"] for m in metas}))]
     card = scorecard.build(src.pipeline, aspects, cfg.tables)
     if HydraConfig.get().runtime.choices.get("debug", "none") != "none":
         card["note"] = (f"debug={HydraConfig.get().runtime.choices['debug']}: a first look at small sizes, not a "

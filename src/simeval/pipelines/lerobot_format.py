@@ -281,8 +281,10 @@ def _images(rows: dict, key: str, path: Path) -> np.ndarray:
     for cell in rows[key].to_pylist():
         data = cell.get("bytes") if isinstance(cell, dict) else None
         if data is None and isinstance(cell, dict) and cell.get("path"):
-            data = (path.parents[2] / cell["path"]).read_bytes() if not os.path.isabs(cell["path"]) else \
-                Path(cell["path"]).read_bytes()
+            image = path.parents[2] / cell["path"]  # relative to the dataset's root (an absolute path stays itself)
+            if not image.is_file():
+                raise EpisodeFormatError(f"{path}: column {key} names {image}, which is missing")
+            data = image.read_bytes()
         if data is None:
             raise EpisodeFormatError(f"{path}: column {key} holds a frame without image bytes")
         out.append(np.asarray(Image.open(io.BytesIO(data)).convert("RGB")))

@@ -28,9 +28,9 @@ from __future__ import annotations
 import json
 import os
 import time
-from types import SimpleNamespace
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -249,17 +249,14 @@ def record_episode(settings: GymSettings, task: str, seed: int, cameras: Sequenc
     rng = np.random.default_rng([int(seed), 31])
     try:
         raw, info = env.env.reset(seed=int(seed))
-        frames, states = [env._observe(raw)], []
-        states.append(frames[0]["state"])
+        frames = [env._observe(raw)]
         actions, rewards, progress = [], [], [settings.adapter.read("progress", info, False)]
         terminated = truncated = False
         while not (terminated or truncated) and len(actions) < settings.max_steps:
             action = np.asarray(expert(env.env, raw, info, rng), np.float32).reshape(env.action_space.shape)
             action = np.clip(action, env.action_space.low, env.action_space.high)
             raw, reward, terminated, truncated, info = env.env.step(action)
-            obs = env._observe(raw)
-            frames.append(obs)
-            states.append(obs["state"])
+            frames.append(env._observe(raw))
             actions.append(action.ravel())
             rewards.append(float(reward))
             progress.append(settings.adapter.read("progress", info, terminated))
@@ -274,7 +271,8 @@ def record_episode(settings: GymSettings, task: str, seed: int, cameras: Sequenc
     return Episode(
         pipeline=pipeline, task=task, description=settings.tasks[task]["description"],
         group=settings.tasks[task]["group"], seed=int(seed),
-        rgb={c: np.stack([f["rgb"][c] for f in frames]) for c in cameras}, state=np.stack(states),
+        rgb={c: np.stack([f["rgb"][c] for f in frames]) for c in cameras},
+        state=np.stack([f["state"] for f in frames]),
         action=np.stack([*actions, actions[-1]]), reward=np.asarray([*rewards, 0.0], np.float32),
         is_first=np.arange(n + 1) == 0, is_terminal=np.arange(n + 1) == n,
         progress=np.asarray(progress, np.float32) if known else None, success=bool(success),
