@@ -254,6 +254,49 @@ def _fit(tmp_path: Path, checkpoint_dir: Path | None, seed: int = 0):
                             eval_seed=0, checkpoint_dir=checkpoint_dir, progress=False)
 
 
+def test_a_checkpoint_is_keyed_by_the_training_data_s_content_not_only_its_names_and_lengths(tmp_path):
+    """Two groups with the same tasks, seeds, lengths, states and actions whose frames differ (a red and a faint
+    disk) must not share a model; the same data again must find the first run's checkpoint."""
+    from simeval.episodes.dataset import ArraySource, WindowSpec
+    from simeval.models.dynamics_diversity import fit_and_evaluate
+    from simeval.models.synthetic import make_group
+    from simeval.models.training import TrainConfig
+
+    first = make_group("diverse", 2, 3, 10, 16, seed=0)
+    fainter = ArraySource(first.infos, [{**a, "image": (a["image"] // 2).astype(np.uint8)} for a in first.arrays])
+
+    def fit(src):
+        return fit_and_evaluate(src, episodes_per_task=2, model_cfg=preset("tiny"),
+                                train_cfg=TrainConfig(epochs=1, batch_size=4, lr=1e-3),
+                                window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
+                                checkpoint_dir=tmp_path, progress=False)["checkpoint"]
+
+    a = fit(first)
+    b = fit(fainter)
+    assert a != b and sorted(str(p) for p in tmp_path.glob("world_model-*.pt")) == sorted([a, b])
+    same = make_group("diverse", 2, 3, 10, 16, seed=0)  # built again: equal arrays, other objects
+    assert fit(same) == a
+    assert len(list(tmp_path.glob("world_model-*.pt"))) == 2
+
+
+def test_content_digest_changes_with_any_array_and_not_with_the_objects_holding_them():
+    from simeval.episodes.digest import arrays_digest
+
+    rng = np.random.default_rng(0)
+    ep = {"image": rng.integers(0, 255, (4, 8, 8, 3), dtype=np.uint8), "state": rng.normal(size=(4, 2)),
+          "action": rng.normal(size=(4, 2))}
+    base = arrays_digest([ep])
+    assert arrays_digest([{k: v.copy() for k, v in ep.items()}]) == base
+    for key in ep:
+        changed = dict(ep)
+        changed[key] = ep[key].copy()
+        changed[key].flat[-1] += 1
+        assert arrays_digest([changed]) != base, key
+    assert arrays_digest([{**ep, "state": ep["state"].astype(np.float32)}]) != base  # dtype is content
+    assert arrays_digest([{**ep, "state": ep["state"].reshape(2, 4)}]) != base  # and shape
+    assert arrays_digest([ep, ep]) != arrays_digest([ep])  # and how many episodes
+
+
 def test_evaluation_is_seeded(tmp_path):
     a, b = _fit(tmp_path, None), _fit(tmp_path, None)
     assert a["eval"]["image_error"] == b["eval"]["image_error"]

@@ -32,6 +32,7 @@ from simeval.episodes.dataset import (
     require_ranks,
     window_starts,
 )
+from simeval.episodes.digest import source_digest
 from simeval.errors import UserError
 from simeval.media import write_video
 from simeval.models.device import resolve_device
@@ -46,7 +47,8 @@ VIDEO_FPS = 5  # a window's frames are control steps: the paper's 40-step window
 
 
 def data_fingerprint(infos) -> str:
-    """sha1 of the (task, seed, rows) list: what a checkpoint was trained on."""
+    """sha1 of the (task, seed, rows) list: which episodes a run read (its identity's `episodes_sha`). Not their
+    content: a checkpoint's key adds simeval.episodes.digest.source_digest for that."""
     text = json.dumps(sorted((i.task, int(i.seed), int(i.n_rows)) for i in infos))
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
@@ -365,7 +367,7 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
              eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
              protocol: str = "paper", loss_robot_margin: int | None = None) -> _Setup:
     """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
-    checkpoint key is the config + training data, and `protocol` for any protocol but the paper's (so the paper's
+    checkpoint key is the config + training data (by value: simeval.episodes.digest), and `protocol` for any protocol but the paper's (so the paper's
     checkpoints keep their names). `loss_robot_margin`: None trains on the full frame; a margin leaves the robot's
     pixels (masks grown by it) out of the loss where the episodes carry masks (and is then part of the key)."""
     infos = source.infos
@@ -402,6 +404,7 @@ def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_
         meta["protocol"] = protocol
     if train_ds.robot_masks:
         meta["loss_excludes_robot_grown_by"] = int(loss_robot_margin)
+    meta["content"] = source_digest(source, train_mask, train_ds.robot_masks)
     checkpoint = None
     if checkpoint_dir is not None:
         key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
