@@ -7,7 +7,7 @@
     python experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30   # 4 drawer-opening noises
     python experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30   # 4 friction ranges of a push
 
-Each run (condition x training-episode count x seed) is simeval.models.dynamics_diversity.fit_and_evaluate with
+Each run (condition x training-episode count x seed) is simeval.measures.dynamics_diversity.run.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
 held-out episodes 41-50. A run's numbers are saved as soon as it ends (outputs/controls/<control>/runs/*.json) and
 its model is checkpointed, so a killed control resumes where it stopped. Then:
@@ -34,7 +34,7 @@ BBSEA's close-drawer from the front camera at four noises of the drawer's initia
 `dose_push`, BBSEA's push-block-to-area from the front camera at four ranges of the block's friction (`block:
 {friction}`, centred on one mean: how the block answers the same push varies, which no frame shows before it moves),
 judged by the one-step moving-pixel error. The criteria were written down before each control ran.
-The moving-pixel errors (simeval.models.prediction: kept pixels whose colour changed from the reference frame) are
+The moving-pixel errors (simeval.measures.dynamics_diversity.prediction: kept pixels whose colour changed from the reference frame) are
 read beside the primary number, by criteria written down before their first reading (`moving_passes`; they do not
 decide `passes`): in the dynamics control the same two criteria on the one-step moving-pixel error; in the visual
 control the moving-pixel error moves less than a quarter as much as the full frame's. The `dose` control reports
@@ -113,7 +113,7 @@ ROBOT_MASKS = {"dynamics": False, "visual": True, **dict.fromkeys(DOSES, True)} 
 
 def sources(control: str, size: int, n_tasks: int, n_actions: int, episodes: int, data_seed: int,
             out: Path | None = None, workers: int = 1) -> dict:
-    from simeval.models.synthetic import make_physics_group, make_visual_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_physics_group, make_visual_group
 
     make = {"dynamics": make_physics_group, "visual": make_visual_group}.get(control)
     if make is not None:
@@ -197,8 +197,8 @@ def run_all(args) -> list[dict]:
     import yaml
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
     from simeval.results import atomic_write_text
 
@@ -275,8 +275,8 @@ def run_all(args) -> list[dict]:
 def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 2000) -> dict:
     """Differences between the two conditions (second minus first) with intervals from independent resamples of
     each condition's seeds and held-out episodes: at the fewest episodes, and of the falls to the most."""
-    from simeval.metrics import resample
-    from simeval.report.table4_heldout import cell_replicates, max_missing, sum_arrays
+    from simeval.stats import resample
+    from simeval.measures.dynamics_diversity.table4_heldout import cell_replicates, max_missing, sum_arrays
 
     counts = sorted({int(r["identity"]["episodes"]) for r in records})
     lo, hi = counts[0], counts[-1]
@@ -338,8 +338,8 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
     with the level; a level with no reading of it (nothing moved) passes nothing."""
     import numpy as np
 
-    from simeval.metrics import resample
-    from simeval.report.table4_heldout import cell_replicates, max_missing, sum_arrays
+    from simeval.stats import resample
+    from simeval.measures.dynamics_diversity.table4_heldout import cell_replicates, max_missing, sum_arrays
 
     k = min(int(r["identity"]["episodes"]) for r in records)
     points, reps = {}, {}
@@ -374,7 +374,7 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
 
 def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], margins=(0, 1, 2)) -> dict:
     """Per level and robot-mask margin, the share of the kept pixels of the held-out episodes (seeds heldout[0]-1 to
-    heldout[1]-1) whose colour changed from the frame before (the moving-pixel rule of simeval.models.prediction,
+    heldout[1]-1) whose colour changed from the frame before (the moving-pixel rule of simeval.measures.dynamics_diversity.prediction,
     on the data alone, no model): where the judged moving-pixel error has no reading, this says whether the
     motion was there but inside the margin around the robot that the protocol leaves out."""
     import h5py
@@ -382,7 +382,7 @@ def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], marg
 
     from simeval.episodes.dataset import grow_masks
     from simeval.episodes.store import EpisodeStore
-    from simeval.models.prediction import MOTION_THRESHOLD
+    from simeval.measures.dynamics_diversity.prediction import MOTION_THRESHOLD
     from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite
 
     pipeline, task = dose.task
@@ -429,7 +429,7 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     judged_label = next(p[3] for p in panels if p[0] == dose.metric)
     panels = [p for p in panels if all(np.isfinite(by_level[n].get(f"{p[0]}_{k}", np.nan)) for n in names)]
     if dose.metric not in [p[0] for p in panels]:  # the judged number has no reading: say so, not only "NO"
-        from simeval.models.prediction import MIN_MOVING_PIXELS
+        from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 
         title += (f"\njudged by the {judged_label}: no reading (fewer than {MIN_MOVING_PIXELS} kept pixels moved "
                   "one step ahead at some level), so nothing passes")
@@ -458,7 +458,7 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
 def draw_figure(result: dict, path: Path) -> Path:
     """The control's figure from its table's JSON (`result`: rows, settings, verdict), so a figure can be drawn
     again from a committed table alone (--replot), without its runs or episodes."""
-    from simeval.report.table4_heldout import plot
+    from simeval.measures.dynamics_diversity.table4_heldout import plot
 
     passes = ", ".join(f"{k.replace('_', ' ')}: {'yes' if v else 'NO'}" for k, v in result["verdict"]["passes"].items())
     seeds = ", ".join(map(str, result["seeds"]))
@@ -541,7 +541,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
     from simeval.errors import UserError
-    from simeval.report.table4_heldout import build, write
+    from simeval.measures.dynamics_diversity.table4_heldout import build, write
     from simeval.results import dumps_strict
 
     try:

@@ -1,6 +1,6 @@
 """Which scenes does an `eval` variation change? Before training a policy for hours: reset each eval task of a
 group at the evaluation seeds under its train variation and under its eval variation, and compare the first
-observations (every camera's pixels and the state, simeval.models.policy.evaluate.observation_digest), as
+observations (every camera's pixels and the state, simeval.measures.generalization.rollouts.observation_digest), as
 src/generalization.py does before it rolls an eval seed out. Nothing is trained and nothing rolled out.
 
     python experiments/eval_variation_probe.py [--out-dir DIR] [--overwrite] <generalization overrides>
@@ -35,7 +35,7 @@ def plan(pipeline, task_group: str, tasks, heldout_tasks, evaluation: dict, mode
     """What the probe resets, every setting checked as src/generalization.py checks it (nothing reset yet):
     ([(eval task, its eval variation)], {task: its train variation}, the eval seeds, the policy's action space)."""
     from simeval.errors import require_whole
-    from simeval.models.policy.experiment import eval_override, names, resolve_action_space
+    from simeval.measures.generalization.run import eval_override, names, resolve_action_space
 
     require_whole("eval.seeds", evaluation["seeds"], 1)
     require_whole("eval.seed_offset", evaluation["seed_offset"], 0)
@@ -56,8 +56,8 @@ def probe(pipeline, pairs: list, train: dict, seeds: list[int], max_steps: int |
     """Per eval task of `pairs` (plan's): {"task", "train_variation", "eval_variation", "seeds", "varied":
     [seed...], "unseen_knobs": [...]} (varied: the seeds whose first observation under the eval variation differs
     from the train variation's)."""
-    from simeval.models.policy.evaluate import first_observations
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization.rollouts import first_observations
+    from simeval.measures.generalization.random_baseline import RandomActions
 
     # the observation the policy would see: its cameras and frame size (the action space only picks the env)
     actor = RandomActions(action_space, model["cameras"], model["image_size"])

@@ -10,7 +10,7 @@ trained tasks on the same seeds; the eval one under the task's variation (unseen
 So every eval rollout has a train twin that differs only by the variation, and the gap is read pair by pair:
 
     pairs        (task, seed, run) with an eval rollout; eval rollouts left out as unvaried (the variation changed
-                 no scene: simeval.models.policy.evaluate.rollout_task) have no pair
+                 no scene: simeval.measures.generalization.rollouts.rollout_task) have no pair
     d (n,)       eval progress - train progress, per pair (progress: GenSim's step-wise reward; success 0/1 where
                  a task has no reward)
     gap          mean(d)
@@ -58,7 +58,7 @@ def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int
     """Means, the paired gap with its percentile interval, and the two-sided Wilcoxon p (formulas above)."""
     from scipy.stats import wilcoxon
 
-    from simeval.metrics.bootstrap import percentile_interval
+    from simeval.stats.bootstrap import percentile_interval
 
     t, v = np.asarray(train, float), np.asarray(varied, float)
     d = v - t
@@ -70,9 +70,9 @@ def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int
 
 
 def check_one_setting(folders: list[Path], records: list[dict], fail) -> None:
-    """The runs differ only by their training seed (Table 5's rule for one cell, simeval.report.table5), each given
+    """The runs differ only by their training seed (Table 5's rule for one cell, simeval.measures.generalization.table5), each given
     once: pooling another variation, policy or step limit, or one run twice, would read a gap that is no one's."""
-    from simeval.report.table5 import cell_setting
+    from simeval.measures.generalization.table5 import cell_setting
     from simeval.results import identity_difference
 
     seen: dict = {}

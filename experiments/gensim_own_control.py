@@ -16,7 +16,7 @@ reading of motion on GenSim's own rows) minus the specialists' has a 95% interva
 bootstrap over training seeds and held-out episodes (the same resamples for both: they score the same pixels).
 The object-focused error (still pixels: layouts) is judged by the same rule beside it and does not decide.
 
-Each run is simeval.models.dynamics_diversity.fit_and_evaluate with protocol="heldout" at the `cpu` preset and the
+Each run is simeval.measures.dynamics_diversity.run.fit_and_evaluate with protocol="heldout" at the `cpu` preset and the
 protocol's budget (conf/protocol/heldout.yaml), as `src/diversity.py` runs Table 4's rows. A run's record is saved
 when it ends (OUT/controls/gensim_own/runs/*.json) and its model is checkpointed, so a killed control resumes. Then
 OUT/tables/control_gensim_own.{json,md} (per task and pooled: both errors with intervals, the last-frame baseline,
@@ -86,8 +86,8 @@ def verdict(general: list[dict], special: list[dict], n_boot: int = 2000) -> dic
     percentile intervals from the same resamples of seeds and held-out episodes for both (paired)."""
     import numpy as np
 
-    from simeval.metrics import resample
-    from simeval.report.table4_heldout import cell_replicates, max_missing, sum_arrays
+    from simeval.stats import resample
+    from simeval.measures.dynamics_diversity.table4_heldout import cell_replicates, max_missing, sum_arrays
 
     by_seed = {}
     for r in special:
@@ -219,8 +219,8 @@ def run_all(args) -> list[dict]:
 
     from simeval.episodes.dataset import StoreSource, WindowSpec
     from simeval.episodes.store import read_meta
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
     from simeval.results import atomic_write_text
 

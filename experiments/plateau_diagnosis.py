@@ -1,5 +1,5 @@
 """The diagnosis of issue 50 ("Why the model did not learn one disk", README), rerun from the repository: the
-one-disk control (simeval.models.random_controls.one_disk_control), its varied group, 10 training episodes, scored on
+one-disk control (simeval.measures.dynamics_diversity.controls.random_draws.one_disk_control), its varied group, 10 training episodes, scored on
 episodes 41-50 under the held-out protocol (conf/protocol/heldout.yaml: 1,000 steps, lr 1e-3, the gate) at the cpu
 preset, with the pixels raw (`pixel_norm: none`, the old default) or standardised (the protocol's now).
 
@@ -46,10 +46,10 @@ def run_row(row: int, checkpoints: Path) -> dict:
     import yaml
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.gate import GateConfig
-    from simeval.models.random_controls import Look, make_control_group, one_disk_control
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.gate import GateConfig
+    from simeval.measures.dynamics_diversity.controls.random_draws import Look, make_control_group, one_disk_control
+    from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
 
     torch.set_num_threads(1)

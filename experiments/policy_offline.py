@@ -12,7 +12,7 @@ r"""Train a Diffusion Policy where the simulator is not (a GPU machine), and sco
 
 Why: Table 5's rollouts need the simulator (PyBullet, a GenSim checkout), which a GPU machine may lack (one we used
 had no PyBullet wheel for its Python and took files 64 MiB at a time). `pack` composes conf/generalization.yaml with the
-given overrides and reads the store exactly as `src/generalization.py` does (simeval.models.policy.experiment.
+given overrides and reads the store exactly as `src/generalization.py` does (simeval.measures.generalization.run.
 training_data: the same episodes, tasks in the same order, the same PolicyDataset), keeping only the training steps
 (for pick/place one per primitive: a few MB), plus the episodes after the first episodes_per_task of each trained
 task (same selection: successful only where demonstrations=successful) as held-out demonstrations no model trained
@@ -65,12 +65,12 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from simeval.cli import OneLineParser, require_whole_keys
 from simeval.errors import UserError
-from simeval.models.device import describe_device
+from simeval.runtime.device import describe_device
 from simeval.results import atomic_path, atomic_write_text, dumps_strict
 
 PACK_FORMAT = 2
 WEIGHTS_FORMAT = 1
-KEY = re.compile(r"[0-9a-f]{16}")  # simeval.models.policy.experiment.checkpoint_key's form
+KEY = re.compile(r"[0-9a-f]{16}")  # simeval.measures.generalization.run.checkpoint_key's form
 PART = re.compile(r"weights\.part\d{2,}")
 ROUND_MIN_NUMEL = 4096  # tensors this large travel as float16; smaller ones (biases, norms, normalisers) as float32
 
@@ -95,8 +95,8 @@ def pack(a) -> None:
     from omegaconf import OmegaConf
 
     from simeval.episodes.store import EpisodeStore, read_episode
-    from simeval.models.policy.data import PolicyDataset
-    from simeval.models.policy.experiment import checkpoint_key, demonstration_paths, names, training_data
+    from simeval.measures.generalization.data import PolicyDataset
+    from simeval.measures.generalization.run import checkpoint_key, demonstration_paths, names, training_data
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides)
@@ -173,7 +173,7 @@ def load_pack(path: str) -> dict:
 
 
 def datasets(p: dict):
-    from simeval.models.policy.data import PolicyDataset
+    from simeval.measures.generalization.data import PolicyDataset
 
     def build(x):
         return PolicyDataset.from_arrays(x["rgb"], x["state"], x["action"], x["lengths"],
@@ -183,8 +183,8 @@ def datasets(p: dict):
 
 def heldout_score(policy, train, held, tasks: list[str], samplers: dict, seed: int = 0, chunk: int = 256) -> dict:
     """The module docstring's e_w per sampler, with the train-mean baseline, each with a bootstrap over episodes."""
-    from simeval.metrics.bootstrap import bootstrap_ci
-    from simeval.models.device import module_device
+    from simeval.stats.bootstrap import bootstrap_ci
+    from simeval.runtime.device import module_device
 
     cfg = policy.cfg
     sl = slice(cfg.n_obs_steps - 1, cfg.n_obs_steps - 1 + cfg.n_action_steps)
@@ -227,9 +227,9 @@ def write(path: str, result: dict) -> None:
 
 
 def train(a) -> None:
-    from simeval.models.device import resolve_device
+    from simeval.runtime.device import resolve_device
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig, TrainSettings, train_policy
-    from simeval.models.policy.experiment import checkpoint_key
+    from simeval.measures.generalization.run import checkpoint_key
 
     p = load_pack(a.pack)
     device = resolve_device(a.device, key="--device")
@@ -287,7 +287,7 @@ def print_scores(heldout: dict) -> None:
 
 
 def score(a) -> None:
-    from simeval.models.device import resolve_device
+    from simeval.runtime.device import resolve_device
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig
 
     p = load_pack(a.pack)

@@ -45,7 +45,7 @@ def compare(policy: list[float], chance: list[float], n_boot: int = 10_000, seed
     """Means, the difference with its percentile interval, and the one-sided Mann-Whitney p (formulas above)."""
     from scipy.stats import mannwhitneyu
 
-    from simeval.metrics.bootstrap import percentile_interval
+    from simeval.stats.bootstrap import percentile_interval
 
     p, r = np.asarray(policy, float), np.asarray(chance, float)
     rng = np.random.default_rng(seed)

@@ -1,5 +1,5 @@
-"""Dynamics-diversity controls drawn at random (simeval.models.random_controls), for both readings: the pixel world
-model of the heldout protocol and the state-space model (simeval.models.state_dynamics).
+"""Dynamics-diversity controls drawn at random (simeval.measures.dynamics_diversity.controls.random_draws), for both readings: the pixel world
+model of the heldout protocol and the state-space model (simeval.measures.dynamics_diversity.state_reading).
 
     python experiments/random_controls.py                        # every draw, both families, both readings
     python experiments/random_controls.py --readings state       # the state reading alone (a minute)
@@ -14,7 +14,7 @@ group is trained on the first `--episodes` episodes of each task and scored on e
 budget, learning rate, context and settings; conf/protocol/heldout.yaml), each group with its own gate.
 
 The criterion, written down before the first draw ran. The order statistic is the relative one-step error, the
-share of a physics-free predictor's error the model leaves (simeval.models.gate.relative_error): pixels, the
+share of a physics-free predictor's error the model leaves (simeval.measures.dynamics_diversity.gate.relative_error): pixels, the
 object-focused error over the last frame's; states, the error over the last state's (a group whose objects move
 further has larger errors for every predictor; the ratio compares groups whose motions differ in size). Changed
 once, after the first full run of the state reading: states were first divided by constant velocity's error, and
@@ -84,7 +84,7 @@ def relevant(settings: dict, reading: str) -> dict:
 
 
 def group_source(draw_seed: int, group: str, size: int):
-    from simeval.models.random_controls import draw_control, make_control_group
+    from simeval.measures.dynamics_diversity.controls.random_draws import draw_control, make_control_group
 
     which, kind = GROUPS[group]
     return make_control_group(draw_control(draw_seed), which, n_tasks=N_TASKS, episodes=EPISODES,
@@ -98,10 +98,10 @@ def run_one(job: dict) -> dict:
     import yaml
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.gate import GateConfig
-    from simeval.models.state_dynamics import StateModelConfig, read_states, state_reading
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.gate import GateConfig
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, state_reading
+    from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
 
     torch.set_num_threads(1)
@@ -210,14 +210,14 @@ def verdict_of(family: str, a: dict, b: dict, order: dict) -> str:
 def build(args) -> dict:
     import numpy as np
 
-    from simeval.models.gate import order_between_groups
+    from simeval.measures.dynamics_diversity.gate import order_between_groups
 
     runs = args.out / "controls" / "random" / "runs"
     records = [json.loads(p.read_text()) for p in sorted(runs.glob("*.json"))]
     by = {}
     for r in records:
         by.setdefault((r["draw"], r["group"], r["reading"]), []).append(r)
-    from simeval.models.random_controls import draw_control
+    from simeval.measures.dynamics_diversity.controls.random_draws import draw_control
 
     rows = []
     for draw in sorted({r["draw"] for r in records}):

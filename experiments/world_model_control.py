@@ -1,4 +1,4 @@
-"""Validity control for dynamics diversity (simeval.models.synthetic): a group whose tasks share one dynamics
+"""Validity control for dynamics diversity (simeval.measures.dynamics_diversity.controls.synthetic): a group whose tasks share one dynamics
 against a group of k distinct dynamics, each trained on the first 10/20/40 episodes per task and evaluated on all 40.
 The metric passes when the diverse group has the higher error at 10 episodes and the larger 10 -> 40 drop.
 
@@ -17,7 +17,7 @@ from simeval.cli import OneLineParser
 ROOT = Path(__file__).resolve().parents[1]
 
 METRICS = ("image_error", "state_error", "kl_dyn", "open_loop_image_error")
-UNITS = {"image_error": "squared error per frame\n(summed over pixels in [0, 1])",  # simeval.models.training's definitions
+UNITS = {"image_error": "squared error per frame\n(summed over pixels in [0, 1])",  # simeval.models.world_model_training's definitions
          "state_error": "squared error summed over state dims\n(symlog of the standardised state)",
          "kl_dyn": "KL[sg(posterior) || prior] (nats)",
          "open_loop_image_error": "squared error per frame\n(summed over pixels in [0, 1])"}
@@ -32,9 +32,9 @@ def run(preset: str, seeds: list[int], episodes: list[int], n_tasks: int, n_acti
     import yaml
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
 
     torch.set_num_threads(threads)

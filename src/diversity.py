@@ -17,8 +17,8 @@ def main(cfg: DictConfig) -> None:
     import torch
     from hydra.core.hydra_config import HydraConfig
 
-    from simeval.models.captured import training_device
-    from simeval.models.dynamics_diversity import VERSION, DiversityRun, episode_source, headline
+    from simeval.runtime.captured import training_device
+    from simeval.measures.dynamics_diversity.run import VERSION, DiversityRun, episode_source, headline
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 

@@ -50,7 +50,7 @@ def _fingerprint(metas) -> list:
 def _text(metas, cfg) -> dict:
     from hydra.utils import instantiate
 
-    from simeval.diversity import text_diversity_by_group
+    from simeval.measures.text_diversity.run import text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.report.scorecard import aspect
     from simeval.tasks.records import Task
@@ -116,7 +116,7 @@ def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, l
         if stopped:  # the world model could not run on these episodes: no reading, and the card is still written
             return aspect("dynamics_diversity", "no reading", stopped + " (its settings: dynamics.overrides=[...], "
                           "e.g. 'dynamics.overrides=[\"world_model.window.length=7\"]')")
-    from simeval.report.table4_heldout import build
+    from simeval.measures.dynamics_diversity.table4_heldout import build
     from simeval.results import read_results
 
     rows = build([r for r in read_results(sweep, "dynamics_diversity") if r.get("status", "ok") == "ok"])

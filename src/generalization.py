@@ -17,8 +17,8 @@ log = logging.getLogger("generalization")
 def main(cfg: DictConfig) -> None:
     import torch
 
-    from simeval.models.device import resolve_device
-    from simeval.models.policy.experiment import (RESULT_VERSION, log_splits, refuse_replaced_chance_baseline,
+    from simeval.runtime.device import resolve_device
+    from simeval.measures.generalization.run import (RESULT_VERSION, log_splits, refuse_replaced_chance_baseline,
                                                   run_generalization)
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder

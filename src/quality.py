@@ -1,4 +1,4 @@
-"""Single-task quality by VLM/LLM judges (paper Sec. 3.3 / 4.1). See conf/quality.yaml and simeval.quality.run.run_quality.
+"""Single-task quality by VLM/LLM judges (paper Sec. 3.3 / 4.1). See conf/quality.yaml and simeval.measures.quality.run.run_quality.
 
 Exit status: 0 when at least one task was scored; 1 when the run ran but every task failed (no valid score: status
 "failed" in result.json, one line on stderr); 2 for a mistake in the config or the inputs (one line on stderr)."""
@@ -20,7 +20,7 @@ log = logging.getLogger("quality")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.quality.run import model_judge, run_quality
+    from simeval.measures.quality.run import model_judge, run_quality
     from simeval.results import RunFolder
 
     require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included

@@ -16,9 +16,9 @@ log = logging.getLogger("text_diversity")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.diversity import log_groups, text_diversity_by_group
+    from simeval.measures.text_diversity.run import log_groups, text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
-    from simeval.report.text_diversity import run_record, tasks_fingerprint
+    from simeval.measures.text_diversity.table import run_record, tasks_fingerprint
     from simeval.results import RunFolder
     from simeval.tasks import SourceNotConfigured, load_tasks, source_options
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simeval.agreement import agreement_rows, load_score_tables
-from simeval.metrics.agreement import (
+from simeval.measures.agreement.run import agreement_rows, load_score_tables
+from simeval.measures.agreement.metric import (
     agreement_summary,
     icc_1_1,
     kendall_tau_b,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from simeval.agreement import agreement_rows, load_score_tables
+from simeval.measures.agreement.run import agreement_rows, load_score_tables
 from simeval.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,7 +134,7 @@ def test_entrypoint_reports_a_bad_file_in_one_line(tmp_path):
 
 
 def test_a_judge_blank_for_a_whole_table_gets_no_row_there(tmp_path):
-    from simeval.agreement import agreement_rows, load_score_tables
+    from simeval.measures.agreement.run import agreement_rows, load_score_tables
 
     path = tmp_path / "two_tables.csv"
     path.write_text("table,pipeline,task,Human,A,B\n"

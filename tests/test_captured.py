@@ -1,4 +1,4 @@
-"""The world-model training step that CUDA graphs replay (simeval.models.captured): on the CPU, the same step run
+"""The world-model training step that CUDA graphs replay (simeval.runtime.captured): on the CPU, the same step run
 eagerly against train()'s own loop written out here (noise passed in, resets read on the CPU, Adam after the
 pass), bit for bit; capture=true without a GPU refused in one line. On a GPU (marked `gpu`): train(capture=True)
 against train(capture=False), loss by loss over 100+ steps. Self-contained (no helpers, no conftest fixtures), so
@@ -16,9 +16,9 @@ import yaml
 
 from simeval.episodes.dataset import WindowDataset, WindowSpec
 from simeval.errors import UserError
-from simeval.models.captured import CapturedTrainStep
-from simeval.models.synthetic import make_group
-from simeval.models.training import TrainConfig, step_generator, train
+from simeval.runtime.captured import CapturedTrainStep
+from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+from simeval.models.world_model_training import TrainConfig, step_generator, train
 from simeval.models.world_model import WorldModel, WorldModelConfig
 
 ROOT = Path(__file__).resolve().parents[1]

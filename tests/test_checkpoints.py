@@ -1,4 +1,4 @@
-"""Both models' checkpoint files go through simeval.models.checkpoints: a file that is not a checkpoint is one
+"""Both models' checkpoint files go through simeval.runtime.checkpoints: a file that is not a checkpoint is one
 UserError naming it and the model, whichever model reads it."""
 
 from __future__ import annotations
@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from simeval.errors import UserError
-from simeval.models import diffusion_policy, training
-from simeval.models.checkpoints import read_checkpoint, save_checkpoint
+from simeval.models import diffusion_policy
+from simeval.models import world_model_training as training
+from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 
 
 def test_a_truncated_or_foreign_file_is_one_error_naming_the_model(tmp_path):

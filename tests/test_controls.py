@@ -103,7 +103,7 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
 
 def _record(level: str, seed: int, moving: list[tuple[float, float]]) -> dict:
     """A run record with per-episode sums where only the one-step moving-pixel sums matter: (model se, pixels)."""
-    from simeval.models.prediction import SUM_KEYS
+    from simeval.measures.dynamics_diversity.prediction import SUM_KEYS
 
     episodes = []
     for e, (se, pixels) in enumerate(moving):

@@ -120,7 +120,7 @@ def test_mixed_action_spaces_are_refused_naming_both():
 def test_store_windows_match_the_stored_rows(tmp_path):
     """The HDF5 reader returns what the store holds (same alignment as the in-memory source)."""
     from simeval.episodes.dataset import StoreSource
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     paths = write_group(tmp_path, "diverse", n_tasks=2, episodes=2, n_actions=9, size=16)
     ds = WindowDataset(StoreSource(paths, "front"), WindowSpec(length=4, stride=3, pad_end=True))
@@ -139,7 +139,7 @@ def test_an_episode_whose_data_is_damaged_behind_a_readable_header_is_named_with
     from simeval.episodes.dataset import StoreSource
     from simeval.episodes.episode import EpisodeFormatError
     from simeval.episodes.store import read_meta
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=9, size=16)
     with h5py.File(paths[1], "r") as f:
@@ -189,8 +189,8 @@ def test_windows_of_collected_episodes_pair_row_t_action_t_and_row_t1_as_the_sim
 
 
 def test_a_truncated_episode_is_named_with_the_collect_command_for_the_episodes_this_run_needs(tmp_path):
-    from simeval.models.dynamics_diversity import store_source
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.run import store_source
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=5, size=8)
     paths[0].write_bytes(paths[0].read_bytes()[:500])
@@ -208,7 +208,7 @@ def test_a_damaged_dataset_header_is_found_when_the_source_opens_before_any_trai
 
     from simeval.episodes.dataset import StoreSource
     from simeval.episodes.episode import EpisodeFormatError
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=2, n_actions=9, size=16)
     with h5py.File(paths[1], "r") as f:

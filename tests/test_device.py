@@ -1,4 +1,4 @@
-"""The `device` option (simeval.models.device): how a value resolves, its one-line errors (also through both
+"""The `device` option (simeval.runtime.device): how a value resolves, its one-line errors (also through both
 entrypoints), device=cpu giving exactly the numbers of a run where every tensor stays on the CPU, checkpoints that
 hold CPU tensors and are not keyed by the device, and no CPU tensor left in the models' computation when they sit on
 another device (PyTorch's `meta` device stands in for a GPU: mixing it with a CPU tensor fails as CUDA does). A GPU
@@ -19,13 +19,13 @@ import yaml
 
 from simeval.episodes.dataset import WindowDataset, WindowSpec
 from simeval.errors import UserError
-from simeval.models.device import resolve_device, to_cpu, to_device
+from simeval.runtime.device import resolve_device, to_cpu, to_device
 from simeval.models.diffusion_policy import (DiffusionPolicy, TrainSettings, load_checkpoint,
                                              make_scheduler, policy_from_checkpoint, train_policy)
-from simeval.models.dynamics_diversity import fit_and_evaluate, load_model
-from simeval.models.policy.data import PolicyDataset
-from simeval.models.synthetic import make_group
-from simeval.models.training import TrainConfig, step_generator, train
+from simeval.measures.dynamics_diversity.run import fit_and_evaluate, load_model
+from simeval.measures.generalization.data import PolicyDataset
+from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+from simeval.models.world_model_training import TrainConfig, step_generator, train
 from simeval.models.world_model import WorldModel, WorldModelConfig, straight_through_sample
 from helpers import policy_config, square_episode
 

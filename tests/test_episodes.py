@@ -174,9 +174,9 @@ def test_import_authors_pt_formats(tmp_path):
     ep = next(import_robogen_pt(tmp_path / "r", groups={"Open_Laptop": "table-top"}))
     assert ep.group == "table-top" and ep.seed == 2 and ep.description == "Open Laptop"
     assert not ep.success_known and ep.progress is None  # these files record neither
-    from simeval.quality.episode_bundles import export_bundles
-    from simeval.quality.bundle import load_bundles
-    from simeval.quality.run import oracle_completion
+    from simeval.measures.quality.episode_bundles import export_bundles
+    from simeval.measures.quality.bundle import load_bundles
+    from simeval.measures.quality.run import oracle_completion
 
     store = EpisodeStore(tmp_path / "store")
     store.write(ep)

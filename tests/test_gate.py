@@ -1,4 +1,4 @@
-"""The validity gate of dynamics-diversity readings (simeval.models.gate): skills and verdicts computed by hand, and a
+"""The validity gate of dynamics-diversity readings (simeval.measures.dynamics_diversity.gate): skills and verdicts computed by hand, and a
 stand-in world model that draws the task's mean image gets "no reading" through the whole evaluation path."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import torch
 from helpers import ConstantImageModel
 
 from simeval.errors import UserError
-from simeval.models.gate import GateConfig, fall_verdict, gate, pixel_gate
+from simeval.measures.dynamics_diversity.gate import GateConfig, fall_verdict, gate, pixel_gate
 
 
 def test_skill_and_verdict_by_hand():
@@ -74,9 +74,9 @@ def test_fall_verdicts():
 
 
 def test_a_model_that_outputs_the_mean_image_gets_no_reading():
-    from simeval.models.prediction import step_sums, summarise
+    from simeval.measures.dynamics_diversity.prediction import step_sums, summarise
 
-    from simeval.models.random_controls import make_control_group, one_disk_control
+    from simeval.measures.dynamics_diversity.controls.random_draws import make_control_group, one_disk_control
 
     src = make_control_group(one_disk_control(), "varied", n_tasks=1, episodes=6, n_actions=8, size=16)
     frames = np.concatenate([a["image"] for a in src.arrays[:3]]).astype(np.float64) / 255
@@ -102,7 +102,7 @@ def test_a_model_that_outputs_the_mean_image_gets_no_reading():
 
 
 def test_order_between_groups_by_hand():
-    from simeval.models.gate import order_between_groups
+    from simeval.measures.dynamics_diversity.gate import order_between_groups
 
     tasks = np.array(["t"] * 4)
     base = np.ones((1, 4))

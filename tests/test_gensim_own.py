@@ -254,8 +254,8 @@ def test_a_primitive_that_does_not_return_ends_the_rollout_as_failed_and_the_nex
     """GenSim's descent loop never returns for some poses (it lowers the target until contact): a step past
     pipeline.native.step_timeout_s stops GenSim's worker and ends the rollout as failed, with the error in info and
     in the rollout's record; the next reset starts a fresh worker and the oracle solves that seed."""
-    from simeval.models.policy.evaluate import rollout_task
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization.rollouts import rollout_task
+    from simeval.measures.generalization.random_baseline import RandomActions
     from simeval.pipelines.gensim.env import GensimEnv
     from simeval.pipelines.gensim.native import GensimSettings
 
@@ -414,9 +414,9 @@ def test_the_eval_split_rolls_out_only_the_scenes_its_variation_changed():
     unseen_colors a task that passes its mode to utils.get_colors (separating-piles) draws EVAL_COLORS and is
     rolled out, one with fixed colours (place-red-in-green) starts from the train split's scene and is not. Checked
     on the first observations (run_splits compares them with the train rollouts') and on the pixels themselves."""
-    from simeval.models.policy import evaluate as ev
-    from simeval.models.policy.experiment import run_splits
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization import rollouts as ev
+    from simeval.measures.generalization.run import run_splits
+    from simeval.measures.generalization.random_baseline import RandomActions
     from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
 
     pipeline = GensimOwnPipeline.from_config({"name": "gensim_own", "root": str(GENSIM), "native": {}})

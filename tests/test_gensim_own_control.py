@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _record(condition: str, seed: int, moving: dict[tuple[str, int], tuple[float, float]]) -> dict:
     """A run record whose per-episode sums matter only for the one-step moving pixels: (model se, pixels)."""
-    from simeval.models.prediction import SUM_KEYS
+    from simeval.measures.dynamics_diversity.prediction import SUM_KEYS
 
     episodes = []
     for (task, ep), (se, pixels) in moving.items():

@@ -1,8 +1,8 @@
-"""The `heldout` protocol of dynamics diversity (simeval.models.dynamics_diversity, simeval.models.prediction) at tiny
+"""The `heldout` protocol of dynamics diversity (simeval.measures.dynamics_diversity.run, simeval.measures.dynamics_diversity.prediction) at tiny
 sizes: no training read touches an evaluated episode, every episode count trains the same steps, the baselines are
 scored on the frames the model is scored on (recomputed here from the raw episode arrays, not through the dataset),
 the robot mask removes exactly the robot's pixels (the pixels that change when the robot is made invisible), and the
-intervals of simeval.metrics.resample have the bootstrap variance computed by hand."""
+intervals of simeval.stats.resample have the bootstrap variance computed by hand."""
 
 from __future__ import annotations
 
@@ -13,13 +13,13 @@ import pytest
 import torch
 import yaml
 
-import simeval.models.dynamics_diversity as dd
+import simeval.measures.dynamics_diversity.run as dd
 from helpers import ConstantImageModel
 from simeval.episodes.dataset import ArraySource, WindowSpec
 from simeval.errors import UserError
-from simeval.metrics import resample
-from simeval.models.synthetic import make_physics_group
-from simeval.models.training import TrainConfig
+from simeval.stats import resample
+from simeval.measures.dynamics_diversity.controls.synthetic import make_physics_group
+from simeval.models.world_model_training import TrainConfig
 from simeval.models.world_model import WorldModelConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -288,7 +288,7 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     import subprocess
     import sys
 
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16, pipeline="gensim")
     common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[5,6]",
@@ -457,7 +457,7 @@ def test_the_run_line_names_the_moving_pixels_with_their_share():
 
 
 def test_moving_sums_of_a_model_that_draws_one_constant_image_computed_by_hand():
-    from simeval.models.prediction import MOTION_THRESHOLD, step_sums
+    from simeval.measures.dynamics_diversity.prediction import MOTION_THRESHOLD, step_sums
 
     rng = np.random.default_rng(0)
     B, L, H, W = 2, 5, 6, 7
@@ -484,7 +484,7 @@ def test_moving_sums_of_a_model_that_draws_one_constant_image_computed_by_hand()
 def test_a_kept_table_reads_back_as_the_rows_that_wrote_it_and_fresh_rows_replace_whole_rows(tmp_path):
     """The committed held-out Table 4 read from its CSV and written again gives the same bytes (CSV and Markdown);
     a fresh row of a kept group replaces that row whole, the other kept rows stay, in build's order."""
-    from simeval.report.table4_heldout import merge, read_rows, write
+    from simeval.measures.dynamics_diversity.table4_heldout import merge, read_rows, write
 
     committed = ROOT / "outputs" / "tables" / "table4_heldout"
     kept = read_rows(committed.with_suffix(".csv"))
@@ -503,7 +503,7 @@ def test_a_kept_table_reads_back_as_the_rows_that_wrote_it_and_fresh_rows_replac
 
 
 def test_the_table_reads_records_made_before_the_moving_pixels_were_summed(tmp_path):
-    from simeval.report.table4_heldout import build, display
+    from simeval.measures.dynamics_diversity.table4_heldout import build, display
 
     source = make_physics_group("varied", 2, 12, 20, 16)
 
@@ -528,7 +528,7 @@ def test_the_table_reads_records_made_before_the_moving_pixels_were_summed(tmp_p
 
 def _sums(moving_pixels: float, last_object: float) -> dict[str, float]:
     """Summed SUM_KEYS of one run, made by hand: 10 frames, 1,000 kept pixels, the model's object error 6.0."""
-    from simeval.models.prediction import SUM_KEYS
+    from simeval.measures.dynamics_diversity.prediction import SUM_KEYS
 
     sums = dict.fromkeys(SUM_KEYS, 1.0)
     for kind in ("one_step", "open_loop", "reconstruction"):
@@ -542,8 +542,8 @@ def _sums(moving_pixels: float, last_object: float) -> dict[str, float]:
 def test_object_skill_against_a_copy_needs_something_outside_the_robot_to_move():
     """With (nearly) nothing moving outside the robot, the last frame is exact up to 8-bit noise: 1 - model / ~0 read
     -13,823 on the GenSim dose control. No reading there; where enough moved, 1 - 6 / 3 = -1 by hand."""
-    from simeval.models.prediction import MIN_MOVING_PIXELS, summarise
-    from simeval.report.table4_heldout import cell_replicates
+    from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS, summarise
+    from simeval.measures.dynamics_diversity.table4_heldout import cell_replicates
 
     still = summarise(_sums(MIN_MOVING_PIXELS - 1, 1e-4), image_size=8)["one_step"]
     assert still["object_skill_vs_last"] is None

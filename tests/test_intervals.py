@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from simeval.errors import UserError
-from simeval.metrics.intervals import success_summary, wilson_interval
+from simeval.stats.intervals import success_summary, wilson_interval
 
 
 def _hand(k, n, z=1.959963984540054):

@@ -18,8 +18,8 @@ from simeval.judges.prompts import load_template
 from simeval.httpretry import FatalHTTPError
 from simeval.judges.providers import Image, OpenAIChatProvider
 from simeval.judges.runner import JudgeItem, JudgeSettings, ReplayMiss, dry_run, run_judge
-from simeval.quality.bundle import load_bundles, sample_frame_indices
-from simeval.quality.run import oracle_completion, summarize
+from simeval.measures.quality.bundle import load_bundles, sample_frame_indices
+from simeval.measures.quality.run import oracle_completion, summarize
 from helpers import _png, make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -94,7 +94,7 @@ def test_a_user_error_in_a_submitit_job_is_one_line_and_exit_2(tmp_path):
 
 
 def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_the_other_result(tmp_path):
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
     res = _diversity_sweep(tmp_path, "task_group=diverse", "protocol=paper", "eval_episodes=[1,3]", "heldout_episodes=null", "videos=0",
@@ -109,7 +109,7 @@ def test_a_bad_value_in_one_submitit_job_ends_the_sweep_with_its_line_and_keeps_
 def _signal_the_job_of_a_training_sweep(tmp_path: Path, sig: int, epochs: int = 400):
     """Start a 1-job diversity sweep under submitit_local on a synthetic group, wait for its first checkpoint, send
     `sig` to the job's process and wait for the sweep: (process, stderr, sweep folder, controller pid, command)."""
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
@@ -142,7 +142,7 @@ def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_
     """What SLURM does to a preempted job, with submitit's local executor: the job's process gets submitit's
     preemption signal (USR2), submitit requeues the same job (the same overrides, so the same run folder and the
     same checkpoint key), and the training resumes from the step it was preempted in instead of step 0. (Before
-    simeval.models.preemption, submitit's SystemExit was now and then raised inside a finaliser and dropped: the
+    simeval.runtime.preemption, submitit's SystemExit was now and then raised inside a finaliser and dropped: the
     job trained on, exited 0 and was never requeued.)"""
     steps = 400  # 4 training windows, batch 8: one step (and one checkpoint) per epoch
     proc, err, sweep, controller, _ = _signal_the_job_of_a_training_sweep(tmp_path, signal.SIGUSR2, steps)
@@ -153,7 +153,7 @@ def test_a_preempted_submitit_job_is_requeued_and_resumes_its_training_from_the_
     assert len(resumed) == 1, log[-6000:]
     [resumed] = resumed
     assert 0 < int(resumed) < steps
-    # saved in the step the signal came in, not at the last periodic checkpoint (simeval.models.preemption)
+    # saved in the step the signal came in, not at the last periodic checkpoint (simeval.runtime.preemption)
     assert re.findall(r"preempted at step (\d+): checkpoint saved", log) == [resumed]
     rec = json.loads((sweep / "0" / "result.json").read_text())  # the requeued job wrote to the same folder
     assert rec["values"]["train"]["steps"] == steps and rec["status"] == "ok"

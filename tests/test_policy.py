@@ -19,7 +19,7 @@ from simeval.models.diffusion_policy import (
     normalize_pose14_quaternions,
     train_policy,
 )
-from simeval.models.policy.data import PolicyDataset
+from simeval.measures.generalization.data import PolicyDataset
 
 TINY = dict(image_size=[32, 32], crop=28, encoder_width=8, keypoints=8, feature_dim=16, stem_pool=False, horizon=8,
             n_obs_steps=2, n_action_steps=4, down_dims=[16, 32], step_embed_dim=16, kernel_size=3, n_groups=4,
@@ -194,7 +194,7 @@ def test_config_mistakes_name_the_key():
 
 
 def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_refused():
-    from simeval.models.policy.experiment import resolve_action_space
+    from simeval.measures.generalization.run import resolve_action_space
     from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
 
     robogen = select_specs(load_suite(SUITES_DIR / "robogen"), None, "table_top")
@@ -214,7 +214,7 @@ def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_ref
 def test_a_trained_checkpoint_is_reused_with_another_sampler_but_not_with_other_training_settings(tmp_path):
     """The inference sampler does not shape the weights: a finished checkpoint rolled out with DDPM instead of
     DDIM is loaded (no step retrained, same weights), while a change of a training field is refused."""
-    from simeval.models.policy.experiment import checkpoint_key
+    from simeval.measures.generalization.run import checkpoint_key
 
     ep = moving_square_episode()
     cfg = PolicyConfig(**{**TINY, "down_dims": [32, 64], "step_embed_dim": 32})
@@ -249,8 +249,8 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     from types import SimpleNamespace
 
     from simeval.errors import UserError
-    from simeval.models.policy import evaluate
-    from simeval.models.policy.experiment import run_splits
+    from simeval.measures.generalization import rollouts as evaluate
+    from simeval.measures.generalization.run import run_splits
 
     calls = []
 
@@ -266,7 +266,7 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     first = run_splits(policy, plan, [0, 1], None, cache, policy_step=100, compare_starts={})
     assert calls == [("train", "a"), ("eval", "a")] and cache.is_file()
     assert [(r["split"], r["success"]["k"], r["success"]["n"]) for r in first] == [("train", 2, 2), ("eval", 2, 2)]
-    with caplog.at_level(logging.INFO, logger="simeval.models.policy.experiment"):
+    with caplog.at_level(logging.INFO, logger="simeval.measures.generalization.run"):
         again = run_splits(policy, plan, [0, 1], None, cache, policy_step=100, compare_starts={})
     assert len(calls) == 2 and again == first
     assert f"reused 4 of 4 rollouts from {cache}" in caplog.text
@@ -313,9 +313,9 @@ def test_a_killed_evaluation_keeps_each_finished_rollout_and_more_seeds_roll_out
     build before (one row per seed list) is read as its seeds' rollouts."""
     import json
 
-    from simeval.models.policy import evaluate as ev
-    from simeval.models.policy.experiment import read_rollout_cache, rollout_key, run_splits
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization import rollouts as ev
+    from simeval.measures.generalization.run import read_rollout_cache, rollout_key, run_splits
+    from simeval.measures.generalization.random_baseline import RandomActions
 
     task, var = "bbsea-block-in-bin", {"robot": {"home_noise": 0.3}}
     policy = RandomActions("ee_pose", cameras=["top"], image_size=(16, 16))
@@ -374,9 +374,9 @@ def test_an_eval_variation_that_changes_no_scene_is_not_rolled_out_again(tmp_pat
     recorded them, from resetting the train environment."""
     import json
 
-    from simeval.models.policy import evaluate as ev
-    from simeval.models.policy.experiment import run_splits
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization import rollouts as ev
+    from simeval.measures.generalization.run import run_splits
+    from simeval.measures.generalization.random_baseline import RandomActions
     from simeval.sim import make_env
 
     task, seeds = "bbsea-block-in-bin", [0, 1]

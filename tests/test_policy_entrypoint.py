@@ -47,7 +47,7 @@ def test_the_chance_baseline_renders_what_the_policies_beside_it_render():
     """The eval split leaves out a scene whose first observation, as rendered for the policy, is its train scene's;
     a baseline rendering smaller frames leaves out scenes its policy row keeps (at 32x32 one recoloured mix-piles
     scene of GenSim's looked unchanged), so the two rows would not be read on the same scenes."""
-    from simeval.models.policy.random_baseline import RandomActions
+    from simeval.measures.generalization.random_baseline import RandomActions
 
     with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
         views = {name: compose("generalization", overrides=[f"policy={name}"]).policy.model
@@ -183,7 +183,7 @@ def test_trains_then_rolls_out_through_make_env_on_collected_episodes(tiny_sim_s
 def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside_them(tmp_path):
     import shutil
 
-    from simeval.models.policy.experiment import episodes_for
+    from simeval.measures.generalization.run import episodes_for
 
     store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=3, T=8))
     task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
@@ -201,7 +201,7 @@ def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_man
     import h5py
 
     from simeval.errors import UserError
-    from simeval.models.policy.experiment import episodes_for
+    from simeval.measures.generalization.run import episodes_for
 
     store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=5, T=8))
     task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name

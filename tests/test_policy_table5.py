@@ -4,7 +4,7 @@ is refused."""
 import pytest
 
 from simeval.errors import UserError
-from simeval.report.table5 import build, write
+from simeval.measures.generalization.table5 import build, write
 
 
 def rec(path, k, n, seed=0, policy="cpu"):
@@ -80,7 +80,7 @@ def test_gensims_own_tasks_sit_beside_the_papers_gensim_value_as_a_row_of_their_
 
 def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_path):
     """--keep: the committed table gathers groups run on different machines; a row comes from exactly one side."""
-    from simeval.report.table5 import merge, read_rows
+    from simeval.measures.generalization.table5 import merge, read_rows
 
     placement = rec("p", 0, 50)
     placement["identity"]["task_group"] = "placement"
@@ -114,8 +114,8 @@ def test_a_table_extended_with_keep_holds_the_earlier_rows_and_the_new_runs(tmp_
 
 
 def test_a_kept_table_cut_short_or_not_a_csv_is_a_user_error(tmp_path):
-    from simeval.report.table5 import read_rows
-    from simeval.report import table4
+    from simeval.measures.generalization.table5 import read_rows
+    from simeval.measures.dynamics_diversity import table4
 
     write(build([rec("a", 2, 10)]), tmp_path / "t5")
     text = (tmp_path / "t5.csv").read_text().splitlines()
@@ -162,8 +162,8 @@ def test_runs_of_one_cell_at_other_training_seeds_pool_but_other_settings_do_not
 def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
     """Wilson's lower bound of 0/100 computed in floats was 3.5e-18, a hair above the rate 0, and matplotlib refused
     the negative error bar (it once stopped the whole rebuild): the bounds at k = 0 and k = n are exact now."""
-    from simeval.metrics.intervals import wilson_interval
-    from simeval.report.table5 import plot
+    from simeval.stats.intervals import wilson_interval
+    from simeval.measures.generalization.table5 import plot
 
     assert wilson_interval(0, 100)[0] == 0.0 and wilson_interval(100, 100)[1] == 1.0
 
@@ -175,7 +175,7 @@ def test_the_figure_draws_a_cell_with_no_success_in_100_rollouts(tmp_path):
 def test_the_figure_wraps_pipelines_into_rows_of_at_most_ten_groups(tmp_path):
     """Five pipelines of 9, 4, 4, 8 and 2 groups in one row were 5300 px wide: in order, a panel goes on the open row
     while that row stays within 10 groups, and a panel wider than a row gets one of its own."""
-    from simeval.report.table5 import pack_panels, plot
+    from simeval.measures.generalization.table5 import pack_panels, plot
 
     assert pack_panels([9, 4, 4, 8, 2], 10) == [[0], [1, 2], [3, 4]]
     assert pack_panels([3, 3, 3, 1], 10) == [[0, 1, 2, 3]]
@@ -195,7 +195,7 @@ def test_eval_progress_pools_by_rollouts_and_kept_rows_take_it_from_their_detail
     """The paper's GenSim column is a step-wise reward: the eval progress beside our success. Runs of one cell weigh
     by their rollouts (0.5 over 10 and 0.2 over 30: (5 + 6) / 40 = 0.275); a row kept from a table written before
     the column existed takes it from its group's eval line in the per-task table."""
-    from simeval.report.table5 import HEAD_WITHOUT_PROGRESS, eval_progress_from_detail, read_rows
+    from simeval.measures.generalization.table5 import HEAD_WITHOUT_PROGRESS, eval_progress_from_detail, read_rows
 
     a, b = rec("a", 2, 10), rec("b", 3, 30, seed=1)
     a["values"]["splits"]["eval"]["mean_progress"] = 0.5
@@ -223,7 +223,7 @@ def test_the_table_says_which_demonstrations_each_row_trained_on_and_reads_older
     """GenSim's demos.py keeps only completed demonstrations (demonstrations=successful); a row says which it
     trained on, random (nothing trained) says '-', and a table written before the column read all its trained rows
     as 'all' (the only choice then)."""
-    from simeval.report.table5 import HEAD_WITHOUT_DEMONSTRATIONS, read_rows
+    from simeval.measures.generalization.table5 import HEAD_WITHOUT_DEMONSTRATIONS, read_rows
 
     successful = rec("s", 1, 10)
     successful["identity"].update(task_group="assembling", demonstrations="successful")

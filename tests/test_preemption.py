@@ -1,5 +1,5 @@
 """A preempted submitit job (submitit's USR2 while a model trains) checkpoints at the end of the step it is in and
-hands the signal to submitit's handler there (simeval.models.preemption). Here a handler that stands in for
+hands the signal to submitit's handler there (simeval.runtime.preemption). Here a handler that stands in for
 submitit's records its call and raises SystemExit, as submitit's requeue does; the signal is sent from inside a
 step (the trainers' metric callbacks run in the step), so the tests know which step it came in."""
 
@@ -17,11 +17,11 @@ from omegaconf import OmegaConf
 from simeval.cli import exit_cleanly_on_user_error
 from simeval.episodes.dataset import WindowSpec
 from simeval.models.diffusion_policy import DiffusionPolicy, TrainSettings, train_policy
-from simeval.models.dynamics_diversity import fit_and_evaluate
-from simeval.models.policy.data import PolicyDataset
-from simeval.models.preemption import PreemptionPoint, preemption_signal, requeue_deaf_to_sigterm
-from simeval.models.synthetic import make_group
-from simeval.models.training import TrainConfig
+from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+from simeval.measures.generalization.data import PolicyDataset
+from simeval.runtime.preemption import PreemptionPoint, preemption_signal, requeue_deaf_to_sigterm
+from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+from simeval.models.world_model_training import TrainConfig
 from simeval.models.world_model import WorldModelConfig
 from helpers import policy_config, square_episode
 
@@ -210,9 +210,9 @@ def test_the_signal_name_is_read_as_submitit_reads_it(monkeypatch):
 
 
 def test_the_shared_loop_checkpoints_on_its_cadence_and_at_a_preemption_then_hands_over(submitit_handler):
-    """simeval.models.trainer.CheckpointedSteps, both models' loop: a checkpoint every 3 steps (not at a step where
+    """simeval.runtime.trainer.CheckpointedSteps, both models' loop: a checkpoint every 3 steps (not at a step where
     periodic=False), and at the step a preemption signal came in, before submitit's handler runs."""
-    from simeval.models.trainer import CheckpointedSteps
+    from simeval.runtime.trainer import CheckpointedSteps
 
     calls, _ = submitit_handler
     saved: list[int] = []
@@ -232,11 +232,11 @@ def test_the_shared_loop_checkpoints_on_its_cadence_and_at_a_preemption_then_han
 
 
 def test_the_one_training_loop_numbers_steps_from_the_resume_point_and_saves_on_its_cadence(submitit_handler):
-    """simeval.models.trainer.run_steps, both models' loop: a run resumed at step 3 with 5 batches left takes steps
+    """simeval.runtime.trainer.run_steps, both models' loop: a run resumed at step 3 with 5 batches left takes steps
     3..7 (take_step sees the steps before it, after_step the steps after), saves at 4 and 6 (every 2) but not at
     the last step 8 (last_step: the final save follows at once), then the final save at 8; a signal during the step
     that ends at 5 saves there and hands over."""
-    from simeval.models.trainer import run_steps
+    from simeval.runtime.trainer import run_steps
 
     calls, _ = submitit_handler
     taken, after, saved, final = [], [], [], []
@@ -266,7 +266,7 @@ def test_the_one_training_loop_numbers_steps_from_the_resume_point_and_saves_on_
 
 def test_a_checkpoint_made_with_other_settings_names_the_keys_that_differ(tmp_path):
     from simeval.errors import UserError
-    from simeval.models.trainer import refuse_other_settings, settings_difference
+    from simeval.runtime.trainer import refuse_other_settings, settings_difference
 
     stored = {"lr": 1e-3, "model": {"width": 32, "depth": 2}, "data": "a"}
     assert settings_difference(stored, {"lr": 1e-3, "model": {"width": 64, "depth": 2}, "seed": 0}) == [

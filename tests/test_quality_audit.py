@@ -17,8 +17,8 @@ from simeval.judges.ledger import Ledger, Prices
 from simeval.judges.prompts import builtin_names, load_template
 from simeval.judges.providers import OpenAIChatProvider
 from simeval.judges.runner import JudgeSettings, ScoreRecord
-from simeval.quality.bundle import BundleError, load_bundles, read_video_frames
-from simeval.quality.run import run_quality, write_scores
+from simeval.measures.quality.bundle import BundleError, load_bundles, read_video_frames
+from simeval.measures.quality.run import run_quality, write_scores
 from helpers import make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The random dynamics-diversity controls (simeval.models.random_controls): draws are fixed by their seed and cover
+"""The random dynamics-diversity controls (simeval.measures.dynamics_diversity.controls.random_draws): draws are fixed by their seed and cover
 the ranges they state, objects stay in the arena, the varied group differs from the shared one in its dynamics
 alone (same looks, same actions), the looks family in its frames alone (same states), and the dynamics are the
 module docstring's, stepped by hand."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simeval.models.random_controls import (ACTION_KINDS, KNOB_RANGES, KNOBS_USED, draw_control,
+from simeval.measures.dynamics_diversity.controls.random_draws import (ACTION_KINDS, KNOB_RANGES, KNOBS_USED, draw_control,
                                             make_control_group, one_disk_control, radius_of, render, step_object,
                                             write_control_group)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from simeval.metrics.agreement import (
+from simeval.measures.agreement.metric import (
     agreement_summary,
     bootstrap_statistics,
     icc_1_1,
@@ -18,7 +18,7 @@ from simeval.metrics.agreement import (
     resample_counts,
     spearman,
 )
-from simeval.metrics.text_diversity import cosine_similarity_matrix, self_bleu_per_text, tokenize, vendi_score
+from simeval.measures.text_diversity.metric import cosine_similarity_matrix, self_bleu_per_text, tokenize, vendi_score
 
 # Shrout & Fleiss (1979), Table 2: 6 targets rated by 4 judges. Published: ICC(1,1) = 0.17 (BMS 11.24, WMS 6.26).
 SHROUT_FLEISS = np.array([[9, 2, 5, 8], [6, 1, 3, 2], [8, 4, 6, 8], [7, 1, 2, 6], [10, 5, 6, 9], [6, 2, 4, 7.0]])

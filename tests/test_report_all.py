@@ -139,7 +139,7 @@ def test_make_report_is_listed_and_runs_the_rebuild(outputs, tmp_path):
 
 
 def test_table4_says_in_the_file_which_runs_it_leaves_out():
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     _, body, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[1, 2, 4])
     assert body and all("—" in cell for row in body for cell in row[3:6])  # no run at 10/20/40: paper / —
@@ -150,7 +150,7 @@ def test_table4_says_in_the_file_which_runs_it_leaves_out():
 def test_table4_suggests_three_counts_even_when_fewer_runs_are_left_out():
     """A table has one count per paper column: runs at 2 and 3 episodes are suggested with one of the shown counts
     (the builder refuses two), and five are cut to the three smallest."""
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     _, _, notes = table4.display(table4.build([], episodes=(10, 20, 40)), (10, 20, 40), unused=[3, 2])
     assert notes[-1].endswith("build one for them with report.episodes=[2,3,10]")

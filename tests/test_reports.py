@@ -15,10 +15,10 @@ import yaml
 from omegaconf import OmegaConf
 
 from simeval.errors import UserError
-from simeval.report.build import build_text_diversity_report
-from simeval.report.quality_figure import build_quality_figure, quality_points
-from simeval.metrics.text_diversity import STATISTICS
-from simeval.report.text_diversity import tidy_rows
+from simeval.measures.text_diversity.report import build_text_diversity_report
+from simeval.measures.quality.figure4 import build_quality_figure, quality_points
+from simeval.measures.text_diversity.metric import STATISTICS
+from simeval.measures.text_diversity.table import tidy_rows
 from simeval.results import read_results, register_run_suffix_resolver, write_result
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -221,7 +221,7 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     from matplotlib.colors import to_rgba
 
     from simeval.report import figures
-    from simeval.report import table4_heldout
+    from simeval.measures.dynamics_diversity import table4_heldout
 
     rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
     assert len(rows) > 10
@@ -246,7 +246,7 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     # a row absent from the skill-vs-last-frame panels says why in its key (GenSim stacking's top camera: nothing moves)
     silent = [r for r in rows if not np.isfinite(r["one_step_moving_skill_last_10"])]
     assert [f"{r['pipeline']}/{r['group']}" for r in silent] == ["gensim/stacking"]
-    # every committed row fails the gate at every count (simeval.models.gate), and its key says so
+    # every committed row fails the gate at every count (simeval.measures.dynamics_diversity.gate), and its key says so
     expected = ("gensim/stacking [no reading at 10/20/40] (second and right panels: no reading, under 100 pixels "
                 "moved)")
     assert [k for k in keys if "panel" in k] == [expected]

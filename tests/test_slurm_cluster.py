@@ -149,7 +149,7 @@ RESUMED = r"resumed from \S+world_model-\w+\.pt at epoch \d+, batch \d+ \(step (
 
 @pytest.fixture(scope="module")
 def training_store(tmp_path_factory):
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     store = tmp_path_factory.mktemp("store")
     write_group(store, "diverse", n_tasks=2, episodes=3, n_actions=10, size=16, pipeline="gensim")

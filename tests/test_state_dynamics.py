@@ -1,4 +1,4 @@
-"""The state-space reading of dynamics diversity (simeval.models.state_dynamics): baselines computed by hand, the
+"""The state-space reading of dynamics diversity (simeval.measures.dynamics_diversity.state_reading): baselines computed by hand, the
 validation split never touches an evaluated episode, and hand-built groups whose answer is known: a fixed linear
 response to the actions is learned and reads, the same response with its sign drawn per episode reads as more
 diverse, and a state that is noise at every step gets no reading."""
@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from simeval.errors import UserError
-from simeval.models.gate import order_between_groups
-from simeval.models.state_dynamics import (StateModelConfig, _steps, low_dim_state, split_training,
+from simeval.measures.dynamics_diversity.gate import order_between_groups
+from simeval.measures.dynamics_diversity.state_reading import (StateModelConfig, _steps, low_dim_state, split_training,
                                            state_reading)
 
 torch.set_num_threads(1)

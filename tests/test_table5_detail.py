@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simeval.metrics.intervals import task_bootstrap_interval, wilson_interval
-from simeval.models.policy.random_baseline import RandomActions
-from simeval.report.table5 import detail_lines, detail_rows, write_detail
+from simeval.stats.intervals import task_bootstrap_interval, wilson_interval
+from simeval.measures.generalization.random_baseline import RandomActions
+from simeval.measures.generalization.table5 import detail_lines, detail_rows, write_detail
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -136,7 +136,7 @@ def test_the_committed_detail_reads_back_as_written_and_a_rerun_group_replaces_i
     """table5_detail.csv read back and written again gives the committed bytes (CSV, Markdown, LaTeX); merging
     fresh lines of one (pipeline, group, policy) replaces exactly that group's lines and keeps the others, in
     the order detail_rows gives (the paper's groups first, then by policy)."""
-    from simeval.report.table5 import merge_detail, read_detail_lines
+    from simeval.measures.generalization.table5 import merge_detail, read_detail_lines
 
     committed = ROOT / "outputs" / "tables" / "table5_detail"
     kept = read_detail_lines(committed.with_suffix(".csv"))
@@ -157,7 +157,7 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
     stays, and the new run's group (not one of the paper's) follows them."""
     import json
 
-    from simeval.report.table5 import METRIC, rebuild_table5
+    from simeval.measures.generalization.table5 import METRIC, rebuild_table5
 
     run = _record("cpu", [("eval", "reach", [(True, 1.0), (False, 0.5)])])
     run["identity"].update(pipeline="mypipeline", task_group="mygroup")  # a group the committed table lacks
@@ -186,7 +186,7 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
 
 def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
     from simeval.errors import UserError
-    from simeval.report.table5 import build
+    from simeval.measures.generalization.table5 import build
 
     a = _record("cpu", [("eval", "close", [(True, 1.0)])])
     b = dict(a, path="elsewhere/result.json")
@@ -197,7 +197,7 @@ def test_two_runs_of_one_seed_are_refused_not_pooled_twice():
 def test_rollouts_left_out_as_unvaried_count_nowhere():
     """Eval rollouts whose scene the variation left as the train split's (evaluate.rollout_task's unvaried) are not
     rolled out: Table 5 and its detail count the others, and a group where none changed has no eval cell."""
-    from simeval.report.table5 import build
+    from simeval.measures.generalization.table5 import build
 
     def record(seed, eval_episodes):
         rec = _record("cpu", [("train", "a", [(True, 1.0), (False, 0.5)])], seed=seed)

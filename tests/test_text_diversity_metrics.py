@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from simeval.diversity import text_diversity_by_group
+from simeval.measures.text_diversity.run import text_diversity_by_group
 from simeval.errors import UserError
-from simeval.metrics.bootstrap import jackknife_interval, jackknife_se
-from simeval.metrics.text_diversity import (
+from simeval.stats.bootstrap import jackknife_interval, jackknife_se
+from simeval.measures.text_diversity.metric import (
     DiversityInputError,
     bleu,
     cosine_similarity_matrix,

@@ -35,7 +35,7 @@ def frames_of(path: Path) -> np.ndarray:
 
 
 def test_diversity_logs_open_loop_prediction_videos(wandb_env, tmp_path):
-    from simeval.models.synthetic import make_group, write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group, write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=3, n_actions=10, size=SIZE, pipeline="gensim")
     res = _run("diversity.py", "debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path / 'store'}",

@@ -197,9 +197,9 @@ def test_compiled_steps_train_to_the_eager_numbers_in_the_same_checkpoint(tmp_pa
     from torch._dynamo.utils import counters
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import TrainConfig
 
     def fit(compile_steps: bool, folder):
         return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), episodes_per_task=2,
@@ -243,9 +243,9 @@ def test_bad_config_is_a_user_error_naming_the_key():
 
 def _fit(tmp_path: Path, checkpoint_dir: Path | None, seed: int = 0):
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import TrainConfig
 
     src = make_group("diverse", 2, 3, 10, 16, seed=0)
     return fit_and_evaluate(src, episodes_per_task=2, model_cfg=preset("tiny"),
@@ -258,9 +258,9 @@ def test_a_checkpoint_is_keyed_by_the_training_data_s_content_not_only_its_names
     """Two groups with the same tasks, seeds, lengths, states and actions whose frames differ (a red and a faint
     disk) must not share a model; the same data again must find the first run's checkpoint."""
     from simeval.episodes.dataset import ArraySource, WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import TrainConfig
 
     first = make_group("diverse", 2, 3, 10, 16, seed=0)
     fainter = ArraySource(first.infos, [{**a, "image": (a["image"] // 2).astype(np.uint8)} for a in first.arrays])
@@ -308,10 +308,10 @@ def test_evaluation_is_seeded(tmp_path):
 RESUME_SCRIPT = textwrap.dedent("""
     import os, signal, sys, torch
     torch.set_num_threads(1)
-    import simeval.models.training as T
+    import simeval.models.world_model_training as T
     from simeval.episodes.dataset import WindowSpec
-    from simeval.models.dynamics_diversity import fit_and_evaluate, load_model
-    from simeval.models.synthetic import make_group
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate, load_model
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
     from simeval.models.world_model import WorldModelConfig
     kill_at = int(sys.argv[2])
     step = T.step_generator
@@ -360,7 +360,7 @@ def test_killed_run_resumes_from_its_checkpoint_and_matches_an_uninterrupted_run
 def test_a_checkpoint_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path):
     """A group sharing a checkpoint folder on a cluster must be able to read what a job wrote (policy checkpoints
     are written by the same function)."""
-    from simeval.models.checkpoints import save_checkpoint
+    from simeval.runtime.checkpoints import save_checkpoint
 
     old = os.umask(0o002)
     try:
@@ -375,22 +375,22 @@ def _train_logged(caplog, train_cfg, checkpoint=None):
     import logging
 
     from simeval.episodes.dataset import WindowDataset, WindowSpec
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import train
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import train
 
     src = make_group("diverse", 2, 3, 10, 16, seed=0)
     ds = WindowDataset(src, WindowSpec(length=6, stride=3))  # no random offset: the same batches every epoch
     ds.stats = ds.fit_stats()
     model = WorldModel(preset("tiny"), state_dim=len(ds.stats.state_mean), action_dim=len(ds.stats.action_mean))
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger="simeval.models.training"):
+    with caplog.at_level(logging.INFO, logger="simeval.models.world_model_training"):
         out = train(model, ds, train_cfg, checkpoint=checkpoint, progress=False, device="cpu")
     return out, len(ds.windows(0)), [r.getMessage() for r in caplog.records]
 
 
 def test_training_logs_its_planned_steps_and_one_line_per_epoch(caplog, tmp_path):
     """Without progress bars (progress=false, cluster logs) a run still says how long it will take and its pace."""
-    from simeval.models.training import TrainConfig
+    from simeval.models.world_model_training import TrainConfig
 
     out, n_windows, lines = _train_logged(caplog, TrainConfig(epochs=3, batch_size=4, lr=1e-3))
     per_epoch = math.ceil(n_windows / 4)
@@ -421,8 +421,8 @@ def test_a_world_model_checkpoint_of_other_settings_is_refused_naming_them(tmp_p
     """A run folder's checkpoint made for other settings or data (its meta) is not resumed: one line naming the keys."""
     from simeval.episodes.dataset import WindowDataset, WindowSpec
     from simeval.errors import UserError
-    from simeval.models.synthetic import make_group
-    from simeval.models.training import TrainConfig, train
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_group
+    from simeval.models.world_model_training import TrainConfig, train
 
     ds = WindowDataset(make_group("diverse", 2, 2, 8, 16, seed=0), WindowSpec(length=6, stride=3))
     ds.stats = ds.fit_stats()

@@ -44,7 +44,7 @@ def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(t
 
 
 def test_sweep_end_to_end_writes_results_and_table(tmp_path):
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=41, n_actions=10, size=16, pipeline="gensim")
     r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store",
@@ -79,7 +79,7 @@ def test_a_joblib_sweep_reads_windows_in_a_loader_worker(tmp_path):
     """hydra/launcher=joblib runs each job in a loky process, whose default start method is loky's: a DataLoader
     worker (world_model.train.num_workers=1, the paper preset's setting) could not start there ('Process' object
     has no attribute 'env'). The loader names its start method."""
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
     r = run("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "protocol=paper", "eval_episodes=[1,2]",
@@ -159,7 +159,7 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
     20-row one is a training episode. A window of 40 leaves b and c (training episodes only) with no window; the
     windows' starts (offset, pad_start, a random offset per epoch) count as window_starts places them."""
     from simeval.episodes.dataset import EpisodeInfo, WindowSpec, epoch_offset
-    from simeval.models.dynamics_diversity import check_every_task_has_windows
+    from simeval.measures.dynamics_diversity.run import check_every_task_has_windows
 
     rows = [("a", 30), ("a", 41), ("b", 25), ("b", 28), ("c", 20), ("c", 50)]
     infos = [EpisodeInfo(task=t, seed=i, group="g", n_rows=n, action_space={}) for i, (t, n) in enumerate(rows)]
@@ -189,7 +189,7 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
 
 
 def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
     common = ("debug=tiny", "pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "protocol=paper", "eval_episodes=[1,2]",
@@ -205,7 +205,7 @@ def test_frames_smaller_than_the_model_are_refused_not_upsampled(tmp_path):
 def test_a_compiler_that_cannot_build_is_one_line_saying_to_run_without_compile(tmp_path):
     """compile=true where inductor finds no working C++ compiler (CXX names none; an empty compile cache, so
     nothing is reused): one line and exit 2 instead of inductor's traceback after the first step."""
-    from simeval.models.synthetic import write_group
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=2, n_actions=10, size=16, pipeline="gensim")
     env = {**ENV, "CXX": str(tmp_path / "no-such-g++"), "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "inductor")}
@@ -258,7 +258,7 @@ def _record(pipeline: str, group: str, episodes: int, error: float) -> dict:
 def test_a_table_row_refuses_runs_of_different_settings_under_one_preset():
     """Seeds of one setting are averaged; runs whose windows differ (or any other world-model setting or the camera)
     are not, though they share a preset name: one line naming the row and the setting."""
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     def rec(episodes, error, length, seed=0):
         r = _record("robogen", "ground", episodes, error)
@@ -277,7 +277,7 @@ def test_a_table_row_refuses_runs_of_different_settings_under_one_preset():
 def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp_path):
     """--keep: the committed table gathers groups run on different machines; each cell comes from exactly one side."""
     from simeval.errors import UserError
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     earlier = table4.build([_record("gensim", "stacking", k, e) for k, e in ((10, 47.195245993035456), (20, 35.5),
                                                                             (40, 27.2))]
@@ -320,7 +320,7 @@ def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "report.keep: " in r.stderr and "nope.csv: cannot read it" in r.stderr
     # a mistyped runs_dir beside keep is an error, not the kept table written again as if nothing were new
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "earlier")
     r = table(f"report.runs_dir={tmp_path / 'typo'}", f"report.keep=[{tmp_path / 'earlier.csv'}]")
@@ -338,7 +338,7 @@ def test_keep_of_a_missing_file_or_without_runs_is_one_line(tmp_path):
 
 def test_kept_rows_must_have_runs_on_this_tables_episodes(tmp_path):
     """A 10/20/40 table kept under report.episodes=[1,2,4] would put 10-episode numbers in a column labelled 1."""
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     kept = table4.build([_record("gensim", "stacking", 10, 47.2)])
     fresh = table4.build([_record("bbsea", "table", 1, 300.0)], episodes=(1, 2, 4))
@@ -348,7 +348,7 @@ def test_kept_rows_must_have_runs_on_this_tables_episodes(tmp_path):
 
 
 def test_a_kept_cell_that_is_not_a_number_names_its_line_and_column(tmp_path):
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     table4.write(table4.build([_record("gensim", "stacking", 10, 47.2)]), tmp_path / "t4")
     text = (tmp_path / "t4.csv").read_text().replace("47.2", "abc")

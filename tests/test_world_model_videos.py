@@ -1,5 +1,5 @@
 """Open-loop prediction videos of the world model (simeval.models.world_model.open_loop_video,
-simeval.models.dynamics_diversity.prediction_videos), the mp4 writer (simeval.media) and the loggers' log_video
+simeval.measures.dynamics_diversity.run.prediction_videos), the mp4 writer (simeval.media) and the loggers' log_video
 without W&B (tests/test_wandb_videos.py runs the entrypoints with logger=wandb)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import torch
 
 from simeval.episodes.dataset import ArraySource, WindowDataset, WindowSpec
 from simeval.errors import UserError
-from simeval.models.synthetic import make_group
+from simeval.measures.dynamics_diversity.controls.synthetic import make_group
 from simeval.models.world_model import IMAGINED_GAP_RGB, WorldModel, WorldModelConfig, open_loop_video
 
 torch.set_num_threads(1)
@@ -91,7 +91,7 @@ def test_padded_rows_are_left_out_and_a_bad_context_is_a_user_error():
 
 
 def test_prediction_videos_take_each_tasks_lowest_seed_episode_from_its_start():
-    from simeval.models.dynamics_diversity import prediction_videos
+    from simeval.measures.dynamics_diversity.run import prediction_videos
 
     src = make_group("diverse", 3, 3, 10, SIZE)
     order = [2, 0, 1, 5, 4, 3, 8, 6, 7]  # episodes stored out of seed order

@@ -1,4 +1,4 @@
-"""Agreement statistics with bootstrap intervals (simeval.metrics.agreement.agreement_summary): seconds per summary.
+"""Agreement statistics with bootstrap intervals (simeval.measures.agreement.metric.agreement_summary): seconds per summary.
 
     python experiments/benchmarks/agreement_bench.py [--n 100] [--boot 2000] [--repeats 5]
 Writes outputs/bench/agreement.json. Figure 3 computes one summary per table and judge. The reference: the first
@@ -26,7 +26,7 @@ def main() -> None:
     a = ap.parse_args()
     import numpy as np
 
-    from simeval.metrics.agreement import agreement_summary
+    from simeval.measures.agreement.metric import agreement_summary
 
     rng = np.random.default_rng(0)
     h = rng.normal(size=a.n)

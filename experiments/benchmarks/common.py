@@ -15,8 +15,8 @@ def machine() -> dict:
 
 
 def device_info(device) -> dict:
-    """What the timed steps ran on (simeval.models.device.describe_device)."""
-    from simeval.models.device import describe_device
+    """What the timed steps ran on (simeval.runtime.device.describe_device)."""
+    from simeval.runtime.device import describe_device
 
     return describe_device(device)
 

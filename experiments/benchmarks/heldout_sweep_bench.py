@@ -12,7 +12,7 @@ windows(k) = k T episodes x (rows - 20) / 10 + 1 windows each (windows of 20 eve
 paper is measured in this one run; absolute seconds depend on the machine and its load (recorded).
 
 Issue 50 changed the heldout protocol's model (`pixel_norm: standardise`) and added a state-space reading to every
-run (simeval.models.state_dynamics), so both steps are timed here in one process, `before` (the preset's model,
+run (simeval.measures.dynamics_diversity.state_reading), so both steps are timed here in one process, `before` (the preset's model,
 `pixel_norm: none`, no state reading: the protocol until then) and `now` (the protocol's model, plus the state
 reading of each run, timed on the same episodes' states at the protocol's settings: its training stops on its own
 validation loss, so its seconds are measured, not derived); `now_over_before` per group is the ratio of the two
@@ -40,10 +40,10 @@ def main(argv: list[str] | None = None) -> None:
     import yaml
 
     from simeval.episodes.dataset import WindowDataset, WindowSpec, episode_ranks, rank_mask
-    from simeval.models.prediction import evaluate_prediction, pixel_stats, task_mean_images
-    from simeval.models.state_dynamics import StateModelConfig, read_states, state_reading
-    from simeval.models.synthetic import make_physics_group
-    from simeval.models.training import collate, epoch_batches, evaluate, to_torch
+    from simeval.measures.dynamics_diversity.prediction import evaluate_prediction, pixel_stats, task_mean_images
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, state_reading
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_physics_group
+    from simeval.models.world_model_training import collate, epoch_batches, evaluate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
     ap = OneLineParser(description=__doc__.split("\n\n")[0])

@@ -19,7 +19,7 @@ from common import ROOT, device_info, machine, save
 
 from simeval.cli import OneLineParser
 from simeval.errors import UserError
-from simeval.models.device import resolve_device
+from simeval.runtime.device import resolve_device
 from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig
 
 REFERENCE = {"train_step_s": 0.32, "chunk_s": 0.11}  # official U-Net at the cpu settings, batch 64 / 16 steps

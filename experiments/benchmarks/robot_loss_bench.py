@@ -23,8 +23,8 @@ def main() -> None:
     import yaml
 
     from simeval.episodes.dataset import WindowDataset, WindowSpec
-    from simeval.models.synthetic import make_visual_group
-    from simeval.models.training import collate, to_torch
+    from simeval.measures.dynamics_diversity.controls.synthetic import make_visual_group
+    from simeval.models.world_model_training import collate, to_torch
     from simeval.models.world_model import WorldModel, WorldModelConfig
 
     ap = OneLineParser(description=__doc__.split("\n\n")[0])

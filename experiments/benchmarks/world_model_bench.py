@@ -76,8 +76,8 @@ def bench_reading(seconds: float = 8.0) -> dict:
     import numpy as np
 
     from simeval.episodes.dataset import StoreSource, WindowDataset, WindowSpec
-    from simeval.models.synthetic import write_group
-    from simeval.models.training import _loader, epoch_batches
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+    from simeval.models.world_model_training import _loader, epoch_batches
 
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_group(tmp, "diverse", n_tasks=4, episodes=6, n_actions=120, size=64)
@@ -114,7 +114,7 @@ def main() -> None:
     import torch
 
     from simeval.errors import UserError
-    from simeval.models.device import resolve_device
+    from simeval.runtime.device import resolve_device
 
     try:
         device = resolve_device(a.device, key="--device")

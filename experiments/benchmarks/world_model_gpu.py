@@ -11,7 +11,7 @@ variant that computes something else shows):
   compile    the same with compile=true (WorldModel.compile_steps: torch.compile of the encoder, the decoder and
              the RSSM's per-step functions); the warm-up's seconds, compilation included, are recorded apart
   capture    the whole step (forward, backward, clipping, Adam) as one CUDA graph, replayed (capture=true:
-             simeval.models.captured.CapturedTrainStep, what train() runs); the warm-up's seconds, the capture
+             simeval.runtime.captured.CapturedTrainStep, what train() runs); the warm-up's seconds, the capture
              included, are recorded apart
   compile+capture  both: the compiled steps' kernels captured in the graph
   bf16       eager under torch.autocast(bfloat16): what mixed precision would give (simeval trains in float32)
@@ -57,8 +57,8 @@ def load_baseline(path: str):
 def time_variant(model_cls, cfg, batch, steps: int, device, variant: str) -> dict:
     import torch
 
-    from simeval.models.captured import CapturedTrainStep
-    from simeval.models.training import step_generator
+    from simeval.runtime.captured import CapturedTrainStep
+    from simeval.models.world_model_training import step_generator
 
     torch.manual_seed(0)
     model = model_cls(cfg, state_dim=7, action_dim=7).to(device)
@@ -161,8 +161,8 @@ def agreement(cfg, batches: list[dict], steps: int, device) -> dict:
     """Eager training (train()'s loop) against the captured step, from the same weights, loss by loss."""
     import torch
 
-    from simeval.models.captured import CapturedTrainStep
-    from simeval.models.training import step_generator
+    from simeval.runtime.captured import CapturedTrainStep
+    from simeval.models.world_model_training import step_generator
     from simeval.models.world_model import WorldModel
 
     def fresh():

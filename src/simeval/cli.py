@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from simeval.errors import UserError, require_whole
-from simeval.models.preemption import requeue_deaf_to_sigterm
+from simeval.runtime.preemption import requeue_deaf_to_sigterm
 from simeval.secrets import key_shaped_overrides
 
 MULTIRUN_FLAGS = ("-m", "--multirun")

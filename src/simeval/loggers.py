@@ -9,7 +9,7 @@ and `log_video(name, video, fps, caption)`, where video is an mp4/gif/webm/ogg f
 the CSV logger a row of `videos.csv` (name, path, caption), the null logger nothing.
 `wants_tables` says whether a logger keeps tables (csv, wandb), so a run skips building a table (reading images)
 for the null logger. Loggers only log: the tables themselves are built by the runs (e.g. a quality run's per-task
-scores with its images, simeval.quality.run.log_task_table).
+scores with its images, simeval.measures.quality.run.log_task_table).
 
 W&B runs are grouped and tagged so a dashboard is built by grouping: group `<metric>/<pipeline>` (the Hydra job
 name, e.g. `quality/gensim`), tags `<config group>=<choice>` for every config choice plus `git=<sha>`, unless

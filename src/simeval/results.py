@@ -3,7 +3,7 @@
 Every record carries an `identity`: what the numbers are *of* (metric, version, pipeline, task source, task group,
 model, settings) and which repeat they are (seed). A report uses it to put each record in its table cell, to
 average repeated seeds, and to refuse to merge two records that claim one cell with different settings (see
-simeval.report.text_diversity). Run folders are unique per process (`${run_suffix:}` in conf/hydra/default.yaml),
+simeval.measures.text_diversity.table). Run folders are unique per process (`${run_suffix:}` in conf/hydra/default.yaml),
 so two runs started in the same second never share a folder or overwrite each other's result.json.
 """
 
@@ -297,5 +297,5 @@ def read_results(root: str | os.PathLike, metric: str | None = None) -> list[dic
 
 def rolled_out(episodes: list[Mapping]) -> list[Mapping]:
     """A generalization row's episodes that were rolled out: all but those left out as unvaried (the eval variation
-    left their scene as the train split's: simeval.models.policy.evaluate.rollout_task)."""
+    left their scene as the train split's: simeval.measures.generalization.rollouts.rollout_task)."""
     return [e for e in episodes if not e.get("unvaried")]

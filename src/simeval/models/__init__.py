@@ -1,2 +1,3 @@
-"""Learned models used by the metrics: the DreamerV3-style world model behind dynamics diversity (paper Sec. 3.4,
-Table 4). Importing this package does not import torch; `simeval.models.world_model` does."""
+"""The learned models: the DreamerV3-style world model behind dynamics diversity (`world_model`, its training and
+evaluation `world_model_training`) and the Diffusion Policy behind generalization (`diffusion_policy`,
+`policy_networks`). Importing this package does not import torch."""

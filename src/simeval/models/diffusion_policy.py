@@ -13,7 +13,7 @@ loss = mean (eps_theta(x_t, t, cond) - eps)^2 with cond = [image features of To 
 Sampling: x_K ~ N(0, I) and the scheduler's reverse steps: DDPM (all K steps) or DDIM (few steps, eta = 0).
 EMA: diffusers' EMAModel with the official warm-up decay 1 - (1 + step)^-0.75, capped at 0.9999.
 Receding horizon: predict Tp actions from the last To observations, execute Ta of them (from index To-1), repeat.
-Device: train_policy(..., device=...) moves the policy there (auto, cpu, cuda, cuda:N; simeval.models.device);
+Device: train_policy(..., device=...) moves the policy there (auto, cpu, cuda, cuda:N; simeval.runtime.device);
 compute_loss, predict_action and the runner bring their inputs to wherever the policy is. Every random tensor (crop
 offsets, noise, timesteps, the sampler's initial noise) is drawn from a CPU generator and moved, so a seed gives the
 same draws on every device. Checkpoints hold CPU tensors and are not keyed by the device.
@@ -37,10 +37,10 @@ from torch import nn
 from torch.nn import functional as F
 
 from simeval.errors import UserError, require_whole_fields
-from simeval.models.checkpoints import read_checkpoint, save_checkpoint
-from simeval.models.device import describe_device, module_device, resolve_device, to_cpu, to_device
-from simeval.models.policy.networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
-from simeval.models.trainer import refuse_other_settings, run_steps
+from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
+from simeval.runtime.device import describe_device, module_device, resolve_device, to_cpu, to_device
+from simeval.models.policy_networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
+from simeval.runtime.trainer import refuse_other_settings, run_steps
 
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
@@ -54,7 +54,7 @@ class PolicyConfig:
     """The model and its sampler; `policy` config group (conf/policy/*.yaml). Validated on construction."""
 
     # native (the task group's own: joint for GenSim-style, ee_delta for RoboGen-style, ee_pose for BBSEA-style
-    # tasks; resolved by simeval.models.policy.experiment.resolve_action_space) | joint | ee_delta | ee_pose (one
+    # tasks; resolved by simeval.measures.generalization.run.resolve_action_space) | joint | ee_delta | ee_pose (one
     # action per control step) | pick_place (14-d poses, one per primitive) | metaworld (Meta-World's 4-d action) |
     # recorded (the episodes' own actions, one per step, whatever kind: a Gymnasium pipeline's)
     action_space: str = "joint"

@@ -40,7 +40,7 @@ from einops import rearrange
 from torch import nn
 
 from simeval.errors import UserError, require_whole_fields
-from simeval.models.device import module_device, to_device
+from simeval.runtime.device import module_device, to_device
 
 VERSION = "1.0"
 PIXEL_NORMS = ("none", "standardise")
@@ -349,7 +349,7 @@ class RSSM(nn.Module):
         `noise`: the window's (T, 2, B, S, K) uniforms (`uniforms`), else drawn from `generator`. `resets`: per step,
         whether to blend in the initial state where is_first is set (else read from is_first); a step told True
         where no row resets computes the same values, since the blend is then x * 1 + init * 0 (what a CUDA graph,
-        which cannot read the device mid-capture, relies on: simeval.models.captured)."""
+        which cannot read the device mid-capture, relies on: simeval.runtime.captured)."""
         b, t = embed.shape[:2]
         if state is None:
             state = self.initial(b)

@@ -12,9 +12,9 @@ the folder can be zipped and opened on another machine. Sections:
 - Tables: every Markdown table under `tables_dir` (as written by simeval.report.tables), with links to its CSV/TeX.
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
-  views and the trajectory frames sampled as simeval.quality.run samples them, and the video when there is one) and
+  views and the trajectory frames sampled as simeval.measures.quality.run samples them, and the video when there is one) and
   every judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
-  simeval.quality.task_media finds them; a run whose bundles are gone is shown with its scores, replies and a
+  simeval.measures.quality.task_media finds them; a run whose bundles are gone is shown with its scores, replies and a
   note saying so.
 
 Records under `out_dir` are ignored, so a report written inside `runs_dir` does not report on itself.
@@ -32,7 +32,7 @@ from functools import partial
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.quality.task_media import SCALES, find_bundles, judged_media, normalized, ordered_tasks
+from simeval.measures.quality.task_media import SCALES, find_bundles, judged_media, normalized, ordered_tasks
 from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
@@ -232,7 +232,7 @@ def headline_values(rec: dict, limit: int = HEADLINE_VALUES) -> list[tuple[str, 
 
 def dynamics_headline(values: dict) -> list[tuple[str, object]]:
     """A held-out dynamics-diversity run: its gate's verdict in place of its numbers where the model does not beat
-    the baselines (simeval.models.gate), else the primary number and its skills; then the state reading's line."""
+    the baselines (simeval.measures.dynamics_diversity.gate), else the primary number and its skills; then the state reading's line."""
     gate = values.get("gate")
     one = values["prediction"]["summary"]["one_step"]
     if gate is not None and not gate["passes"]:
@@ -361,7 +361,7 @@ def _media_strip(bundle, n_frames: int, assets: _Assets, group: str) -> str:
 
 def ground_truth_line(truth: dict) -> str:
     """`success: yes, progress: 1.00 (oracle completion 10.0 / 10)`: the simulator's verdict beside the judge's,
-    the oracle completion computed as simeval.quality.run.oracle_completion does."""
+    the oracle completion computed as simeval.measures.quality.run.oracle_completion does."""
     parts = []
     if "success" in truth:
         parts.append(f"success: {'yes' if truth['success'] else 'no'}")

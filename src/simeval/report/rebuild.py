@@ -3,7 +3,7 @@
 
     rebuild_table4(root, out, figure, episodes=(10, 20, 40), preset=None, keep=(), overwrite=False) -> Rebuilt
     rebuild_table4_heldout(root, out, figure, keep=(), overwrite=False) -> Rebuilt
-    rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt   (simeval.report.table5)
+    rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt   (simeval.measures.generalization.table5)
 Each reads every result.json of its metric under `root` (none: a UserError saying what makes them), refuses to
 replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
 (a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.report.tables import Rebuilt, kept_only_hint, read_kept, refuse_committed
-from simeval.report.table5 import rebuild_table5
+from simeval.measures.generalization.table5 import rebuild_table5
 from simeval.results import read_results
 
 __all__ = ["Rebuilt", "rebuild", "rebuild_table4", "rebuild_table4_heldout", "rebuild_table5"]
@@ -38,7 +38,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
                    keep_key: str = "keep") -> Rebuilt:
     """`overwrite_flag`, `elsewhere`, `episodes_key`, `keep_key`: how the caller's user asks to replace a committed
     file, to write elsewhere, to choose the columns and to keep earlier rows, named in the refusal and in notes."""
-    from simeval.report import table4
+    from simeval.measures.dynamics_diversity import table4
 
     episodes = [int(k) for k in episodes]
     kept = read_kept(table4.read_rows, keep, keep_key, "Table 4")
@@ -66,7 +66,7 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
 def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str | Path, *, keep=(),
                            overwrite: bool = False, overwrite_flag: str = "--overwrite",
                            elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
-    from simeval.report import table4_heldout
+    from simeval.measures.dynamics_diversity import table4_heldout
 
     kept = read_kept(table4_heldout.read_rows, keep, keep_key, "held-out Table 4")
     records = [] if root is None else [r for r in read_results(root, metric=table4_heldout.METRIC)
@@ -134,11 +134,11 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
     if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
         refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, flag, elsewhere)
     if kind == "figure4":
-        from simeval.report.quality_figure import build_quality_figure
+        from simeval.measures.quality.figure4 import build_quality_figure
 
         written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
         return Rebuilt([p for paths in written.values() for p in paths], Path(written["table"][1]).read_text())
-    from simeval.report.build import build_text_diversity_report
+    from simeval.measures.text_diversity.report import build_text_diversity_report
 
     written = build_text_diversity_report(
         spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],
@@ -201,7 +201,7 @@ def missing_inputs(step: str, spec: dict, made_under: str | Path | None = None) 
     if not records:
         return f"no {'protocol=heldout ' if step == 'table4_heldout' else ''}{metric} result.json under {runs} ({maker})"
     if step == "figure4":
-        from simeval.report.quality_figure import quality_points
+        from simeval.measures.quality.figure4 import quality_points
 
         if all(r.get("judge") == "oracle" for r in records):
             return (f"the quality runs under {runs} are scored by the oracle judge only, and Figure 4 plots a model "

@@ -72,7 +72,7 @@ def references(tables: str | Path) -> dict[str, list[dict]]:
                                    "value": 10 * done / total, "text": f"{10 * done / total:.2f} "
                                    f"({done}/{total} expert episodes succeed)"})
     if (tables / "table4_heldout.csv").is_file():
-        from simeval.report.table4_heldout import read_rows, row_gate
+        from simeval.measures.dynamics_diversity.table4_heldout import read_rows, row_gate
 
         for r in read_rows(tables / "table4_heldout.csv"):
             counts = [int(k) for k in str(r["counts"]).split("/")]

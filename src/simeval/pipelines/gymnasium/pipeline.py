@@ -40,7 +40,7 @@ from simeval.errors import UserError, require_whole
 from simeval.pipelines.base import Pipeline, load_target, select_tasks, split_by_heldout
 from simeval.pipelines.import_parts import resize_frames
 
-ACTION_SPACE = "recorded"  # the policy's action space: the episodes' own (simeval.models.policy.data)
+ACTION_SPACE = "recorded"  # the policy's action space: the episodes' own (simeval.measures.generalization.data)
 KEYS = {"name", "kind", "source", "root", "tasks_path", "text_template", "grouped_file", "group_aliases", "suite",
         "default_group", "env", "tasks", "heldout", "eval_variation", "adapter", "expert", "native", "_target_"}
 

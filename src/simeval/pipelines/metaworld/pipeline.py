@@ -16,7 +16,7 @@ from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
 from simeval.pipelines.metaworld.native import ACTION_KIND, GROUPS, MetaworldSettings
 
-ACTION_SPACE = "metaworld"  # the policy's name for ACTION_KIND (simeval.models.policy.data)
+ACTION_SPACE = "metaworld"  # the policy's name for ACTION_KIND (simeval.measures.generalization.data)
 
 
 class MetaworldPipeline(Pipeline):

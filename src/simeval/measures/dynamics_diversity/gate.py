@@ -1,0 +1,189 @@
+"""The validity gate of a dynamics-diversity reading: a learned model's held-out error reads the diversity of a
+group's dynamics only where the model has learned more than a predictor that knows nothing of the dynamics. A model
+that never learned where a small object is (issue 50: a 2% disk) predicts about as well as the task's mean image on
+every group alike, and its error then ranks groups by how much their pixels move, not by how diverse their dynamics
+are; so such a run gives "no reading", never a number.
+
+Shapes: for R training seeds and E held-out episodes (strata `tasks` (E,): each episode's task), per-episode sums of
+the model's squared error x[r, e] and of each baseline b's on the same frames (and pixels, or state dimensions)
+x_b[r, e] (a baseline does not depend on the seed; it is given per run all the same).
+
+    skill_b            1 - sum_{r,e} x[r, e] / sum_{r,e} x_b[r, e]        (> 0: better than b; 0: as good as b)
+    its interval       the 95% percentile interval over resamples of seeds and, within each task, held-out
+                       episodes (simeval.stats.resample.draws; the same draws for every baseline)
+    passes             for every baseline b: skill_b >= margin and the interval's lower end > 0
+    per task           skill_b >= margin on that task's episodes alone (its interval is reported, not required: a
+                       task's 10 held-out episodes give intervals as wide for a model that learned as for one
+                       that did not); the group's reading needs the group to pass and at
+                       least `min_task_share` of its tasks to pass (default: every task: a group whose reading
+                       mixes learned and unlearned tasks averages numbers that mean different things)
+
+Verdict text (`verdict`): "reads" or "no reading: the model does not beat <baseline> (skill <s> [<lo>, <hi>])[ nor
+<baseline> (...)]; needs >= <margin>"; with tasks failing, "no reading: the model does not beat <baseline> on k of
+n tasks (<task>, ...)". Baseline names are the human ones of BASELINE_NAMES.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simeval.errors import UserError, require_whole_fields, settings_from_dict
+from simeval.stats import resample
+
+BASELINE_NAMES = {"last": "the last frame", "mean": "the mean image", "last_state": "the last state",
+                  "mean_state": "the mean state", "constant_velocity": "constant velocity"}
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    margin: float = 0.05  # the least skill against every baseline: the model's error at most 95% of each one's
+    min_task_share: float = 1.0  # the share of a group's tasks that must pass for the group to read
+    n_boot: int = 1000
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for key in ("margin", "min_task_share"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise UserError(f"protocol.gate.{key}={v!r}: expected a number")
+        require_whole_fields(self, "protocol.gate", ("n_boot", "seed"), low=0)
+        if not 0 <= self.margin < 1:
+            raise UserError(f"protocol.gate.margin={self.margin}: expected a skill in [0, 1) (0.05: 5% better than "
+                            "each baseline)")
+        if not 0 < self.min_task_share <= 1:
+            raise UserError(f"protocol.gate.min_task_share={self.min_task_share}: expected a share in (0, 1]")
+        if self.n_boot < 100:
+            raise UserError(f"protocol.gate.n_boot={self.n_boot}: expected at least 100 resamples")
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> GateConfig:
+        return settings_from_dict(cls, d, "protocol.gate")
+
+
+def _skill(x: np.ndarray, xb: np.ndarray, draws) -> tuple[float, list[float]]:
+    """1 - sum x / sum x_b and its interval: resample's ratio of sums, with the baseline's error as the denominator."""
+    return 1 - resample.ratio(x, xb), resample.percentile(1 - resample.replicates(x, xb, draws))
+
+
+def _check(x: np.ndarray, bases: dict[str, np.ndarray], strata, cfg: GateConfig, interval: bool = True) -> dict:
+    draws = resample.draws(x.shape[0], strata, cfg.n_boot, cfg.seed)
+    out, failed = {}, []
+    for name, xb in bases.items():
+        point, (lo, hi) = _skill(x, xb, draws)
+        ok = bool(np.isfinite(point) and point >= cfg.margin and (not interval or (np.isfinite(lo) and lo > 0)))
+        out[name] = {"skill": point, "interval": [lo, hi], "passes": ok}
+        if not ok:
+            failed.append(name)
+    return {"baselines": out, "passes": not failed, "failed": failed}
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3f}" if np.isfinite(v) else "n/a"
+
+
+def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateConfig = GateConfig()) -> dict:
+    """The gate of one reading (see the module docstring): `model` (R, E) and each of `baselines` {name: (R, E)}
+    summed squared errors, `tasks` (E,). Returns {passes, verdict, margin, baselines: {name: {skill, interval,
+    passes}}, per_task: {task: {passes, failed, baselines}}, tasks_passing, tasks}."""
+    x = np.atleast_2d(np.asarray(model, float))
+    bases = {k: np.atleast_2d(np.asarray(v, float)) for k, v in baselines.items()}
+    tasks = np.asarray(tasks)
+    if not bases:
+        raise ValueError("gate: no baselines")
+    for k, v in bases.items():
+        if v.shape != x.shape:
+            raise ValueError(f"gate: baseline {k} has shape {v.shape}, the model's {x.shape}")
+    if tasks.shape != (x.shape[1],):
+        raise ValueError(f"gate: {len(tasks)} task labels for {x.shape[1]} episodes")
+    group = _check(x, bases, tasks, cfg)
+    per_task = {}
+    for t in sorted(set(tasks.tolist())):
+        cols = tasks == t
+        per_task[str(t)] = _check(x[:, cols], {k: v[:, cols] for k, v in bases.items()}, tasks[cols], cfg,
+                                  interval=False)
+    passing = sum(r["passes"] for r in per_task.values())
+    enough = passing >= cfg.min_task_share * len(per_task) - 1e-9
+    if not group["passes"]:
+        parts = []
+        for b in group["failed"]:
+            s = group["baselines"][b]
+            parts.append(f"{BASELINE_NAMES.get(b, b)} (skill {_fmt(s['skill'])} [{_fmt(s['interval'][0])}, "
+                         f"{_fmt(s['interval'][1])}])")
+        verdict = f"no reading: the model does not beat {' nor '.join(parts)}; needs >= {cfg.margin:g}"
+    elif not enough:
+        bad = [t for t, r in per_task.items() if not r["passes"]]
+        worst = {}
+        for t in bad:
+            for b in per_task[t]["failed"]:
+                worst[b] = worst.get(b, 0) + 1
+        b = max(worst, key=worst.get)
+        verdict = (f"no reading: the model does not beat {BASELINE_NAMES.get(b, b)} on {len(bad)} of "
+                   f"{len(per_task)} tasks ({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''})")
+    else:
+        verdict = "reads"
+    return {"passes": bool(group["passes"] and enough), "verdict": verdict, "margin": cfg.margin,
+            "min_task_share": cfg.min_task_share, "baselines": group["baselines"], "per_task": per_task,
+            "tasks_passing": int(passing), "tasks": len(per_task)}
+
+
+PIXEL_SUMS = {"model": "one_step/model/object", "last": "one_step/last/object", "mean": "one_step/mean/object"}
+
+
+def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig()) -> dict:
+    """The gate of the pixel reading on the protocol's primary number (the object-focused one-step error: robot
+    pixels out where the episodes carry masks) from R runs' `per_episode` lists (simeval.measures.dynamics_diversity.prediction; every
+    run on the same held-out episodes)."""
+    order = sorted((e["task"], int(e["seed"])) for e in per_episode_runs[0])
+    arrays = {k: np.zeros((len(per_episode_runs), len(order))) for k in PIXEL_SUMS}
+    for r, run in enumerate(per_episode_runs):
+        where = {(e["task"], int(e["seed"])): e["sums"] for e in run}
+        if sorted(where) != order:
+            raise UserError("gate: the runs of one reading were evaluated on different held-out episodes")
+        for j, ep in enumerate(order):
+            for k, key in PIXEL_SUMS.items():
+                arrays[k][r, j] = where[ep][key]
+    return gate(arrays["model"], {"last": arrays["last"], "mean": arrays["mean"]}, [t for t, _ in order], cfg)
+
+
+def fall_verdict(model_fall: tuple[float, float, float], baseline_excess: dict[str, tuple[float, float]],
+                 gates: dict[int, dict]) -> str:
+    """Whether a fall of the error from the fewest to the most training episodes is read: `model_fall` (point, lo,
+    hi) of error_first - error_last; `baseline_excess` {baseline: (lo, hi)} the interval of the model's fall minus
+    that baseline's own fall on the same resamples (the mean image changes with the training episodes; a copy of
+    the last frame does not); `gates` {count: gate} of each count. "falls" / "rises" when every count reads and
+    both intervals exclude zero on the same side, "no fall" otherwise, "no reading: ..." where a count is gated."""
+    for k in sorted(gates):
+        if not gates[k]["passes"]:
+            return f"{gates[k]['verdict']} at {k} episodes"
+    _, lo, hi = model_fall
+    excess = list(baseline_excess.values())
+    if lo > 0 and all(e[0] > 0 for e in excess):
+        return "falls"
+    if hi < 0 and all(e[1] < 0 for e in excess):
+        return "rises"
+    return "no fall"
+
+
+def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:
+    """sum model / sum baseline (R, E) each: the share of a physics-free predictor's error the model leaves (1 -
+    skill); a unit-free reading that two groups whose objects move by different amounts can compare."""
+    return resample.ratio(np.atleast_2d(model), np.atleast_2d(baseline))
+
+
+def order_between_groups(a: tuple, b: tuple, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> dict:
+    """Whether group a reads as more diverse than group b: each group `(model (R, E), baseline (R, E), tasks
+    (E,))` gives relative_error; the difference a - b with a percentile interval over resamples drawn independently
+    for the two groups (their episodes are different ones), each over seeds and, within task, episodes
+    (simeval.stats.resample.draws). {difference, interval, order}: order "a > b" / "a < b" where the interval
+    excludes zero, else "none"."""
+    reps, points = [], []
+    for k, (x, xb, tasks) in enumerate((a, b)):
+        x, xb = np.atleast_2d(np.asarray(x, float)), np.atleast_2d(np.asarray(xb, float))
+        points.append(relative_error(x, xb))
+        reps.append(resample.replicates(x, xb, resample.draws(x.shape[0], tasks, n_boot, seed + 7919 * k)))
+    diff = points[0] - points[1]
+    lo, hi = resample.percentile(reps[0] - reps[1], level)
+    order = "a > b" if lo > 0 else "a < b" if hi < 0 else "none"
+    return {"difference": diff, "interval": [lo, hi], "order": order, "relative_errors": points}

@@ -1,0 +1,678 @@
+"""Dynamics-based trajectory diversity (paper Sec. 3.4, Table 4): train a world model on the first k episodes of
+each task of a group and evaluate it on the first 40 (and, when they exist, on held-out episodes 41-50).
+
+`fit_and_evaluate` takes a source of episodes (simeval.episodes.dataset.StoreSource or ArraySource) and plain
+configs, and returns the numbers result.json records; src/diversity.py is its command line. A falling error from
+k = 10 to 40 says the group's dynamics need more data to learn, i.e. are diverse (the paper's reading).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simeval.episodes.dataset import (
+    WindowDataset,
+    WindowSpec,
+    build_index,
+    episode_ranks,
+    epoch_offset,
+    rank_mask,
+    require_ranks,
+    window_starts,
+)
+from simeval.episodes.digest import source_digest
+from simeval.errors import UserError
+from simeval.media import write_video
+from simeval.runtime.device import resolve_device
+from simeval.measures.dynamics_diversity.gate import GateConfig, pixel_gate
+from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, state_reading
+from simeval.models.world_model_training import TrainConfig, evaluate, load_checkpoint, train
+from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
+
+log = logging.getLogger(__name__)
+
+VIDEO_FPS = 5  # a window's frames are control steps: the paper's 40-step window plays in 8 s
+
+
+def data_fingerprint(infos) -> str:
+    """sha1 of the (task, seed, rows) list: which episodes a run read (its identity's `episodes_sha`). Not their
+    content: a checkpoint's key adds simeval.episodes.digest.source_digest for that."""
+    text = json.dumps(sorted((i.task, int(i.seed), int(i.n_rows)) for i in infos))
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def check_eval_context(context: int | None, window: WindowSpec) -> None:
+    if context is not None and not 1 <= int(context) < window.length:
+        raise UserError(f"eval.context={context}: expected 1 <= context < window length ({window.length})")
+
+
+def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSpec, seed: int = 0,
+                                 epochs: int = 1) -> None:
+    """A UserError naming the tasks none of whose training episodes holds a window in any epoch (at the offsets
+    the epochs draw from `seed` with random_offset, else at the window's offset; with its pad_start and pad_end):
+    the model would never train on them, yet their episodes are evaluated (padded), so their error would be that of
+    a model that never saw the task. Our RoboGen-style episodes (22-77 rows) meet this with the `paper` preset's
+    windows of 40; the authors' DreamerV3 fork instead ran a window on into the next episode, which ours never do.
+    The length suggested is the longest with which every task has a window at those offsets."""
+    offsets = sorted({epoch_offset(window, seed, e) for e in range(max(1, epochs))})
+    has_window = lambda n: any(len(window_starts(n, window, off)) for off in offsets)  # noqa: E731
+    longest: dict[str, int] = {}
+    trained: set[str] = set()
+    for info, used in zip(infos, train_mask):
+        if used:
+            longest[info.task] = max(longest.get(info.task, 0), int(info.n_rows))
+            if has_window(int(info.n_rows)):
+                trained.add(info.task)
+    short = {t: n for t, n in sorted(longest.items()) if t not in trained}
+    if short:
+        fits = max(1, min(short.values()) - (offsets[0] - window.pad_start))  # [s, s + L) needs s + L <= rows
+        listed = ", ".join(f"{t} ({n})" for t, n in short.items())
+        start = offsets[0] - window.pad_start
+        where = f"; the windows start {start} row{'s' * (start != 1)} in at the earliest" if start > 0 else ""
+        raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
+                        f"training episode that holds a window, so the model would never see them (longest rows: "
+                        f"{listed}{where}); use world_model.window.length={fits} or world_model.window.pad_end=true")
+
+
+def check_frames_not_upsampled(source, image_size: int) -> None:
+    """A UserError when the episodes' frames are smaller than the model's: the dataset would upsample them, and an
+    image error measured on blurred frames is not the error at `image_size` (e.g. the `paper` preset's 128x128 on a
+    store recorded at the default 64x64). Larger frames are downsampled, as the `cpu` preset does with a 128x128
+    store."""
+    sizes = {source.frame_size(e) for e in range(len(source.infos))}
+    small = sorted(s for s in sizes if min(s) < image_size)
+    if small:
+        h, w = small[0]
+        raise UserError(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model.image_size="
+                        f"{image_size}: they would be upsampled; record the episodes at that size in a store of their "
+                        f"own (src/collect.py ... 'record.image_size=[{image_size},{image_size}]' store=DIR, then "
+                        f"store=DIR here), or set world_model.model.image_size to at most {min(h, w)} (minres "
+                        f"times a power of two)")
+
+
+def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
+                     window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
+                     heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
+                     eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
+                     log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
+                     videos: int = 0, video_dir: str | Path | None = None,
+                     device: str | torch.device | None = "auto", compile: bool = False, capture: bool = False,
+                     how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
+                     steps: int | None = None, horizon: int | None = None, lr: float | None = None,
+                     mask_margin: int = 0, exclude_robot_from_loss: bool = False,
+                     evaluate_only: bool = False, gate: GateConfig | None = None,
+                     state_model: StateModelConfig | None = None) -> dict:
+    """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
+    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
+    With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
+    the same command run again resumes a killed run (or, when it finished, only evaluates). With `videos` > 0 and a
+    `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
+    episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
+    `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
+    so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
+    `train.segments` how each part of the training ran (simeval.models.world_model_training.train). `compile`: compile the
+    model's steps (WorldModel.compile_steps; for a GPU), `capture`: train with the whole step as one CUDA graph
+    (simeval.runtime.captured; CUDA only), both likewise not part of the key. `how_to_get_more(n)`:
+    what a UserError about too few episodes per task tells the user to run (how_to_get_episodes).
+
+    `protocol`: "paper" (the paper's Table 4 quantity: the posterior reconstruction averaged over `eval_episodes`,
+    which include the training episodes; the budget is `train_cfg`'s epochs, so it grows with the episodes) or
+    "heldout" (what simeval's own readings rest on, see PROTOCOLS): `eval_episodes` must lie past every training
+    episode (the default (40, 50): episodes 41-50), every episode count trains for the same `steps` gradient steps,
+    with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
+    `horizon`-step open-loop prediction errors after `eval_context` observed frames, with the last-frame and
+    per-task-mean-image baselines, skill scores, object-focused errors (robot pixels excluded where the episodes
+    carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals (simeval.measures.dynamics_diversity.prediction).
+    With `exclude_robot_from_loss` (heldout only) those same grown robot pixels carry no training loss either, so the
+    model learns nothing of the robot's looks (the visual control failed without it); episodes without masks train
+    on the full frame, and `values["protocol"]["robot_excluded_from_loss"]` says which happened.
+    `heldout_episodes` is not used by "heldout" (its evaluation is held out). `evaluate_only` (heldout): a
+    UserError instead of training when the run's checkpoint is not there (to score finished runs again).
+    `gate` (heldout): the validity gate's settings (simeval.measures.dynamics_diversity.gate; None: its defaults): `values["gate"]` says
+    whether the model beats both baselines on the held-out frames, per task and for the group; where it does not,
+    the run's numbers are no reading of diversity and the log line says so in their place. `state_model`
+    (heldout; None: no state reading): `values["state"]` is the state-space reading on the same training and
+    held-out episodes (simeval.measures.dynamics_diversity.state_reading), gated on its own."""
+    device = resolve_device(device)  # a bad value fails here, before any data is read
+    if protocol not in PROTOCOLS:
+        raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+    if protocol == "heldout":
+        return _fit_and_evaluate_heldout(
+            source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
+            eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
+            exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context,
+            eval_batch_size=eval_batch_size,
+            checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
+            progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile, capture=capture,
+            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only, gate=gate, state_model=state_model)
+    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
+                     checkpoint_dir, how_to_get_more)
+    infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
+    train_mask, train_ds, stats, model, meta, checkpoint = (setup.train_mask, setup.train_ds, setup.stats,
+                                                            setup.model, setup.meta, setup.checkpoint)
+    eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
+
+    def run_eval(lo: int, hi: int) -> dict:
+        ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
+        if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
+            raise UserError("evaluation episodes have another action space than the training ones")
+        out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
+        out["episodes"] = [lo + 1, hi]
+        return out, ds
+
+    counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
+    with WorldModel.compile_failures_named(compile):  # training, and the evaluations' new shapes compiled too
+        summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
+                        progress=progress, device=device, compile=compile, capture=capture)
+        main_eval, eval_ds = run_eval(*eval_episodes)
+        values = {"eval": main_eval, "heldout": None, "videos": {}}
+        clips = (prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
+                 if videos > 0 and video_dir is not None else {})
+        if heldout_episodes is not None and min(counts.values()) >= heldout_episodes[1]:
+            values["heldout"] = run_eval(*heldout_episodes)[0]
+        elif heldout_episodes is not None:
+            log.info("no held-out evaluation: needs %d episodes per task, the fewest is %d", heldout_episodes[1],
+                     min(counts.values()))
+    values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
+                        for task, frames in clips.items()}
+    values["train"] = setup.train_summary(summary, device, compile, capture)
+    values["model"] = setup.model_summary()
+    values["tasks"] = sorted(counts)
+    values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
+    return values
+
+
+PROTOCOLS = {
+    "paper": "the paper's Table 4: posterior reconstruction on episodes 1-40 (the training episodes among them), "
+             "10 epochs (the budget grows with the episodes)",
+    "heldout": "simeval's readings: prediction of held-out episodes (41-50) from actions, the same gradient steps "
+               "for every episode count, beside last-frame and mean-image baselines",
+}
+
+
+def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size: int, steps: int) -> int:
+    """Epochs enough for `steps` gradient steps however the epochs' random offsets cut the windows: steps divided
+    by the fewest batches any offset gives, rounded up (training stops at `steps` through max_steps)."""
+    fewest = min(len(build_index(n_rows, window, train_mask, off)) for off in range(window.stride))
+    if fewest == 0:
+        return 1  # no window at some offset: the window check names the tasks
+    return int(math.ceil(steps / math.ceil(fewest / batch_size)))
+
+
+def _yaml(value) -> str:
+    """A config value as the user wrote it: null for None, else its repr."""
+    return "null" if value is None else repr(value)
+
+
+def _whole(value, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclude_robot_from_loss=False) -> None:
+    """One UserError naming the first protocol.* (or eval.context) value the heldout protocol cannot use."""
+    if not _whole(steps, 1):
+        raise UserError(f"protocol.steps={steps!r}: the heldout protocol trains every episode count for the same "
+                        "whole number of gradient steps >= 1")
+    if not _whole(horizon, 1):
+        raise UserError(f"protocol.horizon={horizon!r}: expected a whole number >= 1 (frames imagined after "
+                        f"eval.context={context} observed ones)")
+    if context < 1:
+        raise UserError(f"eval.context={context}: expected a whole number >= 1")
+    if not _whole(mask_margin, 0):
+        raise UserError(f"protocol.mask_margin={_yaml(mask_margin)}: expected a whole number of pixels >= 0")
+    if not isinstance(exclude_robot_from_loss, bool):
+        raise UserError(f"protocol.exclude_robot_from_loss={_yaml(exclude_robot_from_loss)}: expected true or false")
+    if lr is not None and (isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0):
+        raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
+
+
+def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
+                              train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
+                              steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
+                              exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
+                              eval_batch_size: int, checkpoint_dir,
+                              log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
+                              capture: bool, how_to_get_more, evaluate_only: bool = False,
+                              gate: GateConfig | None = None, state_model: StateModelConfig | None = None) -> dict:
+    """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
+    from simeval.measures.dynamics_diversity.prediction import evaluate_prediction, task_mean_images
+
+    k = int(episodes_per_task)
+    lo, hi = eval_episodes
+    if lo < k:
+        have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
+        fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
+               "with more episodes: "
+               + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
+               + f", then eval_episodes=[{k + 1},{k + 10}]")
+        raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
+                        f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
+    context = 5 if eval_context is None else int(eval_context)
+    check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
+    # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
+    ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
+    epochs = budget_epochs([i.n_rows for i in source.infos], rank_mask(ranks, 0, k), window, train_cfg.batch_size,
+                           steps)
+    train_cfg = replace(train_cfg, epochs=epochs, max_steps=steps, lr=train_cfg.lr if lr is None else float(lr))
+
+    def more(n: int) -> str:  # besides collecting: evaluate what the store has, or the paper's protocol
+        how = how_to_get_more(n) if how_to_get_more is not None else f"collect more: src/collect.py episodes={n}"
+        return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
+                "or use protocol=paper")
+
+    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, more,
+                     protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
+    if evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
+        raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
+                        "would have to be trained again")
+    evaluated = rank_mask(setup.ranks, lo, hi)
+    longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
+    if context + horizon > longest:
+        raise UserError(f"protocol.horizon={horizon} with eval.context={context}: open-loop windows of "
+                        f"{context + horizon} rows, but the evaluated episodes have at most {longest} rows; use "
+                        f"protocol.horizon={max(1, longest - context)} or less")
+
+    def held_out(length: int) -> WindowDataset:
+        return WindowDataset(source, WindowSpec(length=length, stride=length, pad_end=True), evaluated,
+                             stats=setup.stats, image_size=model_cfg.image_size, robot_masks=True,
+                             mask_margin=mask_margin)
+
+    step_ds, eval_ds = held_out(window.length), held_out(context + horizon)  # one step; open loop
+    if eval_ds.action_space.get("kind") != setup.train_ds.action_space.get("kind"):
+        raise UserError("evaluation episodes have another action space than the training ones")
+    if np.any(setup.train_mask & eval_ds.episodes):  # the ranks above make this impossible; a guard on the plumbing
+        raise RuntimeError("an evaluated episode is among the training episodes")
+    means = task_mean_images(source, setup.train_mask, model_cfg.image_size)
+    with WorldModel.compile_failures_named(compile):
+        summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
+                        log_metrics=log_metrics, progress=progress, device=device, compile=compile,
+                        capture=capture)
+        started = time.perf_counter()
+        prediction = evaluate_prediction(setup.model, step_ds, eval_ds, means, context, seed=eval_seed,
+                                         batch_size=eval_batch_size, progress=progress)
+        prediction["seconds"] = time.perf_counter() - started  # what a sweep spends beside training (benchmarks)
+        clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
+                 if videos > 0 and video_dir is not None else {})
+    prediction["episodes"] = [lo + 1, hi]
+    values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "mask_margin": mask_margin,
+                           "exclude_robot_from_loss": exclude_robot_from_loss,
+                           "robot_excluded_from_loss": setup.train_ds.robot_masks,
+                           "trained_on": [1, k],
+                           "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
+              "prediction": prediction,
+              "gate": pixel_gate([prediction["per_episode"]], gate or GateConfig()),
+              "state": None if state_model is None else _state_reading(source, setup, evaluated, state_model, gate),
+              "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
+                         for task, frames in clips.items()},
+              "train": setup.train_summary(summary, device, compile, capture), "model": setup.model_summary(),
+              "tasks": sorted(set(setup.tasks)),
+              "checkpoint": str(setup.checkpoint) if setup.checkpoint is not None else None}
+    return values
+
+
+def _state_reading(source, setup, evaluated: np.ndarray, cfg: StateModelConfig, gate: GateConfig | None) -> dict:
+    train_idx, eval_idx = np.flatnonzero(setup.train_mask).tolist(), np.flatnonzero(evaluated).tolist()
+    states = read_states(source, train_idx + eval_idx)
+    started = time.perf_counter()
+    try:
+        out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig())
+    except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
+        why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
+        return {"dims": None, "gate": {"passes": False, "verdict": why}, "summary": {}, "line": why,
+                "seconds": time.perf_counter() - started}
+    out["seconds"] = time.perf_counter() - started
+    return out
+
+
+@dataclass
+class _Setup:
+    """What both protocols build before training: the ranks, the training windows and statistics, the model and
+    its checkpoint (keyed by config + training data)."""
+
+    k: int
+    tasks: list[str]
+    ranks: np.ndarray
+    train_mask: np.ndarray
+    train_ds: WindowDataset
+    stats: object
+    model: WorldModel
+    meta: dict
+    checkpoint: Path | None
+
+    def model_summary(self) -> dict:
+        return {"parameters": self.model.n_parameters(), "state_dim": self.model.state_dim,
+                "action_dim": self.model.action_dim, "action_space": self.train_ds.action_space.get("kind")}
+
+    def train_summary(self, summary: dict, device, compile: bool, capture: bool) -> dict:
+        return {"steps": summary["steps"], "epochs": summary["epochs"], "seconds": summary["seconds"],
+                "frames": summary["frames"], "episodes": int(self.train_mask.sum()),
+                "windows_per_epoch": int(len(self.train_ds.windows(0))), "last": summary["last"],
+                "device": str(device), "compile": bool(compile), "capture": bool(capture),
+                "segments": summary["segments"]}
+
+
+def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
+             eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
+             protocol: str = "paper", loss_robot_margin: int | None = None) -> _Setup:
+    """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
+    checkpoint key is the config + training data (by value: simeval.episodes.digest), and `protocol` for any protocol but the paper's (so the paper's
+    checkpoints keep their names). `loss_robot_margin`: None trains on the full frame; a margin leaves the robot's
+    pixels (masks grown by it) out of the loss where the episodes carry masks (and is then part of the key)."""
+    infos = source.infos
+    tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
+    ranks = episode_ranks(tasks, seeds)
+    k = int(episodes_per_task)
+    if k < 1:
+        raise UserError(f"episodes={k}: expected a whole number >= 1 (the paper uses 10, 20, 40)")
+    require_ranks(tasks, ranks, max(k, eval_episodes[1]), f"training on {k} and evaluating on episodes "
+                                                           f"{eval_episodes[0] + 1}-{eval_episodes[1]}", how_to_get_more)
+    check_eval_context(eval_context, window)  # before training, not after it
+    train_mask = rank_mask(ranks, 0, k)
+    check_every_task_has_windows(infos, train_mask, window, train_cfg.seed, train_cfg.epochs)
+    check_frames_not_upsampled(source, model_cfg.image_size)
+    train_ds = WindowDataset(source, window, train_mask, image_size=model_cfg.image_size, seed=train_cfg.seed,
+                             robot_masks=loss_robot_margin is not None, mask_margin=loss_robot_margin or 0)
+    stats = train_ds.fit_stats()
+    train_ds.stats = stats
+    state_dim, action_dim = len(stats.state_mean), len(stats.action_mean)
+    torch.manual_seed(train_cfg.seed)
+    model = WorldModel(model_cfg, state_dim, action_dim)
+    if model_cfg.pixel_norm != "none":
+        from simeval.measures.dynamics_diversity.prediction import pixel_stats
+
+        model.set_pixel_stats(*pixel_stats(source, train_mask, model_cfg.image_size))
+    model_key = model_cfg.to_dict()
+    if model_cfg.pixel_norm == "none":  # the settings from before pixel_norm existed keep their checkpoints' names
+        model_key = {k: v for k, v in model_key.items() if k not in ("pixel_norm", "pixel_std_floor")}
+    meta = {"version": VERSION, "model": model_key, "train": asdict(train_cfg), "window": asdict(window),
+            "episodes_per_task": k, "data": data_fingerprint([i for i, m in zip(infos, train_mask) if m]),
+            "stats": stats.to_dict(), "state_dim": state_dim, "action_dim": action_dim,
+            "action_space": train_ds.action_space}
+    if protocol != "paper":
+        meta["protocol"] = protocol
+    if train_ds.robot_masks:
+        meta["loss_excludes_robot_grown_by"] = int(loss_robot_margin)
+    meta["content"] = source_digest(source, train_mask, train_ds.robot_masks)
+    checkpoint = None
+    if checkpoint_dir is not None:
+        key = hashlib.sha1(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+        checkpoint = Path(checkpoint_dir) / f"world_model-{key}.pt"
+    return _Setup(k, tasks, ranks, train_mask, train_ds, stats, model, meta, checkpoint)
+
+
+def prediction_videos(model: WorldModel, dataset: WindowDataset, context: int, seed: int = 0,
+                      n_tasks: int | None = None) -> dict[str, np.ndarray]:
+    """{task: open_loop_video(...)} for the first `n_tasks` tasks by name (all when None): each task's first window
+    (its earliest start) of its first episode by seed among the dataset's episodes, a fixed choice, so runs that
+    differ in training data show the same windows. The same `seed` as the evaluation gives its samples."""
+    infos, windows = dataset.source.infos, dataset.windows(0)
+    first: dict[str, tuple[int, int]] = {}  # task -> (episode, start)
+    for e, start in sorted((int(e), int(s)) for e, s in windows):
+        task, held = infos[e].task, first.get(infos[e].task)
+        if held is None or (infos[e].seed, start) < (infos[held[0]].seed, held[1]):
+            first[task] = (e, start)
+    chosen = sorted(first)[:n_tasks] if n_tasks is not None else sorted(first)
+    return {task: open_loop_video(model, dataset[first[task]], context, seed=seed) for task in chosen}
+
+
+def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str | None, episodes: int,
+                        extra: str = "", own_code: str | None = None) -> str:
+    """The command that collects `episodes` per task of the group into `store` (the collector writes where this run
+    reads, not to its own default), or, for a pipeline without a simeval suite, how to import them. `extra`:
+    overrides the collector needs too, e.g. " debug=tiny" (the recording settings it implies must match).
+    `own_code`: for a pipeline whose own code records its episodes (GenSim's checkout, Meta-World), the arguments
+    its collect command needs beyond pipeline= (simeval.pipelines.registry.own_code_args: " pipeline.root=<checkout>"
+    for GenSim's); None for a simeval suite.
+    Episodes of the pipeline already in the store at another frame size than the collector's default make the
+    command say that size too (record.image_size=...), since the collector refuses to mix sizes in one store."""
+    extra += _stored_size_override(store, pipeline, extra)
+    if own_code is not None:
+        return (f"collect them with the pipeline's own code: python src/collect.py pipeline={pipeline}{own_code} "
+                f"task_group={group} episodes={episodes} store={store}{extra}")
+    if not suite:
+        return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
+                "store with src/import_data.py")
+    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+
+    groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
+    into = f" store={store}{extra}"
+    if group in groups or group == "all":
+        return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"
+    return (f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
+            f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
+
+
+def _stored_size_override(store: str | Path, pipeline: str, extra: str) -> str:
+    """` record.image_size=[H,W]` when the store's first episode of `pipeline` was recorded at a size other than
+    conf/collect.yaml's 64x64 and `extra` does not already settle it (a debug overlay or the key itself)."""
+    from simeval.episodes.store import EpisodeStore, read_recording
+
+    if "debug=" in extra or "record.image_size" in extra:
+        return ""
+    try:
+        first = next(iter(EpisodeStore(store).paths(pipeline)), None)
+        size = read_recording(first)["record.image_size"] if first is not None else None
+    except (UserError, OSError):  # a damaged file is reported by the caller's own error
+        return ""
+    return f" 'record.image_size=[{size[0]},{size[1]}]'" if size and list(size) != [64, 64] else ""
+
+
+def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+                 episodes_needed: int = 40, collect_extra: str = "", own_code: str | None = None):
+    """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
+    (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
+    `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
+    makes it anew."""
+    from simeval.episodes.dataset import StoreSource, store_paths_for
+    from simeval.episodes.episode import EpisodeFormatError
+
+    if Path(store).exists() and not Path(store).is_dir():  # collecting "into" it would fail the same way
+        raise UserError(f"store={store}: is a file, not a folder; give the episode store's folder "
+                        "(default outputs/episodes)")
+    try:
+        paths = store_paths_for(store, pipeline, group)
+    except EpisodeFormatError as e:
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, own_code)
+        raise UserError(f"{e}; collecting again moves it aside and makes it anew: {how.removeprefix('collect them: ')}"
+                        ) from None
+    except UserError as e:
+        how = how_to_get_episodes(store, pipeline, group, suite, episodes_needed, collect_extra, own_code)
+        raise UserError(f"{e}; {how}") from None
+    return StoreSource(paths, camera)
+
+
+def episode_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+                   own_code: str | None, episodes_needed: int, debug_overlay: str = "none"):
+    """(store_source's episodes, how_to_get_more(n): the command that collects n per task): what src/diversity.py
+    reads, and tells a user to run when there are too few. `debug_overlay`: the run's debug= choice, which the
+    collect command repeats (its recording settings must match the run's)."""
+    extra = f" debug={debug_overlay}" if debug_overlay != "none" else ""
+    source = store_source(store, pipeline, group, camera, suite, episodes_needed, extra, own_code)
+    return source, lambda n: how_to_get_episodes(store, pipeline, group, suite, n, extra, own_code)
+
+
+def load_model(checkpoint: str | Path, device: str | torch.device | None = "auto") -> tuple[WorldModel, dict]:
+    """A trained model on `device` and the meta (config, stats, data fingerprint) its checkpoint carries. The
+    checkpoint is read onto the CPU and then moved, so one trained on a GPU loads anywhere."""
+    device = resolve_device(device)
+    ck = load_checkpoint(checkpoint)
+    meta = ck["meta"]
+    model = WorldModel(WorldModelConfig.from_dict(meta["model"]), meta["state_dim"], meta["action_dim"])
+    model.load_state_dict(ck["model"])
+    return model.to(device), meta
+
+
+def headline(values: dict) -> dict:
+    """The numbers a logger shows for a run: the paper protocol's eval floats, or the heldout protocol's errors and
+    skill scores (one step, open loop, reconstruction)."""
+    if "prediction" not in values:
+        return {"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}}
+    out = {}
+    for kind, block in values["prediction"]["summary"].items():
+        for name, v in block.items():
+            if isinstance(v, dict):  # a predictor: model, last, mean
+                out.update({f"{kind}/{name}_{k}": x for k, x in v.items() if isinstance(x, float)})
+            elif isinstance(v, float):  # a skill score
+                out[f"{kind}/{name}"] = v
+    if values.get("gate") is not None:  # 1: the numbers read; 0: no reading (the dashboard's filter)
+        out["gate/passes"] = float(values["gate"]["passes"])
+    state = values.get("state") or {}
+    if state.get("gate") is not None:
+        out["state/gate_passes"] = float(state["gate"]["passes"])
+        out.update({f"state/{k}": v for k, v in state["summary"].items() if isinstance(v, float)})
+    return {"heldout": out}
+
+
+def summary_line(values: dict) -> str:
+    """One log line of a run's result (both protocols)."""
+    if "prediction" not in values:
+        e = values["eval"]
+        return (f"eval error {e['image_error']:.2f} ({e['image_error_per_pixel']:.5f} per pixel), state "
+                f"{e['state_error']:.3f}, KL {e['kl_dyn']:.2f}, open-loop {e['open_loop_image_error']:.2f}")
+    p = values["prediction"]["summary"]
+    f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
+    verdict = values.get("gate", {}).get("verdict")  # runs recorded before the gate have none
+    if verdict is not None and verdict != "reads":  # the numbers are no reading of diversity: none in their place
+        return (f"held-out episodes {values['protocol']['evaluated_on']}: pixel reading: {verdict}"
+                + (f"; state reading: {values['state']['line']}" if values.get("state") else ""))
+    ol, one = p["open_loop"], p["one_step"]
+    milli = lambda x: "n/a" if x is None else f"{1e3 * x:.3f}"  # noqa: E731
+    trained = values["protocol"].get("robot_excluded_from_loss")
+    return (f"held-out episodes {values['protocol']['evaluated_on']}: "
+            + ("pixel reading (the gate: the model beats both baselines): " if verdict else "")
+            + "object-focused one-step error (primary, "
+            f"x1e-3 per pixel) {milli(one['model']['object_error_per_pixel'])} (last frame "
+            f"{milli(one['last']['object_error_per_pixel'])}, mean image {milli(one['mean']['object_error_per_pixel'])}"
+            f"{'; robot not trained on' if trained else ''}); open-loop error {f(ol['model']['error'])} (last "
+            f"frame {f(ol['last']['error'])}, mean image {f(ol['mean']['error'])}; skill {f(ol['skill_vs_last'])} / "
+            f"{f(ol['skill_vs_mean'])}), one-step {f(one['model']['error'])} (skill vs last frame "
+            f"{f(one['skill_vs_last'])}), reconstruction {f(p['reconstruction']['model']['error'])}; moving pixels "
+            + (f"({100 * one['moving_share']:.2g}% of kept) one-step {milli(one['model']['moving_error_per_pixel'])} "
+               f"x1e-3 (skill vs last frame {f(one['moving_skill_vs_last'])})" if one.get("moving_share") else "none")
+            + ("" if values["prediction"]["robot_mask"] else "; no robot masks: object-focused = full frame")
+            + (f"; state reading: {values['state']['line']}" if values.get("state") else ""))
+
+
+def ranks_of(value, key: str) -> tuple[int, int] | None:
+    """A config's [first, last] 1-based inclusive episode numbers as 0-based (lo, hi), None for None; anything else
+    is a UserError naming `key`."""
+    if value is None:
+        return None
+    bounds = list(value) if isinstance(value, (list, tuple)) else [value]
+    if len(bounds) != 2 or not all(isinstance(b, int) and not isinstance(b, bool) for b in bounds):
+        raise UserError(f"{key}={value!r}: expected [first, last] episode numbers, e.g. {key}=[1,40]")
+    lo, hi = bounds
+    if not 1 <= lo <= hi:
+        raise UserError(f"{key}={list(value)}: expected [first, last] episode numbers, 1 <= first <= last")
+    return lo - 1, hi
+
+
+@dataclass(frozen=True)
+class DiversityRun:
+    """What one run of src/diversity.py measures, in plain values (conf/diversity.yaml's keys): `world_model` is
+    the preset ({name, model, train, window}), `protocol` the protocol section ({name, steps, horizon, lr, ...}),
+    `evaluation` the eval section ({seed, context, batch_size})."""
+
+    pipeline: str
+    task_group: str
+    camera: str
+    episodes: int
+    seed: int
+    world_model: dict
+    protocol: dict
+    evaluation: dict
+    eval_episodes: tuple[int, int] | None
+    heldout_episodes: tuple[int, int] | None
+
+    @classmethod
+    def from_config(cls, conf: Mapping) -> DiversityRun:
+        """The run conf/diversity.yaml describes (as a plain mapping: the run's resolved config)."""
+        return cls(conf["pipeline"]["name"], conf["task_group"], conf["camera"], int(conf["episodes"]),
+                   int(conf["seed"]), conf["world_model"], conf["protocol"], conf["eval"],
+                   ranks_of(conf["eval_episodes"], "eval_episodes"), ranks_of(conf["heldout_episodes"], "heldout_episodes"))
+
+    @cached_property
+    def configs(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:
+        """The model, training and window configs, every protocol value checked (once; read it before any data is
+        read so a bad value stops there)."""
+        heldout = self.protocol["name"] == "heldout"  # its model settings (pixel_norm) over the preset's
+        model_cfg = WorldModelConfig.from_dict({**self.world_model["model"],
+                                                **((self.protocol.get("model") or {}) if heldout else {})})
+        train_cfg = TrainConfig.from_dict({**self.world_model["train"], "seed": int(self.seed)})
+        window = WindowSpec(**self.world_model["window"])
+        check_eval_context(int(self.evaluation["context"]), window)
+        if self.protocol["name"] == "heldout":
+            check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
+                                   self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)
+            GateConfig.from_dict(self.protocol.get("gate"))
+            if self.protocol.get("state_model") is not None:
+                StateModelConfig.from_dict(self.protocol["state_model"])
+        return model_cfg, train_cfg, window
+
+    @property
+    def episodes_needed(self) -> int:
+        """Episodes per task the run reads: its training ones and its evaluated ones (protocol=paper's held-out
+        episodes are optional, so they do not count). Checks every setting first (configs)."""
+        _ = self.configs
+        return max(int(self.episodes), (self.eval_episodes or (0, 40))[1])
+
+    def describe(self, device, values: dict) -> str:
+        """The run's one-line result for the log."""
+        return (f"{self.pipeline}/{self.task_group} episodes={self.episodes} [preset {self.world_model['name']}, "
+                f"device {device}, protocol={self.protocol['name']}]: {summary_line(values)}")
+
+    @property
+    def mask_margin(self) -> int:  # protocol=paper leaves it null: no robot masks in its score or loss
+        return self.protocol.get("mask_margin", 0) if self.protocol["name"] == "heldout" else 0
+
+    @property
+    def exclude_robot(self) -> bool:
+        return self.protocol.get("exclude_robot_from_loss", False) if self.protocol["name"] == "heldout" else False
+
+    def identity(self, source) -> dict:
+        """What the numbers are of (simeval.results.make_identity); the paper protocol's is what it always was, so
+        earlier runs still match theirs."""
+        ident = dict(pipeline=self.pipeline, task_group=self.task_group, episodes=int(self.episodes),
+                     preset=self.world_model["name"], camera=self.camera, episodes_sha=data_fingerprint(source.infos),
+                     settings={"world_model": self.world_model, "eval": self.evaluation,
+                               "eval_episodes": None if self.eval_episodes is None else
+                               [self.eval_episodes[0] + 1, self.eval_episodes[1]]})
+        if self.protocol["name"] != "paper":
+            ident.update(protocol=self.protocol["name"], steps=self.protocol["steps"])
+            ident["settings"]["protocol"] = self.protocol
+        return ident
+
+    def fit(self, source, *, checkpoint_dir, logger, device, compile: bool, videos: int, video_dir: str,
+            progress: bool, how_to_get_more=None, capture: bool = False) -> dict:
+        """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
+        model_cfg, train_cfg, window = self.configs
+        paper = self.protocol["name"] == "paper"
+        values = fit_and_evaluate(
+            source, episodes_per_task=int(self.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
+            eval_episodes=self.eval_episodes, protocol=self.protocol["name"], steps=self.protocol["steps"],
+            horizon=self.protocol["horizon"], lr=self.protocol["lr"], mask_margin=self.mask_margin,
+            exclude_robot_from_loss=self.exclude_robot, heldout_episodes=self.heldout_episodes if paper else None,
+            eval_seed=int(self.evaluation["seed"]), eval_context=int(self.evaluation["context"]),
+            eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
+            log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
+            compile=compile, capture=capture, how_to_get_more=how_to_get_more,
+            gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
+            state_model=None if paper or self.protocol.get("state_model") is None else
+            StateModelConfig.from_dict(self.protocol["state_model"]))
+        for task, video in values["videos"].items():
+            logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
+                f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "
+                "frames (red separators: imagined)"))
+        return values

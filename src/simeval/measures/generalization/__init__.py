@@ -1,0 +1,3 @@
+"""Generalization (paper Sec. 4.3, Table 5): `run` (train a Diffusion Policy on a task group, roll it out on seen,
+varied and unseen tasks), `data` (its training windows), `rollouts` (closed-loop evaluation), `random_baseline`
+(uniform random actions on the same splits), `table5` (the table and its figure)."""

@@ -1,0 +1,2 @@
+"""What runs the models: the one training loop (`trainer`), checkpoints, devices, preemption on a cluster and CUDA
+graph capture."""
