@@ -78,7 +78,7 @@ ifneq ($(HAVE_TASK_LISTS),)
 	  else echo "outputs/table3/tables/$$f: differs from the committed outputs/tables/$$f (diff them; make report-table3 OVERWRITE=1 replaces it)"; fi; done
 else
 	@echo "note: no task lists of the pipelines (GENSIM_DESCS=, ROBOGEN_TASKS= or ROBOGEN_ROOT=, BBSEA_TASKS= or BBSEA_ROOT=; ../shared/data beside the checkout has the first two), so Table 3 is built on simeval's suites' own task descriptions: outputs/table3_suites/tables/table3.*"
-	$(PY) experiments/paper.py "stages=[table3]" out=outputs/table3_suites
+	$(PY) src/paper.py "stages=[table3]" out=outputs/table3_suites
 	@cat outputs/table3_suites/tables/table3.md
 endif
 
@@ -171,12 +171,12 @@ report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result
 	$(PY) src/report.py report=table4_heldout $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
 controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png), 12 drawn at random for both readings (outputs/tables/random_controls.*; resumable)
-	$(PY) experiments/dynamics_controls.py dynamics --episodes 10 40
-	$(PY) experiments/dynamics_controls.py visual --episodes 10
-	$(PY) experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30
-	$(PY) experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30
-	$(PY) experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30
-	$(PY) experiments/random_controls.py
+	$(PY) src/controls.py dynamics --episodes 10 40
+	$(PY) src/controls.py visual --episodes 10
+	$(PY) src/controls.py dose --episodes 10 --heldout 11 30
+	$(PY) src/controls.py dose_drawer --episodes 10 --heldout 11 30
+	$(PY) src/controls.py dose_push --episodes 10 --heldout 11 30
+	$(PY) src/controls.py random
 
 .PHONY: control-gensim-own
 control-gensim-own: gensim-env ## the control on GenSim's own episodes (a 4-task generalist vs 1-task specialists): collects 20 episodes of the first four stacking tasks from the checkout (GENSIM_ROOT, else ../shared/gensim beside), then 3 seeds: outputs/tables/control_gensim_own.*, outputs/figures/control_gensim_own.png
@@ -212,10 +212,10 @@ paper: setup ## every measurement at PROFILE=quick|cpu|paper, tables + figures u
 	@if [ -n "$(HAVE_TASK_LISTS)" ]; then \
 	  $(MAKE) --no-print-directory table3; \
 	else echo "note: no GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT=, so Table 3 is built on the suites' task descriptions only (README, Table 3)"; fi
-	$(PY) experiments/paper.py profile=$(PROFILE) launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
+	$(PY) src/paper.py profile=$(PROFILE) launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
 
 evaluate: setup ## one pipeline on every aspect at PROFILE (default quick): make evaluate PIPELINE=bbsea
-	$(PY) experiments/paper.py profile=$(PROFILE) "pipelines=[$(PIPELINE)]" launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
+	$(PY) src/paper.py profile=$(PROFILE) "pipelines=[$(PIPELINE)]" launcher=$(LAUNCHER) "sbatch_args='$(SBATCH_ARGS)'"
 
 # The HTML report of a run or sweep folder: RUNS=outputs/multiruns/quality/<time> (default: every run under
 # outputs/runs). Reads result.json files, outputs/tables and outputs/figures only; writes $(RUNS)/report/index.html.

@@ -3,7 +3,7 @@
     python experiments/gensim_own_control.py                          # stacking: its first four stored tasks by name
     python experiments/gensim_own_control.py --seeds 0 1 2 --per-task 4 --heldout 17 20
 
-The synthetic and suite controls (experiments/dynamics_controls.py) validated the protocol on data simeval makes;
+The synthetic and suite controls (src/controls.py) validated the protocol on data simeval makes;
 this one runs on episodes recorded by GenSim's own code (`src/collect.py pipeline=gensim_own`, 20 per task). Four
 tasks of a group, the first four stored by name. `generalist`: one world model trained on episodes 1..k of each of
 the four tasks (4k episodes). `specialists`: one model per task, trained on episodes 1..4k of that task alone: the

@@ -61,8 +61,6 @@ import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
-
 from simeval.cli import OneLineParser, require_whole_keys
 from simeval.errors import UserError
 from simeval.runtime.device import describe_device

@@ -1,4 +1,4 @@
-"""experiments/dynamics_controls.py at tiny sizes: the dose-response control collects a real suite task at four
+"""src/controls.py at tiny sizes: the dose-response control collects a real suite task at four
 pose-range levels, trains and scores every level on held-out episodes, and its verdict's numbers are the ratios of
 the run records' per-episode sums (computed here by hand); reruns reuse the runs, other settings are refused."""
 
@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "dynamics_controls.py"
+SCRIPT = ROOT / "src" / "controls.py"
 TINY_DOSE = ["dose", "--preset", "tiny", "--steps", "6", "--seeds", "0", "--episodes", "2", "--heldout", "3", "4",
              "--threads", "1"]
 
@@ -65,7 +64,7 @@ def test_dose_control_end_to_end_and_its_verdict_by_hand(tmp_path):
     refused = control("dose_push", "--replot", out=tmp_path)
     assert refused.returncode == 2 and refused.stderr.strip().splitlines()[-1] == (
         f"error: --replot: no {tmp_path / 'tables' / 'control_dose_push.json'}; run `python "
-        f"experiments/dynamics_controls.py dose_push --out {tmp_path}` first")
+        f"src/controls.py dose_push --out {tmp_path}` first")
     edited = json.loads((tmp_path / "tables" / "control_dose.json").read_text())
     edited["rows"] = []  # valid JSON, edited by hand
     (tmp_path / "tables" / "control_dose.json").write_text(json.dumps(edited))
@@ -115,7 +114,8 @@ def _record(level: str, seed: int, moving: list[tuple[float, float]]) -> dict:
 
 
 def test_a_dose_judged_by_moving_pixels_reads_their_ratio_of_sums_and_no_motion_passes_nothing():
-    dc = load_script(SCRIPT)  # a script, not a package: loaded from its file
+    from simeval.measures.dynamics_diversity.controls import fixed as dc
+
     levels = tuple(dc.DOSES["dose_drawer"].levels)
     assert dc.DOSES["dose_drawer"].metric == "one_step_moving" and dc.DOSES["dose"].metric == "one_step_object"
     # per level, two seeds x two held-out episodes; the error per moving pixel and channel rises with the level
@@ -137,7 +137,7 @@ def test_moving_share_by_margin_counts_changed_pixels_outside_the_grown_robot_ma
     """A dose with no reading says whether the motion was there but inside the margin around the robot: counted
     here on hand-made frames (a 1-pixel block moving one pixel right beside a 1-pixel robot, and a far one)."""
     import h5py
-    from dynamics_controls import DOSES, moving_share_by_margin
+    from simeval.measures.dynamics_diversity.controls.fixed import DOSES, moving_share_by_margin
 
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite

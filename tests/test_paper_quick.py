@@ -1,4 +1,4 @@
-"""`make evaluate PIPELINE=robogen` at the quick profile (experiments/paper.py): every stage runs as a user would
+"""`make evaluate PIPELINE=robogen` at the quick profile (src/paper.py): every stage runs as a user would
 type it, the tables and the HTML report are rebuilt from the runs' result.json files, and a rerun resumes."""
 
 import csv
@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_quick_profile_runs_one_pipeline_end_to_end_and_resumes(tmp_path):
     out = tmp_path / "paper"
-    cmd = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+    cmd = [sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", "pipelines=[robogen]",
            f"out={out}"]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
@@ -50,7 +50,7 @@ def _alive(pid: int) -> bool:
 
 
 def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
-    """kill -9 of experiments/paper.py must not leave its running stage writing beside the rerun that resumes it."""
+    """kill -9 of src/paper.py must not leave its running stage writing beside the rerun that resumes it."""
     import os
     import signal
     import time
@@ -60,7 +60,7 @@ def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
 
         pytest.skip("PR_SET_PDEATHSIG is Linux's")
     # collecting a GenSim group takes 8-30 s, so a stage that outlives paper.py is caught in the act
-    p = subprocess.Popen([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick",
+    p = subprocess.Popen([sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick",
                           "pipelines=[gensim]", "stages=[collect]", f"out={tmp_path / 'paper'}"],
                          cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline, kids = time.time() + 60, []
@@ -77,7 +77,7 @@ def test_a_stage_stops_when_paper_py_is_killed(tmp_path):
 
 
 def test_pipelines_without_a_suite_only_are_one_line_not_a_run_that_does_nothing(tmp_path):
-    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[custom]",
+    p = subprocess.run([sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", "pipelines=[custom]",
                         f"out={tmp_path / 'out'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
     assert p.stderr.strip().splitlines() == [
@@ -100,7 +100,7 @@ def test_the_slurm_launcher_without_a_reachable_controller_is_one_line(tmp_path)
                                     "source' >&2\nexit 1\n")
         (bin_dir / tool).chmod(0o755)
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
-    p = subprocess.run([sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+    p = subprocess.run([sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", "pipelines=[robogen]",
                         "launcher=slurm", f"out={tmp_path / 'out'}"], cwd=ROOT, env=env,
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and p.stderr.splitlines() == [

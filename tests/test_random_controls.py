@@ -84,11 +84,9 @@ def _record(draw, group, reading, ratio, passes=True):
 
 def test_the_controls_table_applies_its_written_criterion(tmp_path):
     import json
-    from pathlib import Path
 
-    from helpers import load_script
+    from simeval.measures.dynamics_diversity.controls import random_sweep as rc
 
-    rc = load_script(Path(__file__).resolve().parents[1] / "experiments" / "random_controls.py")
     runs = tmp_path / "controls" / "random" / "runs"
     runs.mkdir(parents=True)
     recs = [_record(0, "shared", "state", 0.5), _record(0, "varied", "state", 0.8), _record(0, "looks", "state", 0.9),

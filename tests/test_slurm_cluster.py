@@ -361,7 +361,7 @@ def test_the_paper_chain_as_dependent_jobs_survives_a_cancelled_job_and_ends_wit
     and policy started only after its group's collection ended, the report after everything; a job cancelled
     mid-run ends the run with one line naming it, and the same command again finishes what is left and gives the
     tables of the run made here, stage after stage."""
-    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", "pipelines=[robogen]",
+    common = [sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", "pipelines=[robogen]",
               "stages=[collect,table4,table5,report]"]
     local = subprocess.run([*common, f"out={tmp_path / 'local'}"], cwd=ROOT, capture_output=True, text=True,
                            timeout=900, env={k: v for k, v in slurm.items() if k != "SLURM_CONF"})

@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--pipeline", default="robogen")
     ap.add_argument("--stages", default="collect,table4,table5,report")
     a = ap.parse_args()
-    common = [sys.executable, str(ROOT / "experiments" / "paper.py"), "profile=quick", f"pipelines=[{a.pipeline}]",
+    common = [sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", f"pipelines=[{a.pipeline}]",
               f"stages=[{a.stages}]"]
     result = {"benchmark": "slurm_chain", "machine": machine(), "load_average_at_start": os.getloadavg(),
               "profile": "quick", "pipeline": a.pipeline, "stages": a.stages.split(",")}

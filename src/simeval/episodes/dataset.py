@@ -30,7 +30,6 @@ Episodes of different action-space kinds (or dimensions) are refused: a model's 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -420,7 +419,3 @@ def grow_masks(masks: np.ndarray, margin: int) -> np.ndarray:
 
     x = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
     return (F.max_pool2d(x, 2 * margin + 1, stride=1, padding=margin)[:, 0] > 0).numpy()
-
-
-def infos_to_json(infos: Sequence[EpisodeInfo]) -> str:
-    return json.dumps([{"task": i.task, "seed": i.seed, "group": i.group, "n_rows": i.n_rows} for i in infos])

@@ -112,10 +112,6 @@ def symlog(x: torch.Tensor) -> torch.Tensor:
     return torch.sign(x) * torch.log1p(x.abs())
 
 
-def symexp(x: torch.Tensor) -> torch.Tensor:
-    return torch.sign(x) * torch.expm1(x.abs())
-
-
 def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
     """log((1 - u) softmax(logits) + u / K): normalised log-probabilities with every class at least u / K."""
     probs = F.softmax(logits, -1)

@@ -29,7 +29,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -326,12 +326,3 @@ def evaluate(model, dataset, seed: int = 0, batch_size: int = 16, context: int |
         result["per_task"] = {t: summarise(s) for t, s in sorted(sums.items())}
     model.train()
     return result
-
-
-def throughput_note(summary: dict) -> dict:
-    s = max(summary["seconds"], 1e-9)
-    return {"step_s": s / max(summary["steps"], 1), "frames_per_s": summary["frames"] / s}
-
-
-def config_dict(obj) -> dict:
-    return asdict(obj)

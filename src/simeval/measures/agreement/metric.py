@@ -79,11 +79,6 @@ def r_over_mae(h: Sequence[float], m: Sequence[float]) -> float | None:
     return r / e
 
 
-def average_ranks(x: np.ndarray) -> np.ndarray:
-    """1-based ranks, ties sharing their average rank."""
-    return stats.rankdata(np.asarray(x, dtype=float), method="average")
-
-
 def spearman(h: Sequence[float], m: Sequence[float]) -> float | None:
     return _correlation(stats.spearmanr, h, m)
 

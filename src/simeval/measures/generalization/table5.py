@@ -108,12 +108,9 @@ def build(records: list[dict], policy: str | None = None) -> list[dict]:
                 cell["eval_progress"] = (None if progress is None or v.get("mean_progress") is None
                                          else progress + v["mean_progress"] * v["success"]["n"])
     if policy is not None and not cells:
-        from simeval.cli import CONF_DIR
-
         presets = sorted({str(r["identity"].get("policy")) for r in records})
-        known = sorted(p.stem for p in (CONF_DIR / "policy").glob("*.yaml"))
-        raise UserError(f"report.policy={policy}: no {METRIC} run of that preset (the runs' presets: {', '.join(presets)}; "
-                        f"presets: {', '.join(known)})")
+        raise UserError(f"report.policy={policy}: no {METRIC} run of that preset (the runs' presets: "
+                        f"{', '.join(presets)})")
     ran = {(p, g) for p, g, _ in cells}
     keys = [(p, g, pr) for p, g in [*PAPER, *sorted(ran - set(PAPER))]
             for pr in (sorted((k[2] for k in cells if k[:2] == (p, g)), key=str) or [None])]

@@ -80,10 +80,6 @@ def _identity(rec: dict) -> dict:
     return ident
 
 
-def _newer(a: dict, b: dict) -> bool:
-    return (a.get("created") or "", a.get("path") or "") > (b.get("created") or "", b.get("path") or "")
-
-
 def select_cells(records: Iterable[dict]) -> tuple[dict[tuple, list[tuple[dict, dict]]], dict[tuple, dict]]:
     """({(pipeline, group, embedding): [(record, group values), one per seed]}, {(pipeline, embedding): newest
     missing record}). Raises UserError when two records claim a cell with different settings."""

@@ -1,10 +1,10 @@
 """Dynamics-diversity controls drawn at random (simeval.measures.dynamics_diversity.controls.random_draws), for both readings: the pixel world
 model of the heldout protocol and the state-space model (simeval.measures.dynamics_diversity.state_reading).
 
-    python experiments/random_controls.py                        # every draw, both families, both readings
-    python experiments/random_controls.py --readings state       # the state reading alone (a minute)
-    python experiments/random_controls.py --draws 0 1 --jobs 2   # some draws, two runs at a time
-    python experiments/random_controls.py --replot               # table and figure again from the saved runs
+    python src/controls.py random                        # every draw, both families, both readings
+    python src/controls.py random --readings state       # the state reading alone (a minute)
+    python src/controls.py random --draws 0 1 --jobs 2   # some draws, two runs at a time
+    python src/controls.py random --replot               # table and figure again from the saved runs
 
 A draw (its seed in DRAW_SEEDS, fixed before any was run) fixes 1-4 objects of 2-12% of the frame, colours,
 background, texture, camera scale, action kind (force, velocity, pose) and the dynamics knobs. Per draw three groups
@@ -36,16 +36,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dynamics_controls import fail, refuse_to_replace_committed  # noqa: E402
-
-from simeval.cli import OneLineParser  # noqa: E402
+from simeval.cli import OneLineParser
+from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed
 
 DRAW_SEEDS = tuple(range(12))  # fixed before any draw was run; never drop one
 GROUPS = {"shared": ("shared", "dynamics"), "varied": ("varied", "dynamics"), "looks": ("varied", "visual")}
@@ -59,15 +55,13 @@ STATE_NORMALISER = "last_state"
 N_TASKS, EPISODES, N_ACTIONS, HELDOUT = 4, 50, 40, (41, 50)
 
 
-def protocol() -> dict:
-    import yaml
-
-    return yaml.safe_load((ROOT / "conf" / "protocol" / "heldout.yaml").read_text())
+def protocol(conf_dir: Path) -> dict:
+    return preset(conf_dir, "protocol", "heldout")
 
 
 def settings(args) -> dict:
     """What a saved run's numbers depend on besides its draw, group, reading and seed."""
-    return {"preset": args.preset, "episodes": args.episodes, "protocol": protocol(), "tasks": N_TASKS,
+    return {"preset": args.preset, "episodes": args.episodes, "protocol": protocol(args.conf_dir), "tasks": N_TASKS,
             "actions": N_ACTIONS, "heldout": list(HELDOUT)}
 
 
@@ -95,7 +89,6 @@ def run_one(job: dict) -> dict:
     """One draw x group x reading (x seed for pixels): its record (the per-episode sums the table needs)."""
     import numpy as np
     import torch
-    import yaml
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.measures.dynamics_diversity.run import fit_and_evaluate
@@ -106,7 +99,7 @@ def run_one(job: dict) -> dict:
 
     torch.set_num_threads(1)
     p = job["settings"]["protocol"]
-    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{job['settings']['preset']}.yaml").read_text())
+    wm = job["world_model"]
     k = job["settings"]["episodes"]
     started = time.perf_counter()
     gate_cfg = GateConfig.from_dict(p.get("gate"))
@@ -162,7 +155,8 @@ def jobs_for(args) -> list[dict]:
                     path = runs / f"draw{draw:02d}_{group}_{reading}_s{seed}.json"
                     jobs.append({"draw": draw, "group": group, "reading": reading, "seed": seed, "path": str(path),
                                  "settings": settings(args),
-                                 "checkpoints": str(args.out / "checkpoints" / "random_controls")})
+                                 "checkpoints": str(args.out / "checkpoints" / "random_controls"),
+                                 "world_model": preset(args.conf_dir, "world_model", args.preset)})
     return jobs
 
 
@@ -256,7 +250,7 @@ def markdown(table: dict) -> str:
     lines = ["# Random dynamics-diversity controls", "",
              "Per family and reading: draws, how many read the right order, how many were gated (no reading), how "
              "many read no order, how many read the wrong order (must be 0). Built by "
-             "`python experiments/random_controls.py` (criterion in its docstring).", "",
+             "`python src/controls.py random` (criterion in its docstring).", "",
              "| family / reading | draws | right | gated | no order | wrong |", "|---|---|---|---|---|---|"]
     for name, c in sorted(table["counts"].items()):
         lines.append(f"| {name} | {c['draws']} | {c['right']} | {c['gated']} | {c['no order']} | {c['wrong']} |")
@@ -303,7 +297,7 @@ def plot(table: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> None:
+def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draws", type=int, nargs="+", default=list(DRAW_SEEDS))
     ap.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES))
@@ -312,11 +306,12 @@ def main(argv=None) -> None:
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--preset", default="cpu")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs")
-    ap.add_argument("--tables", type=Path, default=ROOT / "outputs")
+    ap.add_argument("--out", type=Path, default=Path("outputs"))
+    ap.add_argument("--tables", type=Path, default=Path("outputs"))
     ap.add_argument("--replot", action="store_true", help="table and figure from the saved runs only")
     ap.add_argument("--overwrite", action="store_true", help="replace committed tables and figures")
     args = ap.parse_args(argv)
+    args.conf_dir = conf_dir
     bad = sorted(set(args.draws) - set(DRAW_SEEDS))
     if bad:
         fail(f"error: --draws {' '.join(map(str, bad))}: not among the fixed draw seeds {DRAW_SEEDS[0]}.."
@@ -335,7 +330,3 @@ def main(argv=None) -> None:
     plot(table, figure)
     print(text)
     print(f"wrote {stem}.md, {stem}.json, {figure}")
-
-
-if __name__ == "__main__":
-    main()

@@ -3,9 +3,9 @@ one-disk control (simeval.measures.dynamics_diversity.controls.random_draws.one_
 episodes 41-50 under the held-out protocol (conf/protocol/heldout.yaml: 1,000 steps, lr 1e-3, the gate) at the cpu
 preset, with the pixels raw (`pixel_norm: none`, the old default) or standardised (the protocol's now).
 
-    python experiments/plateau_diagnosis.py                  # the five rows of the README's table (~20 min, one core)
-    python experiments/plateau_diagnosis.py --rows 2 4        # some rows
-    python experiments/plateau_diagnosis.py --replot          # the table again from the saved runs
+    python src/controls.py plateau                  # the five rows of the README's table (~20 min, one core)
+    python src/controls.py plateau --rows 2 4        # some rows
+    python src/controls.py plateau --replot          # the table again from the saved runs
 
 Per row: the image loss and KL every 50 steps; where the image loss left the plateau (the first 50-step block whose
 mean is below PLATEAU_EXIT of the plateau's level, the mean of steps 50-150, where the model draws the mean image);
@@ -23,11 +23,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from dynamics_controls import fail, refuse_to_replace_committed
-
 from simeval.cli import OneLineParser
+from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed
 
-ROOT = Path(__file__).resolve().parents[1]
 FAINT = (170, 110, 100)  # a low-contrast disk on the grey background (128, 128, 128)
 # (colour, training seed, pixel_norm): the README's rows, in its order
 ROWS = ((None, 0, "none"), (None, 1, "none"), (FAINT, 0, "none"), (None, 1, "standardise"), (FAINT, 0, "standardise"))
@@ -40,10 +38,9 @@ def describe(row: int) -> str:
     return f"{'faint' if colour else 'red'} disk, seed {seed}, pixel_norm: {norm}"
 
 
-def run_row(row: int, checkpoints: Path) -> dict:
+def run_row(row: int, checkpoints: Path, conf_dir: Path) -> dict:
     import numpy as np
     import torch
-    import yaml
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.measures.dynamics_diversity.run import fit_and_evaluate
@@ -57,8 +54,8 @@ def run_row(row: int, checkpoints: Path) -> dict:
     draw = one_disk_control()
     if colour is not None:
         draw = replace(draw, look=Look((colour,), draw.look.background, draw.look.texture))
-    p = yaml.safe_load((ROOT / "conf" / "protocol" / "heldout.yaml").read_text())
-    wm = yaml.safe_load((ROOT / "conf" / "world_model" / "cpu.yaml").read_text())
+    p = preset(conf_dir, "protocol", "heldout")
+    wm = preset(conf_dir, "world_model", "cpu")
     src = make_control_group(draw, "varied", size=wm["model"]["image_size"])
     curve: dict[int, list] = {}
     started = time.perf_counter()
@@ -98,7 +95,7 @@ def plateau_exit(curve: dict[str, list], steps: int) -> str:
 
 def markdown(records: list[dict]) -> str:
     lines = ["# The one-disk control: where the world model leaves the mean-image plateau", "",
-             "Built by `python experiments/plateau_diagnosis.py` (its docstring says how each column is read). Varied "
+             "Built by `python src/controls.py plateau` (its docstring says how each column is read). Varied "
              "group of `one_disk_control()`, 10 training episodes, held-out episodes 41-50, cpu preset, 1,000 steps, "
              "lr 1e-3.", "",
              "| row | image loss | KL on the plateau (steps 50-150) | reconstruction (mean image) | one-step skill vs "
@@ -114,11 +111,11 @@ def markdown(records: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
+def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rows", type=int, nargs="+", default=list(range(len(ROWS))))
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs")
-    ap.add_argument("--tables", type=Path, default=ROOT / "outputs")
+    ap.add_argument("--out", type=Path, default=Path("outputs"))
+    ap.add_argument("--tables", type=Path, default=Path("outputs"))
     ap.add_argument("--replot", action="store_true")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
@@ -132,9 +129,7 @@ def main(argv=None) -> None:
             path = runs / f"row{row}.json"
             if path.exists():
                 continue
-            # a folder per row: a checkpoint's key holds the config and the episodes' list, not their pixels, so the
-            # red and the faint disk at the same settings would share one
-            record = run_row(row, args.out / "checkpoints" / "plateau" / f"row{row}")
+            record = run_row(row, args.out / "checkpoints" / "plateau" / f"row{row}", conf_dir)
             path.write_text(json.dumps(record, indent=1))
             print(f"{record['describe']}: {plateau_exit(record['curve'], record['steps'])}; reconstruction "
                   f"{record['reconstruction']:.2f} ({record['reconstruction_mean_image']:.2f}); {record['gate']} "
@@ -148,7 +143,3 @@ def main(argv=None) -> None:
     stem.with_suffix(".md").write_text(text)
     stem.with_suffix(".json").write_text(data)
     print(text)
-
-
-if __name__ == "__main__":
-    main()

@@ -1,11 +1,11 @@
 """Validity controls of the heldout dynamics-diversity protocol, on data whose answer is known, at the `cpu` preset.
 
-    python experiments/dynamics_controls.py dynamics            # physics shared vs varied, identical visuals
-    python experiments/dynamics_controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
-    python experiments/dynamics_controls.py visual --episodes 10   # identical physics, the robot's look varied
-    python experiments/dynamics_controls.py dose --episodes 10 --heldout 11 30   # 4 levels of a real task's pose range
-    python experiments/dynamics_controls.py dose_drawer --episodes 10 --heldout 11 30   # 4 drawer-opening noises
-    python experiments/dynamics_controls.py dose_push --episodes 10 --heldout 11 30   # 4 friction ranges of a push
+    python src/controls.py dynamics            # physics shared vs varied, identical visuals
+    python src/controls.py dynamics --seeds 0 1 2 --episodes 10 20 40 --steps 2000
+    python src/controls.py visual --episodes 10   # identical physics, the robot's look varied
+    python src/controls.py dose --episodes 10 --heldout 11 30   # 4 levels of a real task's pose range
+    python src/controls.py dose_drawer --episodes 10 --heldout 11 30   # 4 drawer-opening noises
+    python src/controls.py dose_push --episodes 10 --heldout 11 30   # 4 friction ranges of a push
 
 Each run (condition x training-episode count x seed) is simeval.measures.dynamics_diversity.run.fit_and_evaluate with
 protocol="heldout": trained on episodes 1..k of every task for the same `--steps` gradient steps, scored on
@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -58,8 +57,8 @@ from functools import partial
 from pathlib import Path
 
 from simeval.cli import OneLineParser
+from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed, tracks_any_in
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -163,38 +162,8 @@ def run_settings(args, has_robot_masks: bool) -> dict:
     return settings
 
 
-def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool) -> None:
-    """A committed result is replaced only when asked (--overwrite): a rebuild that gives the same bytes is fine,
-    another one stops with one line naming the file."""
-    import subprocess
-
-    for path, data in zip(paths, new_bytes):
-        if overwrite or not path.exists() or path.read_bytes() == data:
-            continue
-        tracked = subprocess.run(["git", "ls-files", "--error-unmatch", str(path)], cwd=ROOT,
-                                 capture_output=True).returncode == 0
-        if tracked:
-            fail(f"error: {path} is a committed result and this run would change it; write elsewhere "
-                             "with --out DIR, or replace it with --overwrite")
-
-
-def fail(message: str) -> None:
-    """A user error: one line on stderr, exit status 2."""
-    print(message, file=sys.stderr)
-    sys.exit(2)
-
-
-def _committed(folder: Path) -> bool:
-    """Whether git tracks any file in `folder` (a control's committed run records)."""
-    import subprocess
-
-    out = subprocess.run(["git", "ls-files", str(folder)], cwd=ROOT, capture_output=True, text=True)
-    return out.returncode == 0 and bool(out.stdout.strip())
-
-
 def run_all(args) -> list[dict]:
     import torch
-    import yaml
 
     from simeval.episodes.dataset import WindowSpec
     from simeval.measures.dynamics_diversity.run import fit_and_evaluate
@@ -203,7 +172,7 @@ def run_all(args) -> list[dict]:
     from simeval.results import atomic_write_text
 
     torch.set_num_threads(args.threads)
-    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{args.preset}.yaml").read_text())
+    wm = preset(args.conf_dir, "world_model", args.preset)
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     runs_dir = args.out / "controls" / args.control / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
@@ -221,7 +190,7 @@ def run_all(args) -> list[dict]:
 
     settings = run_settings(args, ROBOT_MASKS[args.control])
     window = WindowSpec(**{**wm["window"], **dict(DOSES[args.control].window if args.control in DOSES else ())})
-    if args.reevaluate and not args.overwrite and _committed(runs_dir):  # before any record is rewritten
+    if args.reevaluate and not args.overwrite and tracks_any_in(runs_dir):  # before any record is rewritten
         fail(f"error: {runs_dir} holds committed runs; --reevaluate rewrites them: add --overwrite, or write "
              "elsewhere with --out DIR")
     for seed in args.seeds:
@@ -240,7 +209,7 @@ def run_all(args) -> list[dict]:
                         continue
                 if args.conditions and condition not in args.conditions:
                     continue
-                if not path.exists() and not args.overwrite and _committed(runs_dir):  # before training, not after
+                if not path.exists() and not args.overwrite and tracks_any_in(runs_dir):  # before training, not after
                     fail(f"error: {runs_dir} holds committed runs and {path.name} is not among them; "
                                      "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
@@ -478,8 +447,8 @@ def replot(control: str, out: Path, overwrite: bool) -> Path:
     try:
         result = json.loads(table.read_text())
     except FileNotFoundError:
-        where = "" if out.resolve() == (ROOT / "outputs").resolve() else f" --out {out}"
-        fail(f"error: --replot: no {table}; run `python experiments/dynamics_controls.py {control}{where}` first")
+        where = "" if out.resolve() == Path("outputs").resolve() else f" --out {out}"
+        fail(f"error: --replot: no {table}; run `python src/controls.py {control}{where}` first")
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         fail(f"error: --replot: {table} is not JSON ({e})")
     needed = ("control", "preset", "steps", "seeds", "episodes", "heldout", "rows", "verdict")
@@ -499,9 +468,7 @@ def replot(control: str, out: Path, overwrite: bool) -> Path:
     return figure
 
 
-def main(argv: list[str] | None = None) -> None:
-    import yaml
-
+def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
     ap = OneLineParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("control", choices=sorted(CONDITIONS))
@@ -509,7 +476,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
     ap.add_argument("--episodes", type=int, nargs="+", default=[10, 20, 40], help="training episodes per task")
     ap.add_argument("--heldout", type=int, nargs=2, default=[41, 50], help="held-out episodes (1-based, inclusive)")
-    protocol = yaml.safe_load((ROOT / "conf" / "protocol" / "heldout.yaml").read_text())
+    protocol = preset(conf_dir, "protocol", "heldout")
     ap.add_argument("--steps", type=int, default=protocol["steps"], help="gradient steps for every run")
     ap.add_argument("--lr", type=float, default=protocol["lr"], help="learning rate for every run")
     ap.add_argument("--context", type=int, default=5)
@@ -524,7 +491,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")
     ap.add_argument("--data-seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs", help="runs under OUT/controls/<control>/runs, "
+    ap.add_argument("--out", type=Path, default=Path("outputs"), help="runs under OUT/controls/<control>/runs, "
                     "checkpoints under OUT/checkpoints/controls, tables and figures under OUT/tables, OUT/figures")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace committed tables/figures that this run would change (default: refuse)")
@@ -534,20 +501,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--replot", action="store_true",
                     help="only draw the figure again from OUT/tables/control_<control>.json (no runs, no episodes)")
     args = ap.parse_args(argv)
+    args.conf_dir = conf_dir
     if args.replot:
         print("wrote", replot(args.control, args.out, args.overwrite))
         return
     if max(args.episodes) >= args.heldout[0]:
         fail(f"error: --episodes {max(args.episodes)} would train on held-out episodes from "
                          f"{args.heldout[0]}; use --heldout past it")
-    from simeval.errors import UserError
     from simeval.measures.dynamics_diversity.table4_heldout import build, write
     from simeval.results import dumps_strict
 
-    try:
-        records = run_all(args)
-    except UserError as e:  # e.g. --reevaluate where a checkpoint is gone: one line, exit 2
-        fail(f"error: {e}")
+    records = run_all(args)  # a UserError (e.g. --reevaluate where a checkpoint is gone): one line, exit 2
     wanted = {(c, k, s) for c in CONDITIONS[args.control] for k in args.episodes for s in args.seeds}
     have = {(r["identity"]["task_group"], r["identity"]["episodes"], r["identity"]["seed"]) for r in records}
     if wanted - have:
@@ -590,7 +554,3 @@ def main(argv: list[str] | None = None) -> None:
             shutil.copyfile(m, t)
     print(dumps_strict(result["verdict"], indent=1))
     print("wrote", ", ".join(map(str, targets)))
-
-
-if __name__ == "__main__":
-    main()

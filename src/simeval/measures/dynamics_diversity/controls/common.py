@@ -1,0 +1,52 @@
+"""What the controls share: one-line user errors and the rule that a committed result is replaced only when asked
+(`--overwrite`). Whether a file is committed is asked of git in the file's own folder, so the library needs no
+checkout path."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import yaml
+
+from simeval.errors import UserError
+
+
+def fail(message: str) -> None:
+    """A user error: the entrypoint prints it as one line, exit status 2."""
+    raise UserError(message.removeprefix("error: "))
+
+
+def preset(conf_dir: Path, group: str, name: str) -> dict:
+    """conf/<group>/<name>.yaml as a mapping (the entrypoint gives conf_dir)."""
+    path = Path(conf_dir) / group / f"{name}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
+        fail(f"error: {group} preset {name!r}: no {path} (presets: {known})")
+    return yaml.safe_load(path.read_text())
+
+
+def tracked(path: Path) -> bool:
+    """Whether git tracks `path` (False outside a repository)."""
+    where = path.parent if path.parent.is_dir() else Path.cwd()
+    return subprocess.run(["git", "ls-files", "--error-unmatch", str(path.resolve())], cwd=where,
+                          capture_output=True).returncode == 0
+
+
+def tracks_any_in(folder: Path) -> bool:
+    """Whether git tracks any file in `folder` (a control's committed run records)."""
+    if not folder.is_dir():
+        return False
+    out = subprocess.run(["git", "ls-files", str(folder.resolve())], cwd=folder, capture_output=True, text=True)
+    return out.returncode == 0 and bool(out.stdout.strip())
+
+
+def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool) -> None:
+    """A committed result is replaced only when asked (--overwrite): a rebuild that gives the same bytes is fine,
+    another one stops with one line naming the file."""
+    for path, data in zip(paths, new_bytes):
+        if overwrite or not path.exists() or path.read_bytes() == data:
+            continue
+        if tracked(path):
+            fail(f"error: {path} is a committed result and this run would change it; write elsewhere "
+                 "with --out DIR, or replace it with --overwrite")
