@@ -3,6 +3,7 @@ committed tables (outputs/tables/*.csv|json, and Figure 3's outputs/figures/figu
 redrawn without rerunning anything:
 
     .venv/bin/python docs/glance.py            # or: make docs
+    .venv/bin/python docs/glance.py --out /tmp/glance.png   # elsewhere (tests/test_docs.py compares the bytes)
 
 Panels: Table 3 (text diversity, Eq. 1), Table 4 under the paper's protocol (eval error per pixel against episodes,
 ours beside the paper's), Table 4 held-out with the validity gate (the skill the gate reads, per row), Table 5 (the
@@ -11,6 +12,7 @@ and the controls drawn at random (how each reading's 12 draws came out)."""
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import math
@@ -204,17 +206,20 @@ def random_controls(ax) -> None:
     ax.set_title("Controls drawn at random (12 draws per family)")
 
 
-def main() -> None:
+def main(out: Path = OUT) -> None:
     plt.rcParams.update({"font.size": 10, "axes.titlesize": 11})
     fig, axes = plt.subplots(2, 3, figsize=(17, 10.5))
     for draw, ax in zip((table3, table4_paper, table4_heldout, table5, figure3, random_controls), axes.flat):
         draw(ax)
     fig.suptitle("simeval's committed results at a glance (outputs/tables/)", fontsize=13)
     fig.tight_layout()
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(OUT, dpi=90, metadata={"Software": None})
-    print(f"wrote {OUT.relative_to(ROOT)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=90, metadata={"Software": None})  # no tool version inside: the same bytes every run
+    plt.close(fig)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=OUT, help=f"the PNG to write (default: {OUT.relative_to(ROOT)})")
+    main(parser.parse_args().out)
