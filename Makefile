@@ -41,7 +41,7 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-test: setup gensim-env metaworld-env lerobot-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
+test: setup gensim-env metaworld-env lerobot-env docs-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25
 
 METAWORLD_STAMP := $(VENV)/.metaworld-installed
@@ -59,6 +59,17 @@ $(LEROBOT_STAMP): requirements-lerobot.txt $(STAMP)
 	  else echo "lerobot-env: torchcodec needs FFmpeg's libraries: install Debian's ffmpeg package (apt-get install ffmpeg)"; exit 1; fi; fi
 	$(PY) -m pip install -q --no-deps -r requirements-lerobot.txt
 	touch $(LEROBOT_STAMP)
+
+DOCS_STAMP := $(VENV)/.docs-installed
+.PHONY: docs docs-env
+docs-env: $(DOCS_STAMP) ## mkdocs beside simeval's pins, for make docs and tests/test_docs.py (requirements-docs.txt)
+$(DOCS_STAMP): requirements-docs.txt $(STAMP)
+	$(PY) -m pip install -q -c requirements.txt -r requirements-docs.txt
+	touch $(DOCS_STAMP)
+
+docs: docs-env ## the manual: redraw docs/img/glance.png from the committed tables, then mkdocs build --strict into outputs/site/
+	$(PY) docs/glance.py
+	$(PY) -m mkdocs build --strict
 
 GENSIM_STAMP := $(VENV)/.gensim-installed
 gensim-env: $(GENSIM_STAMP) ## GenSim's own imports beside simeval's, for pipeline=gensim_own (requirements-gensim.txt)
