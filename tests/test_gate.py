@@ -116,7 +116,7 @@ def test_order_between_groups_by_hand():
 
 
 def test_the_html_report_shows_the_verdict_in_place_of_a_gated_runs_numbers():
-    from simeval.report.html import headline_values
+    from simeval.overview.html import headline_values
 
     one = {"model": {"object_error_per_pixel": 0.002}, "object_skill_vs_last": -3.0, "object_skill_vs_mean": 0.01}
     values = {"prediction": {"summary": {"one_step": one}},

@@ -323,7 +323,7 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
 def test_a_kept_table_given_without_brackets_is_one_path():
     """`report.keep=outputs/tables/table5.csv` reached the builders as a string and was read one character at a
     time (the error named a file "o")."""
-    from simeval.report.rebuild import kept_paths
+    from simeval.overview.rebuild import kept_paths
 
     assert kept_paths({"keep": "outputs/tables/table5.csv"}) == ["outputs/tables/table5.csv"]
     assert kept_paths({"keep": ["a.csv", "b.csv"]}) == ["a.csv", "b.csv"]

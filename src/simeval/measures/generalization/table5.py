@@ -468,7 +468,7 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
                    overwrite: bool = False, overwrite_flag: str = "--overwrite",
                    elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
-    simeval.report.rebuild, which the report door calls)."""
+    simeval.overview.rebuild, which the report door calls)."""
     kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
     beside = {Path(path): Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep}

@@ -37,7 +37,7 @@ from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
 LONG_TABLE_ROWS = 30
-GENERATOR_TAG = '<meta name="generator" content="simeval.report.html">'  # marks a folder this module may rewrite
+GENERATOR_TAG = '<meta name="generator" content="simeval.overview.html">'  # marks a folder this module may rewrite
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 CSS = """

@@ -122,7 +122,7 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
                               keep=kept_paths(spec), overwrite=overwrite, overwrite_flag=flag,
                               elsewhere=elsewhere, keep_key=f"{key}.keep")
     if kind == "html":
-        from simeval.report.html import build_html_report
+        from simeval.overview.html import build_html_report
 
         page = build_html_report(spec["runs_dir"], spec.get("out_dir"), tables_dir=spec.get("tables_dir"),
                                  figures_dir=spec.get("figures_dir"), title=spec.get("title", "simeval report"))
