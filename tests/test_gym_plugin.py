@@ -67,6 +67,10 @@ def test_a_plugin_pipeline_collects_and_runs_diversity_and_generalization(user):
     assert set(splits) == {"train", "eval", "heldout"}  # eval: the gain varied; heldout: reach-up
     rows = _result(user / "generalization")["values"]["tasks"]
     assert {(r["split"], r["task"]) for r in rows} >= {("heldout", "reach-up"), ("eval", "reach-left")}
+    # the adapter reads no progress (progress: null): unknown, not 0, in the result and the log
+    assert all(v["mean_progress"] is None for v in splits.values())
+    assert all(e["progress"] is None for r in rows for e in r["episodes"] if not e.get("unvaried"))
+    assert "progress unknown" in res.stderr + res.stdout and "progress 0.00" not in res.stderr + res.stdout
     # text diversity reads the descriptions the yaml lists (pipeline.source: config)
     env = {**os.environ, "PYTHONPATH": str(user / "mine")}
     res = subprocess.run([sys.executable, str(ROOT / "src" / "text_diversity.py"), "pipeline=reach",

@@ -108,7 +108,7 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                 if frames is not None:
                     frames.append(obs["rgb"][video_camera or cfg.cameras[0]])
             episodes.append({"seed": int(seed), "start": start, "success": bool(info["success"]),
-                             "progress": float(info["progress"]), "steps": n,
+                             "progress": None if info["progress"] is None else float(info["progress"]), "steps": n,
                              **({"error": str(info["error"])} if info.get("error") else {})})  # the env's own failure
             if frames is not None:
                 videos[int(seed)] = np.stack(frames)
@@ -127,8 +127,15 @@ def episodes_summary(episodes: Sequence[Mapping]) -> dict:
     ones left out of both."""
     ran = rolled_out(episodes)
     return {"episodes": list(episodes), "success": success_summary(e["success"] for e in ran),
-            "mean_progress": float(np.mean([e["progress"] for e in ran])) if ran else None,
+            "mean_progress": _mean_progress(ran),
             "unvaried": len(episodes) - len(ran)}
+
+
+def _mean_progress(episodes: Sequence[Mapping]) -> float | None:
+    """None where there is no episode, or where the environment reports no progress (a Gymnasium env whose adapter
+    reads none): an unknown progress is not a progress of 0."""
+    progress = [e["progress"] for e in episodes]
+    return None if not progress or None in progress else float(np.mean(progress))
 
 
 def mark_unvaried(row: Mapping, train_starts: Mapping[int, str], starts: Mapping[int, str]) -> dict:

@@ -455,5 +455,6 @@ def log_splits(values: Mapping) -> None:
         if not sr["n"]:
             log.info("%-10s nothing rolled out%s", split, unvaried)
             continue
-        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %.2f%s", split, sr["k"], sr["n"], sr["rate"],
-                 *sr["ci"], v["mean_progress"], unvaried)
+        progress = "unknown" if v["mean_progress"] is None else f"{v['mean_progress']:.2f}"
+        log.info("%-10s success %d/%d = %.2f [%.2f, %.2f]  progress %s%s", split, sr["k"], sr["n"], sr["rate"],
+                 *sr["ci"], progress, unvaried)

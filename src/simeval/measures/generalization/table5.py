@@ -265,7 +265,9 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
             eps = rolled_out(t.get("episodes") or [])
             per_run = cell["tasks"].setdefault((t["split"], t["task"]), {})
             k, n, prog = per_run.get(run, (0, 0, 0.0))
-            per_run[run] = (k + t["success"]["k"], n + t["success"]["n"], prog + sum(e["progress"] for e in eps))
+            progress = [e["progress"] for e in eps]
+            per_run[run] = (k + t["success"]["k"], n + t["success"]["n"],
+                            None if prog is None or None in progress else prog + sum(progress))
     order = [*PAPER, *sorted({k[:2] for k in cells} - set(PAPER))]
     rows = []
     for key in sorted(cells, key=lambda c: (order.index(c[:2]), str(c[2]))):
@@ -279,21 +281,35 @@ def detail_rows(records: list[dict], policy: str | None = None) -> list[dict]:
             # (runs, tasks) counts; a run that did not roll a task out adds 0 of 0 there
             k_rt = [[v.get(r, (0, 0, 0))[0] for _, v in tasks] for r in runs]
             n_rt = [[v.get(r, (0, 0, 0))[1] for _, v in tasks] for r in runs]
-            pooled = [tuple(sum(c[i] for c in v.values()) for i in range(3)) for _, v in tasks]
+            pooled = [(*(sum(c[i] for c in v.values()) for i in range(2)), _sum_known(c[2] for c in v.values()))
+                      for _, v in tasks]
             k, n = sum(p[0] for p in pooled), sum(p[1] for p in pooled)
             base = dict(zip(("pipeline", "group", "policy"), key), split=split, runs=cell["runs"])
             p_rt = [[v.get(r, (0, 0, 0))[2] for _, v in tasks] for r in runs]
             run_rates = {seed: sum(kr) / sum(nr) if sum(nr) else None
                          for seed, kr, nr in zip(cell["seeds"], k_rt, n_rt)}
-            run_progress = {seed: sum(pr) / sum(nr) if sum(nr) else None
-                            for seed, pr, nr in zip(cell["seeds"], p_rt, n_rt)}
+            run_progress = {seed: _ratio(_sum_known(pr), sum(nr)) for seed, pr, nr in zip(cell["seeds"], p_rt, n_rt)}
             rows.append({**base, "task": "*", "k": k, "n": n, "rate": k / n, "ci": list(wilson_interval(k, n)),
                          "task_ci": task_bootstrap_interval(k_rt, n_rt), "run_rates": run_rates,
-                         "run_progress": run_progress, "progress": sum(p[2] for p in pooled) / n})
+                         "run_progress": run_progress, "progress": _ratio(_sum_known(p[2] for p in pooled), n)})
             for (t, _), (tk, tn, tp) in zip(tasks, pooled):
                 rows.append({**base, "task": t, "k": tk, "n": tn, "rate": tk / tn, "ci": list(wilson_interval(tk, tn)),
-                             "task_ci": None, "run_rates": None, "run_progress": None, "progress": tp / tn})
+                             "task_ci": None, "run_rates": None, "run_progress": None, "progress": _ratio(tp, tn)})
     return rows
+
+
+def _sum_known(values) -> float | None:
+    """The sum, or None where any value is unknown (an environment that reports no progress)."""
+    values = list(values)
+    return None if None in values else sum(values)
+
+
+def _ratio(total: float | None, n: int) -> float | None:
+    return None if total is None or not n else total / n
+
+
+def _progress_text(progress: float | None) -> str:
+    return "unknown" if progress is None else f"{progress:.2f}"
 
 
 def read_detail_lines(path: str | Path) -> list[list[str]]:
@@ -338,7 +354,7 @@ def detail_lines(rows: list[dict]) -> list[list[str]]:
             return "-"
 
         def value(x, prog) -> str:
-            return "-" if x is None else f"{x:.2f} (progress {prog:.2f})"
+            return "-" if x is None else f"{x:.2f} (progress {_progress_text(prog)})"
         # in seed order: runs arrive in their folders' order (launch time), which need not be the seeds'
         return ", ".join(f"seed {seed}: " + value(x, progress.get(seed))
                          for seed, x in sorted(rates.items(), key=_seed_order))
@@ -346,7 +362,7 @@ def detail_lines(rows: list[dict]) -> list[list[str]]:
     return [[r["pipeline"], r["group"], _policy_cell(r["policy"]), r["split"],
              "all tasks" if r["task"] == "*" else r["task"],
              f"{r['rate']:.2f} ({r['k']}/{r['n']})", interval(r["ci"]), interval(r["task_ci"]),
-             per_run(r["run_rates"], r["run_progress"]), f"{r['progress']:.2f}", str(r["runs"])] for r in rows]
+             per_run(r["run_rates"], r["run_progress"]), _progress_text(r["progress"]), str(r["runs"])] for r in rows]
 
 
 def write_detail(table: list[list[str]], out: str | Path) -> dict[str, Path]:

@@ -199,7 +199,7 @@ def action_space_of(env: gym.Env, settings: GymSettings) -> dict:
 
 class AdaptedEnv(gym.Env):
     """A pipeline's environment observed as simeval's: obs {"rgb": {camera: (H, W, 3) uint8}, "state": (S,)}, info
-    {"success", "progress"} (False / 0 where the adapter reads none); truncated after `max_steps` actions."""
+    {"success", "progress"} (False / None where the adapter reads none); truncated after `max_steps` actions."""
 
     metadata = {"render_modes": []}  # noqa: RUF012 (gymnasium's convention)
 
@@ -221,7 +221,7 @@ class AdaptedEnv(gym.Env):
     def _info(self, info: Mapping, terminated: bool) -> dict:
         success = self.settings.adapter.read("success", info, terminated)
         progress = self.settings.adapter.read("progress", info, terminated)
-        return {"success": bool(success), "progress": float(progress) if progress is not None else 0.0}
+        return {"success": bool(success), "progress": float(progress) if progress is not None else None}
 
     def reset(self, *, seed: int | None = None, options=None):
         obs, info = self.env.reset(seed=seed)
