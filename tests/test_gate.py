@@ -115,6 +115,34 @@ def test_order_between_groups_by_hand():
     assert order_between_groups(noisy, b)["order"] == "none"
 
 
+def test_paired_episodes_cancel_their_own_spread_and_each_resample_holds_the_same_episodes_in_both_groups():
+    """Episodes whose errors spread widely (an episode's motion sets its size) but where group a leaves 10% more of
+    the baseline's error than b on every episode: drawn independently the spread hides the order, drawn in pairs
+    every resample's difference is exactly 0.1 (relative errors 1.1 x and x of the same episodes' sums)."""
+    from simeval.measures.dynamics_diversity.gate import order_between_groups
+    from simeval.stats.resample import paired_draws
+
+    rng = np.random.default_rng(0)
+    size = rng.uniform(0.1, 10.0, 12)  # the baseline's error per episode: how far the objects moved
+    spread = rng.uniform(0.2, 0.9, 12)  # the share of it the model leaves, per episode
+    tasks_a = np.repeat(["varied-0", "varied-1"], 6)
+    tasks_b = np.repeat(["shared-0", "shared-1"], 6)
+    a = ((spread + 0.1) * size)[None], size[None], tasks_a
+    b = (spread * size)[None], size[None], tasks_b
+    independent, paired = order_between_groups(a, b), order_between_groups(a, b, paired=True)
+    assert independent["difference"] == pytest.approx(0.1) == paired["difference"]
+    assert independent["order"] == "none"
+    assert paired["interval"] == pytest.approx([0.1, 0.1]) and paired["order"] == "a > b"
+    same = order_between_groups(b, b, paired=True)  # identical data (the looks' states): exactly no difference
+    assert same["interval"] == [0.0, 0.0] and order_between_groups(b, b)["interval"][1] > 0.01
+    first, second = paired_draws(3, 2, np.repeat([0, 1], 6), n_boot=5, seed=4)
+    for (sa, ea), (sb, eb) in zip(first, second):
+        assert np.array_equal(ea, eb) and set(ea[:6]) <= set(range(6)) and set(ea[6:]) <= set(range(6, 12))
+        assert len(sa) == 3 and len(sb) == 2 and sb.max() < 2
+    with pytest.raises(ValueError, match="same number of episodes per task"):
+        order_between_groups(a, ((spread * size)[None, :10], size[None, :10], tasks_b[:10]), paired=True)
+
+
 def test_the_html_report_shows_the_verdict_in_place_of_a_gated_runs_numbers():
     from simeval.overview.html import headline_values
 

@@ -15,6 +15,10 @@ Why written here and not scipy.stats.bootstrap: that resamples one axis of indep
 crossed (seeds x episodes) and stratified by task, and paired comparisons (10 vs 40 training episodes of one group,
 evaluated on the same held-out episodes) must use the same draws for both statistics (`draws`, then `ratio`).
 With one seed the seed level is degenerate: the interval then covers episodes only.
+
+    paired_draws    two groups whose episode e shares its start and actions (the dynamics controls' shared and
+                    varied groups): the same episode indices for both, each group's seeds drawn on their own (their
+                    models are different ones), so what the episodes share cancels in a difference of the groups
 """
 
 from __future__ import annotations
@@ -33,6 +37,16 @@ def draws(n_seeds: int, strata, n_boot: int = 2000, seed: int = 0) -> list[tuple
         episodes = np.concatenate([g[rng.integers(0, len(g), len(g))] for g in groups])
         out.append((seeds, episodes))
     return out
+
+
+def paired_draws(n_seeds_a: int, n_seeds_b: int, strata, n_boot: int = 2000,
+                 seed: int = 0) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[tuple[np.ndarray, np.ndarray]]]:
+    """`n_boot` resamples for each of two groups with paired episodes (the module docstring): (draws of a, draws of
+    b), the k-th of each holding the same episode indices."""
+    first = draws(n_seeds_a, strata, n_boot, seed)
+    rng = np.random.default_rng([seed, 1])
+    second = [(rng.integers(0, n_seeds_b, n_seeds_b), episodes) for _, episodes in first]
+    return first, second
 
 
 def ratio(x, n, seeds: np.ndarray | None = None, episodes: np.ndarray | None = None,

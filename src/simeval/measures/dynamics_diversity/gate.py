@@ -172,17 +172,26 @@ def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:
     return resample.ratio(np.atleast_2d(model), np.atleast_2d(baseline))
 
 
-def order_between_groups(a: tuple, b: tuple, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> dict:
+def order_between_groups(a: tuple, b: tuple, n_boot: int = 2000, seed: int = 0, level: float = 0.95,
+                         paired: bool = False) -> dict:
     """Whether group a reads as more diverse than group b: each group `(model (R, E), baseline (R, E), tasks
-    (E,))` gives relative_error; the difference a - b with a percentile interval over resamples drawn independently
-    for the two groups (their episodes are different ones), each over seeds and, within task, episodes
-    (simeval.stats.resample.draws). {difference, interval, order}: order "a > b" / "a < b" where the interval
-    excludes zero, else "none"."""
-    reps, points = [], []
-    for k, (x, xb, tasks) in enumerate((a, b)):
-        x, xb = np.atleast_2d(np.asarray(x, float)), np.atleast_2d(np.asarray(xb, float))
-        points.append(relative_error(x, xb))
-        reps.append(resample.replicates(x, xb, resample.draws(x.shape[0], tasks, n_boot, seed + 7919 * k)))
+    (E,))` gives relative_error; the difference a - b with a percentile interval over resamples of seeds and, within
+    task, episodes (simeval.stats.resample). `paired`: episode e of a and of b share their start and actions (the
+    same position in each group's task order), so both draw the same episodes (resample.paired_draws); otherwise the
+    two groups' episodes are drawn independently. {difference, interval, order}: order "a > b" / "a < b" where the
+    interval excludes zero, else "none"."""
+    groups = [(np.atleast_2d(np.asarray(x, float)), np.atleast_2d(np.asarray(xb, float)), list(tasks))
+              for x, xb, tasks in (a, b)]
+    points = [relative_error(x, xb) for x, xb, _ in groups]
+    if paired:
+        positions = [np.unique(tasks, return_inverse=True)[1] for _, _, tasks in groups]
+        if len(positions[0]) != len(positions[1]) or not np.array_equal(*positions):
+            raise ValueError("paired groups must hold the same number of episodes per task, in the same order")
+        resamples = resample.paired_draws(groups[0][0].shape[0], groups[1][0].shape[0], positions[0], n_boot, seed)
+    else:
+        resamples = [resample.draws(x.shape[0], tasks, n_boot, seed + 7919 * k)
+                     for k, (x, _, tasks) in enumerate(groups)]
+    reps = [resample.replicates(x, xb, r) for (x, xb, _), r in zip(groups, resamples)]
     diff = points[0] - points[1]
     lo, hi = resample.percentile(reps[0] - reps[1], level)
     order = "a > b" if lo > 0 else "a < b" if hi < 0 else "none"
