@@ -188,12 +188,13 @@ def figure3(ax) -> None:
 
 def random_controls(ax) -> None:
     counts = json.loads((TABLES / "random_controls.json").read_text())["counts"]
-    order = [("right", "#55a868"), ("gated", "#bbbbbb"), ("no order", "#ccb974"), ("wrong", "#c44e52")]
+    order = [("right", "#55a868"), ("gated", "#bbbbbb"), ("too wide", "#8c8c8c"), ("no order", "#ccb974"),
+             ("wrong", "#c44e52")]
     labels = list(counts)
     for i, name in enumerate(labels):
         left = 0
         for verdict, colour in order:
-            n = counts[name][verdict]
+            n = counts[name].get(verdict, 0)  # "too wide": a verdict the first tables did not have
             ax.barh(i, n, left=left, color=colour)
             if n:
                 text = f"{n} {verdict}" if n > 2 else f"{n}\n{verdict}"  # a narrow segment: two short lines

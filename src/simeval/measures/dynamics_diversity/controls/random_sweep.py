@@ -37,9 +37,10 @@ actions, gain varied) with one training seed. (1) 3 pixel seeds per group, Table
 right order; draw 6 did not (each of its seeds put the varied group above the shared one, by less than the spread of
 its held-out episodes). (2) The episodes are resampled in pairs, as the groups were built; the first analysis drew
 each group's independently, so what the episodes share entered the difference twice (the looks family's states,
-identical in both groups, read +0.000 [-0.074, +0.073] on draw 6; paired, [-0.004, +0.003]). "No order" had been any interval
-containing 0, however wide: the metric claimed the groups alike where it could not tell. It now needs the interval
-within +-ORDER_MARGIN; a wider one is "too wide", a no reading. The table keeps the independent interval beside.
+identical in both groups, read +0.000 [-0.074, +0.073] on draw 6; paired, [-0.004, +0.003]). "No order" had been
+any interval containing 0, however wide: the metric claimed the groups alike where it could not tell. It now needs
+the interval within +-ORDER_MARGIN; a wider one is "too wide", a no reading. The table keeps the independent
+interval beside.
 A gated group stays gated with more seeds (every seed's gate must pass), so gated draws kept their one pixel seed.
 
 Outputs: runs under OUT/controls/random/runs/ (one JSON per draw x group x reading x seed: a killed sweep resumes;
