@@ -25,9 +25,12 @@ def main(argv: list[str] | None = None) -> None:
     from simeval.errors import UserError
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv or argv[0] in ("-h", "--help"):
+    if argv and argv[0] in ("-h", "--help"):
         print(__doc__)
         return
+    if not argv:
+        print(f"error: name a control: {', '.join(CONTROLS)} (python src/controls.py --help)", file=sys.stderr)
+        sys.exit(2)
     if argv[0] not in CONTROLS:
         print(f"error: control {argv[0]!r}: expected one of {', '.join(CONTROLS)}", file=sys.stderr)
         sys.exit(2)

@@ -325,7 +325,10 @@ def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
         sys.exit(1)
 
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+def entry_conf_dir() -> Path:
+    """The conf/ folder of the running entrypoint: where `hydra.main(config_path="../conf")` beside it looks (the
+    library itself reads no config from its own source tree)."""
+    return Path(sys.argv[0]).resolve().parent.parent / "conf"
 
 
 # Hydra's own flags whose value is the next argument (`--cfg job`), not an override
@@ -333,7 +336,7 @@ HYDRA_FLAGS_WITH_VALUE = {"--cfg", "-c", "--package", "-p", "--info", "-i", "--c
                           "-cn", "--config-dir", "-cd", "--experimental-rerun"}
 
 
-def config_mistakes(args: list[str], conf_dir: Path = CONF_DIR) -> str | None:
+def config_mistakes(args: list[str], conf_dir: Path) -> str | None:
     """One line for what Hydra would report as a multi-line block and exit 1 on: an override it cannot parse, a
     config-group choice with no file (`world_model=nope`), or a chosen group file that is not valid YAML. None
     when it finds nothing (Hydra still checks everything else). Group files are also looked up in the
@@ -405,7 +408,8 @@ def defaults_groups(config: Path) -> list[str]:
     return [n for n in names if not n.startswith(("hydra", "optional ", "override "))]
 
 
-def composition_error_line(exc: BaseException, config_name: str | None = None, conf_dir: Path = CONF_DIR) -> str:
+def composition_error_line(exc: BaseException, config_name: str | None = None,
+                           conf_dir: Path | None = None) -> str:
     """One line for a config Hydra could not compose: the override of a key the config lacks (typo'd or not
     there) names the valid keys at that level and the closest one; any other failure is its first line and its
     cause's first line."""
@@ -430,7 +434,8 @@ def composition_error_line(exc: BaseException, config_name: str | None = None, c
     head = text[0] if text else type(exc).__name__
     if head.startswith("Ambiguous value for argument"):  # Hydra's numbered advice is on the lines this drops
         head += "; to sweep over the values add -m (a run per value), for a list write key=[a,b]"
-    if head.startswith("Could not override") and "No match in the defaults list" in head and config_name:
+    if (head.startswith("Could not override") and "No match in the defaults list" in head and config_name
+            and conf_dir is not None):
         groups = defaults_groups(conf_dir / f"{config_name}.yaml")
         if groups:
             head += f" (this command's config groups: {', '.join(groups)})"
@@ -460,7 +465,7 @@ def _one_line_composition_errors() -> None:
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":
                     raise
                 # SystemExit: not an Exception, so Hydra's printer lets it pass
-                _fail(composition_error_line(e, Path(sys.argv[0]).stem))
+                _fail(composition_error_line(e, Path(sys.argv[0]).stem, entry_conf_dir()))
             except (FileExistsError, NotADirectoryError) as e:  # e.g. hydra.run.dir naming a file: Hydra makes
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the run folder before any simeval code runs
                     raise
@@ -481,7 +486,7 @@ def launch(main: Callable[[], Any]) -> None:
     allow_multirun_anywhere()
     custom_search_path = any(a.startswith(("--config-dir", "-cd", "--config-path", "-cp")) for a in sys.argv[1:])
     if not custom_search_path and os.environ.get("HYDRA_FULL_ERROR") != "1":
-        mistake = config_mistakes(sys.argv[1:])
+        mistake = config_mistakes(sys.argv[1:], entry_conf_dir())
         if mistake:
             _fail(mistake)
     register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders

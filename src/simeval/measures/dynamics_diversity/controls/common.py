@@ -41,12 +41,13 @@ def tracks_any_in(folder: Path) -> bool:
     return out.returncode == 0 and bool(out.stdout.strip())
 
 
-def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool) -> None:
+def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overwrite: bool,
+                                elsewhere: str = "--out DIR") -> None:
     """A committed result is replaced only when asked (--overwrite): a rebuild that gives the same bytes is fine,
-    another one stops with one line naming the file."""
+    another one stops with one line naming the file and the option (`elsewhere`) that writes somewhere else."""
     for path, data in zip(paths, new_bytes):
         if overwrite or not path.exists() or path.read_bytes() == data:
             continue
         if tracked(path):
             fail(f"error: {path} is a committed result and this run would change it; write elsewhere "
-                 "with --out DIR, or replace it with --overwrite")
+                 f"with {elsewhere}, or replace it with --overwrite")

@@ -486,7 +486,7 @@ def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
     ap.add_argument("--exclude-robot-from-loss", action=argparse.BooleanOptionalAction,
                     default=protocol["exclude_robot_from_loss"],
                     help="leave the (grown) robot pixels out of the training loss")
-    ap.add_argument("--conditions", nargs="+", default=None, help="run only these conditions (default: all)")
+    ap.add_argument("--conditions", nargs="+", default=None, help="run only these conditions (all when not given)")
     ap.add_argument("--tasks", type=int, default=4)
     ap.add_argument("--actions", type=int, default=40, help="actions per episode (rows: one more)")
     ap.add_argument("--data-seed", type=int, default=0)
@@ -494,7 +494,7 @@ def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
     ap.add_argument("--out", type=Path, default=Path("outputs"), help="runs under OUT/controls/<control>/runs, "
                     "checkpoints under OUT/checkpoints/controls, tables and figures under OUT/tables, OUT/figures")
     ap.add_argument("--overwrite", action="store_true",
-                    help="replace committed tables/figures that this run would change (default: refuse)")
+                    help="replace committed tables/figures that this run would change (refused otherwise)")
     ap.add_argument("--reevaluate", action="store_true",
                     help="evaluate saved runs again from their checkpoints and rewrite their records (for quantities "
                     "added to the evaluation; a run whose checkpoint is gone trains again and says so)")

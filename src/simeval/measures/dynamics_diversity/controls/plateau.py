@@ -1,9 +1,10 @@
-"""The diagnosis of issue 50 ("Why the model did not learn one disk", README), rerun from the repository: the
-one-disk control (simeval.measures.dynamics_diversity.controls.random_draws.one_disk_control), its varied group, 10 training episodes, scored on
-episodes 41-50 under the held-out protocol (conf/protocol/heldout.yaml: 1,000 steps, lr 1e-3, the gate) at the cpu
-preset, with the pixels raw (`pixel_norm: none`, the old default) or standardised (the protocol's now).
+"""The one-disk diagnosis (docs/results/controls.md, "Why the model did not learn one disk"): the one-disk control
+(simeval.measures.dynamics_diversity.controls.random_draws.one_disk_control), its varied group, 10 training episodes,
+scored on episodes 41-50 under the held-out protocol (conf/protocol/heldout.yaml: 1,000 steps, lr 1e-3, the gate) at
+the cpu preset, with the pixels raw (`pixel_norm: none`, the world model's default) or standardised (the held-out
+protocol's).
 
-    python src/controls.py plateau                  # the five rows of the README's table (~20 min, one core)
+    python src/controls.py plateau                  # the five rows of the table (~20 min, one core)
     python src/controls.py plateau --rows 2 4        # some rows
     python src/controls.py plateau --replot          # the table again from the saved runs
 
@@ -27,7 +28,7 @@ from simeval.cli import OneLineParser
 from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed
 
 FAINT = (170, 110, 100)  # a low-contrast disk on the grey background (128, 128, 128)
-# (colour, training seed, pixel_norm): the README's rows, in its order
+# (colour, training seed, pixel_norm): the table's rows, in its order
 ROWS = ((None, 0, "none"), (None, 1, "none"), (FAINT, 0, "none"), (None, 1, "standardise"), (FAINT, 0, "standardise"))
 PLATEAU_EXIT = 0.7
 LOG_EVERY = 50
@@ -112,12 +113,16 @@ def markdown(records: list[dict]) -> str:
 
 
 def main(argv=None, conf_dir: Path = Path("conf")) -> None:
-    ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rows", type=int, nargs="+", default=list(range(len(ROWS))))
-    ap.add_argument("--out", type=Path, default=Path("outputs"))
-    ap.add_argument("--tables", type=Path, default=Path("outputs"))
-    ap.add_argument("--replot", action="store_true")
-    ap.add_argument("--overwrite", action="store_true")
+    ap = OneLineParser(prog="controls.py plateau", description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rows", type=int, nargs="+", default=list(range(len(ROWS))),
+                    help=f"rows 0-{len(ROWS) - 1} of the table (default: all)")
+    ap.add_argument("--out", type=Path, default=Path("outputs"),
+                    help="runs under OUT/controls/plateau, checkpoints under OUT/checkpoints (default: outputs)")
+    ap.add_argument("--tables", type=Path, default=Path("outputs"),
+                    help="the table under TABLES/tables (default: outputs)")
+    ap.add_argument("--replot", action="store_true", help="the table from the saved runs only")
+    ap.add_argument("--overwrite", action="store_true", help="replace the committed table")
     args = ap.parse_args(argv)
     bad = sorted(set(args.rows) - set(range(len(ROWS))))
     if bad:
@@ -138,7 +143,7 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     text, data = markdown(records), json.dumps(records, indent=1)
     stem = args.tables / "tables" / "plateau_diagnosis"
     refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")], [text.encode(), data.encode()],
-                                args.overwrite)
+                                args.overwrite, "--tables DIR")
     stem.parent.mkdir(parents=True, exist_ok=True)
     stem.with_suffix(".md").write_text(text)
     stem.with_suffix(".json").write_text(data)

@@ -337,16 +337,20 @@ def plot(table: dict, path: Path) -> None:
 
 
 def main(argv=None, conf_dir: Path = Path("conf")) -> None:
-    ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--draws", type=int, nargs="+", default=list(DRAW_SEEDS))
+    ap = OneLineParser(prog="controls.py random", description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--draws", type=int, nargs="+", default=list(DRAW_SEEDS),
+                    help=f"draw seeds, {DRAW_SEEDS[0]}-{DRAW_SEEDS[-1]} (default: all)")
     ap.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES))
     ap.add_argument("--readings", nargs="+", choices=READINGS, default=list(READINGS))
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="pixel models' training seeds")
-    ap.add_argument("--episodes", type=int, default=10)
-    ap.add_argument("--preset", default="cpu")
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path("outputs"))
-    ap.add_argument("--tables", type=Path, default=Path("outputs"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="pixel models' training seeds (default: 0)")
+    ap.add_argument("--episodes", type=int, default=10, help="training episodes per task (default: 10)")
+    ap.add_argument("--preset", default="cpu", help="world_model preset, conf/world_model/<name>.yaml (default: cpu)")
+    ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default: 2)")
+    ap.add_argument("--out", type=Path, default=Path("outputs"),
+                    help="runs under OUT/controls/random/runs, checkpoints under OUT/checkpoints (default: outputs)")
+    ap.add_argument("--tables", type=Path, default=Path("outputs"),
+                    help="the table under TABLES/tables, the figure under TABLES/figures (default: outputs)")
     ap.add_argument("--replot", action="store_true", help="table and figure from the saved runs only")
     ap.add_argument("--overwrite", action="store_true", help="replace committed tables and figures")
     args = ap.parse_args(argv)
@@ -361,7 +365,7 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     stem = args.tables / "tables" / "random_controls"
     text, data = markdown(table), json.dumps(table, indent=1)
     refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")],
-                                [text.encode(), data.encode()], args.overwrite)
+                                [text.encode(), data.encode()], args.overwrite, "--tables DIR")
     stem.parent.mkdir(parents=True, exist_ok=True)
     stem.with_suffix(".md").write_text(text)
     stem.with_suffix(".json").write_text(data)
