@@ -70,8 +70,9 @@ def gap(train: list[float], varied: list[float], n_boot: int = 10_000, seed: int
 
 
 def check_one_setting(folders: list[Path], records: list[dict], fail) -> None:
-    """The runs differ only by their training seed (Table 5's rule for one cell, simeval.measures.generalization.table5), each given
-    once: pooling another variation, policy or step limit, or one run twice, would read a gap that is no one's."""
+    """The runs differ only by their training seed (Table 5's rule for one cell,
+    simeval.measures.generalization.table5), each given once: pooling another variation, policy or step limit, or one
+    run twice, would read a gap that is no one's."""
     from simeval.measures.generalization.table5 import cell_setting
     from simeval.results import identity_difference
 

@@ -1,6 +1,7 @@
-"""Validity control for dynamics diversity (simeval.measures.dynamics_diversity.controls.synthetic): a group whose tasks share one dynamics
-against a group of k distinct dynamics, each trained on the first 10/20/40 episodes per task and evaluated on all 40.
-The metric passes when the diverse group has the higher error at 10 episodes and the larger 10 -> 40 drop.
+"""Validity control for dynamics diversity (simeval.measures.dynamics_diversity.controls.synthetic): a group whose
+tasks share one dynamics against a group of k distinct dynamics, each trained on the first 10/20/40 episodes per task
+and evaluated on all 40. The metric passes when the diverse group has the higher error at 10 episodes and the larger 10
+-> 40 drop.
 
     python experiments/world_model_control.py --preset tiny --epochs 5 --seeds 0 1
 Writes outputs/tables/world_model_control.json and outputs/figures/world_model_control.png.

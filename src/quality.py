@@ -1,4 +1,5 @@
-"""Single-task quality by VLM/LLM judges (paper Sec. 3.3 / 4.1). See conf/quality.yaml and simeval.measures.quality.run.run_quality.
+"""Single-task quality by VLM/LLM judges (paper Sec. 3.3 / 4.1). See conf/quality.yaml and
+simeval.measures.quality.run.run_quality.
 
 Exit status: 0 when at least one task was scored; 1 when the run ran but every task failed (no valid score: status
 "failed" in result.json, one line on stderr); 2 for a mistake in the config or the inputs (one line on stderr)."""

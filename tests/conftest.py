@@ -60,9 +60,10 @@ def _run_entrypoint(name: str, *args: str, cwd: Path) -> None:
 @pytest.fixture(scope="session")
 def world_model_runs(tmp_path_factory) -> Path:
     """A folder of 6 real dynamics_diversity runs, as `make table4` makes them: src/diversity.py debug=tiny (the
-    tiny world model) on two synthetic groups of simeval.measures.dynamics_diversity.controls.synthetic written into a store as pipeline gensim
-    ("shared": one dynamics, "diverse": two; 2 tasks x 4 episodes of 12 actions, 16x16), trained on the first 1, 2
-    and 3 episodes per task and evaluated on all 4. Takes seconds; a report or notebook test copies it."""
+    tiny world model) on two synthetic groups of simeval.measures.dynamics_diversity.controls.synthetic written into a
+    store as pipeline gensim ("shared": one dynamics, "diverse": two; 2 tasks x 4 episodes of 12 actions, 16x16),
+    trained on the first 1, 2 and 3 episodes per task and evaluated on all 4. Takes seconds; a report or notebook test
+    copies it."""
     from simeval.measures.dynamics_diversity.controls.synthetic import write_group
 
     root = tmp_path_factory.mktemp("world_model_runs")

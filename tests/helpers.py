@@ -201,7 +201,8 @@ def synthetic_store(root, per_task: int = 3, T: int = 30) -> Path:
 
 class ConstantImageModel:
     """A stand-in world model whose every decoded frame is one constant image `frame` (H, W, 3) in [0, 1] (the
-    prior, the posterior and the imagination all decode to it), for what simeval.measures.dynamics_diversity.prediction scores."""
+    prior, the posterior and the imagination all decode to it), for what simeval.measures.dynamics_diversity.prediction
+    scores."""
 
     def __init__(self, frame) -> None:
         self.frame = frame

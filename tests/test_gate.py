@@ -1,5 +1,6 @@
-"""The validity gate of dynamics-diversity readings (simeval.measures.dynamics_diversity.gate): skills and verdicts computed by hand, and a
-stand-in world model that draws the task's mean image gets "no reading" through the whole evaluation path."""
+"""The validity gate of dynamics-diversity readings (simeval.measures.dynamics_diversity.gate): skills and verdicts
+computed by hand, and a stand-in world model that draws the task's mean image gets "no reading" through the whole
+evaluation path."""
 
 from __future__ import annotations
 

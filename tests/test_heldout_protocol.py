@@ -1,8 +1,9 @@
-"""The `heldout` protocol of dynamics diversity (simeval.measures.dynamics_diversity.run, simeval.measures.dynamics_diversity.prediction) at tiny
-sizes: no training read touches an evaluated episode, every episode count trains the same steps, the baselines are
-scored on the frames the model is scored on (recomputed here from the raw episode arrays, not through the dataset),
-the robot mask removes exactly the robot's pixels (the pixels that change when the robot is made invisible), and the
-intervals of simeval.stats.resample have the bootstrap variance computed by hand."""
+"""The `heldout` protocol of dynamics diversity (simeval.measures.dynamics_diversity.run,
+simeval.measures.dynamics_diversity.prediction) at tiny sizes: no training read touches an evaluated episode, every
+episode count trains the same steps, the baselines are scored on the frames the model is scored on (recomputed here
+from the raw episode arrays, not through the dataset), the robot mask removes exactly the robot's pixels (the pixels
+that change when the robot is made invisible), and the intervals of simeval.stats.resample have the bootstrap
+variance computed by hand."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""The random dynamics-diversity controls (simeval.measures.dynamics_diversity.controls.random_draws): draws are fixed by their seed and cover
-the ranges they state, objects stay in the arena, the varied group differs from the shared one in its dynamics
-alone (same looks, same actions), the looks family in its frames alone (same states), and the dynamics are the
-module docstring's, stepped by hand."""
+"""The random dynamics-diversity controls (simeval.measures.dynamics_diversity.controls.random_draws): draws are fixed
+by their seed and cover the ranges they state, objects stay in the arena, the varied group differs from the shared one
+in its dynamics alone (same looks, same actions), the looks family in its frames alone (same states), and the dynamics
+are the module docstring's, stepped by hand."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""The state-space reading of dynamics diversity (simeval.measures.dynamics_diversity.state_reading): baselines computed by hand, the
-validation split never touches an evaluated episode, and hand-built groups whose answer is known: a fixed linear
-response to the actions is learned and reads, the same response with its sign drawn per episode reads as more
-diverse, and a state that is noise at every step gets no reading."""
+"""The state-space reading of dynamics diversity (simeval.measures.dynamics_diversity.state_reading): baselines
+computed by hand, the validation split never touches an evaluated episode, and hand-built groups whose answer is known:
+a fixed linear response to the actions is learned and reads, the same response with its sign drawn per episode reads as
+more diverse, and a state that is noise at every step gets no reading."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""The validity control (simeval.measures.dynamics_diversity.controls.synthetic; experiments/world_model_control.py): a group of tasks with k
-distinct dynamics must get a higher world-model error at 10 episodes per task and a larger 10 -> 40 drop than a
-group whose tasks share one dynamics (same colours, same starts, same actions). Tiny preset, 6 epochs, one seed
-(~1 min on 2 cores); the experiment runs seeds 0 and 1 and 10/20/40 episodes."""
+"""The validity control (simeval.measures.dynamics_diversity.controls.synthetic; experiments/world_model_control.py): a
+group of tasks with k distinct dynamics must get a higher world-model error at 10 episodes per task and a larger 10 ->
+40 drop than a group whose tasks share one dynamics (same colours, same starts, same actions). Tiny preset, 6 epochs,
+one seed (~1 min on 2 cores); the experiment runs seeds 0 and 1 and 10/20/40 episodes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Agreement statistics with bootstrap intervals (simeval.measures.agreement.metric.agreement_summary): seconds per summary.
+"""Agreement statistics with bootstrap intervals (simeval.measures.agreement.metric.agreement_summary): seconds per
+summary.
 
     python experiments/benchmarks/agreement_bench.py [--n 100] [--boot 2000] [--repeats 5]
 Writes outputs/bench/agreement.json. Figure 3 computes one summary per table and judge. The reference: the first

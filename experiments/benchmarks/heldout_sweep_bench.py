@@ -12,10 +12,10 @@ windows(k) = k T episodes x (rows - 20) / 10 + 1 windows each (windows of 20 eve
 paper is measured in this one run; absolute seconds depend on the machine and its load (recorded).
 
 Issue 50 changed the heldout protocol's model (`pixel_norm: standardise`) and added a state-space reading to every
-run (simeval.measures.dynamics_diversity.state_reading), so both steps are timed here in one process, `before` (the preset's model,
-`pixel_norm: none`, no state reading: the protocol until then) and `now` (the protocol's model, plus the state
-reading of each run, timed on the same episodes' states at the protocol's settings: its training stops on its own
-validation loss, so its seconds are measured, not derived); `now_over_before` per group is the ratio of the two
+run (simeval.measures.dynamics_diversity.state_reading), so both steps are timed here in one process, `before` (the
+preset's model, `pixel_norm: none`, no state reading: the protocol until then) and `now` (the protocol's model, plus
+the state reading of each run, timed on the same episodes' states at the protocol's settings: its training stops on its
+own validation loss, so its seconds are measured, not derived); `now_over_before` per group is the ratio of the two
 sweep costs (the issue allows up to 2x).
 """
 

@@ -11,8 +11,8 @@ log = logging.getLogger(__name__)
 
 class SweepTables(Callback):
     """After a dynamics-diversity sweep: its Table 4 and figure in the sweep's folder
-    (simeval.measures.dynamics_diversity.sweep_tables). The runs' result.json files are the record; a table that cannot be drawn is a
-    warning, never a failed sweep."""
+    (simeval.measures.dynamics_diversity.sweep_tables). The runs' result.json files are the record; a table that cannot
+    be drawn is a warning, never a failed sweep."""
 
     def on_multirun_end(self, config, **kwargs) -> None:
         from simeval.errors import UserError

@@ -12,8 +12,8 @@ the folder can be zipped and opened on another machine. Sections:
 - Tables: every Markdown table under `tables_dir` (as written by simeval.report.tables), with links to its CSV/TeX.
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
-  views and the trajectory frames sampled as simeval.measures.quality.run samples them, and the video when there is one) and
-  every judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
+  views and the trajectory frames sampled as simeval.measures.quality.run samples them, and the video when there is
+  one) and every judge reply from `scores.jsonl`, so a reviewer sees why a task scored low. Bundles are found as
   simeval.measures.quality.task_media finds them; a run whose bundles are gone is shown with its scores, replies and a
   note saying so.
 
@@ -232,7 +232,8 @@ def headline_values(rec: dict, limit: int = HEADLINE_VALUES) -> list[tuple[str, 
 
 def dynamics_headline(values: dict) -> list[tuple[str, object]]:
     """A held-out dynamics-diversity run: its gate's verdict in place of its numbers where the model does not beat
-    the baselines (simeval.measures.dynamics_diversity.gate), else the primary number and its skills; then the state reading's line."""
+    the baselines (simeval.measures.dynamics_diversity.gate), else the primary number and its skills; then the state
+    reading's line."""
     gate = values.get("gate")
     one = values["prediction"]["summary"]["one_step"]
     if gate is not None and not gate["passes"]:

@@ -133,8 +133,8 @@ PIXEL_SUMS = {"model": "one_step/model/object", "last": "one_step/last/object", 
 
 def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig()) -> dict:
     """The gate of the pixel reading on the protocol's primary number (the object-focused one-step error: robot
-    pixels out where the episodes carry masks) from R runs' `per_episode` lists (simeval.measures.dynamics_diversity.prediction; every
-    run on the same held-out episodes)."""
+    pixels out where the episodes carry masks) from R runs' `per_episode` lists
+    (simeval.measures.dynamics_diversity.prediction; every run on the same held-out episodes)."""
     order = sorted((e["task"], int(e["seed"])) for e in per_episode_runs[0])
     arrays = {k: np.zeros((len(per_episode_runs), len(order))) for k in PIXEL_SUMS}
     for r, run in enumerate(per_episode_runs):

@@ -122,8 +122,8 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
     `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
     so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
-    `train.segments` how each part of the training ran (simeval.models.world_model_training.train). `compile`: compile the
-    model's steps (WorldModel.compile_steps; for a GPU), `capture`: train with the whole step as one CUDA graph
+    `train.segments` how each part of the training ran (simeval.models.world_model_training.train). `compile`: compile
+    the model's steps (WorldModel.compile_steps; for a GPU), `capture`: train with the whole step as one CUDA graph
     (simeval.runtime.captured; CUDA only), both likewise not part of the key. `how_to_get_more(n)`:
     what a UserError about too few episodes per task tells the user to run (how_to_get_episodes).
 
@@ -134,17 +134,18 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
     with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
     `horizon`-step open-loop prediction errors after `eval_context` observed frames, with the last-frame and
     per-task-mean-image baselines, skill scores, object-focused errors (robot pixels excluded where the episodes
-    carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals (simeval.measures.dynamics_diversity.prediction).
-    With `exclude_robot_from_loss` (heldout only) those same grown robot pixels carry no training loss either, so the
-    model learns nothing of the robot's looks (the visual control failed without it); episodes without masks train
-    on the full frame, and `values["protocol"]["robot_excluded_from_loss"]` says which happened.
-    `heldout_episodes` is not used by "heldout" (its evaluation is held out). `evaluate_only` (heldout): a
-    UserError instead of training when the run's checkpoint is not there (to score finished runs again).
-    `gate` (heldout): the validity gate's settings (simeval.measures.dynamics_diversity.gate; None: its defaults): `values["gate"]` says
-    whether the model beats both baselines on the held-out frames, per task and for the group; where it does not,
-    the run's numbers are no reading of diversity and the log line says so in their place. `state_model`
-    (heldout; None: no state reading): `values["state"]` is the state-space reading on the same training and
-    held-out episodes (simeval.measures.dynamics_diversity.state_reading), gated on its own."""
+    carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals
+    (simeval.measures.dynamics_diversity.prediction). With `exclude_robot_from_loss` (heldout only) those same grown
+    robot pixels carry no training loss either, so the model learns nothing of the robot's looks (the visual control
+    failed without it); episodes without masks train on the full frame, and
+    `values["protocol"]["robot_excluded_from_loss"]` says which happened. `heldout_episodes` is not used by "heldout"
+    (its evaluation is held out). `evaluate_only` (heldout): a UserError instead of training when the run's checkpoint
+    is not there (to score finished runs again). `gate` (heldout): the validity gate's settings
+    (simeval.measures.dynamics_diversity.gate; None: its defaults): `values["gate"]` says whether the model beats both
+    baselines on the held-out frames, per task and for the group; where it does not, the run's numbers are no reading
+    of diversity and the log line says so in their place. `state_model` (heldout; None: no state reading):
+    `values["state"]` is the state-space reading on the same training and held-out episodes
+    (simeval.measures.dynamics_diversity.state_reading), gated on its own."""
     device = resolve_device(device)  # a bad value fails here, before any data is read
     if protocol not in PROTOCOLS:
         raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")

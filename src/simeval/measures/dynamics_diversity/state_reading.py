@@ -25,7 +25,8 @@ Training budget: at most `max_steps` gradient steps for every episode count; eve
 validation episodes (the last `val_share` of each task's training episodes, held back from the gradient; never an
 evaluated one) is read, and training stops once it has not improved by 1% for `patience` reads; the model of the
 best read is kept and `steps_used` recorded. R training seeds give per-episode sums (R, E) for intervals and the
-gate (simeval.measures.dynamics_diversity.gate) against the last and the mean state (GATED says why not constant velocity).
+gate (simeval.measures.dynamics_diversity.gate) against the last and the mean state (GATED says why not constant
+velocity).
 
 Why an MLP written here and not the RSSM of simeval.models.world_model over a state vector: the reading must hold
 where the pixel model fails, so it shares none of its machinery (no latent sampling, no decoder), and a

@@ -5,8 +5,9 @@
     write_sweep_tables(sweep_dir) -> [written paths]
 protocol=heldout runs: `<sweep>/table4_heldout.{csv,md}` and `table4_heldout.png` (simeval.measures.dynamics_diversity.table4_heldout:
 prediction errors with baselines, skill and intervals over seeds and held-out episodes); protocol=paper runs:
-`<sweep>/table4.{csv,md,tex}` and `table4.{png,pdf}` (simeval.measures.dynamics_diversity.table4) when the sweep has exactly three
-episode counts (the paper's three columns), else a note. Runs that failed (status other than ok) are left out.
+`<sweep>/table4.{csv,md,tex}` and `table4.{png,pdf}` (simeval.measures.dynamics_diversity.table4) when the sweep has
+exactly three episode counts (the paper's three columns), else a note. Runs that failed (status other than ok) are left
+out.
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ numbers of episodes per task, per pipeline and group, the paper's values (simeva
     write(rows, "outputs/tables/table4", episodes=(10, 20, 40))   # table4.csv (numbers), .md, .tex
     plot(rows, "outputs/figures/table4.png")                      # and table4.pdf beside it
 
-Only runs of protocol=paper count here (simeval.measures.dynamics_diversity.table4_heldout tabulates protocol=heldout runs).
-One row per (pipeline, group, world-model preset) that has runs at one of the chosen episode counts, plus a
+Only runs of protocol=paper count here (simeval.measures.dynamics_diversity.table4_heldout tabulates protocol=heldout
+runs). One row per (pipeline, group, world-model preset) that has runs at one of the chosen episode counts, plus a
 paper-only row for every paper cell that has none. `ours_<k>` is the mean eval image error (summed over pixels at
 the preset's resolution) of the runs trained on the k-th of `episodes` (several seeds of one cell are averaged;
 failed runs are left out), `ours_<k>_per_pixel` the same per pixel and colour channel, `runs_<k>` how many runs
@@ -73,7 +73,8 @@ def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISOD
         ident = rec.get("identity") or {}
         if rec.get("metric") != METRIC or rec.get("status") != "ok" or (preset and ident.get("preset") != preset):
             continue
-        if ident.get("protocol", "paper") != "paper":  # protocol=heldout runs: simeval.measures.dynamics_diversity.table4_heldout
+        # protocol=heldout runs: simeval.measures.dynamics_diversity.table4_heldout
+        if ident.get("protocol", "paper") != "paper":
             continue
         if int(ident["episodes"]) not in episodes:  # see unused_episodes
             continue

@@ -3,9 +3,9 @@ model's prediction errors on held-out episodes beside the baselines, with 95% in
 held-out episodes (simeval.stats.resample), from dynamics_diversity result.json records of protocol=heldout.
 
 Per cell (the runs of one count: one per training seed, all evaluated on the same held-out episodes), from the
-per-episode sums of simeval.measures.dynamics_diversity.prediction, with x[r, e] summed squared errors and n[r, e] frames, for each kind
-of prediction K (one_step: o_t predicted from o_{<t} and the actions; open_loop: frames imagined from the actions
-after the context; reconstruction: the paper's quantity, here on held-out frames):
+per-episode sums of simeval.measures.dynamics_diversity.prediction, with x[r, e] summed squared errors and n[r, e]
+frames, for each kind of prediction K (one_step: o_t predicted from o_{<t} and the actions; open_loop: frames imagined
+from the actions after the context; reconstruction: the paper's quantity, here on held-out frames):
     K                   sum x_model / sum n
     K_last, K_mean      the baselines on the same frames: copy the last observed frame; the task's mean training image
     K_skill_last        1 - K / K_last;  K_skill_mean  1 - K / K_mean   (< 0: worse than the baseline)
@@ -387,8 +387,8 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
 def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
     """Why a row has no point in a skill-vs-last-frame panel (the second, object-focused; the right, moving
     pixels), for its key: a row missing from a panel without a word reads as a plotting fault. Both need pixels
-    that moved (simeval.measures.dynamics_diversity.prediction: a copy of the last frame is otherwise exact and the ratio divides by ~0);
-    a row's runs may also predate the moving-pixel sums."""
+    that moved (simeval.measures.dynamics_diversity.prediction: a copy of the last frame is otherwise exact and the
+    ratio divides by ~0); a row's runs may also predate the moving-pixel sums."""
     summed = all(f"one_step_moving_skill_last_{k}" in row for k in counts)
     few_moved = summed and not any(np.isfinite(row[f"one_step_moving_skill_last_{k}"]) for k in counts)
     no_object = not any(np.isfinite(row.get(f"one_step_object_skill_last_{k}", np.nan)) for k in counts)

@@ -15,8 +15,8 @@ import numpy as np
 
 
 class RandomActions:
-    """A policy stand-in for simeval.measures.generalization.rollouts.rollout_task: `cfg` carries what the rollout and its
-    cache key read (action space, cameras, frame size, sampler), `runner(env)` the per-rollout actor."""
+    """A policy stand-in for simeval.measures.generalization.rollouts.rollout_task: `cfg` carries what the rollout and
+    its cache key read (action space, cameras, frame size, sampler), `runner(env)` the per-rollout actor."""
 
     def __init__(self, action_space: str, cameras=("top",), image_size=(64, 64)) -> None:
         self.cfg = SimpleNamespace(action_space=action_space, cameras=list(cameras), image_size=list(image_size),

@@ -2,7 +2,8 @@
 
 - `store_tasks`: each episode's identity and ground truth (success, final progress), read from the store's
   metadata for judge=oracle: no frame is decoded and nothing is written.
-- `export_bundles`: task bundles (the folder layout documented in simeval/measures/quality/bundle.py) for the model judges, which
+- `export_bundles`: task bundles (the folder layout documented in simeval/measures/quality/bundle.py) for the model
+judges, which
   need images: the description, the ground truth, the scene views, and up to `max_frames` trajectory frames of
   one camera spread evenly over the episode (first and last kept).
 

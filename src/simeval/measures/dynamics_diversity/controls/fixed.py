@@ -34,14 +34,14 @@ BBSEA's close-drawer from the front camera at four noises of the drawer's initia
 `dose_push`, BBSEA's push-block-to-area from the front camera at four ranges of the block's friction (`block:
 {friction}`, centred on one mean: how the block answers the same push varies, which no frame shows before it moves),
 judged by the one-step moving-pixel error. The criteria were written down before each control ran.
-The moving-pixel errors (simeval.measures.dynamics_diversity.prediction: kept pixels whose colour changed from the reference frame) are
-read beside the primary number, by criteria written down before their first reading (`moving_passes`; they do not
-decide `passes`): in the dynamics control the same two criteria on the one-step moving-pixel error; in the visual
-control the moving-pixel error moves less than a quarter as much as the full frame's. The `dose` control reports
-their share of the kept pixels (its top camera shows nothing moving outside the robot: the carried block is under
-the suction cup); `dose_drawer` is judged by them. `--reevaluate` scores saved runs again from their checkpoints,
-for quantities added later; `--replot` draws the figure again from the committed table alone (after a change
-to the plotting code). `--conditions` runs some conditions only (two processes can share the runs; the last
+The moving-pixel errors (simeval.measures.dynamics_diversity.prediction: kept pixels whose colour changed from the
+reference frame) are read beside the primary number, by criteria written down before their first reading
+(`moving_passes`; they do not decide `passes`): in the dynamics control the same two criteria on the one-step
+moving-pixel error; in the visual control the moving-pixel error moves less than a quarter as much as the full frame's.
+The `dose` control reports their share of the kept pixels (its top camera shows nothing moving outside the robot: the
+carried block is under the suction cup); `dose_drawer` is judged by them. `--reevaluate` scores saved runs again from
+their checkpoints, for quantities added later; `--replot` draws the figure again from the committed table alone (after
+a change to the plotting code). `--conditions` runs some conditions only (two processes can share the runs; the last
 one to finish, or any later call, builds the table from every run saved).
 """
 
@@ -343,9 +343,10 @@ def dose_verdict(records: list[dict], levels: tuple[str, ...], n_boot: int = 200
 
 def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], margins=(0, 1, 2)) -> dict:
     """Per level and robot-mask margin, the share of the kept pixels of the held-out episodes (seeds heldout[0]-1 to
-    heldout[1]-1) whose colour changed from the frame before (the moving-pixel rule of simeval.measures.dynamics_diversity.prediction,
-    on the data alone, no model): where the judged moving-pixel error has no reading, this says whether the
-    motion was there but inside the margin around the robot that the protocol leaves out."""
+    heldout[1]-1) whose colour changed from the frame before (the moving-pixel rule of
+    simeval.measures.dynamics_diversity.prediction, on the data alone, no model): where the judged moving-pixel error
+    has no reading, this says whether the motion was there but inside the margin around the robot that the protocol
+    leaves out."""
     import h5py
     import numpy as np
 
