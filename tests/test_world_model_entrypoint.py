@@ -23,9 +23,17 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=600)
 
 
-def test_debug_overlay_is_the_tiny_preset():
-    overlay = yaml.safe_load((ROOT / "conf" / "debug" / "diversity" / "tiny.yaml").read_text())["world_model"]
-    assert overlay == yaml.safe_load((ROOT / "conf" / "world_model" / "tiny.yaml").read_text())
+def test_debug_overlay_is_the_tiny_preset_whatever_preset_is_chosen():
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    tiny = yaml.safe_load((ROOT / "conf" / "world_model" / "tiny.yaml").read_text())
+    with initialize_config_dir(version_base="1.3", config_dir=str(ROOT / "conf")):
+        for preset in ("cpu", "paper"):
+            cfg = compose("diversity", overrides=["debug=tiny", f"world_model={preset}"])
+            assert OmegaConf.to_container(cfg.world_model) == tiny
+            assert cfg.protocol.steps == 40
+        assert compose("diversity").world_model.name == "cpu"
 
 
 def test_pipeline_without_suite_or_episodes_is_one_line_naming_what_is_missing(tmp_path):
