@@ -19,7 +19,7 @@ ROBOGEN_TASKS ?= $(wildcard ../shared/data/robogen_tasks.yaml)
 GENSIM_CHECKOUT ?= $(or $(GENSIM_ROOT),$(wildcard ../shared/gensim))
 export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROOT
 
-# Figure 3's input: the paper's appendix score tables, shipped (experiments/paper_human_eval.py), or a table of yours
+# Figure 3's input: the paper's appendix score tables, shipped with the package, or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
 
 .PHONY: help setup gensim-env metaworld-env lerobot-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5

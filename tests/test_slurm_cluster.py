@@ -1,4 +1,4 @@
-"""The `slurm` launcher on a real one-node SLURM cluster (experiments/local_slurm.py: Debian's slurm-wlm, slurmdbd,
+"""The `slurm` launcher on a real one-node SLURM cluster (simeval.devcluster: Debian's slurm-wlm, slurmdbd,
 munge and MariaDB, brought up for this module and torn down after it). Skipped, with the reason on one line, where
 the cluster cannot be brought up (not root, packages missing and not installable)."""
 
@@ -22,7 +22,7 @@ LAUNCH = ["hydra/launcher=slurm", "hydra.launcher.partition=debug", "hydra.launc
 
 @pytest.fixture(scope="module")
 def slurm(tmp_path_factory):
-    from local_slurm import Unavailable, down, up
+    from simeval.devcluster import Unavailable, down, up
 
     state = tmp_path_factory.mktemp("slurm")
     try:

@@ -1,5 +1,5 @@
 """Benchmark: the paper chain at the `quick` profile for one pipeline, run here and as dependent SLURM jobs on the
-local one-node cluster (experiments/local_slurm.py), wall time side by side in one run, and whether both end with the
+local one-node cluster (python -m simeval.devcluster), wall time side by side in one run, and whether both end with the
 same Tables 4 and 5.
 
     python experiments/benchmarks/slurm_chain_bench.py [--pipeline robogen] [--stages collect,table4,table5,report]
@@ -36,10 +36,11 @@ def main() -> None:
               "profile": "quick", "pipeline": a.pipeline, "stages": a.stages.split(",")}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        cluster = [sys.executable, str(ROOT / "experiments" / "local_slurm.py"), "--dir", str(tmp / "cluster")]
+        cluster = [sys.executable, "-m", "simeval.devcluster", "--dir", str(tmp / "cluster")]
         started = subprocess.run([*cluster, "up"], capture_output=True, text=True, check=False)
         if started.returncode != 0:
-            ap.error(started.stderr.strip().splitlines()[-1] if started.stderr.strip() else "local_slurm.py up failed")
+            said = started.stderr.strip().splitlines()
+            ap.error(said[-1] if said else "python -m simeval.devcluster up failed")
         conf = [ln for ln in started.stdout.splitlines() if ln.startswith("export SLURM_CONF=")][-1]
         env = {**os.environ, "SLURM_CONF": conf.split("=", 1)[1]}
         try:

@@ -46,7 +46,7 @@ from pathlib import Path
 from simeval.errors import UserError
 
 STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
-# Figure 3 from the paper's own appendix score tables, shipped with the package (experiments/paper_human_eval.py);
+# Figure 3 from the paper's own appendix score tables, shipped with the package;
 # SIMEVAL_HUMAN_SCORES points it at a table of your own
 PAPER_HUMAN_SCORES = Path(__file__).resolve().parent / "report" / "paper_human_eval.json"
 SUITE_TABLE3_CAPTION = ("Text diversity (paper Eq. 1) of simeval's own suites' task descriptions, not the paper's "

@@ -2,8 +2,8 @@
 MariaDB for accounting, which submitit's status polls read through `sacct`): for the tests of the `slurm` launcher
 and for trying the cluster path before a real cluster.
 
-    python experiments/local_slurm.py up [--dir /tmp/simeval-slurm]     # prints `export SLURM_CONF=...`
-    python experiments/local_slurm.py down [--dir /tmp/simeval-slurm]
+    python -m simeval.devcluster up [--dir /tmp/simeval-slurm]     # prints `export SLURM_CONF=...`
+    python -m simeval.devcluster down [--dir /tmp/simeval-slurm]
     export SLURM_CONF=/tmp/simeval-slurm/slurm.conf
     python src/text_diversity.py -m hydra/launcher=slurm hydra.launcher.partition=debug \\
         hydra.launcher.gpus_per_node=0 hydra.launcher.mem_gb=1 hydra.launcher.cpus_per_task=1 ...
