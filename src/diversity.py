@@ -1,6 +1,7 @@
 """Dynamics-based trajectory diversity: a world model per (group, episodes) (paper Table 4). See conf/diversity.yaml."""
 
 import logging
+import shlex
 
 import hydra
 from omegaconf import DictConfig
@@ -32,10 +33,13 @@ def main(cfg: DictConfig) -> None:
     torch.set_num_threads(cfg.threads)
     device = training_device(cfg.device, cfg.capture)  # a bad value or a missing GPU stops here, before any data
     # episodes_needed checks every protocol.* value first, so a bad one stops here, before the store is read
+    # a plugin pipeline's config folder: the collect command it suggests needs it too
+    searchpath = "".join(f" {shlex.quote(o)}" for o in HydraConfig.get().overrides.hydra
+                         if o.startswith("hydra.searchpath="))
     source, how_to_get_more = episode_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera,
                                              cfg.pipeline.get("suite"), own_code_args(cfg.pipeline),
                                              measure.episodes_needed,
-                                             HydraConfig.get().runtime.choices.get("debug") or "none")
+                                             HydraConfig.get().runtime.choices.get("debug") or "none", searchpath)
     with run.logger() as logger:
         values = measure.fit(source, checkpoint_dir=cfg.checkpoint_dir, logger=logger, device=device,
                              compile=cfg.compile, capture=cfg.capture, videos=int(cfg.videos), progress=bool(cfg.progress),

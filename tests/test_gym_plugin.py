@@ -58,6 +58,12 @@ def test_a_plugin_pipeline_collects_and_runs_diversity_and_generalization(user):
     values = _result(user / "diversity")["values"]
     assert values["gate"]["verdict"] and values["state"]["gate"]["verdict"]  # both readings give their verdict
     assert _result(user / "diversity")["identity"]["pipeline"] == "reach"
+    # too few episodes: the collect command it suggests finds the plugin's config and records the stored cameras
+    res = _run(user, "diversity", "pipeline=reach", "camera=top", "debug=tiny", "episodes=10", "eval_episodes=[11,12]",
+               f"hydra.run.dir={user / 'too_few'}")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr[-3000:]
+    assert f"hydra.searchpath=[file://{user / 'mine' / 'conf'}]" in res.stderr
+    assert "'record.cameras=[top]'" in res.stderr and "python src/collect.py pipeline=reach" in res.stderr
 
     res = _run(user, "generalization", "pipeline=reach", "debug=tiny", "policy.model.cameras=[top]",
                "eval.video_camera=top", "episodes_per_task=4", f"checkpoint_dir={user / 'pol'}",

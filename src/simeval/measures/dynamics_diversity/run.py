@@ -455,19 +455,28 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
             f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
 
 
+COLLECT_DEFAULTS = {"record.image_size": [64, 64], "record.cameras": ["front", "top"]}  # conf/collect.yaml's
+
+
 def _stored_size_override(store: str | Path, pipeline: str, extra: str) -> str:
-    """` record.image_size=[H,W]` when the store's first episode of `pipeline` was recorded at a size other than
-    conf/collect.yaml's 64x64 and `extra` does not already settle it (a debug overlay or the key itself)."""
+    """` record.image_size=[H,W]` and ` record.cameras=[...]` where the store's first episode of `pipeline` was
+    recorded otherwise than conf/collect.yaml's defaults (COLLECT_DEFAULTS) and `extra` does not already settle it
+    (a debug overlay or the key itself): the collector refuses to mix recordings in one store."""
     from simeval.episodes.store import EpisodeStore, read_recording
 
-    if "debug=" in extra or "record.image_size" in extra:
-        return ""
     try:
         first = next(iter(EpisodeStore(store).paths(pipeline)), None)
-        size = read_recording(first)["record.image_size"] if first is not None else None
+        recorded = read_recording(first) if first is not None else {}
     except (UserError, OSError):  # a damaged file is reported by the caller's own error
         return ""
-    return f" 'record.image_size=[{size[0]},{size[1]}]'" if size and list(size) != [64, 64] else ""
+    out = ""
+    size, cameras = recorded.get("record.image_size"), recorded.get("record.cameras")
+    if size and list(size) != COLLECT_DEFAULTS["record.image_size"] and not (
+            "debug=" in extra or "record.image_size" in extra):
+        out += f" 'record.image_size=[{size[0]},{size[1]}]'"
+    if cameras and sorted(cameras) != COLLECT_DEFAULTS["record.cameras"] and "record.cameras" not in extra:
+        out += f" 'record.cameras=[{','.join(cameras)}]'"
+    return out
 
 
 def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
@@ -495,11 +504,12 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
 
 
 def episode_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
-                   own_code: str | None, episodes_needed: int, debug_overlay: str = "none"):
+                   own_code: str | None, episodes_needed: int, debug_overlay: str = "none", collect_extra: str = ""):
     """(store_source's episodes, how_to_get_more(n): the command that collects n per task): what src/diversity.py
     reads, and tells a user to run when there are too few. `debug_overlay`: the run's debug= choice, which the
-    collect command repeats (its recording settings must match the run's)."""
-    extra = f" debug={debug_overlay}" if debug_overlay != "none" else ""
+    collect command repeats (its recording settings must match the run's); `collect_extra`: more arguments it
+    repeats (a plugin pipeline's `hydra.searchpath=[...]`)."""
+    extra = (f" debug={debug_overlay}" if debug_overlay != "none" else "") + collect_extra
     source = store_source(store, pipeline, group, camera, suite, episodes_needed, extra, own_code)
     return source, lambda n: how_to_get_episodes(store, pipeline, group, suite, n, extra, own_code)
 
