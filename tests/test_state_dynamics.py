@@ -97,3 +97,17 @@ def test_a_state_that_is_noise_at_every_step_gets_no_reading():
     out = state_reading(states, ["t"] * 30, list(range(20)), list(range(20, 30)), FAST)
     assert not out["gate"]["passes"]
     assert out["line"].startswith("no reading: the model does not beat the mean state")
+
+
+def test_states_of_different_sizes_between_episodes_are_no_reading_naming_both_not_a_crash():
+    """A scene whose object count varies per episode records object poses of varying size (a BBSEA group did): the
+    state model reads one size, so the reading is a UserError the run reports as "no reading", naming both sizes."""
+    rng = np.random.default_rng(0)
+
+    def episode(d):
+        return rng.normal(size=(12, d)), rng.normal(size=(12, 2))
+
+    states = {0: episode(5), 1: episode(5), 2: episode(12), 3: episode(5), 4: episode(5)}
+    tasks = ["a", "a", "b", "a", "b"]
+    with pytest.raises(UserError, match=r"differ in size between episodes \(5 values per step in a's, 12 in b's"):
+        state_reading(states, tasks, [0, 1, 2], [3, 4])

@@ -228,6 +228,14 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     line} or {reading: None, why} where there is no state to read."""
     if set(train_idx) & set(eval_idx):
         raise RuntimeError("an evaluated episode is among the training episodes")
+    sizes = {}  # values per step -> the first episode of that size, for the message
+    for i in (*train_idx, *eval_idx):
+        sizes.setdefault(states[i][0].shape[1], i)
+    if len(sizes) > 1:  # one model reads one state vector: objects that appear or vanish between episodes
+        (d0, i0), (d1, i1) = sorted(sizes.items())[:2]
+        raise UserError(f"the recorded states differ in size between episodes ({d0} values per step in "
+                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s: the scene's object count varies); the state model "
+                        "reads one size")
     dims = states[eval_idx[0]][0].shape[1]
     if dims == 0:
         return {"dims": 0, "gate": None, "line": "no state recorded (obs/state empty, no obs/object_poses)",
