@@ -51,3 +51,13 @@ def refuse_to_replace_committed(paths: list[Path], new_bytes: list[bytes], overw
         if tracked(path):
             fail(f"error: {path} is a committed result and this run would change it; write elsewhere "
                  f"with {elsewhere}, or replace it with --overwrite")
+
+
+def add_output_options(ap, runs: str, made: str) -> None:
+    """--out (runs and checkpoints), --tables (what the control makes), --replot and --overwrite, for a control's
+    argparse parser: `runs`, where under OUT its runs go; `made`, what it writes under TABLES."""
+    ap.add_argument("--out", type=Path, default=Path("outputs"),
+                    help=f"runs under OUT/{runs}, checkpoints under OUT/checkpoints (default: outputs)")
+    ap.add_argument("--tables", type=Path, default=Path("outputs"), help=f"{made} (default: outputs)")
+    ap.add_argument("--replot", action="store_true", help="rebuild from the saved runs only")
+    ap.add_argument("--overwrite", action="store_true", help="replace the committed results")

@@ -25,7 +25,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from simeval.cli import OneLineParser
-from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed
+from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
+                                                                refuse_to_replace_committed)
 
 FAINT = (170, 110, 100)  # a low-contrast disk on the grey background (128, 128, 128)
 # (colour, training seed, pixel_norm): the table's rows, in its order
@@ -117,12 +118,7 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rows", type=int, nargs="+", default=list(range(len(ROWS))),
                     help=f"rows 0-{len(ROWS) - 1} of the table (default: all)")
-    ap.add_argument("--out", type=Path, default=Path("outputs"),
-                    help="runs under OUT/controls/plateau, checkpoints under OUT/checkpoints (default: outputs)")
-    ap.add_argument("--tables", type=Path, default=Path("outputs"),
-                    help="the table under TABLES/tables (default: outputs)")
-    ap.add_argument("--replot", action="store_true", help="the table from the saved runs only")
-    ap.add_argument("--overwrite", action="store_true", help="replace the committed table")
+    add_output_options(ap, "controls/plateau", "the table under TABLES/tables")
     args = ap.parse_args(argv)
     bad = sorted(set(args.rows) - set(range(len(ROWS))))
     if bad:

@@ -57,7 +57,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from simeval.cli import OneLineParser
-from simeval.measures.dynamics_diversity.controls.common import fail, preset, refuse_to_replace_committed
+from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
+                                                                refuse_to_replace_committed)
 
 DRAW_SEEDS = tuple(range(12))  # fixed before any draw was run; never drop one
 GROUPS = {"shared": ("shared", "dynamics"), "varied": ("varied", "dynamics"), "looks": ("varied", "visual")}
@@ -347,12 +348,7 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     ap.add_argument("--episodes", type=int, default=10, help="training episodes per task (default: 10)")
     ap.add_argument("--preset", default="cpu", help="world_model preset, conf/world_model/<name>.yaml (default: cpu)")
     ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default: 2)")
-    ap.add_argument("--out", type=Path, default=Path("outputs"),
-                    help="runs under OUT/controls/random/runs, checkpoints under OUT/checkpoints (default: outputs)")
-    ap.add_argument("--tables", type=Path, default=Path("outputs"),
-                    help="the table under TABLES/tables, the figure under TABLES/figures (default: outputs)")
-    ap.add_argument("--replot", action="store_true", help="table and figure from the saved runs only")
-    ap.add_argument("--overwrite", action="store_true", help="replace committed tables and figures")
+    add_output_options(ap, "controls/random/runs", "the table under TABLES/tables, the figure under TABLES/figures")
     args = ap.parse_args(argv)
     args.conf_dir = conf_dir
     bad = sorted(set(args.draws) - set(DRAW_SEEDS))
