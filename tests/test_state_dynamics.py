@@ -11,8 +11,8 @@ import torch
 
 from simeval.errors import UserError
 from simeval.measures.dynamics_diversity.gate import order_between_groups
-from simeval.measures.dynamics_diversity.state_reading import (StateModelConfig, _steps, low_dim_state, split_training,
-                                           state_reading)
+from simeval.measures.dynamics_diversity.state_reading import (StateModelConfig, _steps, low_dim_state, pad_states,
+                                                               split_training, state_reading)
 
 torch.set_num_threads(1)
 FAST = StateModelConfig(max_steps=600, eval_every=50, patience=4, seeds=(0, 1))
@@ -99,9 +99,8 @@ def test_a_state_that_is_noise_at_every_step_gets_no_reading():
     assert out["line"].startswith("no reading: the model does not beat the mean state")
 
 
-def test_states_of_different_sizes_between_episodes_are_no_reading_naming_both_not_a_crash():
-    """A scene whose object count varies per episode records object poses of varying size (a BBSEA group did): the
-    state model reads one size, so the reading is a UserError the run reports as "no reading", naming both sizes."""
+def test_states_of_different_sizes_without_a_mask_are_a_user_error_naming_both_sizes():
+    """States handed in unpadded (not through read_states) cannot be read as one vector: the error says which."""
     rng = np.random.default_rng(0)
 
     def episode(d):
@@ -109,5 +108,84 @@ def test_states_of_different_sizes_between_episodes_are_no_reading_naming_both_n
 
     states = {0: episode(5), 1: episode(5), 2: episode(12), 3: episode(5), 4: episode(5)}
     tasks = ["a", "a", "b", "a", "b"]
-    with pytest.raises(UserError, match=r"differ in size between episodes \(5 values per step in a's, 12 in b's"):
+    with pytest.raises(UserError, match=r"differ in size between episodes \(5 values per step in a's, 12 in b's\)"):
         state_reading(states, tasks, [0, 1, 2], [3, 4])
+
+
+def test_padding_by_hand_robot_and_objects_padded_to_the_largest_with_a_presence_mask():
+    robot2, robot3 = np.ones((4, 2)), np.full((4, 3), 2.0)
+    one = np.zeros((4, 1, 7))
+    one[..., :3], one[..., 6] = 5.0, -1.0  # w < 0: canonicalised to the same rotation with w = 1
+    two = np.zeros((4, 2, 7))
+    two[..., 6] = 1.0
+    a = np.zeros((4, 1))
+    out = pad_states({0: (robot2, one, a), 1: (robot3, two, a), 2: (robot3, None, a)})
+    s0, _, m0 = out[0]
+    assert s0.shape == (4, 3 + 2 * 7)
+    np.testing.assert_array_equal(s0[0], [1, 1, 0, 5, 5, 5, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(m0, [1, 1, 0] + [1] * 7 + [0] * 7)
+    np.testing.assert_array_equal(out[1][2], [1] * 17)
+    np.testing.assert_array_equal(out[2][2], [1] * 3 + [0] * 14)
+    same = pad_states({0: (robot2, one, a), 1: (robot2, one, a)})  # one layout: no mask, no padding
+    assert len(same[0]) == 2 and same[0][0].shape == (4, 9)
+
+
+def _object_group(n_episodes: int = 24, n: int = 30, seed: int = 0):
+    """Two tasks of one robot: 'one' moves one object, 'two' two objects, each object's x by its own fixed gain
+    times the action, y and z still; the robot state follows the action. Object counts differ, so read through
+    pad_states as read_states does."""
+    rng = np.random.default_rng(seed)
+    raw, tasks = {}, []
+    for e in range(n_episodes):
+        task, k = ("one", 1) if e % 2 == 0 else ("two", 2)
+        a = rng.uniform(-1, 1, (n, 1))
+        robot = np.zeros((n, 2))
+        poses = np.zeros((n, k, 7))
+        poses[..., 6] = 1.0
+        poses[0, :, :2] = rng.uniform(-0.2, 0.2, (k, 2))
+        for t in range(n - 1):
+            robot[t + 1] = robot[t] + 0.05 * a[t]
+            poses[t + 1] = poses[t]
+            poses[t + 1, :, 0] += np.array([0.04, -0.02][:k]) * a[t, 0]
+        raw[e], tasks = (robot, poses, a), tasks + [task]
+    return pad_states(raw), tasks
+
+
+def test_a_group_whose_tasks_hold_different_object_counts_reads_and_padding_costs_no_predictor_anything():
+    states, tasks = _object_group()
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST)
+    assert out["padded_from"] == [2 + 7, 2 + 14] and out["dims"] == 16
+    assert out["gate"]["passes"], out["line"]
+    assert out["summary"]["skill_vs_last_state"] > 0.8 and "padded from 9/16" in out["line"]
+    # a one-object episode's last-state error is that of its unpadded 9 values, by hand
+    row = next(r for r in out["per_episode"] if r["task"] == "one")
+    s = states[row["index"]][0][:, :9]
+    t = np.arange(FAST.history, len(s) - 1)
+    assert row["last_state"] == pytest.approx(((s[t + 1] - s[t]) ** 2).sum())
+
+
+def test_a_value_that_stood_still_in_training_and_moves_when_held_out_does_not_blow_up_the_prediction():
+    """A block's roll barely changes in the training episodes (deviation ~1e-6) and changes by 0.3 in a held-out
+    one (it topples): unclipped, that input is ~1e5 deviations and every predicted value explodes; clipped to
+    +-feature_clip the model still beats the last state on the moving value's neighbours."""
+    rng = np.random.default_rng(0)
+
+    def episode(topples: bool):
+        a = rng.uniform(-1, 1, (30, 1))
+        s = np.zeros((30, 2))
+        s[:, 1] = rng.normal(0, 1e-6, 30)
+        for t in range(29):
+            s[t + 1, 0] = s[t, 0] + 0.1 * a[t, 0]
+        if topples:
+            s[15:, 1] += 0.3
+        return s, a
+
+    states = {e: episode(e >= 20 and e % 2 == 0) for e in range(30)}
+    tasks = ["t"] * 30
+    clipped = state_reading(states, tasks, list(range(20)), list(range(20, 30)), FAST)
+    unclipped = state_reading(states, tasks, list(range(20)), list(range(20, 30)),
+                              StateModelConfig(**{**FAST.__dict__, "feature_clip": None}))
+    assert clipped["summary"]["model"] < clipped["summary"]["last_state"]
+    assert unclipped["summary"]["model"] > 10 * clipped["summary"]["model"]
+    with pytest.raises(UserError, match="feature_clip"):
+        StateModelConfig(feature_clip=-1.0)

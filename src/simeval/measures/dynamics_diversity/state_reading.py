@@ -6,18 +6,23 @@ State: s_t (D,) = [obs/state_t (the robot's proprioception, what the pipeline re
 the store has obs/object_poses (T+1, N, 7): x, y, z and the quaternion xyzw with w >= 0 (q and -q are one
 rotation)]. Units are the store's (metres, radians): errors of two groups of one pipeline compare.
 
+Where a group's tasks record different sizes (a task group's scenes hold 1-3 objects; robots of different
+proprioception), the robot state is padded to the group's largest Dr and the objects to its largest N, with zeros,
+and each episode carries a presence mask m (D,): the model also sees m, its predicted change is m * f(...), and every
+error (model and baselines) sums over present values only, so a padded value costs no predictor anything.
+
     model      s^_{t+1} = s_t + sd * f([ (s_t - mu) / sd, (s_{t-j+1} - s_{t-j}) / sd, (a_{t-j+1} - mu_a) / sd_a
                                              for j = 1 .. H ])
                f an MLP (SiLU), trained with Adam on the mean squared error of the normalised change
                (mu, sd, mu_a, sd_a: means and deviations over the training episodes' rows; sd = 1 where a
-               dimension never changes). H = `history` past changes and actions: from them the model can infer
+               dimension never changes; each normalised input clipped to +-feature_clip). H = `history` past changes and actions: from them the model can infer
                in context how this episode's actions move things (a varied group's per-episode knobs), as the
                RSSM's recurrent state can
     baselines  last state         s^_{t+1} = s_t
                mean state         s^_{t+1} = the task's mean state over its training episodes' rows
                constant velocity  s^_{t+1} = s_t + (s_t - s_{t-1})
     scored on  every step t = H .. n - 2 of a held-out episode of n rows (t >= H: the history is observed;
-               row n - 1's action is padding): se = sum_d (s^_{t+1, d} - s_{t+1, d})^2, per episode summed over
+               row n - 1's action is padding): se = sum_d m_d (s^_{t+1, d} - s_{t+1, d})^2, per episode summed over
                its steps with the number of steps (`frames`)
     error      sum se / sum frames;  skill vs b = 1 - error / error_b
 
@@ -66,11 +71,17 @@ class StateModelConfig:
     val_share: float = 0.2  # of each task's training episodes (at least one), held back from the gradient
     seeds: tuple[int, ...] = (0, 1, 2)
     history: int = 4  # H: past changes and actions the model sees
+    # normalised inputs are clipped to +-feature_clip deviations (as gymnasium's and Stable-Baselines' observation
+    # normalisers clip): a value that barely moved in the training episodes (a block's roll while it stood) has a
+    # tiny deviation, and when it moves in a held-out episode (the block topples) its unclipped input is thousands of
+    # deviations and the MLP's prediction of every value explodes (BBSEA table, 10 episodes: one of 90 held-out
+    # episodes gave 11,000 of the model's 11,150 summed error). null: no clipping.
+    feature_clip: float | None = 10.0
 
     def __post_init__(self) -> None:
         require_whole_fields(self, "protocol.state_model", ("hidden", "layers", "batch_size", "max_steps",
                                                              "eval_every", "patience", "history"))
-        for key in ("lr", "val_share"):
+        for key in ("lr", "val_share") + (("feature_clip",) if self.feature_clip is not None else ()):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0:
                 raise UserError(f"protocol.state_model.{key}={v!r}: expected a positive number")
@@ -100,11 +111,49 @@ def low_dim_state(state: np.ndarray, object_poses: np.ndarray | None) -> np.ndar
     return np.concatenate(parts, 1)
 
 
-def read_states(source, episodes) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def read_states(source, episodes) -> dict[int, tuple]:
     """{e: (states (n, D), actions (n, A))} for the episodes `episodes` (indices) of a source (ArraySource or
-    StoreSource: their read_full of "state", "object_poses" (None where not recorded) and "action")."""
-    return {int(e): (low_dim_state(source.read_full(int(e), "state"), source.read_full(int(e), "object_poses")),
-                     np.asarray(source.read_full(int(e), "action"), np.float64)) for e in episodes}
+    StoreSource: their read_full of "state", "object_poses" (None where not recorded) and "action"); where the
+    episodes' robot states or object counts differ, {e: (states, actions, present (D,) bool)} padded (pad_states)."""
+    raw = {}
+    for e in episodes:
+        poses = source.read_full(int(e), "object_poses")
+        raw[int(e)] = (np.asarray(source.read_full(int(e), "state"), np.float64),
+                       None if poses is None or not np.size(poses) else np.asarray(poses, np.float64),
+                       np.asarray(source.read_full(int(e), "action"), np.float64))
+    return pad_states(raw)
+
+
+def pad_states(raw: dict[int, tuple]) -> dict[int, tuple]:
+    """{e: (robot state (n, Dr_e), object poses (n, N_e, 7) or None, actions (n, A))} -> read_states's form: one
+    layout, [robot padded to the largest Dr, objects padded to the largest N], with a presence mask only where some
+    episode needed padding (so a group of one layout reads exactly as it would without this step)."""
+    def robot_dims(r):
+        return int(np.prod(r.shape[1:])) if r.ndim > 1 else 1
+
+    dr = max(robot_dims(r) for r, _, _ in raw.values())
+    n_obj = max(0 if p is None else p.shape[1] for _, p, _ in raw.values())
+    padded = any(robot_dims(r) != dr or (0 if p is None else p.shape[1]) != n_obj for r, p, _ in raw.values())
+    out = {}
+    for e, (robot, poses, actions) in raw.items():
+        if not padded:
+            out[e] = (low_dim_state(robot, poses), actions)
+            continue
+        n = len(robot)
+        r = np.zeros((n, dr))
+        r[:, :robot_dims(robot)] = robot.reshape(n, -1)
+        p = np.zeros((n, n_obj, 7))
+        k = 0 if poses is None else poses.shape[1]
+        if k:
+            p[:, :k] = poses
+        present = np.concatenate([np.arange(dr) < robot_dims(robot), np.repeat(np.arange(n_obj) < k, 7)])
+        out[e] = (low_dim_state(r, p if n_obj else None), actions, present)
+    return out
+
+
+def _entry(item: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(states, actions, present or None) of a states entry of two or three items."""
+    return (item[0], item[1], item[2] if len(item) > 2 else None)
 
 
 def _steps(s: np.ndarray, a: np.ndarray, history: int):
@@ -142,33 +191,60 @@ class _Norm:
     sd: np.ndarray
     mu_a: np.ndarray
     sd_a: np.ndarray
+    masked: bool = False  # the group is padded: the model sees the presence mask
+    clip: float | None = None
 
     @classmethod
-    def fit(cls, data: list[tuple[np.ndarray, np.ndarray]]) -> _Norm:
-        s = np.concatenate([x for x, _ in data])
-        a = np.concatenate([y[:-1] for _, y in data])  # the real actions (the last row's is padding)
-        sd, sd_a = s.std(0), a.std(0)
-        return cls(s.mean(0), np.where(sd > 1e-8, sd, 1.0), a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0))
+    def fit(cls, data: list[tuple], clip: float | None = None) -> _Norm:
+        """Means and deviations over the rows where a value is present (a padded zero is not a value)."""
+        entries = [_entry(d) for d in data]
+        masked = any(m is not None for _, _, m in entries)
+        s = np.concatenate([x for x, _, _ in entries])
+        a = np.concatenate([y[:-1] for _, y, _ in entries])  # the real actions (the last row's is padding)
+        if masked:
+            w = np.concatenate([np.broadcast_to(_present(m, x.shape[1]), x.shape) for x, _, m in entries])
+            count = np.maximum(w.sum(0), 1)
+            mu = (s * w).sum(0) / count
+            sd = np.sqrt((((s - mu) ** 2) * w).sum(0) / count)
+        else:
+            mu, sd = s.mean(0), s.std(0)
+        sd_a = a.std(0)
+        return cls(mu, np.where(sd > 1e-8, sd, 1.0), a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0), masked, clip)
 
-    def features(self, s, changes, actions) -> np.ndarray:
+    def features(self, s, changes, actions, present=None) -> np.ndarray:
         m = len(s)
-        return np.concatenate([(s - self.mu) / self.sd, (changes / self.sd).reshape(m, -1),
-                               ((actions - self.mu_a) / self.sd_a).reshape(m, -1)], 1)
+        parts = [(s - self.mu) / self.sd, (changes / self.sd).reshape(m, -1),
+                 ((actions - self.mu_a) / self.sd_a).reshape(m, -1)]
+        if self.clip is not None:
+            parts = [np.clip(p, -self.clip, self.clip) for p in parts]
+        if self.masked:
+            parts.append(np.broadcast_to(_present(present, s.shape[1]), (m, s.shape[1])).astype(np.float64))
+        return np.concatenate(parts, 1)
+
+
+def _present(present: np.ndarray | None, dims: int) -> np.ndarray:
+    return np.ones(dims, bool) if present is None else np.asarray(present, bool)
 
 
 def _tensors(data, norm: _Norm, history: int):
-    rows = [_steps(s, a, history) for s, a in data]
-    x = np.concatenate([norm.features(s, c, a) for s, c, a, _ in rows])
-    y = np.concatenate([(nxt - s) / norm.sd for s, _, _, nxt in rows])
-    return torch.as_tensor(x, dtype=torch.float32), torch.as_tensor(y, dtype=torch.float32)
+    """Features x, normalised changes y and the output mask (rows, D) of every step of `data`'s episodes."""
+    xs, ys, ms = [], [], []
+    for item in data:
+        s, a, present = _entry(item)
+        cur, changes, actions, nxt = _steps(s, a, history)
+        xs.append(norm.features(cur, changes, actions, present))
+        ys.append((nxt - cur) / norm.sd)
+        ms.append(np.broadcast_to(_present(present, s.shape[1]), cur.shape))
+    as_tensor = lambda v: torch.as_tensor(np.concatenate(v), dtype=torch.float32)  # noqa: E731
+    return as_tensor(xs), as_tensor(ys), as_tensor(ms)
 
 
 def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[np.ndarray, np.ndarray]],
                     cfg: StateModelConfig, seed: int) -> tuple[_Net, _Norm, dict]:
     """A model on `train` episodes ((states, actions) each), stopped on `val` (see the module docstring)."""
-    norm = _Norm.fit(train)
-    x, y = _tensors(train, norm, cfg.history)
-    xv, yv = _tensors(val, norm, cfg.history)
+    norm = _Norm.fit(train, cfg.feature_clip)
+    x, y, mask = _tensors(train, norm, cfg.history)
+    xv, yv, mask_v = _tensors(val, norm, cfg.history)
     torch.manual_seed(seed)
     net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
@@ -176,14 +252,14 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
     best, best_state, best_step, since, step, curve = float("inf"), None, 0, 0, 0, []
     while step < cfg.max_steps:
         idx = torch.randint(0, len(x), (min(cfg.batch_size, len(x)),), generator=gen)
-        loss = (net(x[idx]) - y[idx]).pow(2).sum(1).mean()
+        loss = (net(x[idx]) * mask[idx] - y[idx]).pow(2).sum(1).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
         step += 1
         if step % cfg.eval_every == 0 or step == cfg.max_steps:
             with torch.no_grad():
-                v = float((net(xv) - yv).pow(2).sum(1).mean())
+                v = float((net(xv) * mask_v - yv).pow(2).sum(1).mean())
             curve.append([step, v])
             if v < best * 0.99:
                 best, best_state, best_step, since = v, {k: t.clone() for k, t in net.state_dict().items()}, step, 0
@@ -196,14 +272,25 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
     return net, norm, {"steps_used": step, "best_step": best_step, "val_loss": best, "val_curve": curve}
 
 
-def _predict(net: _Net, norm: _Norm, s, changes, actions) -> np.ndarray:
+def _predict(net: _Net, norm: _Norm, s, changes, actions, present=None) -> np.ndarray:
     with torch.no_grad():
-        d = net(torch.as_tensor(norm.features(s, changes, actions), dtype=torch.float32)).double().numpy()
-    return s + d * norm.sd
+        d = net(torch.as_tensor(norm.features(s, changes, actions, present), dtype=torch.float32)).double().numpy()
+    return s + d * norm.sd * _present(present, s.shape[1])
 
 
-def episode_sums(pred: np.ndarray, target: np.ndarray) -> float:
-    return float(((pred - target) ** 2).sum())
+def episode_sums(pred: np.ndarray, target: np.ndarray, present: np.ndarray | None = None) -> float:
+    """sum over steps and present values of the squared error (a padded value is not scored)."""
+    se = (pred - target) ** 2
+    return float((se if present is None else se * np.asarray(present, bool)).sum())
+
+
+def _present_mean(rows: list[np.ndarray], present: list[np.ndarray | None]) -> np.ndarray:
+    """(D,) the mean over `rows`' steps of each value where present (0 where never present)."""
+    s = np.concatenate(rows)
+    if all(m is None for m in present):
+        return s.mean(0)
+    w = np.concatenate([np.broadcast_to(_present(m, r.shape[1]), r.shape) for r, m in zip(rows, present)])
+    return (s * w).sum(0) / np.maximum(w.sum(0), 1)
 
 
 def split_training(tasks: list[str], train_idx: list[int], val_share: float) -> tuple[list[int], list[int]]:
@@ -231,11 +318,12 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     sizes = {}  # values per step -> the first episode of that size, for the message
     for i in (*train_idx, *eval_idx):
         sizes.setdefault(states[i][0].shape[1], i)
-    if len(sizes) > 1:  # one model reads one state vector: objects that appear or vanish between episodes
+    if len(sizes) > 1:  # read_states pads a group's layouts to one; states given unpadded cannot be read as one
         (d0, i0), (d1, i1) = sorted(sizes.items())[:2]
         raise UserError(f"the recorded states differ in size between episodes ({d0} values per step in "
-                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s: the scene's object count varies); the state model "
-                        "reads one size")
+                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s) and come without a presence mask; pad them with "
+                        "state_reading.pad_states")
+    present = {i: _entry(states[i])[2] for i in (*train_idx, *eval_idx)}
     dims = states[eval_idx[0]][0].shape[1]
     if dims == 0:
         return {"dims": 0, "gate": None, "line": "no state recorded (obs/state empty, no obs/object_poses)",
@@ -245,7 +333,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
         raise UserError("state reading: every task has a single training episode; validation needs two or more")
     fit = [states[i] for i in fit_idx]
     val = [states[i] for i in val_idx]
-    task_mean = {t: np.concatenate([states[i][0] for i in train_idx if tasks[i] == t]).mean(0)
+    task_mean = {t: _present_mean([states[i][0] for i in train_idx if tasks[i] == t],
+                                  [present[i] for i in train_idx if tasks[i] == t])
                  for t in set(tasks[i] for i in train_idx)}
     models, training = [], []
     for seed in cfg.seeds:
@@ -254,13 +343,13 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
         training.append({"seed": int(seed), **info})
     per_episode = []
     for e in eval_idx:
-        s, a = states[e]
+        s, a, m = _entry(states[e])
         cur, changes, act, nxt = _steps(s, a, cfg.history)
         row = {"task": tasks[e], "index": int(e), "frames": int(len(nxt)),
-               "model": [episode_sums(_predict(net, norm, cur, changes, act), nxt) for net, norm in models],
-               "last_state": episode_sums(cur, nxt),
-               "mean_state": episode_sums(np.broadcast_to(task_mean[tasks[e]], nxt.shape), nxt),
-               "constant_velocity": episode_sums(cur + changes[:, 0], nxt)}
+               "model": [episode_sums(_predict(net, norm, cur, changes, act, m), nxt, m) for net, norm in models],
+               "last_state": episode_sums(cur, nxt, m),
+               "mean_state": episode_sums(np.broadcast_to(task_mean[tasks[e]], nxt.shape), nxt, m),
+               "constant_velocity": episode_sums(cur + changes[:, 0], nxt, m)}
         per_episode.append(row)
     frames = sum(r["frames"] for r in per_episode)
     model = np.array([[r["model"][k] for r in per_episode] for k in range(len(models))])  # (R, E)
@@ -270,11 +359,14 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     for b in BASELINES:
         summary[f"skill_vs_{b}"] = float(1 - model.sum() / bases[b].sum()) if bases[b].sum() > 0 else None
     g = gate(model, {b: bases[b] for b in GATED}, [r["task"] for r in per_episode], gate_cfg)
+    layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
+    padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
     line = (g["verdict"] if not g["passes"] else
             f"one-step state error {summary['model']:.3g} (last state {summary['last_state']:.3g}, mean state "
             f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
-            f"{summary['skill_vs_constant_velocity']:.2f}), {dims} dims, {len(models)} seeds")
-    return {"dims": int(dims), "summary": summary, "per_episode": per_episode, "frames": int(frames),
+            f"{summary['skill_vs_constant_velocity']:.2f}), {dims} dims{padding}, {len(models)} seeds")
+    return {"dims": int(dims), "padded_from": layouts or None, "summary": summary, "per_episode": per_episode,
+            "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line}
