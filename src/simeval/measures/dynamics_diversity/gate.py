@@ -148,12 +148,19 @@ def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig(
 
 
 def fall_verdict(model_fall: tuple[float, float, float], baseline_excess: dict[str, tuple[float, float]],
-                 gates: dict[int, dict]) -> str:
+                 gates: dict[int, dict], first_error: float, margin: float = GateConfig.margin) -> str:
     """Whether a fall of the error from the fewest to the most training episodes is read: `model_fall` (point, lo,
     hi) of error_first - error_last; `baseline_excess` {baseline: (lo, hi)} the interval of the model's fall minus
     that baseline's own fall on the same resamples (the mean image changes with the training episodes; a copy of
-    the last frame does not); `gates` {count: gate} of each count. "falls" / "rises" when every count reads and
-    both intervals exclude zero on the same side, "no fall" otherwise, "no reading: ..." where a count is gated."""
+    the last frame does not); `gates` {count: gate} of each count; `first_error` the model's error at the fewest.
+
+        "no reading: ... at k episodes"   a count is gated
+        "falls" / "rises"                 the fall's interval and every excess's exclude zero on the same side
+        "no fall"                         the fall's interval, or one baseline's excess's, lies within
+                                          +-margin * first_error: no change, or none beyond what that baseline's
+                                          own change gives, to within the gate's margin
+        "no reading: too wide ..."        otherwise: an interval that contains zero and reaches past the margin
+                                          cannot tell a fall from none (as the random controls' "too wide")"""
     for k in sorted(gates):
         if not gates[k]["passes"]:
             return f"{gates[k]['verdict']} at {k} episodes"
@@ -163,7 +170,11 @@ def fall_verdict(model_fall: tuple[float, float, float], baseline_excess: dict[s
         return "falls"
     if hi < 0 and all(e[1] < 0 for e in excess):
         return "rises"
-    return "no fall"
+    bound = margin * abs(first_error)
+    if any(-bound <= a and b <= bound for a, b in [(lo, hi), *excess]):
+        return "no fall"
+    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its excess over a baseline's "
+            f"change contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g})")
 
 
 def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:

@@ -184,7 +184,8 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
             excess = {b: resample.percentile(fall - (reps_by_k[lo][f"{PRIMARY}_{b}"] - reps_by_k[hi][f"{PRIMARY}_{b}"]))
                       for b in ("last", "mean")}
             row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
-                                                row[f"drop_{PRIMARY}_hi"]), excess, {k: gates[k] for k in (lo, hi)})
+                                                row[f"drop_{PRIMARY}_hi"]), excess, {k: gates[k] for k in (lo, hi)},
+                                               row[f"{PRIMARY}_{lo}"], gate_cfg.margin)
         rows.append(row)
     return rows
 
@@ -332,6 +333,8 @@ def _fall(row: dict, counts: list[int]) -> str:
         if gated:
             return f"no reading (gated at {gated[0]} episodes)"
         return f"{number} (baselines' change not checked)"
+    if verdict.startswith("no reading: too wide"):
+        return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
         return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
     return number if verdict in ("falls", "rises") else f"no fall: {number}"
@@ -377,7 +380,8 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             f"object-focused one-step skill is >= {GateConfig.margin:g} against both the last frame and the mean "
             "image with its interval above 0, for the group and each task; elsewhere its number is 'no reading'. "
             "A fall is read only where both counts read and its interval, and that of its excess over each "
-            "baseline's own change, exclude 0.")
+            f"baseline's own change, exclude 0; 'no fall' only where one of them lies within +-{GateConfig.margin:g} "
+            "of the error at the fewest episodes, else 'no reading (interval too wide)'.")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
