@@ -266,3 +266,51 @@ def test_the_dead_job_line_names_slurms_state_of_the_job_not_the_local_executors
     assert line("OUT_OF_MEMORY") == head + " (state: OUT_OF_MEMORY)" + tail
     assert line("CANCELLED by 0") == head + " (state: CANCELLED by 0)" + tail
     assert line("FINISHED") == line("INTERRUPTED") == line("UNKNOWN") == head + tail
+
+
+APP = '''
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+
+from simeval.cli import exit_cleanly_on_user_error, launch
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="app")
+@exit_cleanly_on_user_error
+def main(cfg):
+    if cfg.x == 1:
+        raise RuntimeError("boom in the job of x=1")
+    Path(HydraConfig.get().runtime.output_dir, "done").write_text(str(cfg.x))
+
+
+if __name__ == "__main__":
+    launch(main)
+'''
+
+
+def test_a_job_that_crashes_in_a_local_sweep_says_so_at_once_and_the_sweep_ends_naming_it_with_exit_1(tmp_path):
+    """A job that raises (a bug, not a user error) under the basic launcher: Hydra keeps the exception and starts
+    the next job with nothing said, then shows one traceback at the end. Here the traceback is logged in the job's
+    log and on the console when it happens, the other jobs run, and the sweep ends with one line per failed job
+    naming its log, exit 1. A small app with the product's decorator and sweeper (conf/hydra/default.yaml's)."""
+    (tmp_path / "conf").mkdir()
+    (tmp_path / "conf" / "app.yaml").write_text(yaml.safe_dump({
+        "x": 0, "hydra": {"sweeper": {"_target_": "hydra_plugins.simeval_sweeper.user_error_sweeper.UserErrorSweeper"},
+                          "sweep": {"dir": str(tmp_path / "sweep"), "subdir": "${hydra.job.num}"}}}))
+    (tmp_path / "app.py").write_text(APP)
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env.pop("HYDRA_FULL_ERROR", None)
+    res = subprocess.run([sys.executable, "app.py", "-m", "x=0,1,2"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 1, res.stderr[-3000:]
+    sweep = tmp_path / "sweep"
+    assert (sweep / "0" / "done").exists() and (sweep / "2" / "done").exists()  # the jobs around it ran
+    log = (sweep / "1" / "app.log").read_text()
+    assert "this job failed (RuntimeError: boom in the job of x=1)" in log and "Traceback" in log
+    assert res.stdout.index("this job failed") < res.stdout.index("#2 : x=2")  # before the next job started
+    assert res.stderr.splitlines()[-2:] == [
+        f"error: the sweep's job [x=1] failed: RuntimeError: boom in the job of x=1 (traceback in "
+        f"{sweep / '1' / 'app.log'})",
+        "error: 1 of 3 jobs failed; the others' results are kept"]

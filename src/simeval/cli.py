@@ -180,12 +180,8 @@ def _only_hydra_files(folder: Path) -> bool:
     return True
 
 
-def in_submitit_job() -> bool:
-    """True inside a job of a Hydra sweep that submitit runs in a process of its own (`hydra/launcher=
-    submitit_local`, `slurm`, `submitit_slurm`). Such a job cannot end the sweep by exiting: submitit only sees a
-    job that left no result and the launching process prints its own traceback."""
-    if not os.environ.get("SUBMITIT_EXECUTOR"):
-        return False
+def in_multirun() -> bool:
+    """True inside a job of a Hydra sweep (`-m`), whichever launcher runs it."""
     try:
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
@@ -193,6 +189,23 @@ def in_submitit_job() -> bool:
         return HydraConfig.get().mode == RunMode.MULTIRUN
     except (ImportError, ValueError):
         return False
+
+
+def _log_failed_job(exc: BaseException) -> None:
+    """A sweep's job that raised (not a user error): its traceback into the job's log and the console now. Hydra's
+    launchers keep the exception in the job's result and start the next job with nothing said; the sweep's end
+    names every failed job (stop_sweep_on_failed_jobs)."""
+    import logging
+
+    logging.getLogger("simeval").error("this job failed (%s: %s); the sweep goes on with its next job and exits 1 "
+                                       "at the end", type(exc).__name__, exc, exc_info=exc)
+
+
+def in_submitit_job() -> bool:
+    """True inside a job of a Hydra sweep that submitit runs in a process of its own (`hydra/launcher=
+    submitit_local`, `slurm`, `submitit_slurm`). Such a job cannot end the sweep by exiting: submitit only sees a
+    job that left no result and the launching process prints its own traceback."""
+    return bool(os.environ.get("SUBMITIT_EXECUTOR")) and in_multirun()
 
 
 def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -212,6 +225,8 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
             return fn(cfg, *args, **kwargs)
         except Exception as e:
             cause = _user_error_in(e)
+            if cause is None and in_multirun():
+                _log_failed_job(e)
             if cause is None or os.environ.get("HYDRA_FULL_ERROR") == "1":
                 raise
             text = str(cause).strip()
@@ -240,6 +255,36 @@ def stop_sweep_on_user_errors(results: Any) -> None:
         for line in dict.fromkeys(lines):
             _print_error(line)
         sys.exit(USER_ERROR_EXIT)
+
+
+def stop_sweep_on_failed_jobs(results: Any) -> None:
+    """In the launching process, after the user errors and unrequeued jobs: where a job raised any other exception,
+    print one line per failed job (its overrides, the exception, the log holding its traceback) and exit 1, in
+    place of Hydra's traceback of the first failed job only. The sweep's other jobs have run and kept their
+    results. HYDRA_FULL_ERROR=1 leaves Hydra's traceback."""
+    from hydra.core.utils import JobStatus
+
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":
+        return
+    failed = [r for r in results if r.status == JobStatus.FAILED]
+    if not failed:
+        return
+    for r in failed:
+        exc = r._return_value  # the exception itself: `return_value` would raise it
+        job = " ".join(r.overrides) if r.overrides else "a job"
+        first = (str(exc).strip().splitlines() or [""])[0]
+        _print_error(f"the sweep's job [{job}] failed: {type(exc).__name__}: {first} (traceback in {_job_log(r)})")
+    _print_error(f"{len(failed)} of {len(results)} jobs failed; the others' results are kept")
+    sys.exit(1)
+
+
+def _job_log(result: Any) -> str:
+    """The log file of a finished job (Hydra's job logging writes <output_dir>/<job name>.log)."""
+    try:
+        hydra = result.hydra_cfg.hydra
+        return str(Path(hydra.runtime.output_dir) / f"{hydra.job.name}.log")
+    except AttributeError:  # a launcher that returned no Hydra config
+        return "the job's log"
 
 
 def stop_sweep_on_unrequeued_jobs(results: Any, params: dict | None = None) -> None:

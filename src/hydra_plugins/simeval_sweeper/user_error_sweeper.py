@@ -2,7 +2,8 @@
 in a process of its own (the submitit launchers: `submitit_local`, `slurm`), the launching process prints its one
 `error: ...` line and exits 2, as every other path does, instead of Hydra's traceback of the failed job; a job that
 died without a result (killed, out of memory) ends it with one line naming the job's log and exit 1, and so does
-a job submitit did not requeue again (its time limit reached more often than max_num_timeout allows).
+a job submitit did not requeue again (its time limit reached more often than max_num_timeout allows); and a job
+that raised any other exception ends it, after the others have run, with one line per failed job naming its log.
 Selected in conf/hydra/default.yaml (`sweeper._target_`); the logic is simeval.cli.stop_sweep_on_user_errors."""
 
 from __future__ import annotations
@@ -21,11 +22,13 @@ class _StopOnUserErrors:
         self.launcher = launcher
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
-        from simeval.cli import stop_sweep_on_dead_jobs, stop_sweep_on_unrequeued_jobs, stop_sweep_on_user_errors
+        from simeval.cli import (stop_sweep_on_dead_jobs, stop_sweep_on_failed_jobs, stop_sweep_on_unrequeued_jobs,
+                                 stop_sweep_on_user_errors)
 
         results = stop_sweep_on_dead_jobs(lambda: self.launcher.launch(job_overrides, initial_job_idx=initial_job_idx))
         stop_sweep_on_user_errors(results)
         stop_sweep_on_unrequeued_jobs(results, dict(getattr(self.launcher, "params", None) or {}))
+        stop_sweep_on_failed_jobs(results)
         return results
 
 
