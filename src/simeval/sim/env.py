@@ -82,8 +82,8 @@ from simeval.sim.core.articulated import set_joint_fraction
 from simeval.sim.core.geometry import still
 from simeval.sim.core.objects import make_object
 from simeval.sim.core.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
-from simeval.sim.robots import Robot
-from simeval.sim.robots.xarm import JOINT_LIMIT_MARGIN, JOINT_LOWER, JOINT_UPPER, STATE_NAMES, Arm
+from simeval.sim.robots import Robot, robot_kind
+from simeval.sim.robots.xarm import JOINT_LOWER, JOINT_UPPER
 from simeval.sim.tasks.goals import task_progress
 from simeval.sim.tasks.spec import (
     SUITES_DIR,
@@ -95,24 +95,15 @@ from simeval.sim.tasks.spec import (
     task_seed,
 )
 
-# state bounds: the joint limits with a margin (JOINT_LIMIT_MARGIN, simeval.sim.robots.xarm), |velocity| <= 100 rad/s
-# (PyBullet's default maximum joint velocity), flags in [0, 1]
-STATE_LOW = np.array([x - JOINT_LIMIT_MARGIN for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
-STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
 ACTION_SPACES = {"joint": JOINT_KIND, "pick_place": PICK_PLACE_KIND, "ee_delta": EE_DELTA_KIND,
                  "ee_pose": EE_POSE_KIND}
-ROBOT_ACTION_SPACES = {"xarm6": ("joint", "pick_place", "ee_delta"), "panda": ("ee_pose",)}
 EE_MAX_LAG = 0.03  # m: the commanded tip of ee_delta stays within this of the real tip
 EE_STEPS_PER_PRIMITIVE = 150  # ee_delta's default step limit: 5 s at 30 Hz per `max_primitives` of the task
 
 
 def state_names(robot: str = "xarm6") -> tuple[str, ...]:
     """The names of the state dimensions of `robot` (a spec's `robot` field)."""
-    if robot == "panda":
-        from simeval.sim.robots.panda import STATE_NAMES as PANDA_STATE_NAMES
-
-        return PANDA_STATE_NAMES
-    return STATE_NAMES
+    return robot_kind(robot).state_names
 
 
 def find_task(task: str | TaskSpec) -> TaskSpec:
@@ -147,10 +138,10 @@ class SimEnv(_gym().Env):
         action_space = action_space or self.spec_task.action_space
         if action_space not in ACTION_SPACES:
             raise UserError(f"action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
-        robot = self.spec_task.robot
-        if action_space not in ROBOT_ACTION_SPACES[robot]:
-            raise UserError(f"action_space={action_space!r}: task {self.spec_task.name} (robot {robot}) takes "
-                            f"{', '.join(ROBOT_ACTION_SPACES[robot])}")
+        robot = robot_kind(self.spec_task.robot)
+        if action_space not in robot.action_spaces:
+            raise UserError(f"action_space={action_space!r}: task {self.spec_task.name} (robot {robot.name}) takes "
+                            f"{', '.join(robot.action_spaces)}")
         if control_hz is None:
             control_hz = EE_POSE_HZ if action_space == "ee_pose" else 30.0
         self.cameras = tuple(cameras)
@@ -173,14 +164,9 @@ class SimEnv(_gym().Env):
         per = {"joint": 400, "pick_place": 1, "ee_delta": EE_STEPS_PER_PRIMITIVE, "ee_pose": 60}[action_space]
         self.max_steps = int(max_steps or (self.spec_task.max_primitives * per))
         h, w = self.image_size
-        if robot == "panda":
-            from simeval.sim.robots.panda import STATE_HIGH as state_high
-            from simeval.sim.robots.panda import STATE_LOW as state_low
-        else:
-            state_low, state_high = STATE_LOW, STATE_HIGH
         self.observation_space = spaces.Dict({
             "rgb": spaces.Dict({c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}),
-            "state": spaces.Box(state_low, state_high, dtype=np.float32)})
+            "state": spaces.Box(robot.state_low, robot.state_high, dtype=np.float32)})
         if action_space == "ee_pose":
             self.action_space = spaces.Box(EE_POSE_LOW, EE_POSE_HIGH, dtype=np.float32)
             self.action_info = ee_pose_action_space(self.control_hz)
@@ -318,12 +304,7 @@ class SimEnv(_gym().Env):
         rng = np.random.default_rng(task_seed(spec.name, seed).spawn(1)[0])
         piles = any(o.shape == "pile" for o in self.inst.objects)
         self.world = World(self.control_hz, solver_residual=PILE_SOLVER_RESIDUAL if piles else None)
-        if spec.robot == "panda":
-            from simeval.sim.robots.panda import Panda
-
-            self.arm = Panda(self.world, home_noise, rng)
-        else:
-            self.arm = Arm(self.world, spec.end_effector, home_noise, rng)
+        self.arm = robot_kind(spec.robot).build(self.world, spec, home_noise, rng)
         for obj in self.inst.objects:
             xy, yaw = self.inst.poses[obj.id]
             make_object(self.world.c, obj, xy, yaw, rng, TABLE_Z)
@@ -333,7 +314,7 @@ class SimEnv(_gym().Env):
                 self.world.c.changeDynamics(body, -1, lateralFriction=self.inst.frictions[obj.id])
         self.world.settle(60)
         self.arm.on_step = self._on_low_level_step
-        if spec.robot == "xarm6":  # ee_delta's commanded tool pose (the Panda takes absolute targets instead)
+        if "ee_delta" in robot_kind(spec.robot).action_spaces:  # ee_delta's commanded tool pose
             self._ee_pos = self.arm.tip()
             self._ee_orn = tuple(self.world.c.getLinkState(self.arm.body, self.arm.ee)[5])
 

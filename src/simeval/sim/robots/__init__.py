@@ -2,12 +2,20 @@
 cup or a spatula) and panda (the Franka Panda of the BBSEA-style suite). Both act in a core.world.World and meet
 `Robot`, what the environment (simeval.sim.env) asks of either; their action-space-specific primitives (the
 xArm's pick_place / push / ik_pose, the Panda's end-effector targets) are called only where the task's robot is
-known."""
+known.
+
+A robot is one file of this package that defines `ROBOT = RobotKind(...)`: its name (a task spec's `robot:`), the
+action spaces it takes, its state's names and bounds, and how to build it in a world. `robot_kinds()` finds every
+such file; nothing else names a robot."""
 
 from __future__ import annotations
 
+import functools
+import importlib
+import pkgutil
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -33,3 +41,37 @@ class Robot(Protocol):
 
     def park(self, steps: int) -> None:
         """Move out of the cameras' view at the end of an episode, letting go of what it holds."""
+
+
+@dataclass(frozen=True)
+class RobotKind:
+    """What the environment needs to know of a robot before it exists: its name (a task spec's `robot:`), the action
+    spaces it takes (simeval.sim.action_spaces), its state's names and bounds (the observation space), and `build`:
+    (world, task spec, home_noise, rng) -> a Robot in that world."""
+
+    name: str
+    action_spaces: tuple[str, ...]
+    state_names: tuple[str, ...]
+    state_low: np.ndarray
+    state_high: np.ndarray
+    build: Callable[[Any, Any, float, np.random.Generator], Robot]
+
+
+@functools.cache
+def robot_kinds() -> dict[str, RobotKind]:
+    """{name: RobotKind} of every module of this package that defines ROBOT."""
+    kinds = {}
+    for module in pkgutil.iter_modules(__path__):
+        kind = getattr(importlib.import_module(f"{__name__}.{module.name}"), "ROBOT", None)
+        if isinstance(kind, RobotKind):
+            kinds[kind.name] = kind
+    return kinds
+
+
+def robot_kind(name: str) -> RobotKind:
+    from simeval.errors import UserError
+
+    kinds = robot_kinds()
+    if name not in kinds:
+        raise UserError(f"robot {name!r} is not one of {', '.join(sorted(kinds))} (simeval/sim/robots/)")
+    return kinds[name]

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from simeval.sim.core.world import TABLE_Z, World
+from simeval.sim.robots import RobotKind
 from simeval.sim.robots.xarm import JOINT_LIMIT_MARGIN
 
 PANDA_URDF = "franka_panda/panda.urdf"
@@ -242,3 +243,7 @@ class Panda:
             self.target = start + (np.asarray(PARK) - start) * (3 * a * a - 2 * a * a * a)
             self._hold_motors()
             c.stepSimulation()
+
+
+ROBOT = RobotKind("panda", ("ee_pose",), STATE_NAMES, STATE_LOW, STATE_HIGH,
+                  lambda world, spec, home_noise, rng: Panda(world, home_noise, rng))

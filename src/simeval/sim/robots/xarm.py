@@ -19,6 +19,7 @@ import re
 import numpy as np
 
 from simeval.sim.core.world import TABLE_Z, World
+from simeval.sim.robots import RobotKind
 
 HOME = (0.0, -0.35, -0.9, 0.0, 1.25, 0.0)  # joints: tool above the workspace, pointing down
 # joints: out of every camera's view of the workspace at the end of an episode (see Arm.park): the base turned
@@ -44,6 +45,10 @@ JOINT_UPPER = (6.28318530718, 2.0944, 0.19198, 6.28318530718, 3.14159265359, 6.2
 JOINT_LIMIT_MARGIN = 0.3
 JOINT_ACTION_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "suction")
 STATE_NAMES = (*(f"q{i}" for i in range(1, 7)), *(f"dq{i}" for i in range(1, 7)), "suction", "holding")
+# state bounds: the joint limits with a margin, |velocity| <= 100 rad/s (PyBullet's default maximum joint velocity),
+# flags in [0, 1]
+STATE_LOW = np.array([x - JOINT_LIMIT_MARGIN for x in JOINT_LOWER] + [-100.0] * 6 + [0.0, 0.0], np.float32)
+STATE_HIGH = np.array([x + JOINT_LIMIT_MARGIN for x in JOINT_UPPER] + [100.0] * 6 + [1.0, 1.0], np.float32)
 
 
 def render_urdf(mesh: str = "collision") -> str:
@@ -323,3 +328,7 @@ class Arm:
         self.move(np.r_[end, z], yaw, speed=0.15)
         self.move(np.r_[end, SAFE_Z], yaw, speed=0.4)
         return True
+
+
+ROBOT = RobotKind("xarm6", ("joint", "pick_place", "ee_delta"), STATE_NAMES, STATE_LOW, STATE_HIGH,
+                  lambda world, spec, home_noise, rng: Arm(world, spec.end_effector, home_noise, rng))
