@@ -8,11 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simeval.sim.core.geometry import height, in_bowl, in_zone, offset_target, pose, still
+from simeval.sim.core.geometry import height, offset_target, pose, still
 from simeval.sim.core.objects import BOWL_WALL, SimObject
 from simeval.sim.core.world import TABLE_Z, WORKSPACE, World
 from simeval.sim.robots.xarm import SAFE_Z, Arm  # noqa: F401 (SAFE_Z: re-exported)
-from simeval.sim.tasks.goals import container_assignment, stack_chain, unit_status
+from simeval.sim.tasks.goal_types import goal_kind
+from simeval.sim.tasks.goals import unit_status
 from simeval.sim.tasks.spec import Instance
 
 
@@ -88,7 +89,7 @@ class Push:
         return True
 
 
-def _slot(zone_xy: np.ndarray, zone_yaw: float, k: int, obj: SimObject, zone: SimObject) -> np.ndarray:
+def zone_slot(zone_xy: np.ndarray, zone_yaw: float, k: int, obj: SimObject, zone: SimObject) -> np.ndarray:
     """The k-th free spot in a zone: a small grid so several objects fit side by side."""
     per_row = max(1, int(zone.size[0] // (obj.footprint * 2 + 0.01)))
     rows = max(1, int(zone.size[1] // (obj.footprint * 2 + 0.01)))
@@ -132,58 +133,15 @@ def bowl_spot(world: World, inst: Instance, bowl: SimObject, obj: SimObject) -> 
     return max(spots, key=lambda xy: min(np.linalg.norm(xy - t) for t in there))
 
 
-def _inside_any(world: World, obj: SimObject, targets: list[SimObject], kind: str) -> bool:
-    p, _ = pose(world, obj)
-    return any(in_zone(world, p, t) if kind == "in_zone" else in_bowl(world, obj, t) for t in targets)
-
-
 def next_primitive(world: World, inst: Instance, held_out: set | None = None):
-    """The first undone unit of the first unfinished goal, as a primitive; None when every goal is done."""
+    """The first undone unit of the first unfinished goal, as a primitive (its goal type's `plan`,
+    simeval.sim.tasks.goal_types); None when every goal is done or no type's plan reaches the rest."""
     for goal in inst.spec.goals:
         status = unit_status(world, inst, goal)
         if all(status):
             continue
-        if goal.type in ("in_zone", "in_container"):
-            movers, targets, assigned = container_assignment(world, inst, goal)
-            # an undone object already inside a target (e.g. one of two balls in one zone) moves last
-            undone = [o for o, a in zip(movers, assigned) if a is None]
-            obj = min(undone, key=lambda o: _inside_any(world, o, targets, goal.type))
-            others = tuple(b for o in inst.objects if o.shape != "pile" for b in o.body_ids)
-            load = {t.id: sum(a == j for a in assigned) for j, t in enumerate(targets)}
-            target = min(targets, key=lambda t: load[t.id])  # with `each`: a target nothing counts for yet
-            tp, tyaw = pose(world, target)
-            if goal.type == "in_zone":
-                xy = _slot(tp[:2], tyaw, load[target.id], obj, target)
-                return PickPlace(obj, xy, TABLE_Z, tyaw)
-            return PickPlace(obj, bowl_spot(world, inst, target, obj), TABLE_Z + 0.008, 0.0, others)
-        if goal.type == "stack":
-            chain = stack_chain(inst, goal)
-            k = status.index(False)
-            below, above = chain[k], chain[k + 1]
-            pb, yb = pose(world, below)
-            return PickPlace(above, pb[:2], pb[2] + height(below) / 2, yb)
-        if goal.type == "on_objects":
-            supports = [o for n in goal.where for o in inst.by_name(n)]
-            sp = [pose(world, s)[0] for s in supports]
-            top = max(p[2] + height(s) / 2 for p, s in zip(sp, supports))
-            centre = np.mean([p[:2] for p in sp], axis=0)
-            span = sp[-1][:2] - sp[0][:2]
-            deck = [o for n in goal.what for o in inst.by_name(n)][status.index(False)]
-            return PickPlace(deck, centre, top, math.atan2(span[1], span[0]))
-        if goal.type == "at_offset":
-            anchor = inst.by_name(goal.where[0])[0]
-            ap, ayaw = pose(world, anchor)
-            movers = [o for n in goal.what for o in inst.by_name(n)]
-            i = status.index(False)
-            return PickPlace(movers[i], offset_target(ap, ayaw, goal.offset[i % len(goal.offset)]), TABLE_Z, ayaw)
-        if goal.type == "pile_in_zone":
-            zone = inst.by_name(goal.where[0])[0]
-            zp, _ = pose(world, zone)
-            piles = [o for o, ok in zip((o for n in goal.what for o in inst.by_name(n)), status) if not ok]
-            # the farthest stray particle of any unfinished pile: one stuck pile does not hold up the others
-            outside = np.array([pose(world, pile, k)[0][:2] for pile in piles for k in range(len(pile.body_ids))
-                                if not in_zone(world, pose(world, pile, k)[0], zone, margin=0.01)])
-            if len(outside) == 0:
-                continue
-            return plan_push(zp[:2], outside, tuple(b for pile in piles for b in pile.body_ids))
+        plan = goal_kind(goal.type).plan
+        primitive = plan(world, inst, goal, status) if plan is not None else None
+        if primitive is not None:
+            return primitive
     return None

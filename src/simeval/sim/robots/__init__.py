@@ -11,8 +11,6 @@ such file; nothing else names a robot."""
 from __future__ import annotations
 
 import functools
-import importlib
-import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -60,12 +58,11 @@ class RobotKind:
 @functools.cache
 def robot_kinds() -> dict[str, RobotKind]:
     """{name: RobotKind} of every module of this package that defines ROBOT."""
-    kinds = {}
-    for module in pkgutil.iter_modules(__path__):
-        kind = getattr(importlib.import_module(f"{__name__}.{module.name}"), "ROBOT", None)
-        if isinstance(kind, RobotKind):
-            kinds[kind.name] = kind
-    return kinds
+    import sys
+
+    from simeval.sim.registry import modules_defining
+
+    return modules_defining(sys.modules[__name__], "ROBOT", RobotKind)
 
 
 def robot_kind(name: str) -> RobotKind:

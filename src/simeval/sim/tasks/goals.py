@@ -1,5 +1,6 @@
-"""Goal checks on the live simulation: each goal gives a progress in [0, 1] (the share of its units done);
-the task's partial reward is the mean over goals and success is every goal done.
+"""Goal checks on the live simulation: each goal gives a progress in [0, 1] (the share of its units done, unless
+its type says otherwise); the task's partial reward is the mean over goals and success is every goal done. What a
+goal type checks is in its own file (simeval.sim.tasks.goal_types); here are the checks several types share.
 
 A unit counts as done only as strictly as the task's text reads: an object still on the suction cup, touched by
 the spatula or the arm, or still moving is never placed; "each" goals need a one-to-one assignment; `upright`
@@ -13,24 +14,10 @@ import math
 
 import numpy as np
 
-from simeval.sim.core.geometry import (
-    STACK_Z_TOL,
-    XY_TOL,
-    height,
-    in_container,
-    in_zone,
-    offset_target,
-    placed,
-    pose,
-    radius,
-    resting,
-    still,
-    supported,
-    touching,
-    upright,
-)
+from simeval.sim.core.geometry import placed, pose, radius, still, supported, upright
 from simeval.sim.core.objects import SimObject
-from simeval.sim.core.world import TABLE_Z, World
+from simeval.sim.core.world import World
+from simeval.sim.tasks.goal_types import goal_kind
 from simeval.sim.tasks.spec import GoalSpec, Instance
 
 
@@ -79,71 +66,25 @@ def stack_chain(inst: Instance, goal: GoalSpec) -> list[SimObject]:
     return [o for name in goal.what for o in inst.by_name(name)]
 
 
-def container_assignment(world: World, inst: Instance, goal: GoalSpec, held: set[int] | None = None):
-    """For in_zone / in_container goals: the movers, the targets, and per mover the target it counts for
-    (None if it counts for none). Without `each` any target will do; with `each` it is a maximum one-to-one
-    assignment, so two balls in one zone fill one zone, not two."""
+def container_assignment(world: World, inst: Instance, goal: GoalSpec, inside, held: set[int] | None = None):
+    """For in_zone / in_container goals: the movers, the targets, and per mover the target it counts for (None if
+    it counts for none); inside(world, obj, target) -> bool is the type's test. Without `each` any target will do;
+    with `each` it is a maximum one-to-one assignment, so two balls in one zone fill one zone, not two."""
     held = held_bodies(world, inst) if held is None else held
     targets = [o for n in goal.where for o in inst.by_name(n)]
     movers = [o for n in goal.what for o in inst.by_name(n)]
     ok = []
     for obj in movers:
         good = placed(world, obj, held) and (not goal.upright or upright(world, obj))
-        if goal.type == "in_zone":
-            p, _ = pose(world, obj)
-            good = good and p[2] - height(obj) / 2 < TABLE_Z + 0.015
-            ok.append([good and in_zone(world, p, t) for t in targets])
-        else:
-            ok.append([good and in_container(world, obj, t) for t in targets])
+        ok.append([good and inside(world, obj, t) for t in targets])
     if goal.each:
         return movers, targets, _matching(ok)
     return movers, targets, [next((j for j, g in enumerate(row) if g), None) for row in ok]
 
 
 def unit_status(world: World, inst: Instance, goal: GoalSpec) -> list[bool]:
-    """Per unit of the goal: done or not."""
-    held = held_bodies(world, inst)
-    if goal.type in ("in_zone", "in_container"):
-        _, _, assigned = container_assignment(world, inst, goal, held)
-        return [a is not None for a in assigned]
-    if goal.type == "stack":
-        chain = stack_chain(inst, goal)
-        out = []
-        for below, above in zip(chain, chain[1:]):
-            pb, _ = pose(world, below)
-            pa, _ = pose(world, above)
-            z_ok = abs(pa[2] - (pb[2] + (height(below) + height(above)) / 2)) < STACK_Z_TOL
-            xy_ok = np.linalg.norm(pa[:2] - pb[:2]) < min(below.size[:2]) / 2
-            ok = z_ok and xy_ok and placed(world, above, held) and touching(world, above, below)
-            out.append(bool(ok and (not goal.upright or upright(world, above))))
-        return out
-    if goal.type == "on_objects":
-        supports = [o for n in goal.where for o in inst.by_name(n)]
-        out = []
-        for deck in (o for n in goal.what for o in inst.by_name(n)):
-            pd, _ = pose(world, deck)
-            sp = [pose(world, s)[0] for s in supports]
-            top = max(p[2] + height(s) / 2 for p, s in zip(sp, supports))
-            centre = np.mean([p[:2] for p in sp], axis=0)
-            on = abs(pd[2] - height(deck) / 2 - top) < STACK_Z_TOL and np.linalg.norm(pd[:2] - centre) < 0.03
-            on = on and placed(world, deck, held) and all(touching(world, deck, s) for s in supports)
-            out.append(bool(on))
-        return out
-    if goal.type == "at_offset":
-        anchor = inst.by_name(goal.where[0])[0]
-        ap, ayaw = pose(world, anchor)
-        out = []
-        for i, obj in enumerate(o for n in goal.what for o in inst.by_name(n)):
-            target = offset_target(ap, ayaw, goal.offset[i % len(goal.offset)])
-            p, _ = pose(world, obj)
-            ok = np.linalg.norm(p[:2] - target) < XY_TOL and resting(world, obj) and placed(world, obj, held)
-            out.append(bool(ok and (not goal.upright or upright(world, obj))))
-        return out
-    if goal.type == "pile_in_zone":
-        return [f >= goal.fraction - 1e-9 for f in pile_fractions(world, inst, goal, held)]
-    if goal.type == "joint_range":
-        return [joint_range_progress(world, inst, goal, obj) >= 1.0 for obj in inst.by_name(goal.what[0])]
-    raise ValueError(f"unknown goal type {goal.type}")
+    """Per unit of the goal: done or not (its type's `units`)."""
+    return goal_kind(goal.type).units(world, inst, goal, held_bodies(world, inst))
 
 
 def particle_placed(world: World, pile: SimObject, zones: list[SimObject], held: set[int]) -> list[bool]:
@@ -167,29 +108,10 @@ def pile_fractions(world: World, inst: Instance, goal: GoalSpec, held: set[int] 
             for pile in (o for n in goal.what for o in inst.by_name(n))]
 
 
-def joint_range_progress(world: World, inst: Instance, goal: GoalSpec, obj: SimObject) -> float:
-    """joint_range: 1 when the joint's fraction of its limits is within the goal's range; otherwise how far it has
-    moved from its initial fraction towards the range (the share of the way), clipped to [0, 1]."""
-    from simeval.sim.core.articulated import joint_fraction
-
-    lo, hi = goal.range
-    f = joint_fraction(world.c, obj.body_ids[0], goal.joint)
-    if lo - 1e-9 <= f <= hi + 1e-9:
-        return 1.0
-    f0 = inst.joints[obj.id][goal.joint]
-    edge = lo if f0 < lo else hi
-    if abs(edge - f0) < 1e-9:
-        return 0.0
-    return float(np.clip((f - f0) / (edge - f0), 0.0, 1.0))
-
-
 def goal_progress(world: World, inst: Instance, goal: GoalSpec) -> float:
-    if goal.type == "joint_range":
-        objs = inst.by_name(goal.what[0])
-        return float(np.mean([joint_range_progress(world, inst, goal, o) for o in objs])) if objs else 1.0
-    if goal.type == "pile_in_zone":  # partial credit per particle, as GenSim's pile rewards
-        fracs = [min(1.0, f / goal.fraction) for f in pile_fractions(world, inst, goal)]
-        return float(np.mean(fracs)) if fracs else 1.0
+    kind = goal_kind(goal.type)
+    if kind.progress is not None:
+        return kind.progress(world, inst, goal)
     units = unit_status(world, inst, goal)
     return float(np.mean(units)) if units else 1.0
 

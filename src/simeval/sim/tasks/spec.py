@@ -71,7 +71,6 @@ from simeval.sim.core.articulated import ARTICULATED, n_joints
 from simeval.sim.core.objects import COLORS, SHAPES, SimObject
 from simeval.sim.core.world import WORKSPACE
 
-GOAL_TYPES = ("in_zone", "in_container", "stack", "on_objects", "at_offset", "pile_in_zone", "joint_range")
 ACTION_SPACE_NAMES = ("joint", "pick_place", "ee_delta", "ee_pose")  # a task's native action space (simeval.sim.env)
 FIXTURE_JOINTED = ("drawer_cabinet", "button")  # simeval.sim.core.fixtures with one joint (joint_init, joint_range)
 JOINTED = ARTICULATED + FIXTURE_JOINTED
@@ -110,6 +109,7 @@ class GoalSpec:
     each: bool = False  # in_zone/in_container: one `what` per `where` instance ("one ball into each zone")
     range: tuple[float, float] = (0.0, 1.0)  # joint_range: the goal's joint fractions
     joint: int = 0  # joint_range: which non-fixed joint of the object
+    params: dict = field(default_factory=dict)  # a goal type's own fields (its `fields`, simeval.sim.tasks.goal_types)
 
 
 @dataclass
@@ -182,29 +182,25 @@ def _joint_init(v, w: str) -> tuple[float, ...]:
     return tuple(float(x) for x in vals)
 
 
-def _parse_goal(g, w: str, names: list[str]) -> GoalSpec:
-    if not isinstance(g, dict) or g.get("type") not in GOAL_TYPES:
-        raise SpecError(f"{w}: a goal is a mapping whose type is one of {', '.join(GOAL_TYPES)}, got {g!r}")
+def _parse_goal(g, w: str, objects: list[ObjectSpec]) -> GoalSpec:
+    from simeval.sim.tasks.goal_types import goal_kinds  # one file per goal type
+
+    kinds = goal_kinds()
+    if not isinstance(g, dict) or g.get("type") not in kinds:
+        raise SpecError(f"{w}: a goal is a mapping whose type is one of {', '.join(sorted(kinds))}, got {g!r}")
+    kind = kinds[g["type"]]
+    names = [o.name for o in objects]
     what, where = _names(g.get("what")), _names(g.get("where"))
     for n in what + where:
         if n not in names:
             raise SpecError(f"{w}: names object '{n}', not among {names}")
-    if g.get("each") and g["type"] not in ("in_zone", "in_container"):
-        raise SpecError(f"{w}: `each` applies to in_zone and in_container goals, not {g['type']}")
-    rng, joint = (0.0, 1.0), 0
-    if g["type"] == "joint_range":
-        r, joint = g.get("range"), g.get("joint", 0)
-        if not (isinstance(r, (list, tuple)) and len(r) == 2 and all(isinstance(x, (int, float)) for x in r)
-                and 0 <= r[0] <= r[1] <= 1):
-            raise SpecError(f"{w}: joint_range needs `range: [lo, hi]` with 0 <= lo <= hi <= 1, got {r!r}")
-        if len(what) != 1 or where:
-            raise SpecError(f"{w}: joint_range names one object in `what` (and no `where`), got what={what}")
-        if isinstance(joint, bool) or not isinstance(joint, int) or joint < 0:
-            raise SpecError(f"{w}: joint must be a joint index >= 0, got {joint!r}")
-        rng = (float(r[0]), float(r[1]))
+    if g.get("each") and not kind.each:
+        each = ", ".join(sorted(k.name for k in kinds.values() if k.each))
+        raise SpecError(f"{w}: `each` applies to {each} goals, not {g['type']}")
+    extra = kind.fields(g, what, where, {o.name: o for o in objects}, w) if kind.fields else {}
     return GoalSpec(g["type"], what, where, [list(map(float, o)) for o in g.get("offset", [])],
                     float(g.get("fraction", GoalSpec.fraction)), bool(g.get("upright", False)),
-                    bool(g.get("each", False)), rng, joint)
+                    bool(g.get("each", False)), **extra)
 
 
 def parse_spec(data: dict, source: str = "") -> TaskSpec:
@@ -220,16 +216,7 @@ def parse_spec(data: dict, source: str = "") -> TaskSpec:
     names = [o.name for o in objects]
     if len(set(names)) != len(names):
         raise SpecError(f"{where}: object names must be unique, got {names}")
-    goals = [_parse_goal(g, f"{where}: goals[{i}]", names) for i, g in enumerate(data["goals"])]
-    for i, g in enumerate(goals):
-        if g.type == "joint_range":
-            o = objects[names.index(g.what[0])]
-            if o.shape not in JOINTED:
-                raise SpecError(f"{where}: goals[{i}]: joint_range needs an articulated object "
-                                f"({', '.join(JOINTED)}), '{o.name}' is a {o.shape}")
-            n = joint_count(SimObject(o.name, 0, o.shape, o.colors[0], o.size))
-            if g.joint >= n:
-                raise SpecError(f"{where}: goals[{i}]: joint {g.joint} does not exist; a {o.shape} has {n} joint(s)")
+    goals = [_parse_goal(g, f"{where}: goals[{i}]", objects) for i, g in enumerate(data["goals"])]
     action_space = data.get("action_space", "joint")
     if action_space not in ACTION_SPACE_NAMES:
         raise SpecError(f"{where}: action_space {action_space!r} is not one of {', '.join(ACTION_SPACE_NAMES)}")
