@@ -122,125 +122,136 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
           log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
           device: str | torch.device | None = "auto", compile: bool = False, capture: bool = False) -> dict:
     """Train in place on `device` (the model is moved there; with `compile`, its steps are compiled: see
-    WorldModel.compile_steps); return {steps, epochs, seconds, frames, segments, last:
-    metrics}, where seconds and frames count the whole training, the parts before a resume included, and segments
-    says how each part was trained: [{steps: [first, end), device, compile, capture}] (None for what a part
-    written before checkpoints recorded them). With
-    `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the device) matches, and
-    save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the checkpoint (the config
-    that made it)."""
-    from tqdm.auto import tqdm
-
-    from simeval.runtime.captured import CapturedTrainStep, capture_needs_cuda
+    WorldModel.compile_steps); return {steps, epochs, seconds, frames, segments, last: metrics}, where seconds and
+    frames count the whole training, the parts before a resume included, and segments says how each part was
+    trained: [{steps: [first, end), device, compile, capture}] (None for what a part written before checkpoints
+    recorded them). With `checkpoint`, resume from it when it exists and its `meta` (config, data identity; not the
+    device) matches, and save to it every `checkpoint_every` steps and at each epoch end. `meta` is stored in the
+    checkpoint (the config that made it)."""
+    from simeval.runtime.captured import capture_needs_cuda
 
     device = resolve_device(device)
     if capture and device.type != "cuda":
         raise capture_needs_cuda(f"the device is {device}")
-    model.to(device)  # before Adam is made: its state is created beside the parameters
-    if compile:
-        model.compile_steps()
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
-    epoch, done_in_epoch, step = 0, 0, 0
-    frames_before, seconds_before = 0, 0.0  # what earlier processes trained, so a resumed run reports the whole run
-    segments: list[dict] = []  # how earlier processes trained: [{steps: [first, end), device, compile}]
-    meta = dict(meta or {})
-    if checkpoint is not None and Path(checkpoint).is_file():
-        ck = load_checkpoint(checkpoint)
-        refuse_other_settings(checkpoint, ck["meta"], meta, "run folder")
-        model.load_state_dict(ck["model"])  # copies the checkpoint's CPU tensors into the parameters on `device`
-        opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
-        epoch, done_in_epoch, step = ck["epoch"], ck["batches_done"], ck["step"]
-        frames_before, seconds_before = int(ck.get("frames", 0)), float(ck.get("seconds", 0.0))
-        segments = list(ck.get("segments") or ([{"steps": [0, step], "device": None, "compile": None}] if step else []))
+    run = _Training(model, dataset, cfg, checkpoint, dict(meta or {}), log_metrics, progress, device, compile, capture)
+    step = run_steps(run.window_batches(), run.take_step, run.save, step=run.first_step,
+                     checkpoint_every=cfg.checkpoint_every, after_step=run.after_step,
+                     final_save=lambda s: run.save(s, finished=True))
+    return {"steps": step, "epochs": run.epoch, "seconds": run.seconds_before + time.perf_counter() - run.t0,
+            "segments": run.trained_by(step), "frames": run.frames_before + run.frames, "last": run.last}
+
+
+class _Training:
+    """One process's part of a training: the model and its optimiser on `device`, where it resumes (the
+    checkpoint's epoch, batch and step), and what it has done since; `train` drives it with run_steps (which
+    checkpoints at a preemption signal as well as on the cadence)."""
+
+    def __init__(self, model, dataset, cfg: TrainConfig, checkpoint, meta: dict, log_metrics, progress: bool,
+                 device: torch.device, compile: bool, capture: bool) -> None:
+        from simeval.runtime.captured import CapturedTrainStep
+
+        self.model, self.dataset, self.cfg, self.meta = model, dataset, cfg, meta
+        self.checkpoint, self.log_metrics, self.progress = checkpoint, log_metrics, progress
+        self.device, self.compile, self.capture = device, compile, capture
+        model.to(device)  # before Adam is made: its state is created beside the parameters
+        if compile:
+            model.compile_steps()
+        self.opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.eps)
+        self.epoch, self.batch, self.first_step = 0, 0, 0  # the next batch's position: what a checkpoint resumes
+        self.frames_before, self.seconds_before = 0, 0.0  # what earlier processes trained (reported as one run)
+        self.segments: list[dict] = []  # how earlier processes trained: [{steps: [first, end), device, compile}]
+        if checkpoint is not None and Path(checkpoint).is_file():
+            self._resume()
+        model.train()
+        self.captured = CapturedTrainStep(model, self.opt, cfg.clip) if capture else None
+        self.t0, self.frames, self.last = time.perf_counter(), 0, {}
+
+    def _resume(self) -> None:
+        ck = load_checkpoint(self.checkpoint)
+        refuse_other_settings(self.checkpoint, ck["meta"], self.meta, "run folder")
+        self.model.load_state_dict(ck["model"])  # copies the checkpoint's CPU tensors into the parameters
+        self.opt.load_state_dict(ck["optimizer"])  # torch moves the state to its parameters' device
+        self.epoch, self.batch, self.first_step = ck["epoch"], ck["batches_done"], ck["step"]
+        self.frames_before, self.seconds_before = int(ck.get("frames", 0)), float(ck.get("seconds", 0.0))
+        step = self.first_step
+        self.segments = list(ck.get("segments") or ([{"steps": [0, step], "device": None, "compile": None}]
+                                                    if step else []))
         if ck.get("finished"):  # a finished run only evaluates: "resumed" would say it trains on
-            log.info("trained already (%d steps): %s; evaluating only", step, checkpoint)
+            log.info("trained already (%d steps): %s; evaluating only", step, self.checkpoint)
         else:
-            log.info("resumed from %s at epoch %d, batch %d (step %d)", checkpoint, epoch, done_in_epoch, step)
+            log.info("resumed from %s at epoch %d, batch %d (step %d)", self.checkpoint, self.epoch, self.batch, step)
 
-    first_step = step
-    position = {"epoch": epoch, "batch": done_in_epoch}  # of the next batch: what a checkpoint resumes from
+    def trained_by(self, step: int) -> list[dict]:
+        here = {"steps": [self.first_step, step], "device": str(self.device), "compile": bool(self.compile),
+                "capture": bool(self.capture)}
+        return self.segments + ([here] if step > self.first_step else [])
 
-    def trained_by(step: int) -> list[dict]:
-        here = {"steps": [first_step, step], "device": str(device), "compile": bool(compile), "capture": bool(capture)}
-        return segments + ([here] if step > first_step else [])
+    def save(self, step: int, finished: bool = False) -> None:
+        if self.checkpoint is not None:
+            save_checkpoint(self.checkpoint, {
+                "format": CHECKPOINT_FORMAT, "model": to_cpu(self.model.state_dict()),
+                "optimizer": to_cpu(self.opt.state_dict()), "epoch": self.epoch, "batches_done": self.batch,
+                "step": step, "meta": self.meta, "finished": finished, "frames": self.frames_before + self.frames,
+                "seconds": self.seconds_before + time.perf_counter() - self.t0, "segments": self.trained_by(step)})
 
-    def save(step: int, finished: bool = False) -> None:
-        if checkpoint is not None:
-            save_checkpoint(checkpoint, {"format": CHECKPOINT_FORMAT, "model": to_cpu(model.state_dict()),
-                                         "optimizer": to_cpu(opt.state_dict()), "epoch": position["epoch"],
-                                         "batches_done": position["batch"], "step": step, "meta": meta,
-                                         "finished": finished, "frames": frames_before + frames,
-                                         "seconds": seconds_before + time.perf_counter() - t0,
-                                         "segments": trained_by(step)})
-
-    def take_step(batch: dict, step: int) -> dict:
-        nonlocal frames
-        frames += int(batch["mask"].sum())
-        if captured is not None:  # it copies the batch into its graph's inputs itself
-            return captured(to_torch(batch), step_generator(cfg.seed, step))
-        loss, metrics = model.loss(to_device(to_torch(batch), device, non_blocking=True),
-                                   generator=step_generator(cfg.seed, step))
-        opt.zero_grad(set_to_none=True)
+    def take_step(self, batch: dict, step: int) -> dict:
+        self.frames += int(batch["mask"].sum())
+        generator = step_generator(self.cfg.seed, step)
+        if self.captured is not None:  # it copies the batch into its graph's inputs itself
+            return self.captured(to_torch(batch), generator)
+        loss, metrics = self.model.loss(to_device(to_torch(batch), self.device, non_blocking=True),
+                                        generator=generator)
+        self.opt.zero_grad(set_to_none=True)
         loss.backward()
-        metrics["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
-        opt.step()
+        metrics["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.clip))
+        self.opt.step()
         return metrics
 
-    def after_step(step: int, metrics: dict, seconds: float) -> None:
-        nonlocal last
-        last = metrics
-        if log_metrics is not None:
-            log_metrics({"train": metrics, "epoch": position["epoch"]}, step)
+    def after_step(self, step: int, metrics: dict, seconds: float) -> None:
+        self.last = metrics
+        if self.log_metrics is not None:
+            self.log_metrics({"train": metrics, "epoch": self.epoch}, step)
 
-    def window_batches():
+    def window_batches(self):
         """Epochs of shuffled windows from the checkpoint's position, with a progress bar, a line and a checkpoint
-        at each epoch's end; the step cap ends them mid-epoch."""
-        step = first_step  # the steps taken: each batch is one, taken before the generator goes on
+        at each epoch's end; the step cap (max_steps) ends them mid-epoch."""
+        from tqdm.auto import tqdm
+
+        cfg, cap = self.cfg, self.cfg.max_steps
+        step = self.first_step  # the steps taken: each batch is one, taken before the generator goes on
         started = None  # (clock, step) where this process started training: the pace is measured from there
-        while position["epoch"] < cfg.epochs and (cap is None or step < cap):
-            epoch = position["epoch"]
-            batches = epoch_batches(dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
+        while self.epoch < cfg.epochs and (cap is None or step < cap):
+            epoch = self.epoch
+            batches = epoch_batches(self.dataset.windows(epoch), cfg.batch_size, cfg.seed, epoch)
             if not batches:
                 raise UserError("no training windows: every training episode is shorter than the window length "
-                                f"({dataset.spec.length}); use a shorter window (window.length) or pad_end")
-            todo = batches[position["batch"]:]
+                                f"({self.dataset.spec.length}); use a shorter window (window.length) or pad_end")
+            todo = batches[self.batch:]
             if cap is not None:
                 todo = todo[: cap - step]
             if started is None:  # the plan, once: batches vary by a few per epoch with a random window offset
                 started = (time.perf_counter(), step)
-                planned = _planned_steps(cfg, epoch, position["batch"], step, len(batches))
+                planned = _planned_steps(cfg, epoch, self.batch, step, len(batches))
                 log.info("training: about %d steps (%d epochs x ~%d batches of %d windows%s), from step %d", planned,
                          cfg.epochs, len(batches), cfg.batch_size, f", capped at {cap}" if cap is not None else "",
                          step)
-            bar = tqdm(total=len(batches), initial=position["batch"], desc=f"epoch {epoch + 1}/{cfg.epochs}",
-                       disable=not progress, leave=False)
-            for batch in _loader(dataset, todo, cfg.num_workers, pin_memory=device.type == "cuda"):
-                position["batch"] += 1  # before its step: a checkpoint written after the step resumes past it
+            bar = tqdm(total=len(batches), initial=self.batch, desc=f"epoch {epoch + 1}/{cfg.epochs}",
+                       disable=not self.progress, leave=False)
+            for batch in _loader(self.dataset, todo, cfg.num_workers, pin_memory=self.device.type == "cuda"):
+                self.batch += 1  # before its step: a checkpoint written after the step resumes past it
                 yield batch
                 step += 1
                 bar.update(1)
-                bar.set_postfix(loss=f"{last['loss']:.1f}")
+                bar.set_postfix(loss=f"{self.last['loss']:.1f}")
             bar.close()
-            if position["batch"] >= len(batches):
-                position["epoch"], position["batch"] = epoch + 1, 0
-                _log_epoch(epoch + 1, cfg, step, last, started, len(batches))
-            save(step)
-        if cap is not None and step >= cap and position["epoch"] < cfg.epochs:
-            where = (f"in epoch {position['epoch'] + 1}/{cfg.epochs}, after {position['batch']} of its batches"
-                     if position["batch"] else f"after epoch {position['epoch']}/{cfg.epochs}")
+            if self.batch >= len(batches):
+                self.epoch, self.batch = epoch + 1, 0
+                _log_epoch(epoch + 1, cfg, step, self.last, started, len(batches))
+            self.save(step)
+        if cap is not None and step >= cap and self.epoch < cfg.epochs:
+            where = (f"in epoch {self.epoch + 1}/{cfg.epochs}, after {self.batch} of its batches"
+                     if self.batch else f"after epoch {self.epoch}/{cfg.epochs}")
             log.info("stopped at the step cap: step %d (max_steps), %s", step, where)
-
-    model.train()
-    captured = CapturedTrainStep(model, opt, cfg.clip) if capture else None
-    t0, frames, last = time.perf_counter(), 0, {}
-    cap = cfg.max_steps
-    # a preempted submitit job checkpoints and requeues at a step boundary
-    step = run_steps(window_batches(), take_step, save, step=step, checkpoint_every=cfg.checkpoint_every,
-                     after_step=after_step, final_save=lambda s: save(s, finished=True))
-    epoch = position["epoch"]
-    return {"steps": step, "epochs": epoch, "seconds": seconds_before + time.perf_counter() - t0,
-            "segments": trained_by(step),
-            "frames": frames_before + frames, "last": last}
 
 
 def _planned_steps(cfg: TrainConfig, epoch: int, done_in_epoch: int, step: int, batches_per_epoch: int) -> int:
