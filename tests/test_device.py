@@ -22,7 +22,7 @@ from simeval.errors import UserError
 from simeval.runtime.device import resolve_device, to_cpu, to_device
 from simeval.models.diffusion_policy import (DiffusionPolicy, TrainSettings, load_checkpoint,
                                              make_scheduler, policy_from_checkpoint, train_policy)
-from simeval.measures.dynamics_diversity.run import fit_and_evaluate, load_model
+from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate, load_model
 from simeval.measures.generalization.data import PolicyDataset
 from simeval.measures.dynamics_diversity.controls.synthetic import make_group
 from simeval.models.world_model_training import TrainConfig, step_generator, train
@@ -128,10 +128,11 @@ def test_to_cpu_keeps_structure_and_state_dict_metadata_and_does_not_copy_cpu_te
 
 # --- device=cpu is the CPU-only path, bit for bit -------------------------------------------------------------------
 def _fit(device, checkpoint_dir=None):
-    return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), episodes_per_task=2, model_cfg=wm_config(),
-                            train_cfg=TrainConfig(epochs=2, batch_size=4, lr=1e-3, checkpoint_every=3),
-                            window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
-                            checkpoint_dir=checkpoint_dir, progress=False, device=device)
+    return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), 2,
+                            Training(wm_config(), TrainConfig(epochs=2, batch_size=4, lr=1e-3, checkpoint_every=3),
+                                     WindowSpec(length=6, stride=3)),
+                            Evaluation(episodes=(0, 3), heldout_episodes=None),
+                            Execution(checkpoint_dir=checkpoint_dir, progress=False, device=device))
 
 
 def test_world_model_results_are_the_same_for_every_spelling_of_cpu():

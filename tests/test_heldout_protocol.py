@@ -29,10 +29,12 @@ torch.set_num_threads(1)
 
 
 def run(source, k: int, eval_episodes=(8, 12), steps: int = 12, context: int = 3, horizon: int = 5, **kw) -> dict:
-    return dd.fit_and_evaluate(source, episodes_per_task=k, model_cfg=WorldModelConfig.from_dict(TINY["model"]),
-                               train_cfg=TrainConfig.from_dict({**TINY["train"], "seed": 0}),
-                               window=WindowSpec(**TINY["window"]), eval_episodes=eval_episodes, protocol="heldout",
-                               steps=steps, horizon=horizon, eval_context=context, progress=False, **kw)
+    training = dd.Training(WorldModelConfig.from_dict(TINY["model"]),
+                           TrainConfig.from_dict({**TINY["train"], "seed": 0}), WindowSpec(**TINY["window"]), steps=steps,
+                           exclude_robot_from_loss=kw.pop("exclude_robot_from_loss", False))
+    evaluation = dd.Evaluation(protocol="heldout", episodes=eval_episodes, context=context, horizon=horizon,
+                               mask_margin=kw.pop("mask_margin", 0))
+    return dd.fit_and_evaluate(source, k, training, evaluation, dd.Execution(progress=False, **kw))
 
 
 class RecordingSource(ArraySource):

@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 from simeval.cli import exit_cleanly_on_user_error
 from simeval.episodes.dataset import WindowSpec
 from simeval.models.diffusion_policy import DiffusionPolicy, TrainSettings, train_policy
-from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
 from simeval.measures.generalization.data import PolicyDataset
 from simeval.runtime.preemption import PreemptionPoint, preemption_signal, requeue_deaf_to_sigterm
 from simeval.measures.dynamics_diversity.controls.synthetic import make_group
@@ -58,10 +58,12 @@ def _preempt_at(step_to_signal: int):
 def _fit_world_model(checkpoint_dir, log_metrics=None):
     cfg = WorldModelConfig(image_size=16, deter=16, hidden=16, stoch=2, classes=4, cnn_depth=4, minres=4,
                            mlp_layers=1, mlp_units=8)
-    return fit_and_evaluate(make_group("shared", 2, 4, 12, 16), episodes_per_task=4, model_cfg=cfg,
-                            train_cfg=TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=1000),
-                            window=WindowSpec(length=5, stride=2), eval_episodes=(0, 4), heldout_episodes=None,
-                            checkpoint_dir=checkpoint_dir, progress=False, log_metrics=log_metrics, device="cpu")
+    return fit_and_evaluate(make_group("shared", 2, 4, 12, 16), 4,
+                            Training(cfg, TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=1000),
+                                     WindowSpec(length=5, stride=2)),
+                            Evaluation(episodes=(0, 4), heldout_episodes=None),
+                            Execution(checkpoint_dir=checkpoint_dir, progress=False, log_metrics=log_metrics,
+                                      device="cpu"))
 
 
 def test_the_world_model_saves_the_step_it_was_preempted_in_then_calls_submitits_handler(tmp_path, submitit_handler):

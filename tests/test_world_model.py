@@ -197,15 +197,16 @@ def test_compiled_steps_train_to_the_eager_numbers_in_the_same_checkpoint(tmp_pa
     from torch._dynamo.utils import counters
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.measures.dynamics_diversity.controls.synthetic import make_group
     from simeval.models.world_model_training import TrainConfig
 
     def fit(compile_steps: bool, folder):
-        return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), episodes_per_task=2,
-                                model_cfg=preset("tiny"), train_cfg=TrainConfig(epochs=2, batch_size=4, lr=1e-3),
-                                window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
-                                checkpoint_dir=folder, progress=False, device="cpu", compile=compile_steps)
+        return fit_and_evaluate(make_group("diverse", 2, 3, 10, 16, seed=0), 2,
+                                Training(preset("tiny"), TrainConfig(epochs=2, batch_size=4, lr=1e-3),
+                                         WindowSpec(length=6, stride=3)),
+                                Evaluation(episodes=(0, 3), heldout_episodes=None),
+                                Execution(checkpoint_dir=folder, progress=False, device="cpu", compile=compile_steps))
 
     counters.clear()
     compiled = fit(True, tmp_path / "compiled")
@@ -243,22 +244,22 @@ def test_bad_config_is_a_user_error_naming_the_key():
 
 def _fit(tmp_path: Path, checkpoint_dir: Path | None, seed: int = 0):
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.measures.dynamics_diversity.controls.synthetic import make_group
     from simeval.models.world_model_training import TrainConfig
 
     src = make_group("diverse", 2, 3, 10, 16, seed=0)
-    return fit_and_evaluate(src, episodes_per_task=2, model_cfg=preset("tiny"),
-                            train_cfg=TrainConfig(epochs=1, batch_size=4, lr=1e-3, seed=seed),
-                            window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
-                            eval_seed=0, checkpoint_dir=checkpoint_dir, progress=False)
+    return fit_and_evaluate(src, 2, Training(preset("tiny"), TrainConfig(epochs=1, batch_size=4, lr=1e-3, seed=seed),
+                                             WindowSpec(length=6, stride=3)),
+                            Evaluation(episodes=(0, 3), heldout_episodes=None, seed=0),
+                            Execution(checkpoint_dir=checkpoint_dir, progress=False))
 
 
 def test_a_checkpoint_is_keyed_by_the_training_data_s_content_not_only_its_names_and_lengths(tmp_path):
     """Two groups with the same tasks, seeds, lengths, states and actions whose frames differ (a red and a faint
     disk) must not share a model; the same data again must find the first run's checkpoint."""
     from simeval.episodes.dataset import ArraySource, WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.measures.dynamics_diversity.controls.synthetic import make_group
     from simeval.models.world_model_training import TrainConfig
 
@@ -266,10 +267,10 @@ def test_a_checkpoint_is_keyed_by_the_training_data_s_content_not_only_its_names
     fainter = ArraySource(first.infos, [{**a, "image": (a["image"] // 2).astype(np.uint8)} for a in first.arrays])
 
     def fit(src):
-        return fit_and_evaluate(src, episodes_per_task=2, model_cfg=preset("tiny"),
-                                train_cfg=TrainConfig(epochs=1, batch_size=4, lr=1e-3),
-                                window=WindowSpec(length=6, stride=3), eval_episodes=(0, 3), heldout_episodes=None,
-                                checkpoint_dir=tmp_path, progress=False)["checkpoint"]
+        return fit_and_evaluate(src, 2, Training(preset("tiny"), TrainConfig(epochs=1, batch_size=4, lr=1e-3),
+                                                 WindowSpec(length=6, stride=3)),
+                                Evaluation(episodes=(0, 3), heldout_episodes=None),
+                                Execution(checkpoint_dir=tmp_path, progress=False))["checkpoint"]
 
     a = fit(first)
     b = fit(fainter)
@@ -310,7 +311,7 @@ RESUME_SCRIPT = textwrap.dedent("""
     torch.set_num_threads(1)
     import simeval.models.world_model_training as T
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate, load_model
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate, load_model
     from simeval.measures.dynamics_diversity.controls.synthetic import make_group
     from simeval.models.world_model import WorldModelConfig
     kill_at = int(sys.argv[2])
@@ -324,10 +325,11 @@ RESUME_SCRIPT = textwrap.dedent("""
     T.step_generator = step_or_die
     cfg = WorldModelConfig(image_size=16, deter=16, hidden=16, stoch=2, classes=4, cnn_depth=4, minres=4,
                            mlp_layers=1, mlp_units=8)
-    v = fit_and_evaluate(make_group("shared", 2, 4, 12, 16), episodes_per_task=4, model_cfg=cfg,
-                         train_cfg=T.TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=2),
-                         window=WindowSpec(length=5, stride=2), eval_episodes=(0, 4), heldout_episodes=None,
-                         checkpoint_dir=sys.argv[1], progress=False)
+    v = fit_and_evaluate(make_group("shared", 2, 4, 12, 16), 4,
+                         Training(cfg, T.TrainConfig(epochs=3, batch_size=2, lr=1e-3, checkpoint_every=2),
+                                  WindowSpec(length=5, stride=2)),
+                         Evaluation(episodes=(0, 4), heldout_episodes=None),
+                         Execution(checkpoint_dir=sys.argv[1], progress=False))
     print("STEPS", v["train"]["steps"], "FRAMES", v["train"]["frames"], "ERR", repr(v["eval"]["image_error"]))
     model, _ = load_model(v["checkpoint"])
     torch.save(model.state_dict(), sys.argv[1] + "/final.pt")

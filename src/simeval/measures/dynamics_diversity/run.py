@@ -102,81 +102,114 @@ def check_frames_not_upsampled(source, image_size: int) -> None:
                         f"times a power of two)")
 
 
-def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig,
-                     window: WindowSpec, eval_episodes: tuple[int, int] = (0, 40),
-                     heldout_episodes: tuple[int, int] | None = (40, 50), eval_seed: int = 0,
-                     eval_context: int | None = None, eval_batch_size: int = 16, checkpoint_dir: str | Path | None = None,
-                     log_metrics: Callable[[dict, int], None] | None = None, progress: bool = True,
-                     videos: int = 0, video_dir: str | Path | None = None,
-                     device: str | torch.device | None = "auto", compile: bool = False, capture: bool = False,
-                     how_to_get_more: Callable[[int], str] | None = None, protocol: str = "paper",
-                     steps: int | None = None, horizon: int | None = None, lr: float | None = None,
-                     mask_margin: int = 0, exclude_robot_from_loss: bool = False,
-                     evaluate_only: bool = False, gate: GateConfig | None = None,
-                     state_model: StateModelConfig | None = None) -> dict:
-    """Train on ranks [0, episodes_per_task) of every task, evaluate on ranks `eval_episodes` (and
-    `heldout_episodes` when every task has them). Returns {eval, heldout, train, model, tasks, checkpoint, videos}.
-    With `checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training data, so
-    the same command run again resumes a killed run (or, when it finished, only evaluates). With `videos` > 0 and a
-    `video_dir`, the open-loop prediction videos of the first `videos` tasks (prediction_videos, on the evaluation
-    episodes) are written there as `open_loop_<task>.mp4`; `videos` in the result maps each task to its file.
-    `device` (auto, cpu, cuda, cuda:N): where the model trains and is evaluated; not part of the checkpoint's key,
-    so a run resumes on another device; `train.device` in the result records this process's (the evaluation's) and
-    `train.segments` how each part of the training ran (simeval.models.world_model_training.train). `compile`: compile
-    the model's steps (WorldModel.compile_steps; for a GPU), `capture`: train with the whole step as one CUDA graph
-    (simeval.runtime.captured; CUDA only), both likewise not part of the key. `how_to_get_more(n)`:
-    what a UserError about too few episodes per task tells the user to run (how_to_get_episodes).
+@dataclass(frozen=True)
+class Training:
+    """What a world model learns from and how (all of it in the checkpoint's key): its config, its optimiser's, the
+    training windows, and the heldout protocol's budget: `steps` gradient steps for every episode count, Adam's
+    learning rate `lr` (None: train's), `exclude_robot_from_loss` (robot pixels, grown by Evaluation.mask_margin,
+    carry no loss)."""
 
-    `protocol`: "paper" (the paper's Table 4 quantity: the posterior reconstruction averaged over `eval_episodes`,
-    which include the training episodes; the budget is `train_cfg`'s epochs, so it grows with the episodes) or
-    "heldout" (what simeval's own readings rest on, see PROTOCOLS): `eval_episodes` must lie past every training
-    episode (the default (40, 50): episodes 41-50), every episode count trains for the same `steps` gradient steps,
-    with Adam's learning rate `lr` (None: train_cfg's), and `values["prediction"]` holds one-step and
-    `horizon`-step open-loop prediction errors after `eval_context` observed frames, with the last-frame and
-    per-task-mean-image baselines, skill scores, object-focused errors (robot pixels excluded where the episodes
-    carry robot masks, grown by `mask_margin` pixels) and per-episode sums for intervals
-    (simeval.measures.dynamics_diversity.prediction). With `exclude_robot_from_loss` (heldout only) those same grown
-    robot pixels carry no training loss either, so the model learns nothing of the robot's looks (the visual control
-    failed without it); episodes without masks train on the full frame, and
-    `values["protocol"]["robot_excluded_from_loss"]` says which happened. `heldout_episodes` is not used by "heldout"
-    (its evaluation is held out). `evaluate_only` (heldout): a UserError instead of training when the run's checkpoint
-    is not there (to score finished runs again). `gate` (heldout): the validity gate's settings
-    (simeval.measures.dynamics_diversity.gate; None: its defaults): `values["gate"]` says whether the model beats both
-    baselines on the held-out frames, per task and for the group; where it does not, the run's numbers are no reading
-    of diversity and the log line says so in their place. `state_model` (heldout; None: no state reading):
-    `values["state"]` is the state-space reading on the same training and held-out episodes
-    (simeval.measures.dynamics_diversity.state_reading), gated on its own."""
-    device = resolve_device(device)  # a bad value fails here, before any data is read
-    if protocol not in PROTOCOLS:
-        raise UserError(f"protocol={protocol!r}: expected one of {', '.join(PROTOCOLS)}")
-    if protocol == "heldout":
-        return _fit_and_evaluate_heldout(
-            source, episodes_per_task=episodes_per_task, model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=eval_episodes, steps=steps, horizon=horizon, lr=lr, mask_margin=mask_margin,
-            exclude_robot_from_loss=exclude_robot_from_loss, eval_seed=eval_seed, eval_context=eval_context,
-            eval_batch_size=eval_batch_size,
-            checkpoint_dir=checkpoint_dir, log_metrics=log_metrics,
-            progress=progress, videos=videos, video_dir=video_dir, device=device, compile=compile, capture=capture,
-            how_to_get_more=how_to_get_more, evaluate_only=evaluate_only, gate=gate, state_model=state_model)
-    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, eval_context,
-                     checkpoint_dir, how_to_get_more)
-    infos, tasks, ranks, k = source.infos, setup.tasks, setup.ranks, setup.k
-    train_mask, train_ds, stats, model, meta, checkpoint = (setup.train_mask, setup.train_ds, setup.stats,
-                                                            setup.model, setup.meta, setup.checkpoint)
+    model: WorldModelConfig
+    train: TrainConfig
+    window: WindowSpec
+    steps: int | None = None
+    lr: float | None = None
+    exclude_robot_from_loss: bool = False
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What a run is scored on and how: the protocol ("paper" or "heldout", PROTOCOLS), the evaluated ranks
+    `episodes` [lo, hi) and the paper protocol's `heldout_episodes`, the evaluation's seed, observed context, batch
+    size and open-loop `horizon`, the robot masks' `mask_margin` (pixels), the validity `gate` and the
+    `state_model` of the heldout protocol (None: their defaults / no state reading), and `videos` open-loop
+    videos written to `video_dir`."""
+
+    protocol: str = "paper"
+    episodes: tuple[int, int] = (0, 40)
+    heldout_episodes: tuple[int, int] | None = (40, 50)
+    seed: int = 0
+    context: int | None = None
+    batch_size: int = 16
+    horizon: int | None = None
+    mask_margin: int = 0
+    gate: GateConfig | None = None
+    state_model: StateModelConfig | None = None
+    videos: int = 0
+    video_dir: str | Path | None = None
+
+
+@dataclass(frozen=True)
+class Execution:
+    """Where and how a run executes, none of it in the checkpoint's key: `checkpoint_dir` (None: no checkpoint),
+    `device` (auto, cpu, cuda, cuda:N), `compile` and `capture` (a GPU's), `progress` bars, `log_metrics(metrics,
+    step)`, `evaluate_only` (heldout: a UserError instead of training when the checkpoint is not there) and
+    `how_to_get_more(n)`, what a too-few-episodes error tells the user to run."""
+
+    checkpoint_dir: str | Path | None = None
+    device: str | torch.device | None = "auto"
+    compile: bool = False
+    capture: bool = False
+    progress: bool = True
+    log_metrics: Callable[[dict, int], None] | None = None
+    evaluate_only: bool = False
+    how_to_get_more: Callable[[int], str] | None = None
+
+
+def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluation: Evaluation = Evaluation(),
+                     execution: Execution = Execution()) -> dict:
+    """Train on ranks [0, episodes_per_task) of every task (`training`), evaluate on ranks `evaluation.episodes`
+    (and, under the paper protocol, `evaluation.heldout_episodes` when every task has them). Returns {eval,
+    heldout, train, model, tasks, checkpoint, videos} (paper) or {protocol, prediction, gate, state, train, model,
+    tasks, checkpoint, videos} (heldout).
+
+    With `execution.checkpoint_dir`, the model is checkpointed there under a name keyed by its config and training
+    data, so the same command run again resumes a killed run (or, when it finished, only evaluates); the device,
+    `compile` (WorldModel.compile_steps) and `capture` (one CUDA graph per step, simeval.runtime.captured) are not
+    part of the key, so a run resumes on another device; `train.segments` records how each part of the training
+    ran. With `evaluation.videos` > 0 and a `video_dir`, the open-loop prediction videos of the first tasks are
+    written there as `open_loop_<task>.mp4`.
+
+    `evaluation.protocol`: "paper" (the paper's Table 4 quantity: the posterior reconstruction averaged over the
+    evaluated episodes, which include the training episodes; the budget is `training.train`'s epochs, so it grows
+    with the episodes) or "heldout" (what simeval's own readings rest on, see PROTOCOLS): the evaluated episodes
+    must lie past every training episode, every episode count trains for the same `training.steps`, and
+    `values["prediction"]` holds one-step and `horizon`-step open-loop prediction errors after `context` observed
+    frames, with the last-frame and per-task-mean-image baselines, skill scores, object-focused errors (robot
+    pixels, grown by `mask_margin`, excluded where the episodes carry robot masks; with
+    `training.exclude_robot_from_loss` they carry no training loss either) and per-episode sums for intervals
+    (simeval.measures.dynamics_diversity.prediction); `values["gate"]` says whether the model beats both baselines
+    on the held-out frames, per task and for the group (where it does not, its numbers are no reading);
+    `values["state"]` is the state-space reading on the same episodes (simeval.measures.dynamics_diversity.
+    state_reading), gated on its own."""
+    device = resolve_device(execution.device)  # a bad value fails here, before any data is read
+    execution = replace(execution, device=device)
+    if evaluation.protocol not in PROTOCOLS:
+        raise UserError(f"protocol={evaluation.protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+    if evaluation.protocol == "heldout":
+        return _fit_and_evaluate_heldout(source, episodes_per_task, training, evaluation, execution)
+    model_cfg, train_cfg, window = training.model, training.train, training.window
+    eval_episodes, heldout_episodes, eval_seed = evaluation.episodes, evaluation.heldout_episodes, evaluation.seed
+    videos, video_dir = evaluation.videos, evaluation.video_dir
+    progress, compile = execution.progress, execution.compile
+    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, evaluation.context,
+                     execution.checkpoint_dir, execution.how_to_get_more)
+    tasks, ranks, train_ds, stats = setup.tasks, setup.ranks, setup.train_ds, setup.stats
+    model, meta, checkpoint = setup.model, setup.meta, setup.checkpoint
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
 
     def run_eval(lo: int, hi: int) -> dict:
         ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
         if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
             raise UserError("evaluation episodes have another action space than the training ones")
-        out = evaluate(model, ds, seed=eval_seed, batch_size=eval_batch_size, context=eval_context, progress=progress)
+        out = evaluate(model, ds, seed=eval_seed, batch_size=evaluation.batch_size, context=evaluation.context,
+                       progress=progress)
         out["episodes"] = [lo + 1, hi]
         return out, ds
 
     counts = {t: int(np.sum(np.asarray(tasks) == t)) for t in set(tasks)}
     with WorldModel.compile_failures_named(compile):  # training, and the evaluations' new shapes compiled too
-        summary = train(model, train_ds, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=log_metrics,
-                        progress=progress, device=device, compile=compile, capture=capture)
+        summary = _train(model, train_ds, train_cfg, checkpoint, meta, execution)
         main_eval, eval_ds = run_eval(*eval_episodes)
         values = {"eval": main_eval, "heldout": None, "videos": {}}
         clips = (prediction_videos(model, eval_ds, main_eval["context"], seed=eval_seed, n_tasks=videos)
@@ -188,11 +221,17 @@ def fit_and_evaluate(source, *, episodes_per_task: int, model_cfg: WorldModelCon
                      min(counts.values()))
     values["videos"] = {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                         for task, frames in clips.items()}
-    values["train"] = setup.train_summary(summary, device, compile, capture)
+    values["train"] = setup.train_summary(summary, device, compile, execution.capture)
     values["model"] = setup.model_summary()
     values["tasks"] = sorted(counts)
     values["checkpoint"] = str(checkpoint) if checkpoint is not None else None
     return values
+
+
+def _train(model, dataset, train_cfg: TrainConfig, checkpoint, meta: dict, execution: Execution) -> dict:
+    return train(model, dataset, train_cfg, checkpoint=checkpoint, meta=meta, log_metrics=execution.log_metrics,
+                 progress=execution.progress, device=execution.device, compile=execution.compile,
+                 capture=execution.capture)
 
 
 PROTOCOLS = {
@@ -239,19 +278,17 @@ def check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclud
         raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
 
 
-def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: WorldModelConfig,
-                              train_cfg: TrainConfig, window: WindowSpec, eval_episodes: tuple[int, int],
-                              steps: int | None, horizon: int | None, lr: float | None, mask_margin: int,
-                              exclude_robot_from_loss: bool, eval_seed: int, eval_context: int | None,
-                              eval_batch_size: int, checkpoint_dir,
-                              log_metrics, progress: bool, videos: int, video_dir, device, compile: bool,
-                              capture: bool, how_to_get_more, evaluate_only: bool = False,
-                              gate: GateConfig | None = None, state_model: StateModelConfig | None = None) -> dict:
+def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training, evaluation: Evaluation,
+                              execution: Execution) -> dict:
     """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
     from simeval.measures.dynamics_diversity.prediction import evaluate_prediction, task_mean_images
 
+    model_cfg, train_cfg, window = training.model, training.train, training.window
+    steps, lr, exclude_robot_from_loss = training.steps, training.lr, training.exclude_robot_from_loss
+    horizon, mask_margin, how_to_get_more = evaluation.horizon, evaluation.mask_margin, execution.how_to_get_more
+    videos, video_dir, compile = evaluation.videos, evaluation.video_dir, execution.compile
     k = int(episodes_per_task)
-    lo, hi = eval_episodes
+    lo, hi = evaluation.episodes
     if lo < k:
         have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
         fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
@@ -260,7 +297,7 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                + f", then eval_episodes=[{k + 1},{k + 10}]")
         raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
                         f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
-    context = 5 if eval_context is None else int(eval_context)
+    context = 5 if evaluation.context is None else int(evaluation.context)
     check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
     ranks = episode_ranks([i.task for i in source.infos], [i.seed for i in source.infos])
@@ -273,9 +310,9 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
                 "or use protocol=paper")
 
-    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes, None, checkpoint_dir, more,
-                     protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
-    if evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
+    setup = _prepare(source, k, model_cfg, train_cfg, window, evaluation.episodes, None, execution.checkpoint_dir,
+                     more, protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
+    if execution.evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
         raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
                         "would have to be trained again")
     evaluated = rank_mask(setup.ranks, lo, hi)
@@ -297,14 +334,12 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
         raise RuntimeError("an evaluated episode is among the training episodes")
     means = task_mean_images(source, setup.train_mask, model_cfg.image_size)
     with WorldModel.compile_failures_named(compile):
-        summary = train(setup.model, setup.train_ds, train_cfg, checkpoint=setup.checkpoint, meta=setup.meta,
-                        log_metrics=log_metrics, progress=progress, device=device, compile=compile,
-                        capture=capture)
+        summary = _train(setup.model, setup.train_ds, train_cfg, setup.checkpoint, setup.meta, execution)
         started = time.perf_counter()
-        prediction = evaluate_prediction(setup.model, step_ds, eval_ds, means, context, seed=eval_seed,
-                                         batch_size=eval_batch_size, progress=progress)
+        prediction = evaluate_prediction(setup.model, step_ds, eval_ds, means, context, seed=evaluation.seed,
+                                         batch_size=evaluation.batch_size, progress=execution.progress)
         prediction["seconds"] = time.perf_counter() - started  # what a sweep spends beside training (benchmarks)
-        clips = (prediction_videos(setup.model, eval_ds, context, seed=eval_seed, n_tasks=videos)
+        clips = (prediction_videos(setup.model, eval_ds, context, seed=evaluation.seed, n_tasks=videos)
                  if videos > 0 and video_dir is not None else {})
     prediction["episodes"] = [lo + 1, hi]
     values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "mask_margin": mask_margin,
@@ -313,11 +348,13 @@ def _fit_and_evaluate_heldout(source, *, episodes_per_task: int, model_cfg: Worl
                            "trained_on": [1, k],
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
-              "gate": pixel_gate([prediction["per_episode"]], gate or GateConfig()),
-              "state": None if state_model is None else _state_reading(source, setup, evaluated, state_model, gate),
+              "gate": pixel_gate([prediction["per_episode"]], evaluation.gate or GateConfig()),
+              "state": None if evaluation.state_model is None else
+              _state_reading(source, setup, evaluated, evaluation.state_model, evaluation.gate),
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
-              "train": setup.train_summary(summary, device, compile, capture), "model": setup.model_summary(),
+              "train": setup.train_summary(summary, execution.device, compile, execution.capture),
+              "model": setup.model_summary(),
               "tasks": sorted(set(setup.tasks)),
               "checkpoint": str(setup.checkpoint) if setup.checkpoint is not None else None}
     return values
@@ -670,18 +707,19 @@ class DiversityRun:
         """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
         model_cfg, train_cfg, window = self.configs
         paper = self.protocol["name"] == "paper"
-        values = fit_and_evaluate(
-            source, episodes_per_task=int(self.episodes), model_cfg=model_cfg, train_cfg=train_cfg, window=window,
-            eval_episodes=self.eval_episodes, protocol=self.protocol["name"], steps=self.protocol["steps"],
-            horizon=self.protocol["horizon"], lr=self.protocol["lr"], mask_margin=self.mask_margin,
-            exclude_robot_from_loss=self.exclude_robot, heldout_episodes=self.heldout_episodes if paper else None,
-            eval_seed=int(self.evaluation["seed"]), eval_context=int(self.evaluation["context"]),
-            eval_batch_size=int(self.evaluation["batch_size"]), checkpoint_dir=checkpoint_dir,
-            log_metrics=logger.log_metrics, progress=progress, videos=videos, video_dir=video_dir, device=device,
-            compile=compile, capture=capture, how_to_get_more=how_to_get_more,
+        training = Training(model_cfg, train_cfg, window, steps=self.protocol["steps"], lr=self.protocol["lr"],
+                            exclude_robot_from_loss=self.exclude_robot)
+        evaluation = Evaluation(
+            protocol=self.protocol["name"], episodes=self.eval_episodes,
+            heldout_episodes=self.heldout_episodes if paper else None, seed=int(self.evaluation["seed"]),
+            context=int(self.evaluation["context"]), batch_size=int(self.evaluation["batch_size"]),
+            horizon=self.protocol["horizon"], mask_margin=self.mask_margin,
             gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
             state_model=None if paper or self.protocol.get("state_model") is None else
-            StateModelConfig.from_dict(self.protocol["state_model"]))
+            StateModelConfig.from_dict(self.protocol["state_model"]), videos=videos, video_dir=video_dir)
+        execution = Execution(checkpoint_dir=checkpoint_dir, device=device, compile=compile, capture=capture,
+                              progress=progress, log_metrics=logger.log_metrics, how_to_get_more=how_to_get_more)
+        values = fit_and_evaluate(source, int(self.episodes), training, evaluation, execution)
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(
                 f"{task}: ground truth | reconstruction | open loop after {int(self.evaluation['context'])} observed "

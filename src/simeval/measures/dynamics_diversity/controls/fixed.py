@@ -166,7 +166,7 @@ def run_all(args) -> list[dict]:
     import torch
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
     from simeval.results import atomic_write_text
@@ -214,14 +214,15 @@ def run_all(args) -> list[dict]:
                                      "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
                 reevaluated = path.exists()  # --reevaluate: from its checkpoint, refused where it is gone
-                values = fit_and_evaluate(
-                    source_of(condition), episodes_per_task=k, model_cfg=model_cfg,
-                    train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=window,
-                    eval_episodes=(args.heldout[0] - 1, args.heldout[1]), protocol="heldout", steps=args.steps,
-                    horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=args.context,
-                    exclude_robot_from_loss=args.exclude_robot_from_loss, evaluate_only=reevaluated,
-                    eval_seed=seed, progress=False,
-                    checkpoint_dir=args.out / "checkpoints" / "controls")
+                training = Training(model_cfg, TrainConfig.from_dict({**wm["train"], "seed": seed}), window,
+                                    steps=args.steps, lr=args.lr,
+                                    exclude_robot_from_loss=args.exclude_robot_from_loss)
+                evaluation = Evaluation(protocol="heldout", episodes=(args.heldout[0] - 1, args.heldout[1]),
+                                        seed=seed, context=args.context, horizon=args.horizon,
+                                        mask_margin=args.mask_margin)
+                execution = Execution(checkpoint_dir=args.out / "checkpoints" / "controls", progress=False,
+                                      evaluate_only=reevaluated)
+                values = fit_and_evaluate(source_of(condition), k, training, evaluation, execution)
                 record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,  # no machine paths
                           "identity": {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
                                        "preset": args.preset, "seed": seed, "protocol": "heldout",

@@ -45,7 +45,7 @@ def run_row(row: int, checkpoints: Path, conf_dir: Path) -> dict:
     import torch
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.measures.dynamics_diversity.gate import GateConfig
     from simeval.measures.dynamics_diversity.controls.random_draws import Look, make_control_group, one_disk_control
     from simeval.models.world_model_training import TrainConfig
@@ -61,15 +61,15 @@ def run_row(row: int, checkpoints: Path, conf_dir: Path) -> dict:
     src = make_control_group(draw, "varied", size=wm["model"]["image_size"])
     curve: dict[int, list] = {}
     started = time.perf_counter()
-    values = fit_and_evaluate(
-        src, episodes_per_task=10, model_cfg=WorldModelConfig.from_dict({**wm["model"], "pixel_norm": norm}),
-        train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=WindowSpec(**wm["window"]),
-        eval_episodes=(40, 50), protocol="heldout", steps=p["steps"], horizon=p["horizon"], lr=p["lr"],
-        mask_margin=p["mask_margin"], exclude_robot_from_loss=p["exclude_robot_from_loss"], eval_context=5,
-        eval_seed=0, progress=False, device="cpu", gate=GateConfig.from_dict(p["gate"]),
-        checkpoint_dir=checkpoints,
-        log_metrics=lambda m, step: curve.setdefault(step // LOG_EVERY, []).append(
-            (m["train"]["image_se"], m["train"]["kl_dyn"])))
+    training = Training(WorldModelConfig.from_dict({**wm["model"], "pixel_norm": norm}),
+                        TrainConfig.from_dict({**wm["train"], "seed": seed}), WindowSpec(**wm["window"]),
+                        steps=p["steps"], lr=p["lr"], exclude_robot_from_loss=p["exclude_robot_from_loss"])
+    evaluation = Evaluation(protocol="heldout", episodes=(40, 50), seed=0, context=5, horizon=p["horizon"],
+                            mask_margin=p["mask_margin"], gate=GateConfig.from_dict(p["gate"]))
+    execution = Execution(checkpoint_dir=checkpoints, device="cpu", progress=False,
+                          log_metrics=lambda m, step: curve.setdefault(step // LOG_EVERY, []).append(
+                              (m["train"]["image_se"], m["train"]["kl_dyn"])))
+    values = fit_and_evaluate(src, 10, training, evaluation, execution)
     blocks = {b * LOG_EVERY: (float(np.mean([x[0] for x in v])), float(np.mean([x[1] for x in v])))
               for b, v in sorted(curve.items())}
     summary = values["prediction"]["summary"]

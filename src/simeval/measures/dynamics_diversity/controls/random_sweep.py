@@ -112,7 +112,7 @@ def run_one(job: dict) -> dict:
     import torch
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.measures.dynamics_diversity.gate import GateConfig
     from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, state_reading
     from simeval.models.world_model_training import TrainConfig
@@ -141,13 +141,13 @@ def run_one(job: dict) -> dict:
     else:
         src = group_source(job["draw"], job["group"], wm["model"]["image_size"])
         model_cfg = WorldModelConfig.from_dict({**wm["model"], **(p.get("model") or {})})
-        values = fit_and_evaluate(
-            src, episodes_per_task=k, model_cfg=model_cfg,
-            train_cfg=TrainConfig.from_dict({**wm["train"], "seed": job["seed"]}), window=WindowSpec(**wm["window"]),
-            eval_episodes=(HELDOUT[0] - 1, HELDOUT[1]), protocol="heldout", steps=p["steps"], horizon=p["horizon"],
-            lr=p["lr"], mask_margin=p["mask_margin"], exclude_robot_from_loss=p["exclude_robot_from_loss"],
-            eval_context=5, eval_seed=job["seed"], progress=False, device="cpu", gate=gate_cfg,
-            checkpoint_dir=job["checkpoints"])
+        training = Training(model_cfg, TrainConfig.from_dict({**wm["train"], "seed": job["seed"]}),
+                            WindowSpec(**wm["window"]), steps=p["steps"], lr=p["lr"],
+                            exclude_robot_from_loss=p["exclude_robot_from_loss"])
+        evaluation = Evaluation(protocol="heldout", episodes=(HELDOUT[0] - 1, HELDOUT[1]), seed=job["seed"],
+                                context=5, horizon=p["horizon"], mask_margin=p["mask_margin"], gate=gate_cfg)
+        values = fit_and_evaluate(src, k, training, evaluation,
+                                  Execution(checkpoint_dir=job["checkpoints"], device="cpu", progress=False))
         rows = sorted(values["prediction"]["per_episode"], key=lambda e: (e["task"], e["seed"]))
         summary = values["prediction"]["summary"]
         one, rec = summary["one_step"], summary["reconstruction"]
