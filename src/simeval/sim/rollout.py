@@ -26,6 +26,7 @@ from simeval.sim.action_spaces import (
     pick_place_action_space,
 )
 from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS
+from simeval.sim.closed_loop import act_until_done
 from simeval.sim.env import SimEnv, state_names
 from simeval.sim.experts.gensim import next_primitive
 from simeval.sim.robots.xarm import STATE_NAMES
@@ -293,29 +294,24 @@ def _one_rollout(policy, task, seed: int, env_kwargs: dict, video_camera: str | 
     video_low = video_camera is not None and env_kwargs.get("action_space") == "pick_place"
     env = SimEnv(task, **env_kwargs, record_low_level=video_low)
     frames = []
+
+    def record(obs: dict, info: dict) -> None:
+        frames.extend([o["rgb"][video_camera] for o in info["low_level"]["obs"]] if video_low else
+                      [obs["rgb"][video_camera]])
+
     try:
         obs, info = env.reset(seed=seed)
         if hasattr(policy, "reset"):
             policy.reset(env)
         if video_camera is not None:
             frames.append(obs["rgb"][video_camera])
-        steps, gave_up = 0, False
-        while True:
-            action = policy(obs)
-            if action is None:
-                gave_up = True
-                break
-            obs, _, terminated, truncated, info = env.step(action)
-            steps += 1
-            if video_camera is not None:
-                frames += [o["rgb"][video_camera] for o in info["low_level"]["obs"]] if video_low else \
-                    [obs["rgb"][video_camera]]
-            if terminated or truncated:
-                break
+        done = act_until_done(env, policy, obs, record if video_camera is not None else None)
+        if not done["steps"]:  # gave up at once: the reset's success and progress stand
+            done.update(success=bool(info["success"]), progress=float(info["progress"]))
     finally:
         env.close()
-    return {"seed": int(seed), "success": bool(info["success"]), "progress": float(info["progress"]),
-            "steps": steps, "gave_up": gave_up, "video": np.stack(frames) if frames else None}
+    return {"seed": int(seed), "success": done["success"], "progress": done["progress"], "steps": done["steps"],
+            "gave_up": done["gave_up"], "video": np.stack(frames) if frames else None}
 
 
 def rollout_policy(policy: Callable, task: str | TaskSpec, seeds: Sequence[int], *, action_space: str | None = None,

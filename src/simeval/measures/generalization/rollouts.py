@@ -32,6 +32,7 @@ from simeval.stats.intervals import success_summary
 from simeval.runtime.device import module_device, to_device
 from simeval.models.diffusion_policy import DiffusionPolicy, RecedingHorizonRunner
 from simeval.results import rolled_out
+from simeval.sim.closed_loop import act_until_done
 
 log = logging.getLogger(__name__)
 
@@ -99,16 +100,13 @@ def rollout_task(policy: DiffusionPolicy, task: str, seeds: Sequence[int], *, sp
                     on_episode(episodes[-1])
                 continue
             runner.reset(seed=int(seed))
-            frames = [obs["rgb"][video_camera or cfg.cameras[0]]] if keep_frames else None
-            n, done = 0, False
-            while not done:
-                obs, _, terminated, truncated, info = env.step(runner.act(obs))
-                n += 1
-                done = terminated or truncated
-                if frames is not None:
-                    frames.append(obs["rgb"][video_camera or cfg.cameras[0]])
-            episodes.append({"seed": int(seed), "start": start, "success": bool(info["success"]),
-                             "progress": None if info["progress"] is None else float(info["progress"]), "steps": n,
+            camera = video_camera or cfg.cameras[0]
+            frames = [obs["rgb"][camera]] if keep_frames else None
+            done = act_until_done(env, runner.act, obs,
+                                  (lambda o, _: frames.append(o["rgb"][camera])) if keep_frames else None)
+            info = done["info"]
+            episodes.append({"seed": int(seed), "start": start, "success": done["success"],
+                             "progress": done["progress"], "steps": done["steps"],
                              **({"error": str(info["error"])} if info.get("error") else {})})  # the env's own failure
             if frames is not None:
                 videos[int(seed)] = np.stack(frames)
