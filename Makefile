@@ -153,7 +153,7 @@ comma := ,
 # the paper preset's 128x128 episodes go to a store of their own, beside the default 64x64 one
 WM_STORE := $(if $(filter paper,$(WM_PRESET)),outputs/episodes_128,outputs/episodes)
 WM_RECORD := $(if $(filter paper,$(WM_PRESET)),'record.image_size=[128$(comma)128]')
-.PHONY: table4 report-table4 world-model-control
+.PHONY: table4 report-table4
 table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error at 10/20/40 per CELLS group, table + plot
 	for c in $(CELLS); do p=$${c%%:*}; g=$${c##*:}; w=; \
 	  [ "$(WM_PRESET)" = paper ] && [ $$p != gensim ] && w=world_model.window.length=20; \
@@ -163,10 +163,6 @@ table4: setup ## paper Table 4: collect 40 episodes/task, world-model eval error
 
 report-table4: setup ## rebuild Table 4 (outputs/tables/table4.{csv,md,tex}, outputs/figures/table4.{png,pdf}; WM_PRESET=paper: the paper preset's runs into table4_paper.*) from result.json files only (KEEP=outputs/tables/table4.csv: extend the committed table instead of replacing it; OVERWRITE=1: replace the committed files)
 	$(PY) src/report.py report=table4 $(if $(filter paper,$(WM_PRESET)),report.preset=paper report.out=outputs/tables/table4_paper report.figure=outputs/figures/table4_paper.png) $(REPORT_KEEP) $(REPORT_OVERWRITE)
-
-world-model-control: setup ## the old synthetic control (tiny, paper protocol): outputs/figures/world_model_control.png (OVERWRITE=1: replace the committed one)
-	$(if $(filter-out 1 true yes 0 false no,$(OVERWRITE)),$(error OVERWRITE=$(OVERWRITE): 1 (true, yes) replaces the committed files, 0 (false, no) keeps them))
-	$(PY) experiments/world_model_control.py --preset tiny --epochs 6 --seeds 0 1 $(if $(filter 1 true yes,$(OVERWRITE)),--overwrite)
 
 # simeval's own readings: protocol=heldout (held-out episodes 41-50, the same steps for every count, prediction error
 # beside baselines), 3 training seeds per cell; the controls it was validated on (resumable: a killed run resumes)
@@ -193,7 +189,7 @@ controls: setup ## the heldout protocol's validity controls at the cpu preset: d
 control-gensim-own: gensim-env ## the control on GenSim's own episodes (a 4-task generalist vs 1-task specialists): collects 20 episodes of the first four stacking tasks from the checkout (GENSIM_ROOT, else ../shared/gensim beside), then 3 seeds: outputs/tables/control_gensim_own.*, outputs/figures/control_gensim_own.png
 	$(if $(GENSIM_CHECKOUT),,$(error no GenSim checkout: set GENSIM_ROOT=<your GenSim checkout>))
 	$(PY) src/collect.py pipeline=gensim_own pipeline.root=$(GENSIM_CHECKOUT) 'tasks=[color-coordinated-cylinder-stacking,color-sorted-container-stack,cylinder-ring-stack,sequential-insertion-and-stacking]' episodes=20 workers=2
-	$(PY) experiments/gensim_own_control.py --task-names color-coordinated-cylinder-stacking color-sorted-container-stack cylinder-ring-stack sequential-insertion-and-stacking
+	$(PY) src/controls.py gensim_own --task-names color-coordinated-cylinder-stacking color-sorted-container-stack cylinder-ring-stack sequential-insertion-and-stacking
 
 # Caches are not run folders: outputs/cache/judge_calls.sqlite holds paid judge calls (money and time to redo), so
 # `clean` keeps outputs/cache and says so; `clean-caches` deletes it and lists what it deletes.

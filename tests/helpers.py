@@ -159,7 +159,7 @@ def _write_ravens(root: Path, task="stack-block-pyramid", mode="train", episodes
 
 
 def load_script(path: Path, name: str | None = None):
-    """A script (experiments/*.py, a file run by another interpreter) loaded as a module from its file, without
+    """A script (a file run by another interpreter, e.g. GenSim's worker) loaded as a module from its file, without
     putting its folder on sys.path; registered in sys.modules under `name` (default: its stem) while it loads, as a
     module's dataclasses need, and removed again after."""
     import importlib.util
@@ -180,7 +180,7 @@ GROUP = "piles"  # the smallest group of the GenSim-style suite (3 tasks): synth
 
 def synthetic_store(root, per_task: int = 3, T: int = 30) -> Path:
     """Episodes of GROUP's tasks with random frames and smooth joint actions, for src/generalization.py and
-    experiments/policy_offline.py: enough to train and to check the plumbing (not to learn a task)."""
+    `src/generalization_tools.py offline`: enough to train and to check the plumbing (not to learn a task)."""
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.action_spaces import joint_action_space
     from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs

@@ -1,8 +1,9 @@
-"""experiments/eval_variation_probe.py: which eval scenes a variation changes, nothing trained or rolled out. Known
-answers: in simeval's BBSEA suite a perturbed robot start changes every scene and a friction range none (friction is
-drawn after the scene, so no first observation shows it: the knob is named); in GenSim's own piles, its unseen
-colours recolour separating-piles and leave move-piles-along-line (fixed colours) as it was, and GenSim's test mode
-alone changes no scene (its checkout draws the train colours in every mode)."""
+"""`src/generalization_tools.py variation-probe` (simeval.measures.generalization.variation_probe): which eval scenes
+a variation changes, nothing trained or rolled out. Known answers: in simeval's BBSEA suite a perturbed robot start
+changes every scene and a friction range none (friction is drawn after the scene, so no first observation shows it:
+the knob is named); in GenSim's own piles, its unseen colours recolour separating-piles and leave
+move-piles-along-line (fixed colours) as it was, and GenSim's test mode alone changes no scene (its checkout draws the
+train colours in every mode)."""
 
 from __future__ import annotations
 
@@ -15,14 +16,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "eval_variation_probe.py"
+COMMAND = [sys.executable, str(ROOT / "src" / "generalization_tools.py"), "variation-probe"]
 GENSIM = ROOT.parent / "shared" / "gensim"
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
 
 
 def probe(out: Path, *overrides: str, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(SCRIPT), "--out-dir", str(out), *overrides], capture_output=True,
-                          text=True, timeout=timeout, cwd=ROOT, env=ENV)
+    return subprocess.run([*COMMAND, "--out-dir", str(out), *overrides], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT, env=ENV)
 
 
 def changed(out: Path, name: str) -> dict:
@@ -62,7 +63,7 @@ def test_a_robot_start_changes_every_scene_and_friction_none_and_is_named(tmp_pa
         assert not (tmp_path / "bad").exists()
 
     # without --out-dir the tables go where paths.root puts them
-    rooted = subprocess.run([sys.executable, str(SCRIPT), *suite, f"paths.root={tmp_path / 'root'}"],
+    rooted = subprocess.run([*COMMAND, *suite, f"paths.root={tmp_path / 'root'}"],
                             capture_output=True, text=True, timeout=600, cwd=tmp_path, env=ENV)
     assert rooted.returncode == 0, rooted.stderr[-2000:]
     assert (tmp_path / "root" / "tables" / "eval_variation_bbsea_table.md").is_file()

@@ -1,4 +1,5 @@
-"""experiments/eval_vs_train.py: the eval split against the train split on the same tasks and seeds, by hand."""
+"""`src/generalization_tools.py eval-vs-train` (simeval.measures.generalization.eval_vs_train): the eval split
+against the train split on the same tasks and seeds, by hand."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from helpers import load_script
+
+from simeval.measures.generalization import eval_vs_train as mod
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "eval_vs_train.py"
+COMMAND = [sys.executable, str(ROOT / "src" / "generalization_tools.py"), "eval-vs-train"]
 
 
 def _record(rows: dict, seed: int = 0, variation: str = "own") -> dict:
@@ -25,7 +27,6 @@ def _record(rows: dict, seed: int = 0, variation: str = "own") -> dict:
 
 
 def test_the_paired_gap_by_hand():
-    mod = load_script(SCRIPT)
     g = mod.gap([0.0] * 5, [0.1, 0.2, 0.3, 0.4, 0.5])
     assert np.isclose(g["gap"], 0.3) and g["n"] == 5 and np.isclose(g["eval_mean"], 0.3)
     # five positive differences of distinct size: the exact two-sided signed-rank p is 2 / 2^5
@@ -37,7 +38,6 @@ def test_the_paired_gap_by_hand():
 
 
 def test_pairs_match_task_and_seed_and_skip_unvaried_and_dropped_tasks():
-    mod = load_script(SCRIPT)
     record = _record({("a", "train"): [(1, 0.2), (2, 0.6), (3, 0.0)], ("a", "eval"): [(3, 1.0), (1, None), (2, 0.1)],
                       ("b", "train"): [(1, 0.5)], ("b", "eval"): [(1, 0.0)], ("c", "eval"): [(1, 0.3)]})
     assert mod.paired_progress(record, set()) == [("a", 3, 0.0, 1.0), ("a", 2, 0.6, 0.1), ("b", 1, 0.5, 0.0)]
@@ -52,7 +52,7 @@ def test_the_cli_pools_runs_and_refuses_what_it_cannot_pair_in_one_line(tmp_path
                                          "own")):
         (tmp_path / name).mkdir()
         (tmp_path / name / "result.json").write_text(json.dumps(_record(rows, seed, variation)))
-    out = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "s0"), str(tmp_path / "s1")],
+    out = subprocess.run([*COMMAND, str(tmp_path / "s0"), str(tmp_path / "s1")],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert "| all | 2 | 0.100 | 0.350 | +0.250 [" in out.stdout and "| a | 2 |" in out.stdout
@@ -63,7 +63,7 @@ def test_the_cli_pools_runs_and_refuses_what_it_cannot_pair_in_one_line(tmp_path
                        ([str(tmp_path / "s0"), str(tmp_path / "unpaired")], "two runs of training seed 0"),
                        ([str(tmp_path / "s0"), "--drop-task", "b"], "--drop-task b: no such task in these runs"),
                        ([str(tmp_path / "none")], "result.json: no such file")):
-        refused = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120,
+        refused = subprocess.run([*COMMAND, *args], capture_output=True, text=True, timeout=120,
                                  cwd=ROOT)
         assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
         assert said in refused.stderr and refused.stdout == "", (said, refused.stderr)

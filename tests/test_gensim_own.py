@@ -332,18 +332,6 @@ def test_a_pipeline_with_neither_suite_nor_own_code_cannot_be_evaluated_closed_l
     assert "pipeline=custom" in line and "pipeline.native" in line
 
 
-def test_the_oracle_table_reports_failed_tasks_beside_solved_ones():
-    table = load_script(ROOT / "experiments" / "gensim_own_oracle.py").table
-    values = {"new": [{"task": "a", "seconds": 10.0}, {"task": "a", "seconds": 20.0}],
-              "failed": [{"task": "b", "seed": 0, "error": "timed out after 300 s", "where": ""}],
-              "tasks": {"a": {"group": "placement", "episodes": 2, "success": 2, "rate": 1.0, "failed": []},
-                        "b": {"group": "placement", "episodes": 0, "success": 0, "rate": None, "failed": [0]}}}
-    lines, summary = table(values)
-    assert "| placement | a | 2 | 2 | 0 | 15 |" in lines
-    assert "| placement | b | 0 | 0 | 1: timed out after 300 s |  |" in lines
-    assert summary["groups"]["placement"] == {"tasks": 2, "solved": ["a"], "failed": ["b"]}
-
-
 def test_resuming_into_a_store_recorded_at_another_size_is_refused(own_store, tmp_path):
     line = _error_line(_collect(tmp_path, f"tasks=[{TASK}]", "episodes=1", f"store={own_store}"))
     assert "record.image_size=[32, 32]" in line and "[64, 64]" in line
@@ -360,7 +348,7 @@ def test_the_collect_hint_repeats_the_stores_frame_size(own_store, tmp_path):
 
 
 def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_settings(own_store, tmp_path):
-    """experiments/gensim_own_control.py at tiny sizes on two of GenSim's own tasks (the fixture's and one more
+    """`src/controls.py gensim_own` at tiny sizes on two of GenSim's own tasks (the fixture's and one more
     collected here): a generalist and two specialists trained and scored on the same held-out episodes, the
     table's object-focused errors the ratios of the runs' sums (by hand); a rerun reuses the three runs; other
     settings, one task, and a store without enough episodes are one line each, exit 2."""
@@ -369,13 +357,13 @@ def test_the_control_on_gensims_own_episodes_runs_resumes_and_refuses_other_sett
     r = _collect(tmp_path, "tasks=[place-blue-on-line-ends]", "debug=tiny", "episodes=3", "workers=2",
                  f"store={store}")
     assert r.returncode == 0, r.stderr[-3000:]
-    script = ROOT / "experiments" / "gensim_own_control.py"
+    script = ROOT / "src" / "controls.py"
     args = ["--group", "placement", "--tasks", "2", "--per-task", "1", "--heldout", "3", "3", "--preset", "tiny",
             "--steps", "3", "--seeds", "0", "--store", str(store), "--out", str(tmp_path / "out")]
 
     def control(*extra):
-        return subprocess.run([sys.executable, str(script), *args, *extra], capture_output=True, text=True,
-                              timeout=600, cwd=ROOT, env=ENV)
+        return subprocess.run([sys.executable, str(script), "gensim_own", *args, *extra], capture_output=True,
+                              text=True, timeout=600, cwd=ROOT, env=ENV)
 
     r = control()
     assert r.returncode == 0, r.stderr[-3000:]

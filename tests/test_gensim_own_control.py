@@ -1,14 +1,12 @@
-"""experiments/gensim_own_control.py's verdict: the generalist's and the specialists' errors are ratios of the
-runs' per-episode sums over the same held-out episodes, computed here by hand, and the criterion follows them."""
+"""`src/controls.py gensim_own`'s verdict (simeval.measures.dynamics_diversity.controls.gensim_own): the generalist's
+and the specialists' errors are ratios of the runs' per-episode sums over the same held-out episodes, computed here by
+hand, and the criterion follows them."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
-from helpers import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
+from simeval.measures.dynamics_diversity.controls import gensim_own as control
 
 
 def _record(condition: str, seed: int, moving: dict[tuple[str, int], tuple[float, float]]) -> dict:
@@ -26,7 +24,6 @@ def _record(condition: str, seed: int, moving: dict[tuple[str, int], tuple[float
 
 
 def test_the_verdict_pairs_the_specialists_with_the_generalist_episode_for_episode_by_hand():
-    control = load_script(ROOT / "experiments" / "gensim_own_control.py")
     pixels = {("a", 16): 100.0, ("a", 17): 300.0, ("b", 16): 200.0, ("b", 17): 50.0}
     # the generalist errs 6 per moving pixel and channel on task a, 9 on b; each specialist 3 on its own task
     general = [_record("generalist", s, {k: ((6.0 if k[0] == "a" else 9.0) * 3 * px, px) for k, px in pixels.items()})
@@ -56,7 +53,6 @@ def test_the_verdict_pairs_the_specialists_with_the_generalist_episode_for_episo
 
 
 def test_too_few_moving_pixels_is_no_reading_not_a_fail():
-    control = load_script(ROOT / "experiments" / "gensim_own_control.py")
     pixels = {("a", 16): 3.0, ("b", 16): 2.0}  # 5 moving pixels in all: below the count a reading needs
     general = [_record("generalist", 0, {k: (9.0 * px, px) for k, px in pixels.items()})]
     special = [_record("specialists", 0, {k: (3.0 * px, px) for k, px in pixels.items() if k[0] == t}) for t in "ab"]

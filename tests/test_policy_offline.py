@@ -1,5 +1,6 @@
-"""experiments/policy_offline.py: a policy trained from a pack (no store, no simulator) is the one src/generalization.py
-trains, under the key it reuses; the held-out score against a hand computation; bad inputs are one line."""
+"""`src/generalization_tools.py offline` (simeval.measures.generalization.offline): a policy trained from a pack (no
+store, no simulator) is the one src/generalization.py trains, under the key it reuses; the held-out score against a
+hand computation; bad inputs are one line."""
 
 import json
 import os
@@ -10,14 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import GROUP, load_script, synthetic_store
+from helpers import GROUP, synthetic_store
+
+from simeval.measures.generalization import offline as po
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "policy_offline.py"
+TOOLS = ROOT / "src" / "generalization_tools.py"
 
 
 def offline(*args):
-    return _python(SCRIPT, *args)
+    return _python(TOOLS, "offline", *args)
 
 
 def run(*args):
@@ -212,7 +215,6 @@ def test_a_weights_only_checkpoint_short_of_its_steps_is_refused(packed, tmp_pat
     )
 
     root, _ = packed
-    po = load_script(SCRIPT)
     pk = po.load_pack(str(root / "pack.pt"))
     train, _ = po.datasets(pk)
     policy = DiffusionPolicy(PolicyConfig.from_mapping(pk["policy_config"]), train.state_dim, train.action_dim,
@@ -224,7 +226,6 @@ def test_a_weights_only_checkpoint_short_of_its_steps_is_refused(packed, tmp_pat
 
 
 def test_packing_round_trips_any_bytes():
-    po = load_script(SCRIPT)
     rng = np.random.default_rng(0)
     for n in (0, 1, 2, 1001):
         data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
@@ -238,7 +239,6 @@ def test_heldout_score_against_a_hand_computation(packed, monkeypatch):
     from simeval.models.diffusion_policy import DiffusionPolicy, PolicyConfig
 
     root, _ = packed
-    po = load_script(SCRIPT)
     pk = po.load_pack(str(root / "pack.pt"))
     train, held = po.datasets(pk)
     cfg = PolicyConfig.from_mapping(pk["policy_config"])

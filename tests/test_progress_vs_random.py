@@ -1,4 +1,5 @@
-"""experiments/progress_vs_random.py: a policy's rollout progress against the chance baseline's, by hand."""
+"""`src/generalization_tools.py vs-random` (simeval.measures.generalization.vs_random): a policy's rollout progress
+against the chance baseline's, by hand."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from helpers import load_script
+
+from simeval.measures.generalization import vs_random as mod
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "progress_vs_random.py"
+COMMAND = [sys.executable, str(ROOT / "src" / "generalization_tools.py"), "vs-random"]
 
 
 def _run(folder: Path, rollouts: dict, policy: str = "cpu") -> Path:
@@ -25,7 +27,6 @@ def _run(folder: Path, rollouts: dict, policy: str = "cpu") -> Path:
 
 
 def test_the_comparison_by_hand():
-    mod = load_script(SCRIPT)
     c = mod.compare([0.5, 0.7, 0.9], [0.0, 0.1, 0.2])
     assert np.isclose(c["difference"], 0.7 - 0.1) and c["n_policy"] == c["n_random"] == 3
     # every policy value above every random one: the exact one-sided p is 1 / C(6, 3) = 1/20
@@ -41,7 +42,7 @@ def test_the_cli_pools_seeds_drops_a_task_and_refuses_a_wrong_folder_in_one_line
     b = _run(tmp_path / "b", {("t1", "eval"): [0.9], ("dup", "eval"): [0.9]})
     r = _run(tmp_path / "r", {("t1", "eval"): [0.0, 0.1], ("dup", "eval"): [0.0], ("h", "heldout"): [0.0],
                                ("t1", "train"): [0.0]}, policy="random")
-    out = subprocess.run([sys.executable, str(SCRIPT), "--policy", str(a), str(b), "--random", str(r),
+    out = subprocess.run([*COMMAND, "--policy", str(a), str(b), "--random", str(r),
                           "--drop-task", "dup"], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     rows = {line.split("|")[1].strip(): line for line in out.stdout.splitlines()[2:] if line.startswith("|")}
@@ -65,7 +66,7 @@ def test_the_cli_pools_seeds_drops_a_task_and_refuses_a_wrong_folder_in_one_line
                         "--drop-task dupp: no such task in these runs; they have dup, h, t1"),
                        (["--policy", str(b), "--random", str(r), "--drop-task", "t1", "dup"],
                         "no split has rollouts of both")):
-        refused = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120,
+        refused = subprocess.run([*COMMAND, *args], capture_output=True, text=True, timeout=120,
                                  cwd=ROOT)
         assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
         assert said in refused.stderr and refused.stdout == "", (said, refused.stderr)
@@ -74,7 +75,6 @@ def test_the_cli_pools_seeds_drops_a_task_and_refuses_a_wrong_folder_in_one_line
 def test_eval_rollouts_left_out_as_unvaried_are_not_counted():
     """An eval seed whose scene the variation left as the train split's was not rolled out (no progress): the
     comparison reads the others."""
-    mod = load_script(SCRIPT)
     record = {"values": {"tasks": [{"task": "t1", "split": "eval", "episodes": [
         {"seed": 1, "success": False, "progress": 0.5}, {"seed": 2, "start": "0123456789abcdef", "unvaried": True}]}]}}
     assert mod.progress_values(record, "eval", set()) == [0.5]

@@ -545,8 +545,28 @@ def launch(main: Callable[[], Any]) -> None:
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse for the experiment scripts, with a user error as one line (exit 2) instead of the usage block:
-    `--help` still prints the usage."""
+    """argparse for the argparse commands (the subcommands of src/controls.py and src/generalization_tools.py, the
+    experiment scripts), with a user error as one line (exit 2) instead of the usage block: `--help` still prints
+    the usage."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
         _fail(f"{self.prog}: {message} (see --help)")
+
+
+def run_subcommand(argv: list[str] | None, doc: str, names: tuple[str, ...], what: str, command: str,
+                   run: Callable[[str, list[str]], None]) -> None:
+    """An entrypoint of named subcommands (src/controls.py, src/generalization_tools.py): `--help` prints `doc`; no
+    name, or one not in `names`, is one line on stderr naming them (`what`: "control", "tool"; `command`: how the
+    entrypoint is typed), exit 2; else run(name, the arguments after it), a UserError it raises one line, exit 2."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in ("-h", "--help"):
+        print(doc)
+        return
+    if not argv:
+        _fail(f"name a {what}: {', '.join(names)} ({command} --help)")
+    if argv[0] not in names:
+        _fail(f"{what} {argv[0]!r}: expected one of {', '.join(names)}")
+    try:
+        run(argv[0], argv[1:])
+    except UserError as e:
+        _fail(str(e))

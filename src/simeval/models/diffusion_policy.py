@@ -402,8 +402,8 @@ def training_summary(step: int, losses: list, train_seconds: float, device: str)
 def finished_weights(policy: DiffusionPolicy, ckpt: Mapping, path: Path,
                      settings: TrainSettings) -> tuple[DiffusionPolicy, dict]:
     """A checkpoint holding only a finished training's EMA weights (no model, optimiser or RNG state: what
-    experiments/policy_offline.py `export` + `import` bring from a machine whose checkpoint is too large to copy
-    whole): the policy with those weights and the training's summary, with what was done to the weights. It cannot
+    `src/generalization_tools.py offline export` + `import` bring from a machine whose checkpoint is too large to
+    copy whole): the policy with those weights and the training's summary, with what was done to the weights. It cannot
     be resumed, so one short of settings.train_steps is refused."""
     if ckpt["step"] != settings.train_steps:
         raise UserError(f"{path}: holds only the EMA weights at step {ckpt['step']}, not a finished training of "

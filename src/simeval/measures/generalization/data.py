@@ -104,7 +104,7 @@ class PolicyDataset:
     def from_arrays(cls, rgb: dict, state: torch.Tensor, action: torch.Tensor, lengths, horizon: int,
                     n_obs_steps: int) -> PolicyDataset:
         """The dataset of steps already extracted (`arrays()` of another one): trains where the store is not, e.g.
-        on a GPU machine the episodes were not copied to (experiments/policy_offline.py)."""
+        on a GPU machine the episodes were not copied to (simeval.measures.generalization.offline)."""
         self = cls.__new__(cls)
         self.cameras, self.horizon, self.n_obs_steps = tuple(rgb), int(horizon), int(n_obs_steps)
         self._index(dict(rgb), state, action, lengths)

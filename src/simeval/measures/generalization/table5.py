@@ -229,7 +229,7 @@ def write(rows: list[dict], out: str | Path) -> dict[str, Path]:
              ("Eval counts the rollouts whose scene the variation changed: a seed whose first observation is its "
               "train rollout's is left out, and a group where no scene changed shows '-' (GenSim's own task.mode "
               "changes no scene in most of its tasks; rows built before 2026-11-30 count such rollouts: which "
-              "scenes a variation changes, before any training, is experiments/eval_variation_probe.py's "
+              "scenes a variation changes, before any training, is src/generalization_tools.py variation-probe's "
               "eval_variation_<pipeline>_<group>.md)"),
              "RoboGen train: the training scene itself (RoboGen-style tasks start from one fixed state)",
              ("Demonstrations: the episodes the policy trained on: 'all' stored, or only the 'successful' ones (as "

@@ -13,7 +13,9 @@ action does is the task's dynamics:
     drift     position += 0.12 a mirrored in x, then a constant pull of 0.02 downwards
 A "diverse" group of k tasks takes the first k dynamics in DYNAMICS order, a "shared" group k times `move`. A
 dynamics-diversity metric must give the diverse group the larger error at few episodes and the larger drop as
-episodes grow (experiments/world_model_control.py; tests/test_world_model_control.py).
+episodes grow. The one-off script that ran these groups under the paper protocol is deleted (its answer,
+outputs/tables/world_model_control.json, is committed; the script: `git show
+647de4d:experiments/world_model_control.py`); the groups remain the world model's test and benchmark data.
 
 Dynamics only (`make_physics_group`): the visuals are identical across tasks and groups (one colour, one size, the
 same background: only the position of the square shows), and only the physics differs. State (4,): x, y, vx, vy.

@@ -1,7 +1,7 @@
 """A validity control of the heldout dynamics-diversity protocol on GenSim's own episodes, whose answer is known.
 
-    python experiments/gensim_own_control.py                          # stacking: its first four stored tasks by name
-    python experiments/gensim_own_control.py --seeds 0 1 2 --per-task 4 --heldout 17 20
+    python src/controls.py gensim_own                    # stacking: its first four stored tasks by name
+    python src/controls.py gensim_own --seeds 0 1 2 --per-task 4 --heldout 17 20
 
 The synthetic and suite controls (src/controls.py) validated the protocol on data simeval makes;
 this one runs on episodes recorded by GenSim's own code (`src/collect.py pipeline=gensim_own`, 20 per task). Four
@@ -37,7 +37,6 @@ from pathlib import Path
 
 from simeval.cli import OneLineParser
 
-ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = "gensim_own"
 CONDITIONS = ("specialists", "generalist")
 JUDGED, BESIDE = "one_step_moving", "one_step_object"
@@ -119,7 +118,8 @@ def verdict(general: list[dict], special: list[dict], n_boot: int = 2000) -> dic
     def above_zero(interval):  # None: no reading (too few pixels moved in too many resamples), not a fail
         return bool(interval[0] > 0) if math.isfinite(interval[0]) else None
 
-    out["passes"] = {"moving_pixel_error_higher_for_generalist": above_zero(out["pooled"][JUDGED]["difference_interval"])}
+    out["passes"] = {"moving_pixel_error_higher_for_generalist":
+                     above_zero(out["pooled"][JUDGED]["difference_interval"])}
     out["beside"] = {"object_error_higher_for_generalist": above_zero(out["pooled"][BESIDE]["difference_interval"])}
     out["held_out_episodes"] = len(tasks)
     return out
@@ -151,11 +151,13 @@ def markdown(result: dict) -> str:
     for name, cell in [("pooled", v["pooled"]), *sorted(v["per_task"].items())]:
         m, o = cell[JUDGED], cell[BESIDE]
         lines.append(f"| {name} | {f(m['generalist'], m['generalist_interval'])} | "
-                     f"{f(m['specialists'], m['specialists_interval'])} | {f(m['difference'], m['difference_interval'])} "
+                     f"{f(m['specialists'], m['specialists_interval'])} | "
+                     f"{f(m['difference'], m['difference_interval'])} "
                      f"| {f(cell['one_step_moving_last']['generalist'])} | "
                      f"{100 * cell['one_step_moving_share']['generalist']:.2f}% | {f(o['generalist'])} | "
                      f"{f(o['specialists'])} | {f(o['difference'], o['difference_interval'])} |")
-    beside = {True: "higher", False: "not higher", None: "no reading"}[v["beside"]["object_error_higher_for_generalist"]]
+    beside = {True: "higher", False: "not higher",
+              None: "no reading"}[v["beside"]["object_error_higher_for_generalist"]]
     lines += ["", (f"Criterion (the moving-pixel difference's interval above zero): **{outcome(v)}**"
                    f"; object-focused beside it: {beside} for the generalist."), ""]
     return "\n".join(lines)
@@ -225,7 +227,7 @@ def run_all(args) -> list[dict]:
     from simeval.results import atomic_write_text
 
     torch.set_num_threads(args.threads)
-    wm = yaml.safe_load((ROOT / "conf" / "world_model" / f"{args.preset}.yaml").read_text())
+    wm = yaml.safe_load((Path(args.conf_dir) / "world_model" / f"{args.preset}.yaml").read_text())
     model_cfg = WorldModelConfig.from_dict(wm["model"])
     window = WindowSpec(**wm["window"])
     episodes = task_episodes(args.store, args.group, args.tasks, args.heldout[1], args.task_names)
@@ -301,16 +303,18 @@ def check_arguments(args) -> None:
              f"episodes from {lo}; use fewer, or --heldout past {args.per_task * args.tasks}")
     if args.store.exists() and not args.store.is_dir():
         fail(f"error: --store {args.store}: is a file, not a folder; give the episode store's folder")
-    if not (ROOT / "conf" / "world_model" / f"{args.preset}.yaml").is_file():
-        names = sorted(p.stem for p in (ROOT / "conf" / "world_model").glob("*.yaml"))
+    if not (Path(args.conf_dir) / "world_model" / f"{args.preset}.yaml").is_file():
+        names = sorted(p.stem for p in (Path(args.conf_dir) / "world_model").glob("*.yaml"))
         fail(f"error: --preset {args.preset}: no conf/world_model/{args.preset}.yaml; one of {', '.join(names)}")
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
+    """The control above; `conf_dir` is the entrypoint's conf/ (src/controls.py passes it)."""
     import yaml
 
-    ap = OneLineParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    protocol = yaml.safe_load((ROOT / "conf" / "protocol" / "heldout.yaml").read_text())
+    ap = OneLineParser(prog="controls.py gensim_own", description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    protocol = yaml.safe_load((Path(conf_dir) / "protocol" / "heldout.yaml").read_text())
     ap.add_argument("--group", default="stacking", help="a GenSim group with stored gensim_own episodes")
     ap.add_argument("--tasks", type=int, default=4, help="tasks of the group: the first stored ones by name (>= 2)")
     ap.add_argument("--task-names", nargs="+", default=None, help="these tasks of the group instead (as many as "
@@ -326,12 +330,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--mask-margin", type=int, default=protocol["mask_margin"],
                     help="pixels the robot masks are grown by")
     ap.add_argument("--camera", default="front", help="the recorded camera the models see")
-    ap.add_argument("--store", type=Path, default=ROOT / "outputs" / "episodes", help="the episode store")
+    ap.add_argument("--store", type=Path, default=Path("outputs") / "episodes", help="the episode store")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs", help="runs under OUT/controls/gensim_own/runs, "
+    ap.add_argument("--out", type=Path, default=Path("outputs"), help="runs under OUT/controls/gensim_own/runs, "
                     "tables and figures under OUT/tables, OUT/figures")
     ap.add_argument("--overwrite", action="store_true", help="replace a committed table or figure this would change")
     args = ap.parse_args(argv)
+    args.conf_dir = conf_dir
     check_arguments(args)
     from simeval.errors import UserError
     from simeval.report.tables import refuse_committed
@@ -363,7 +368,3 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"error: {e}")
     print(markdown(result))
     print("wrote", stem.with_suffix(".json"), stem.with_suffix(".md"), figure)
-
-
-if __name__ == "__main__":
-    main()

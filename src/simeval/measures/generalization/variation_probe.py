@@ -3,7 +3,7 @@ group at the evaluation seeds under its train variation and under its eval varia
 observations (every camera's pixels and the state, simeval.measures.generalization.rollouts.observation_digest), as
 src/generalization.py does before it rolls an eval seed out. Nothing is trained and nothing rolled out.
 
-    python experiments/eval_variation_probe.py [--out-dir DIR] [--overwrite] <generalization overrides>
+    python src/generalization_tools.py variation-probe [--out-dir DIR] [--overwrite] <generalization overrides>
       e.g. pipeline=gensim_own pipeline.root=../shared/gensim task_group=placement eval.seeds=4
       -> DIR (default paths.tables: <paths.root>/tables)/eval_variation_<pipeline>_<group>.md / .json: per eval
          task, the seeds whose first observation the variation changed (the rest would be recorded unvaried: the
@@ -22,8 +22,6 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-
-from policy_offline import compose_generalization
 
 from simeval.cli import OneLineParser
 from simeval.errors import UserError
@@ -76,7 +74,7 @@ def probe(pipeline, pairs: list, train: dict, seeds: list[int], max_steps: int |
 
 def markdown(rows: list[dict], pipeline: str, task_group: str, overrides: list[str]) -> str:
     lines = [f"# Eval variation probe: {pipeline} / {task_group}", "",
-             f"`python experiments/eval_variation_probe.py {' '.join(overrides)}`", "",
+             f"`python src/generalization_tools.py variation-probe {' '.join(overrides)}`", "",
              "| task | eval variation | scenes changed | seeds changed | knobs no first observation shows |",
              "|---|---|---|---|---|"]
     for r in rows:
@@ -93,13 +91,15 @@ def markdown(rows: list[dict], pipeline: str, task_group: str, overrides: list[s
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = OneLineParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
+    """The probe above; `conf_dir` is the entrypoint's conf/ (src/generalization_tools.py passes it)."""
+    ap = OneLineParser(prog="generalization_tools.py variation-probe", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out-dir", default=None, help="where the tables go (default: paths.tables, i.e. "
                     "<paths.root>/tables)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing probe table")
     ap.add_argument("overrides", nargs="*", help="src/generalization.py's overrides")
     a = ap.parse_args(argv)
+    a.conf_dir = conf_dir
     try:
         run(a)
     except UserError as e:
@@ -108,9 +108,10 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def run(a) -> None:
+    from simeval.measures.generalization.offline import compose_generalization
     from simeval.pipelines.registry import pipeline_from_config
 
-    cfg = compose_generalization(a.overrides)
+    cfg = compose_generalization(a.overrides, a.conf_dir)
     pipeline = pipeline_from_config(cfg["pipeline"])
     pairs, train, seeds, action_space = plan(pipeline, cfg["task_group"], cfg["tasks"], cfg["heldout_tasks"],
                                              cfg["eval"], cfg["policy"]["model"])
@@ -125,7 +126,3 @@ def run(a) -> None:
                                         "task_group": cfg["task_group"], "tasks": rows}))
     atomic_write_text(md, markdown(rows, cfg["pipeline"]["name"], cfg["task_group"], a.overrides))
     print(f"wrote {md} and {js}")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

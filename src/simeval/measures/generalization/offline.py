@@ -1,14 +1,14 @@
 r"""Train a Diffusion Policy where the simulator is not (a GPU machine), and score it on held-out demonstrations.
 
-    python experiments/policy_offline.py pack --out pack.pt [generalization.py's overrides ...]
+    python src/generalization_tools.py offline pack --out pack.pt [generalization.py's overrides ...]
         e.g. pack --out .gpu/piles.pt pipeline=gensim_own pipeline.root=$GENSIM_ROOT policy=authors_gensim \
              task_group=piles episodes_per_task=40
-    python experiments/policy_offline.py train --pack pack.pt --out train.json [--device cuda] \
+    python src/generalization_tools.py offline train --pack pack.pt --out train.json [--device cuda] \
         [--checkpoint-dir outputs/policies] [--steps N] [--seed S]
-    python experiments/policy_offline.py score --pack pack.pt --checkpoint outputs/policies/<key>/last.ckpt \
-        --out score.json
-    python experiments/policy_offline.py export --checkpoint C --out-dir D [--part-mib 15.8]   # on the GPU machine
-    python experiments/policy_offline.py import --manifest D/weights.json --checkpoint-dir outputs/policies
+    python src/generalization_tools.py offline score --pack pack.pt \
+        --checkpoint outputs/policies/<key>/last.ckpt --out score.json
+    python src/generalization_tools.py offline export --checkpoint C --out-dir D [--part-mib 15.8]  # GPU machine
+    python src/generalization_tools.py offline import --manifest D/weights.json --checkpoint-dir outputs/policies
 
 Why: Table 5's rollouts need the simulator (PyBullet, a GenSim checkout), which a GPU machine may lack (one we used
 had no PyBullet wheel for its Python and took files 64 MiB at a time). `pack` composes conf/generalization.yaml with the
@@ -22,17 +22,17 @@ on. `train` runs the product's own `train_policy` on them; with --checkpoint-dir
 on the pack's held-out steps, so policies trained anywhere are compared window for window.
 
 `export` + `import` bring a finished training back where its whole checkpoint cannot travel (the authors' GenSim size
-holds 71M parameters: 1.4 GB with the optimiser; that machine returned at most 64 MiB per command): `export` keeps only the EMA
-weights, the config and the training's curve, stores the large tensors (>= ROUND_MIN_NUMEL elements: the conv and
-linear weights, nearly all the bytes) as float16 and the rest (biases, norms, the normalisers' ranges) as float32,
-packs it (pack_bytes: 15% smaller) and splits it into parts of at most --part-mib with a manifest of SHA-256 sums; `import` checks every part,
-joins them and writes <checkpoint-dir>/<key>/last.ckpt, which src/generalization.py reuses as a finished training
-(simeval.models.diffusion_policy.finished_weights) and whose result.json says what was rounded. `score` on both
-sides of the rounding says what it costs. What to keep in mind: `train` writes a checkpoint only with
---checkpoint-dir (without it there is nothing to export); `export` takes the checkpoint inside its <key>/ folder
-(the key names where `import` puts it) and refuses an unfinished training (rerun `train` with the same --pack,
---seed and --steps to finish it: other values are another key) and a folder that holds an earlier export; `import
---checkpoint-dir` must be the `checkpoint_dir=` that src/generalization.py is given, with the pack's overrides.
+holds 71M parameters: 1.4 GB with the optimiser; that machine returned at most 64 MiB per command): `export` keeps only
+the EMA weights, the config and the training's curve, stores the large tensors (>= ROUND_MIN_NUMEL elements: the conv
+and linear weights, nearly all the bytes) as float16 and the rest (biases, norms, the normalisers' ranges) as float32,
+packs it (pack_bytes: 15% smaller) and splits it into parts of at most --part-mib with a manifest of SHA-256 sums;
+`import` checks every part, joins them and writes <checkpoint-dir>/<key>/last.ckpt, which src/generalization.py reuses
+as a finished training (simeval.models.diffusion_policy.finished_weights) and whose result.json says what was rounded.
+`score` on both sides of the rounding says what it costs. What to keep in mind: `train` writes a checkpoint only with
+--checkpoint-dir (without it there is nothing to export); `export` takes the checkpoint inside its <key>/ folder (the
+key names where `import` puts it) and refuses an unfinished training (rerun `train` with the same --pack, --seed and
+--steps to finish it: other values are another key) and a folder that holds an earlier export; `import --checkpoint-dir`
+must be the `checkpoint_dir=` that src/generalization.py is given, with the pack's overrides.
 
 Held-out score, per window w (one step of a held-out demonstration; the policy sees its observation):
     e_w = mean over (executed steps, action dims) of (norm(a_pred) - norm(a_demo))^2, in the policy's
@@ -60,7 +60,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
 from simeval.cli import OneLineParser, require_whole_keys
 from simeval.errors import UserError
 from simeval.runtime.device import describe_device
@@ -73,15 +72,16 @@ PART = re.compile(r"weights\.part\d{2,}")
 ROUND_MIN_NUMEL = 4096  # tensors this large travel as float16; smaller ones (biases, norms, normalisers) as float32
 
 
-def compose_generalization(overrides: list[str]) -> dict:
-    """conf/generalization.yaml with `overrides`, resolved, as src/generalization.py sees it (no Hydra run)."""
+def compose_generalization(overrides: list[str], conf_dir: Path) -> dict:
+    """<conf_dir>/generalization.yaml (the entrypoint's conf/) with `overrides`, resolved, as src/generalization.py
+    sees it (no Hydra run)."""
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
     try:
-        with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+        with initialize_config_dir(str(Path(conf_dir).resolve()), version_base="1.3"):
             cfg = compose(config_name="generalization", overrides=list(overrides))
         return OmegaConf.to_container(cfg, resolve=True)
     except (HydraException, OmegaConfBaseException) as e:  # a bad override: one line, as the entrypoint gives
@@ -97,7 +97,7 @@ def pack(a) -> None:
     from simeval.measures.generalization.run import checkpoint_key, demonstration_paths, names, training_data
     from simeval.pipelines.registry import pipeline_from_config
 
-    cfg = compose_generalization(a.overrides)
+    cfg = compose_generalization(a.overrides, a.conf_dir)
     whole = {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "torch_threads": 1}
     require_whole_keys(OmegaConf.create(cfg), whole, optional=("torch_threads",))  # as src/generalization.py does
     if Path(a.out).is_dir():
@@ -159,7 +159,7 @@ def folder_or_absent(path: str, flag: str) -> None:
 def load_pack(path: str) -> dict:
     if not Path(path).is_file():
         what = "a folder, not a pack file" if Path(path).is_dir() else "no such file"
-        raise UserError(f"--pack {path}: {what} (make one with: python experiments/policy_offline.py pack ...)")
+        raise UserError(f"--pack {path}: {what} (make one with: python src/generalization_tools.py offline pack ...)")
     try:
         p = torch.load(path, weights_only=False)
     except (pickle.UnpicklingError, RuntimeError, EOFError, OSError) as e:
@@ -489,9 +489,10 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
     """Defaults shown, the usage block kept as written."""
 
 
-def main() -> None:
+def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
+    """The subcommands above; `conf_dir` is the entrypoint's conf/ (src/generalization_tools.py passes it)."""
     usage = __doc__.split("\n\nWhy:")[0]
-    ap = OneLineParser(description=usage, formatter_class=HelpFormatter)
+    ap = OneLineParser(prog="generalization_tools.py offline", description=usage, formatter_class=HelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     def command(name: str, help: str):
         return sub.add_parser(name, help=help, description=help, formatter_class=HelpFormatter)
@@ -530,14 +531,11 @@ def main() -> None:
     im.add_argument("--manifest", required=True, help="the weights.json export wrote, its parts beside it")
     im.add_argument("--checkpoint-dir", required=True,
                     help="the checkpoint_dir= src/generalization.py will be given (default there: outputs/policies)")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
+    a.conf_dir = conf_dir
     logging.basicConfig(level=logging.INFO, format="%(message)s")  # the library's lines, "resuming ..." among them
     try:
         {"pack": pack, "train": train, "score": score, "export": export, "import": import_weights}[a.command](a)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
-
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 """A trained policy's mean progress against the chance baseline's, per split, from src/generalization.py runs.
 
-    python experiments/progress_vs_random.py --policy RUN [RUN ...] --random RUN [--drop-task NAME ...]
+    python src/generalization_tools.py vs-random --policy RUN [RUN ...] --random RUN [--drop-task NAME ...]
 
 Each RUN is a run folder (its result.json). Per split (train, eval, heldout) the rollouts' progress values
 (GenSim's step-wise reward: the share of the task's reward collected; 0 for a task without one) are pooled:
@@ -90,11 +90,13 @@ def fail(line: str) -> None:
     sys.exit(2)
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = OneLineParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, conf_dir: Path | None = None) -> None:
+    """The comparison above, printed as a Markdown table (reads run folders only: `conf_dir` is not needed)."""
+    ap = OneLineParser(prog="generalization_tools.py vs-random", description=__doc__.splitlines()[0])
     ap.add_argument("--policy", type=Path, nargs="+", required=True, help="run folders of the trained policy")
     ap.add_argument("--random", type=Path, nargs="+", required=True, help="run folders of policy=random")
-    ap.add_argument("--drop-task", nargs="*", default=[], help="tasks left out (e.g. one that repeats another's scenes)")
+    ap.add_argument("--drop-task", nargs="*", default=[],
+                    help="tasks left out (e.g. one that repeats another's scenes)")
     args = ap.parse_args(argv)
     drop = set(args.drop_task)
     policy = [read_run(f) for f in args.policy]
@@ -113,14 +115,12 @@ def main(argv: list[str] | None = None) -> None:
                 notes.append(f"{split}: no row ({'no policy' if not p else 'no random'} rollouts in that split)")
             continue
         c = compare(p, r)
-        rows.append(f"| {split} | {c['policy_mean']:.3f} ({c['n_policy']}) | {c['random_mean']:.3f} ({c['n_random']}) "
-                    f"| {c['difference']:.2f} [{c['interval'][0]:.2f}, {c['interval'][1]:.2f}] | {c['p_one_sided']:.3f} |")
+        rows.append(f"| {split} | {c['policy_mean']:.3f} ({c['n_policy']}) | {c['random_mean']:.3f} "
+                    f"({c['n_random']}) | {c['difference']:.2f} [{c['interval'][0]:.2f}, {c['interval'][1]:.2f}] "
+                    f"| {c['p_one_sided']:.3f} |")
     if not rows:
         fail("error: no split has rollouts of both the --policy and the --random runs (after --drop-task)")
-    print("| split | policy mean (rollouts) | random mean (rollouts) | difference [95% interval] | one-sided Mann-Whitney p |")
+    print("| split | policy mean (rollouts) | random mean (rollouts) | difference [95% interval] "
+          "| one-sided Mann-Whitney p |")
     print("|---|---|---|---|---|")
     print("\n".join(rows + [f"\n{n}" for n in notes]))
-
-
-if __name__ == "__main__":
-    main()

@@ -2,7 +2,7 @@
 
 From src/generalization.py runs.
 
-    python experiments/eval_vs_train.py RUN [RUN ...] [--drop-task NAME ...]
+    python src/generalization_tools.py eval-vs-train RUN [RUN ...] [--drop-task NAME ...]
 
 Each RUN is a run folder (its result.json), one per training seed, all of one setting (pipeline, tasks, policy,
 variations, rollout seeds and step limit: what Table 5 pools into one cell). The eval and train splits roll out the same
@@ -26,22 +26,13 @@ Table 5 pools each split's rollouts on its own; this compares them where they ca
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from simeval.cli import OneLineParser
+from simeval.measures.generalization import vs_random as reading
 from simeval.results import rolled_out
-
-
-def _sibling(name: str):
-    """experiments/<name>.py as a module: its run reading and checks are this script's too."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def paired_progress(record: dict, drop: set[str]) -> list[tuple[str, int, float, float]]:
@@ -92,12 +83,14 @@ def check_one_setting(folders: list[Path], records: list[dict], fail) -> None:
                  f"{identity_difference(first, other)}); pool runs of one setting, one per training seed")
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = OneLineParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, conf_dir: Path | None = None) -> None:
+    """The gap above, printed as a Markdown table (reads run folders only: `conf_dir` is not needed). The run
+    reading and its checks are simeval.measures.generalization.vs_random's."""
+    ap = OneLineParser(prog="generalization_tools.py eval-vs-train", description=__doc__.splitlines()[0])
     ap.add_argument("runs", type=Path, nargs="+", help="run folders of src/generalization.py (one per training seed)")
-    ap.add_argument("--drop-task", nargs="*", default=[], help="tasks left out (e.g. one that repeats another's scenes)")
+    ap.add_argument("--drop-task", nargs="*", default=[],
+                    help="tasks left out (e.g. one that repeats another's scenes)")
     args = ap.parse_args(argv)
-    reading = _sibling("progress_vs_random")
     records = [reading.read_run(f) for f in args.runs]
     check_one_setting(args.runs, records, reading.fail)
     drop = set(args.drop_task)
@@ -122,7 +115,3 @@ def main(argv: list[str] | None = None) -> None:
         p = "-" if g["p_two_sided"] is None else f"{g['p_two_sided']:.3f}"
         print(f"| {label} | {g['n']} | {g['train_mean']:.3f} | {g['eval_mean']:.3f} | {g['gap']:+.3f} "
               f"[{g['interval'][0]:+.3f}, {g['interval'][1]:+.3f}] | {p} |")
-
-
-if __name__ == "__main__":
-    sys.exit(main())
