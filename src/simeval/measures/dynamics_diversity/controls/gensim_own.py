@@ -221,7 +221,7 @@ def run_all(args) -> list[dict]:
 
     from simeval.episodes.dataset import StoreSource, WindowSpec
     from simeval.episodes.store import read_meta
-    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
     from simeval.models.world_model_training import TrainConfig
     from simeval.models.world_model import WorldModelConfig
     from simeval.results import atomic_write_text
@@ -255,13 +255,13 @@ def run_all(args) -> list[dict]:
             files = episodes[task] if task else [f for t in sorted(episodes) for f in episodes[t]]
             source = StoreSource(files, args.camera)
             t0 = time.perf_counter()
-            values = fit_and_evaluate(
-                source, episodes_per_task=k, model_cfg=model_cfg,
-                train_cfg=TrainConfig.from_dict({**wm["train"], "seed": seed}), window=window,
-                eval_episodes=(args.heldout[0] - 1, args.heldout[1]), heldout_episodes=None, protocol="heldout",
-                steps=args.steps, horizon=args.horizon, lr=args.lr, mask_margin=args.mask_margin, eval_context=5,
-                exclude_robot_from_loss=True, eval_seed=seed, progress=False,
-                checkpoint_dir=args.out / "checkpoints" / "controls")
+            training = Training(model_cfg, TrainConfig.from_dict({**wm["train"], "seed": seed}), window,
+                                steps=args.steps, lr=args.lr, exclude_robot_from_loss=True)
+            evaluation = Evaluation(protocol="heldout", episodes=(args.heldout[0] - 1, args.heldout[1]),
+                                    heldout_episodes=None, seed=seed, context=5, horizon=args.horizon,
+                                    mask_margin=args.mask_margin)
+            values = fit_and_evaluate(source, k, training, evaluation, Execution(
+                checkpoint_dir=args.out / "checkpoints" / "controls", progress=False))
             rec = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,
                    "identity": {"pipeline": f"control-{PIPELINE}", "task_group": condition, "task": task,
                                 "episodes": k, "preset": args.preset, "seed": seed, "protocol": "heldout",
