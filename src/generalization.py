@@ -18,8 +18,9 @@ def main(cfg: DictConfig) -> None:
     import torch
 
     from simeval.runtime.device import resolve_device
-    from simeval.measures.generalization.run import (RESULT_VERSION, log_splits, refuse_replaced_chance_baseline,
-                                                  run_generalization)
+    from simeval.measures.generalization.run import (RESULT_VERSION, GeneralizationRun, PolicyTraining,
+                                                     log_splits, refuse_replaced_chance_baseline,
+                                                     run_generalization)
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
 
@@ -34,13 +35,12 @@ def main(cfg: DictConfig) -> None:
     conf = run.config
     pipeline = pipeline_from_config(conf["pipeline"])  # its suite, or its own code (GenSim's from a checkout)
     with run.logger() as logger:
-        values, identity = run_generalization(
-            pipeline=pipeline, task_group=cfg.task_group, tasks=conf["tasks"], heldout_tasks=conf["heldout_tasks"],
-            policy_name=cfg.policy.name, model=conf["policy"]["model"], train=conf["policy"].get("train"), seed=cfg.seed,
-            store=cfg.store, checkpoint_dir=cfg.checkpoint_dir, episodes_per_task=cfg.episodes_per_task,
-            val_episodes_per_task=cfg.val_episodes_per_task, evaluation=conf["eval"], device=device,
-            progress=bool(cfg.progress), run_dir=run.output_dir, logger=logger, config=conf,
-            demonstrations=cfg.demonstrations)
+        training = PolicyTraining(conf["policy"]["model"], conf["policy"].get("train"), cfg.seed, cfg.store,
+                                  cfg.episodes_per_task, cfg.val_episodes_per_task, cfg.demonstrations)
+        experiment = GeneralizationRun(pipeline, cfg.task_group, conf["tasks"], conf["heldout_tasks"], cfg.policy.name,
+                                       training, conf["eval"])
+        values, identity = run_generalization(experiment, checkpoint_dir=cfg.checkpoint_dir, run_dir=run.output_dir,
+                                              logger=logger, device=device, progress=bool(cfg.progress), config=conf)
         path = run.write(metric="generalization", version=RESULT_VERSION, values=values, seed=cfg.seed, identity=identity)
         logger.log_metrics({f"{s}/success": v["success"]["rate"] for s, v in values["splits"].items()
                             if v["success"]["n"]})  # none rolled out: every scene was the train split's

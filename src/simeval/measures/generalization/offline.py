@@ -94,7 +94,8 @@ def pack(a) -> None:
 
     from simeval.episodes.store import EpisodeStore, read_episode
     from simeval.measures.generalization.data import PolicyDataset
-    from simeval.measures.generalization.run import checkpoint_key, demonstration_paths, names, training_data
+    from simeval.measures.generalization.run import (PolicyData, PolicyTraining, checkpoint_key,
+                                                     demonstration_paths, names, training_data)
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides, a.conf_dir)
@@ -108,9 +109,10 @@ def pack(a) -> None:
     specs, heldout = pipeline.group_and_heldout(cfg["task_group"], cfg["tasks"], names(cfg["heldout_tasks"]))
     trained = [s.name for s in specs if s.name not in heldout]
     k, seed = cfg["episodes_per_task"], cfg["seed"]
-    pcfg, settings, data, _, _, metas = training_data(
-        pipeline.name, specs, trained, cfg["policy"]["model"], cfg["policy"]["train"], seed, cfg["store"], k,
-        cfg["val_episodes_per_task"], cfg["demonstrations"], pipeline.collect_hint())
+    training = PolicyTraining(cfg["policy"]["model"], cfg["policy"]["train"], seed, cfg["store"], k,
+                              cfg["val_episodes_per_task"], cfg["demonstrations"])
+    pcfg, settings, data, _, _, metas = training_data(PolicyData(pipeline.name, specs, trained, training,
+                                                                 pipeline.collect_hint()))
     store = EpisodeStore(cfg["store"])
     held = [(task, p) for task in trained  # what follows the first k: no policy trained at this k saw it
             for p in demonstration_paths(store, pipeline.name, task, cfg["demonstrations"])[k:]]

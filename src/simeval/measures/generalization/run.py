@@ -20,7 +20,9 @@ import math
 import os
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from simeval.episodes.store import EpisodeStore, read_episode, read_meta
 from simeval.errors import UserError
@@ -332,22 +334,53 @@ def check_cameras(pipeline, model: Mapping, evaluation: Mapping) -> None:
                         f"has cameras {', '.join(offered)} (or eval.videos=false)")
 
 
-def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, policy_name: str,
-                       model: Mapping, train: Mapping, seed: int, store: str, checkpoint_dir: str,
-                       episodes_per_task: int, val_episodes_per_task: int, evaluation: Mapping, device,
-                       progress: bool, run_dir: str, logger, config: Mapping | None = None,
-                       demonstrations: str = "all") -> tuple[dict, dict]:
-    """The whole experiment of src/generalization.py without Hydra, for `pipeline` (simeval.pipelines.base.Pipeline:
-    a simeval suite or a pipeline's own code): the group's tasks and held-out ones, the policy trained (or resumed, or reused) on the trained tasks' episodes, or the chance
-    baseline for policy_name="random", every (split, task) rolled out (cached), the best and worst videos. Returns
-    (values, identity) for result.json. `evaluation`: the eval section of conf/generalization.yaml (splits, seeds,
-    seed_offset, max_steps, variation, videos, video_camera, sampler_check); `config` is stored in the checkpoint;
-    `demonstrations`: all | successful (see episodes_for)."""
+@dataclass(frozen=True)
+class PolicyTraining:
+    """How a policy is trained: its `model` and `train` settings (conf/policy/<preset>.yaml), its `seed`, and its
+    episodes: the first `episodes_per_task` of each trained task in `store` (`demonstrations`: all | successful,
+    see episodes_for) and `val_episodes_per_task` after them for the sampler check."""
+
+    model: Mapping
+    train: Mapping | None
+    seed: int
+    store: str
+    episodes_per_task: int
+    val_episodes_per_task: int
+    demonstrations: str = "all"
+
+
+@dataclass(frozen=True)
+class GeneralizationRun:
+    """What one run of src/generalization.py measures: `pipeline` (simeval.pipelines.base.Pipeline: a simeval suite
+    or a pipeline's own code), its `task_group` (and `tasks` of it, `heldout_tasks`), the policy `policy_name`
+    ("random": the chance baseline) and its `training`, and `evaluation`, the eval section of
+    conf/generalization.yaml (splits, seeds, seed_offset, max_steps, variation, videos, video_camera,
+    sampler_check)."""
+
+    pipeline: Any
+    task_group: str
+    tasks: Any
+    heldout_tasks: Any
+    policy_name: str
+    training: PolicyTraining
+    evaluation: Mapping
+
+
+def run_generalization(run: GeneralizationRun, *, checkpoint_dir: str, run_dir: str, logger, device,
+                       progress: bool, config: Mapping | None = None) -> tuple[dict, dict]:
+    """The whole experiment of src/generalization.py without Hydra: the group's tasks and held-out ones, the policy
+    trained (or resumed, or reused) on the trained tasks' episodes, or the chance baseline for policy_name="random",
+    every (split, task) rolled out (cached under `checkpoint_dir`), the best and worst videos (in `run_dir`).
+    Returns (values, identity) for result.json; `config` is stored in the checkpoint."""
     from simeval.measures.generalization import rollouts as ev
     from simeval.measures.generalization.random_baseline import RandomActions
+
+    pipeline, task_group, evaluation, policy_name = run.pipeline, run.task_group, run.evaluation, run.policy_name
+    model, episodes_per_task, demonstrations = (run.training.model, run.training.episodes_per_task,
+                                                run.training.demonstrations)
     check_demonstrations(demonstrations)  # before anything is logged or loaded
     check_cameras(pipeline, model, evaluation)
-    specs, heldout = pipeline.group_and_heldout(task_group, tasks, names(heldout_tasks))
+    specs, heldout = pipeline.group_and_heldout(task_group, run.tasks, names(run.heldout_tasks))
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
@@ -375,10 +408,9 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
         ckpt_dir, summary, values = f"{checkpoint_dir}/random", {"steps": 0}, {"training": None}
         settings_id = {"model": {**model, "action_space": policy.cfg.action_space}}
     else:
+        data = PolicyData(pipeline.name, specs, trained, run.training, pipeline.collect_hint())
         policy, ckpt_dir, summary, values, settings_id = train_on(
-            pipeline.name, specs, trained, model, train, seed, store, checkpoint_dir, episodes_per_task,
-            val_episodes_per_task, bool(evaluation["sampler_check"]), logger, device, progress, config,
-            demonstrations, pipeline.collect_hint())
+            data, checkpoint_dir, bool(evaluation["sampler_check"]), logger, device, progress, config)
     seeds = range(evaluation["seed_offset"], evaluation["seed_offset"] + evaluation["seeds"])
     environment = {"pipeline": pipeline.environment_id(), **({"policy": settings_id} if chance else {})}
     rows = run_splits(policy, plan, seeds, evaluation["max_steps"], f"{ckpt_dir}/rollouts.json", summary["steps"],
@@ -403,34 +435,44 @@ def run_generalization(*, pipeline, task_group: str, tasks, heldout_tasks, polic
     return values, identity
 
 
-def training_data(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
-                  episodes_per_task: int, val_episodes_per_task: int, demonstrations: str = "all",
-                  collect_args: str = ""):
+@dataclass(frozen=True)
+class PolicyData:
+    """What a policy trains on: `pipeline`'s episodes of the `trained` tasks (of `specs`), read and trained as
+    `training` says; `collect_args`: what a too-few-episodes error's collect command needs."""
+
+    pipeline: str
+    specs: Sequence
+    trained: list[str]
+    training: PolicyTraining
+    collect_args: str = ""
+
+
+def training_data(d: PolicyData):
     """What train_on trains on: (PolicyConfig, TrainSettings, PolicyDataset of the trained tasks' episodes, those
     episodes, the validation episodes, the episode files and sizes that key the checkpoint)."""
     from simeval.models.diffusion_policy import PolicyConfig, TrainSettings
     from simeval.measures.generalization.data import PolicyDataset
 
-    pcfg = PolicyConfig.from_mapping({**model, "action_space": resolve_action_space(model["action_space"], specs)})
-    settings = TrainSettings(**dict(train), seed=seed)
-    train_eps, val_eps, metas = episodes_for(EpisodeStore(store), pipeline, trained, episodes_per_task,
-                                             val_episodes_per_task, pcfg.cameras, demonstrations, collect_args)
+    t = d.training
+    pcfg = PolicyConfig.from_mapping({**t.model, "action_space": resolve_action_space(t.model["action_space"],
+                                                                                      d.specs)})
+    settings = TrainSettings(**dict(t.train or {}), seed=t.seed)
+    train_eps, val_eps, metas = episodes_for(EpisodeStore(t.store), d.pipeline, d.trained, t.episodes_per_task,
+                                             t.val_episodes_per_task, pcfg.cameras, t.demonstrations, d.collect_args)
     data = PolicyDataset(train_eps, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
     return pcfg, settings, data, train_eps, val_eps, metas
 
 
-def train_on(pipeline: str, specs, trained: list[str], model: Mapping, train: Mapping, seed: int, store: str,
-             checkpoint_dir: str, episodes_per_task: int, val_episodes_per_task: int, sampler_check: bool, logger,
-             device, progress: bool, config: Mapping | None, demonstrations: str = "all", collect_args: str = ""):
-    """The policy trained (or resumed, or reused) on the trained tasks' episodes, with the sampler check:
-    (policy, checkpoint folder, training summary, values so far, the settings that identify it)."""
+def train_on(d: PolicyData, checkpoint_dir: str, sampler_check: bool, logger, device, progress: bool,
+             config: Mapping | None):
+    """The policy trained (or resumed, or reused) on `d`, with the sampler check: (policy, checkpoint folder,
+    training summary, values so far, the settings that identify it)."""
     from simeval.models.diffusion_policy import DiffusionPolicy, train_policy
     from simeval.measures.generalization import rollouts as ev
     from simeval.measures.generalization.data import PolicyDataset
 
-    pcfg, settings, data, train_eps, val_eps, metas = training_data(
-        pipeline, specs, trained, model, train, seed, store, episodes_per_task, val_episodes_per_task,
-        demonstrations, collect_args)
+    pcfg, settings, data, train_eps, val_eps, metas = training_data(d)
+    seed, trained, demonstrations = d.training.seed, d.trained, d.training.demonstrations
     ckpt_dir = f"{checkpoint_dir}/{checkpoint_key(metas, vars(pcfg), vars(settings), seed)}"
     fresh = DiffusionPolicy(pcfg, data.state_dim, data.action_dim, data.stats(), seed=seed)
     policy, summary = train_policy(fresh, data, settings, ckpt_dir, logger.log_metrics,
