@@ -21,23 +21,22 @@ log = logging.getLogger("quality")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.measures.quality.run import model_judge, run_quality
+    from simeval.measures.quality.run import Scoring, model_judge, run_quality
     from simeval.results import RunFolder
 
     require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)
-    judge = {}
+    judge = "oracle"
     if cfg.judge.kind != "oracle":
         captioner = instantiate(cfg.captioner.provider) if cfg.captioner.kind != "none" else None
         judge = model_judge(instantiate(cfg.judge.provider), captioner, run.config["judge"], run.config["captioner"],
                             run.config["prompts"], cfg.cache_dir, cfg.budget_usd, cfg.repeats, cfg.max_reasks)
     meta = dict(config=run.config, choices=run.choices, seed=cfg.seed, overrides=run.overrides, label=cfg.label)
     with run.logger() as logger:
-        out = run_quality(run.output_dir, bundles_dir=cfg.bundles_dir, episodes=run.config["episodes"],
-                          judge="oracle" if cfg.judge.kind == "oracle" else "model", metric=cfg.metric,
-                          mode=cfg.scene_alignment_mode, n_frames=cfg.n_frames, dry_run=cfg.dry_run, logger=logger,
-                          meta=meta, **judge)
+        out = run_quality(run.output_dir, bundles_dir=cfg.bundles_dir, episodes=run.config["episodes"], judge=judge,
+                          scoring=Scoring(cfg.metric, cfg.scene_alignment_mode, cfg.n_frames), dry_run=cfg.dry_run,
+                          logger=logger, meta=meta)
     if out.plan is not None:  # a dry run: stdout is the plan, as JSON, and nothing else
         print(json.dumps(out.plan, indent=2))
         return

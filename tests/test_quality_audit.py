@@ -18,7 +18,7 @@ from simeval.judges.prompts import builtin_names, load_template
 from simeval.judges.providers import OpenAIChatProvider
 from simeval.judges.runner import JudgeSettings, ScoreRecord
 from simeval.measures.quality.bundle import BundleError, load_bundles, read_video_frames
-from simeval.measures.quality.run import run_quality, write_scores
+from simeval.measures.quality.run import ModelJudge, Scoring, run_quality, write_scores
 from helpers import make_bundles
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,10 +36,10 @@ def _quality(*args, timeout=300):
 
 
 def _judge(srv, tmp_path, repeats=2, max_reasks=1):
-    return dict(provider=OpenAIChatProvider(base_url=srv.base_url, model="judge-test", backoff_s=0.01),
-                templates={n: load_template(f"builtin:{n}") for n in builtin_names()},
-                cache=JudgeCache(tmp_path / "cache.sqlite"), ledger=Ledger(Prices(input_per_1m=1.0)),
-                settings=JudgeSettings(repeats=repeats, max_reasks=max_reasks, concurrency=2, progress=False))
+    return ModelJudge(provider=OpenAIChatProvider(base_url=srv.base_url, model="judge-test", backoff_s=0.01),
+                      templates={n: load_template(f"builtin:{n}") for n in builtin_names()},
+                      cache=JudgeCache(tmp_path / "cache.sqlite"), ledger=Ledger(Prices(input_per_1m=1.0)),
+                      settings=JudgeSettings(repeats=repeats, max_reasks=max_reasks, concurrency=2, progress=False))
 
 
 def _set_yaml(path: Path, **changes):
@@ -117,14 +117,15 @@ def test_a_judge_that_never_scores_fails_the_run(openai_server, tmp_path):
 def test_one_task_failing_is_reported_and_the_others_scored(openai_server, tmp_path):
     root = make_bundles(tmp_path / "b", n=2)
     openai_server.default_reply = lambda payload: "Score: 4" if "block 0" in json.dumps(payload) else "no idea"
-    out = run_quality(tmp_path / "run", bundles_dir=root, metric="task_completion", **_judge(openai_server, tmp_path))
+    out = run_quality(tmp_path / "run", bundles_dir=root, scoring=Scoring(metric="task_completion"),
+                      judge=_judge(openai_server, tmp_path))
     assert out.status == "ok" and out.scored == ["task0"] and out.failed == ["task1"]
     assert out.errors == {"task1": "task_completion: no valid score in 4 replies (last: no 'Score: X' in reply)"}
     assert out.cost["new_calls"] == 2 + 4 and out.cost["invalid_calls"] == 4
     assert out.summary.startswith("quality (model): 2 tasks, 1 scored, 1 failed (task1); 6 new calls")
     assert "4 of them paid for nothing" in out.summary
-    again = run_quality(tmp_path / "run2", bundles_dir=root, metric="task_completion",
-                        **_judge(openai_server, tmp_path))
+    again = run_quality(tmp_path / "run2", bundles_dir=root, scoring=Scoring(metric="task_completion"),
+                        judge=_judge(openai_server, tmp_path))
     assert again.cost["new_calls"] == again.cost["invalid_calls"] == 0  # cached replies were not paid for again
 
 
@@ -173,7 +174,7 @@ def test_a_video_is_decoded_once(tmp_path, monkeypatch):
 
 def test_run_quality_is_a_plain_call_and_prompts_are_package_data(openai_server, tmp_path):
     root = make_bundles(tmp_path / "b", n=2)
-    out = run_quality(tmp_path / "run", bundles_dir=root, **_judge(openai_server, tmp_path, repeats=1))
+    out = run_quality(tmp_path / "run", bundles_dir=root, judge=_judge(openai_server, tmp_path, repeats=1))
     assert out.status == "ok" and out.values["scene_alignment"]["task1"]["mean"] == 3.0
     assert strict_json(out.result_path.read_text())["summary"] == out.summary
     package = ROOT / "src" / "simeval"

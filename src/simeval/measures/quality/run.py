@@ -15,6 +15,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -123,14 +124,44 @@ def check_metric_and_mode(metric: str, mode: str) -> None:
     require_choice("scene_alignment_mode", mode, ("vlm", "caption"))
 
 
-def evaluate_quality(bundles: list[TaskBundle], *, metric: str, mode: str, provider, templates: dict,
-                     cache, ledger, settings, captioner=None, caption_settings=None, n_frames: int = 8,
+@dataclass
+class ModelJudge:
+    """A model judge's parts (model_judge builds them from conf/quality.yaml): its `provider` (an OpenAI-compatible
+    HTTP client or a local transformers model), the prompt `templates` by name, the call `cache` (JudgeCache), the
+    cost `ledger` (Ledger) and the runner's `settings` (JudgeSettings: repeats, re-asks, concurrency, rate, replay);
+    for scene alignment by captions also a `captioner` and its `caption_settings`."""
+
+    provider: Any
+    templates: dict
+    cache: Any
+    ledger: Any
+    settings: Any
+    captioner: Any = None
+    caption_settings: Any = None
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """What is scored: `metric` (scene_alignment, task_completion or all), scene alignment's `mode` (vlm: the
+    judge sees the 4 views; caption: a captioner describes them and the judge reads the captions) and the
+    `n_frames` of a trajectory task completion sees."""
+
+    metric: str = "all"
+    mode: str = "vlm"
+    n_frames: int = 8
+
+
+def evaluate_quality(bundles: list[TaskBundle], judge: ModelJudge, scoring: Scoring = Scoring(),
                      dry: bool = False) -> dict:
     """Judge the bundles. Returns {"records": [ScoreRecord], "summary": summarize(...), "errors": {task: msg},
     "captions": {task: [..]}} or, with `dry`, {"dry_run": {...}, "errors": ...} (every bundle that would be
     skipped is in errors: its images are read, nothing is sent)."""
     from simeval.judges.runner import dry_run, run_judge
 
+    metric, mode, n_frames = scoring.metric, scoring.mode, scoring.n_frames
+    provider, templates, cache, ledger, settings = judge.provider, judge.templates, judge.cache, judge.ledger, \
+        judge.settings
+    captioner, caption_settings = judge.captioner, judge.caption_settings
     check_metric_and_mode(metric, mode)
     wanted = METRICS if metric == "all" else (metric,)
     items, errors, captions, records, plan = [], {}, None, [], {}
@@ -306,46 +337,46 @@ def log_task_table(logger, result_path: Path) -> None:
 
 
 def model_judge(provider, captioner, judge: Mapping, captioner_settings: Mapping, prompts: Mapping[str, str],
-                cache_dir: str | os.PathLike, budget_usd: float | None, repeats: int, max_reasks: int) -> dict:
-    """run_quality's keyword arguments for a model judge (not the oracle): `provider` (and `captioner`, None for
+                cache_dir: str | os.PathLike, budget_usd: float | None, repeats: int, max_reasks: int) -> ModelJudge:
+    """run_quality's ModelJudge (the oracle needs none): `provider` (and `captioner`, None for
     none: it captions each view once and every judge repeat reuses it) with conf/quality.yaml's `judge` and
     `captioner` sections as plain mappings (prices, concurrency, rate_limit_per_min, replay), the prompt template
     files by name, the call cache in `cache_dir` and a cost ledger stopped at `budget_usd`."""
     from simeval.judges import cache, ledger, prompts as prompt_files, runner
 
-    out = {"provider": provider, "ledger": ledger.Ledger(ledger.Prices(**judge["prices"]), budget_usd),
-           "templates": {k: prompt_files.load_template(v) for k, v in prompts.items()},
-           "cache": cache.JudgeCache(Path(cache_dir) / "judge_calls.sqlite"),
-           "settings": runner.JudgeSettings(repeats, max_reasks, judge["concurrency"], judge["rate_limit_per_min"],
-                                            judge["replay"])}
+    out = ModelJudge(provider, {k: prompt_files.load_template(v) for k, v in prompts.items()},
+                     cache.JudgeCache(Path(cache_dir) / "judge_calls.sqlite"),
+                     ledger.Ledger(ledger.Prices(**judge["prices"]), budget_usd),
+                     runner.JudgeSettings(repeats, max_reasks, judge["concurrency"], judge["rate_limit_per_min"],
+                                          judge["replay"]))
     if captioner is not None:
-        out |= {"captioner": captioner, "caption_settings": runner.JudgeSettings(
-            1, max_reasks, captioner_settings["concurrency"], captioner_settings["rate_limit_per_min"], judge["replay"])}
+        out.captioner, out.caption_settings = captioner, runner.JudgeSettings(
+            1, max_reasks, captioner_settings["concurrency"], captioner_settings["rate_limit_per_min"], judge["replay"])
     return out
 
 
 def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | None = None,
-                episodes: dict | None = None, judge: str = "model", provider=None, templates: dict | None = None,
-                cache=None, ledger=None, settings=None, captioner=None, caption_settings=None,
-                metric: str = "all", mode: str = "vlm", n_frames: int = 8, dry_run: bool = False,
-                logger=None, meta: dict | None = None) -> QualityOutcome:
+                episodes: dict | None = None, judge: ModelJudge | str, scoring: Scoring = Scoring(),
+                dry_run: bool = False, logger=None, meta: dict | None = None) -> QualityOutcome:
     """One quality run, writing `<out_dir>/result.json` (and scores.jsonl for a model judge).
 
     Tasks come from `bundles_dir`, or from an episode store (`episodes={"store": DIR, "pipeline", "group",
     "per_task", "camera", "max_frames"}`): `judge="oracle"` reads the store's ground truth directly; a model
-    judge gets the episodes exported as bundles into `<out_dir>/bundles`. A model judge needs `provider`,
-    `templates` ({name: PromptTemplate}), `cache` (JudgeCache), `ledger` (Ledger) and `settings` (JudgeSettings);
-    the caption path also `captioner` and `caption_settings`. `meta` is added to result.json (config, choices,
+    judge (a ModelJudge) gets the episodes exported as bundles into `<out_dir>/bundles`. `meta` is added to
+    result.json (config, choices,
     seed, overrides, label); `logger` (anything with log_metrics) gets the cost, and, when it keeps tables
     (`wants_tables`), the per-task table (log_task_table).
     A budget or replay stop writes status "stopped" with what finished and re-raises."""
     from simeval.results import write_result
 
-    if judge not in ("model", "oracle"):
-        raise UserError(f"judge kind {judge!r}: expected model or oracle")
+    model = judge if isinstance(judge, ModelJudge) else None
+    if model is None and judge != "oracle":
+        raise UserError(f"judge {judge!r}: expected a ModelJudge or 'oracle'")
+    judge = "model" if model is not None else "oracle"  # the kind result.json records
+    n_frames = scoring.n_frames
     if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 2:
         raise UserError(f"n_frames must be a whole number >= 2 (first and last frame at least), got {n_frames!r}")
-    check_metric_and_mode(metric, mode)  # the oracle judge ignores both, but a typo in either is still a mistake
+    check_metric_and_mode(scoring.metric, scoring.mode)  # the oracle ignores both; a typo is still a mistake
     out_dir = Path(out_dir)
     bundles, errors = _tasks_and_errors(judge, bundles_dir, episodes, out_dir)
     names = [b.name for b in bundles] + [k for k in errors if k not in {b.name for b in bundles}]
@@ -364,14 +395,11 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
         from simeval.judges.ledger import BudgetExceeded
         from simeval.judges.runner import ReplayMiss
 
-        if provider is None or templates is None or cache is None or ledger is None or settings is None:
-            raise ValueError("a model judge needs provider, templates, cache, ledger and settings")
         try:
-            out = evaluate_quality(bundles, metric=metric, mode=mode, provider=provider, templates=templates,
-                                   cache=cache, ledger=ledger, settings=settings, captioner=captioner,
-                                   caption_settings=caption_settings, n_frames=n_frames, dry=dry_run)
+            out = evaluate_quality(bundles, model, scoring, dry=dry_run)
         except (BudgetExceeded, ReplayMiss) as e:  # keep what finished (it is cached too), then stop loudly
-            write_result(out_dir, values=summarize(getattr(e, "partial", [])), errors=errors, cost=ledger.totals(),
+            write_result(out_dir, values=summarize(getattr(e, "partial", [])), errors=errors,
+                         cost=model.ledger.totals(),
                          status="stopped", stopped=str(e), **result)
             raise
         errors.update(out["errors"])
@@ -384,7 +412,7 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
         for task, msg in no_score_errors(values, records).items():
             errors[task] = errors[task] + "; " + msg if task in errors else msg
         write_scores(out_dir / "scores.jsonl", records)
-        cost = ledger.totals()
+        cost = model.ledger.totals()
         extra = {"cost": cost, "reliability": judge_reliability(records)}
     scored, failed = _outcome_of(values, names, errors)
     summary = _summary_line(judge, scored, failed, cost) + _means_line(values)
