@@ -14,7 +14,8 @@ log = logging.getLogger("agreement")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="agreement")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.measures.agreement.run import agreement_rows, format_rows, load_score_tables, plot_figure3
+    from simeval.measures.agreement.figure3 import plot_figure3
+    from simeval.measures.agreement.run import agreement_rows, format_rows, load_score_tables
     from simeval.errors import UserError
     from simeval.measures.agreement.metric import METRIC_VERSION
     from simeval.report.tables import write_table

@@ -18,7 +18,7 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.measures.text_diversity.run import log_groups, text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
-    from simeval.measures.text_diversity.table import run_record, tasks_fingerprint
+    from simeval.measures.text_diversity.table3 import run_record, tasks_fingerprint
     from simeval.results import RunFolder
     from simeval.tasks import SourceNotConfigured, load_tasks, source_options
 

@@ -18,7 +18,7 @@ from simeval.errors import UserError
 from simeval.measures.text_diversity.report import build_text_diversity_report
 from simeval.measures.quality.figure4 import build_quality_figure, quality_points
 from simeval.measures.text_diversity.metric import STATISTICS
-from simeval.measures.text_diversity.table import tidy_rows
+from simeval.measures.text_diversity.table3 import tidy_rows
 from simeval.results import read_results, register_run_suffix_resolver, write_result
 
 ROOT = Path(__file__).resolve().parents[1]

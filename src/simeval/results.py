@@ -3,7 +3,7 @@
 Every record carries an `identity`: what the numbers are *of* (metric, version, pipeline, task source, task group,
 model, settings) and which repeat they are (seed). A report uses it to put each record in its table cell, to
 average repeated seeds, and to refuse to merge two records that claim one cell with different settings (see
-simeval.measures.text_diversity.table). Run folders are unique per process (`${run_suffix:}` in
+simeval.measures.text_diversity.table3). Run folders are unique per process (`${run_suffix:}` in
 conf/hydra/default.yaml), so two runs started in the same second never share a folder or overwrite each other's
 result.json.
 """

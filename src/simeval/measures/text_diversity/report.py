@@ -10,7 +10,7 @@ from pathlib import Path
 
 from simeval.report.tables import to_csv, write_table
 from simeval.errors import UserError
-from simeval.measures.text_diversity.table import (SOURCE_COLUMNS, STATISTICS, TIDY_COLUMNS, rank_agreement, source_rows,
+from simeval.measures.text_diversity.table3 import (SOURCE_COLUMNS, STATISTICS, TIDY_COLUMNS, rank_agreement, source_rows,
                                            table3, tidy_rows)
 from simeval.results import atomic_write_text, read_results
 
