@@ -8,7 +8,7 @@ import yaml
 
 from simeval.sim.core.articulated import joint_limits
 from simeval.sim.env import make_env
-from simeval.sim.experts.bbsea import PlanPolicy
+from simeval.sim.experts.plan import PlanPolicy
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.goals import task_progress
 from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance

@@ -11,7 +11,7 @@ from simeval.errors import UserError
 from simeval.sim import make_env
 from simeval.sim.action_spaces import EE_DELTA_KIND, EE_MAX_TRANSLATION
 from simeval.sim.core.articulated import ARTICULATED, joint_fraction, set_joint_fraction
-from simeval.sim.experts.robogen import ArticulationController
+from simeval.sim.experts.articulation import ArticulationController
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.goals import task_progress
 from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec

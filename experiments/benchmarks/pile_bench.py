@@ -27,7 +27,7 @@ from simeval.cli import OneLineParser
 from simeval.sim.core import objects
 from simeval.sim.core.world import PILE_SOLVER_RESIDUAL, World
 from simeval.sim.env import make_env
-from simeval.sim.experts.gensim import next_primitive
+from simeval.sim.experts.pick_place import next_primitive
 from simeval.sim.robots import xarm
 from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 

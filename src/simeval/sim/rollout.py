@@ -28,7 +28,7 @@ from simeval.sim.action_spaces import (
 from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS
 from simeval.sim.closed_loop import act_until_done
 from simeval.sim.env import SimEnv, state_names
-from simeval.sim.experts.gensim import next_primitive
+from simeval.sim.experts.pick_place import next_primitive
 from simeval.sim.robots.xarm import STATE_NAMES
 from simeval.sim.tasks.spec import TaskSpec, check_variation
 
@@ -69,7 +69,7 @@ def image_size_pair(value, key: str) -> tuple[int, int]:
 
 
 class OraclePolicy:
-    """The replanning oracle (simeval.sim.experts.gensim) as a policy for action_space="pick_place": each call plans the
+    """The replanning oracle (simeval.sim.experts.pick_place) as a policy for action_space="pick_place": each call plans the
     next primitive from the simulator's state and returns its 14-d pose; None when every goal is done."""
 
     def reset(self, env: SimEnv) -> None:
@@ -133,7 +133,7 @@ class PickPlaceOracle(Expert):
 
 
 class ArticulationExpert(Expert):
-    """RoboGen-style ee_delta tasks: the closed-loop articulation controller (simeval.sim.experts.robogen, action
+    """RoboGen-style ee_delta tasks: the closed-loop articulation controller (simeval.sim.experts.articulation, action
     noise settings.noise_std), one 7-d action per control step, clipped and with a binary suction as applied.
     The final view is taken with the suction off and the arm parked, so it shows the articulation (those moves are
     not recorded)."""
@@ -142,7 +142,7 @@ class ArticulationExpert(Expert):
     action_space = staticmethod(ee_delta_action_space)
 
     def policy(self, settings: RecordSettings):
-        from simeval.sim.experts.robogen import ArticulationController
+        from simeval.sim.experts.articulation import ArticulationController
 
         return ArticulationController(settings.noise_std)
 
@@ -164,7 +164,7 @@ class ArticulationExpert(Expert):
 
 
 class PlanExpert(Expert):
-    """BBSEA-style ee_pose tasks: the task's plan (simeval.sim.experts.bbsea.PlanPolicy) at the task's own 4 Hz
+    """BBSEA-style ee_pose tasks: the task's plan (simeval.sim.experts.plan.PlanPolicy) at the task's own 4 Hz
     (`settings.control_hz` does not apply), one 8-d action per control step; the plan and the row where each
     primitive starts are kept in `extra`."""
 
@@ -175,7 +175,7 @@ class PlanExpert(Expert):
         return {}
 
     def policy(self, settings: RecordSettings):
-        from simeval.sim.experts.bbsea import PlanPolicy
+        from simeval.sim.experts.plan import PlanPolicy
 
         return PlanPolicy()
 

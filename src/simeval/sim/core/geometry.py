@@ -1,7 +1,7 @@
 """Geometry of the live simulation that any motion or goal code reads: poses, rest, contact, containment.
 
 No task spec is read here (simeval.sim.tasks.goals turns a task's goals into progress with these; the experts in
-simeval.sim.experts.gensim and simeval.sim.experts.bbsea aim with them), so goal checks and motion code share one definition
+simeval.sim.experts.pick_place and simeval.sim.experts.plan aim with them), so goal checks and motion code share one definition
 of "at rest" or "inside" without importing each other."""
 
 from __future__ import annotations

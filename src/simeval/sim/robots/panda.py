@@ -8,7 +8,7 @@ action space (simeval.sim.action_spaces.ee_pose_action_space):
 One `apply` is one control step (4 Hz by default, BBSEA's rate): inverse kinematics of the target once, then the
 joint targets move from where the joints are to the solution over the first 3/4 of the physics substeps (a smooth
 ramp) and hold for the rest, so the hand reaches the target within the step as BBSEA's controller did, as long as
-targets are a few centimetres apart (the primitives in simeval.sim.experts.bbsea keep them so).
+targets are a few centimetres apart (the primitives in simeval.sim.experts.plan keep them so).
 
 Grasping: the fingers close with a bounded force; PyBullet's friction grasps of small boxes slip under the Panda's
 mesh fingers, so when the gripper is commanded closed and both fingers touch the same body (link), that body is

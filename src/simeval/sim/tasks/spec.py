@@ -28,7 +28,7 @@ every joint or a list, one per joint). Goal type joint_range: `{type: joint_rang
 (optionally `joint: k`, the k-th non-fixed joint, default 0) -- done when the joint's fraction is within [lo, hi].
 
 Panda tasks (the BBSEA suite) add `robot: panda`, `action_space: ee_pose` and a `plan`, the task's primitives in
-order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.experts.bbsea). Their
+order (`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]`, simeval.sim.experts.plan). Their
 fixtures (simeval.sim.core.fixtures: drawer_cabinet, bin, button) are URDF bodies too; the jointed ones (drawer_cabinet,
 button) take `joint_init` and joint_range goals like articulated objects; in_container also takes bins and
 drawer cabinets as `where`. The `size` knob ([x, y, z] m) resizes every instance of an object.
@@ -128,7 +128,7 @@ class TaskSpec:
     # test-time variations by split name (only `eval` so far): knobs in check_variation's form (simeval.sim.tasks.splits)
     variations: dict[str, dict] = field(default_factory=dict)
     robot: str = "xarm6"
-    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.experts.bbsea
+    plan: list[tuple[str, str]] = field(default_factory=list)  # [(primitive, object name)]: simeval.sim.experts.plan
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -244,7 +244,7 @@ def joint_count(obj) -> int:
 
 def _parse_plan(plan, where: str, names: list[str]) -> list[tuple[str, str]]:
     """`plan: [{open_drawer: drawer}, {pick: block}, {place_in: drawer}]` -> [(primitive, object name)]."""
-    from simeval.sim.experts.bbsea import PRIMITIVES  # the primitives' names live with their code
+    from simeval.sim.experts.plan import PRIMITIVES  # the primitives' names live with their code
 
     if not isinstance(plan, list):
         raise SpecError(f"{where}: plan must be a list of {{primitive: object}}, got {plan!r}")

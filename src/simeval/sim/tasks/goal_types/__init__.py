@@ -1,7 +1,7 @@
 """Goal types: one file per type in this package, each defining `GOAL = GoalKind(...)`; `goal_kinds()` finds them.
 A task spec's goal names its type (`type: in_zone`), and everything that depends on the type comes from its file:
 which extra fields the spec may give, when a unit of the goal is done, its progress, and the generic oracle's next
-primitive towards it (simeval.sim.experts.gensim). The checks shared by several types (what the robot holds, the
+primitive towards it (simeval.sim.experts.pick_place). The checks shared by several types (what the robot holds, the
 one-to-one assignment of `each`) are in simeval.sim.tasks.goals."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ class GoalKind:
               -> extra GoalSpec fields ({"range": ..., "joint": ...}; a new type's own values under "params"),
               raising SpecError on a bad value; None: no fields of its own
     plan      (world, instance, goal, unit status) -> the generic oracle's next primitive (PickPlace or Push of
-              simeval.sim.experts.gensim) or None where it has none to give; None: the generic oracle cannot
+              simeval.sim.experts.pick_place) or None where it has none to give; None: the generic oracle cannot
               reach this type (a suite's own expert must)
     each      whether the spec's `each: true` (one `what` per `where` instance) applies"""
 

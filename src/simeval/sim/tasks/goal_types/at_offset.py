@@ -23,7 +23,7 @@ def units(world, inst, goal, held) -> list[bool]:
 
 
 def plan(world, inst, goal, status):
-    from simeval.sim.experts.gensim import PickPlace
+    from simeval.sim.experts.pick_place import PickPlace
 
     anchor = inst.by_name(goal.where[0])[0]
     ap, ayaw = pose(world, anchor)

@@ -10,7 +10,7 @@ from simeval.sim.tasks.goal_types.in_zone import container_plan, container_units
 
 
 def place_in_bowl(world, inst, obj, bowl, k):
-    from simeval.sim.experts.gensim import PickPlace, bowl_spot
+    from simeval.sim.experts.pick_place import PickPlace, bowl_spot
 
     others = tuple(b for o in inst.objects if o.shape != "pile" for b in o.body_ids)
     return PickPlace(obj, bowl_spot(world, inst, bowl, obj), TABLE_Z + 0.008, 0.0, others)

@@ -39,7 +39,7 @@ def container_plan(inside_fn, within, place):
 
 
 def place_in_zone(world, inst, obj, zone, k):
-    from simeval.sim.experts.gensim import PickPlace, zone_slot
+    from simeval.sim.experts.pick_place import PickPlace, zone_slot
 
     tp, tyaw = pose(world, zone)
     return PickPlace(obj, zone_slot(tp[:2], tyaw, k, obj, zone), TABLE_Z, tyaw)

@@ -30,7 +30,7 @@ def units(world, inst, goal, held) -> list[bool]:
 
 
 def plan(world, inst, goal, status):
-    from simeval.sim.experts.gensim import PickPlace
+    from simeval.sim.experts.pick_place import PickPlace
 
     _, sp, top, centre = _supports(world, inst, goal)
     span = sp[-1][:2] - sp[0][:2]

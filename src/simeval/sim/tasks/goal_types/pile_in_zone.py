@@ -21,7 +21,7 @@ def progress(world, inst, goal) -> float:
 
 def plan(world, inst, goal, status):
     """Push the farthest stray particle of any unfinished pile (one stuck pile does not hold up the others)."""
-    from simeval.sim.experts.gensim import plan_push
+    from simeval.sim.experts.pick_place import plan_push
 
     zone = inst.by_name(goal.where[0])[0]
     zp, _ = pose(world, zone)
