@@ -177,7 +177,7 @@ def test_a_gensim_task_that_raises_is_reported_not_dropped(tmp_path):
 
 
 def test_the_torchvision_stand_in_refuses_any_use():
-    worker = load_script(ROOT / "src" / "simeval" / "pipelines" / "gensim" / "worker.py")  # GenSim's process runs it
+    worker = load_script(ROOT / "src" / "simeval" / "pipelines" / "gensim_own" / "worker.py")  # GenSim's process runs it
     stand_in = worker._StandIn("torchvision")
     with pytest.raises(ImportError, match="stand-in"):
         stand_in.transforms  # noqa: B018
@@ -227,8 +227,8 @@ def test_kill_9_of_the_collector_takes_its_gensim_workers_and_the_rerun_resumes(
 def test_gensims_own_task_as_a_gymnasium_env_follows_its_oracle_to_the_recorded_episode(own_store):
     """GenSimEnv (pick/place steps through GenSim's env.step in a worker) driven by GenSim's oracle: the same
     pick/place poses as the recorded episode of the same seed, the same reward, success, observations in its space."""
-    from simeval.pipelines.gensim.env import GensimEnv
-    from simeval.pipelines.gensim.native import GensimSettings
+    from simeval.pipelines.gensim_own.env import GensimEnv
+    from simeval.pipelines.gensim_own.native import GensimSettings
 
     recorded = read_episode(EpisodeStore(own_store).path_for("gensim_own", TASK, 0))
     env = GensimEnv(TASK, GensimSettings(root=str(GENSIM)), image_size=(32, 32))
@@ -256,8 +256,8 @@ def test_a_primitive_that_does_not_return_ends_the_rollout_as_failed_and_the_nex
     in the rollout's record; the next reset starts a fresh worker and the oracle solves that seed."""
     from simeval.measures.generalization.rollouts import rollout_task
     from simeval.measures.generalization.random_baseline import RandomActions
-    from simeval.pipelines.gensim.env import GensimEnv
-    from simeval.pipelines.gensim.native import GensimSettings
+    from simeval.pipelines.gensim_own.env import GensimEnv
+    from simeval.pipelines.gensim_own.native import GensimSettings
 
     env = GensimEnv(TASK, GensimSettings(root=str(GENSIM), step_timeout_s=0.01), image_size=(32, 32))
     try:
@@ -405,7 +405,7 @@ def test_the_eval_split_rolls_out_only_the_scenes_its_variation_changed():
     from simeval.measures.generalization import rollouts as ev
     from simeval.measures.generalization.run import run_splits
     from simeval.measures.generalization.random_baseline import RandomActions
-    from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+    from simeval.pipelines.gensim_own.pipeline import GensimOwnPipeline
 
     pipeline = GensimOwnPipeline.from_config({"name": "gensim_own", "root": str(GENSIM), "native": {}})
     policy = RandomActions("pick_place", image_size=(32, 32))
@@ -435,7 +435,7 @@ def test_a_gensim_eval_variation_is_checked_key_by_key():
     """eval.variation for GenSim's own tasks: one line naming the key, and unseen colours refused in train mode
     (where GenSim draws the train colours: it would vary nothing)."""
     from simeval.errors import UserError
-    from simeval.pipelines.gensim.pipeline import check_eval_variation
+    from simeval.pipelines.gensim_own.pipeline import check_eval_variation
 
     check_eval_variation({"mode": "test", "unseen_colors": True})
     check_eval_variation({"mode": "val"})

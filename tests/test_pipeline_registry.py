@@ -14,7 +14,7 @@ import pytest
 
 from simeval.errors import UserError
 from simeval.pipelines.base import SuitePipeline
-from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.gensim_own.pipeline import GensimOwnPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 from simeval.pipelines.registry import KINDS, own_code_args, pipeline_class, pipeline_from_config
 from simeval.sim.tasks.spec import SUITES_DIR

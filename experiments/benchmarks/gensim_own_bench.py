@@ -24,7 +24,7 @@ from pathlib import Path
 from common import machine, save
 
 from simeval.cli import OneLineParser
-from simeval.pipelines.gensim.native import GensimSettings, check_checkout, run_worker
+from simeval.pipelines.gensim_own.native import GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.spec import SUITES_DIR, load_spec
 
@@ -32,7 +32,7 @@ TASKS = ("place-red-in-green", "stack-block-pyramid")  # in GenSim's registry an
 
 
 def import_seconds(root: Path) -> float:
-    code = ("import time; t = time.perf_counter(); from simeval.pipelines.gensim.worker import load_gensim; "
+    code = ("import time; t = time.perf_counter(); from simeval.pipelines.gensim_own.worker import load_gensim; "
             f"load_gensim({str(root)!r}); print(time.perf_counter() - t)")
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)

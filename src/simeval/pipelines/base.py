@@ -1,7 +1,7 @@
 """What the closed-loop experiments need of a pipeline, whatever runs its tasks: its task groups and held-out tasks,
 the tasks and variations each evaluation split rolls out, and an environment for a task. Two kinds so far:
 simeval's own suites (`SuitePipeline`, PyBullet re-creations) and a pipeline's own code
-(simeval.pipelines.gensim.pipeline.GensimOwnPipeline: GenSim's tasks run from a checkout).
+(simeval.pipelines.gensim_own.pipeline.GensimOwnPipeline: GenSim's tasks run from a checkout).
 simeval.pipelines.registry picks the class from a `conf/pipeline/<name>.yaml` (pipeline_class) and builds one
 (pipeline_from_config). Collection goes through the class too (`Pipeline.collect`), so src/collect.py knows no
 pipeline by name: a new pipeline is a class here, its `kind` in the registry and its yaml.

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 
 from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, SuitePipeline
-from simeval.pipelines.gensim.pipeline import GensimOwnPipeline
+from simeval.pipelines.gensim_own.pipeline import GensimOwnPipeline
 from simeval.pipelines.gymnasium.pipeline import GymnasiumPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 

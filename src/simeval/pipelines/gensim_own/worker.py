@@ -3,7 +3,7 @@
 oracle's pick/place poses through `env.step`), with the PyBullet loop at `hz` and one frame every `frame_every`
 physics steps.
 
-Run as a separate process (simeval.pipelines.gensim.native starts it): GenSim drives PyBullet's one global client,
+Run as a separate process (simeval.pipelines.gensim_own.native starts it): GenSim drives PyBullet's one global client,
 imports its whole learning stack at package level and prints freely; none of that reaches simeval's process. This
 file needs only numpy and GenSim's own imports, so any interpreter that can run GenSim can run it:
 

@@ -22,7 +22,7 @@ from typing import ClassVar
 import gymnasium as gym
 import numpy as np
 
-from simeval.pipelines.gensim.native import (
+from simeval.pipelines.gensim_own.native import (
     CAMERAS,
     WORKER,
     EpisodeFailed,

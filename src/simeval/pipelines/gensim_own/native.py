@@ -1,5 +1,5 @@
 """Episodes from GenSim's own code: its task classes, `Environment` and oracle, run from the user's GenSim checkout
-(`pipeline.root`), one worker process per episode (simeval.pipelines.gensim.worker, which says how GenSim is loaded
+(`pipeline.root`), one worker process per episode (simeval.pipelines.gensim_own.worker, which says how GenSim is loaded
 and what a stored row means), stored in simeval's episode store like any other episode.
 
 Why a process per episode: GenSim drives PyBullet's single global client and leaves state behind in it, prints to

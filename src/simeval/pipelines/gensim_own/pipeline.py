@@ -8,8 +8,8 @@ from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.pipelines.base import Pipeline, select_tasks, split_by_heldout
-from simeval.pipelines.gensim.env import GensimEnv
-from simeval.pipelines.gensim.native import (
+from simeval.pipelines.gensim_own.env import GensimEnv
+from simeval.pipelines.gensim_own.native import (
     GENSIM_EVAL_VARIATION,
     GensimSettings,
     check_checkout,
@@ -37,7 +37,7 @@ def check_eval_variation(variation: Mapping) -> None:
 class GensimOwnPipeline(Pipeline):
     """GenSim's own tasks for the closed-loop experiments: groups from its registry (the authors' substring rule),
     held-out tasks from `heldout` (group -> names) or the command line, and GenSim's own environment with its
-    pick/place action (simeval.pipelines.gensim.env.GensimEnv). The `eval` split is GenSim's own test-time
+    pick/place action (simeval.pipelines.gensim_own.env.GensimEnv). The `eval` split is GenSim's own test-time
     variation: the same tasks in task.mode "test" with its unseen colour set drawn (GensimSettings.unseen_colors;
     tasks whose scene that leaves as it was are not rolled out again: evaluate.rollout_task)."""
 
@@ -56,7 +56,7 @@ class GensimOwnPipeline(Pipeline):
 
     @classmethod
     def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):
-        from simeval.pipelines.gensim.native import collect_from_checkout
+        from simeval.pipelines.gensim_own.native import collect_from_checkout
 
         return collect_from_checkout(pipeline.get("root"), dict(pipeline["native"]), tasks, task_group, seeds, store,
                                      dict(record), pipeline=pipeline["name"], workers=workers)
