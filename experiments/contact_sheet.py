@@ -32,7 +32,7 @@ def tile(args) -> tuple[str, str, str, np.ndarray, np.ndarray, bool]:
 def main() -> None:
     from PIL import Image, ImageDraw
 
-    from simeval.sim.tasks.spec import SUITES_DIR
+    from simeval.sim.tasks.spec import suite_dir
     from simeval.sim.tasks.splits import SPLITS_FILE
 
     ap = OneLineParser()
@@ -41,7 +41,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
-    paths = sorted(p for p in (SUITES_DIR / args.suite).glob("*.yaml") if p.name != SPLITS_FILE)  # task specs only
+    paths = sorted(p for p in (suite_dir(args.suite)).glob("*.yaml") if p.name != SPLITS_FILE)  # task specs only
     with ProcessPoolExecutor(args.workers) as pool:
         tiles = sorted(pool.map(tile, [(str(p), args.seed, args.size) for p in paths]), key=lambda t: (t[1], t[0]))
     s, label_h, cols = args.size, 58, 4

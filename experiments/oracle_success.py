@@ -72,7 +72,7 @@ def table_rows(episodes: dict[tuple[str, int], dict], tasks: list[str], seeds: i
 
 def main() -> None:
     from simeval.report.tables import write_table
-    from simeval.sim.tasks.spec import SUITES_DIR
+    from simeval.sim.tasks.spec import suite_dir
 
     ap = OneLineParser()
     ap.add_argument("--suite", default="gensim")
@@ -85,7 +85,7 @@ def main() -> None:
     ap.add_argument("--split", choices=["train", "eval"], default="train",
                     help="eval: each task under its own variations.eval, seeds 100000+")
     args = ap.parse_args()
-    paths = sorted(p for p in (SUITES_DIR / args.suite).glob("*.yaml") if p.name != "splits.yaml")
+    paths = sorted(p for p in (suite_dir(args.suite)).glob("*.yaml") if p.name != "splits.yaml")
     if args.tasks:
         paths = [p for p in paths if p.stem in args.tasks.split(",")]
     out = ROOT / "outputs" / "tables"

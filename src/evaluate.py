@@ -53,7 +53,7 @@ def _text(metas, cfg) -> dict:
     from simeval.measures.text_diversity.run import text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.overview.scorecard import aspect
-    from simeval.tasks.records import Task
+    from simeval.pipelines.task_records import Task
 
     texts = {}
     for m in metas:

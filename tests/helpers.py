@@ -183,10 +183,10 @@ def synthetic_store(root, per_task: int = 3, T: int = 30) -> Path:
     `src/generalization_tools.py offline`: enough to train and to check the plumbing (not to learn a task)."""
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.action_spaces import joint_action_space
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
+    from simeval.sim.tasks.spec import suite_dir, load_suite, select_specs
 
     store = EpisodeStore(root)
-    for spec in select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP):
+    for spec in select_specs(load_suite(suite_dir("gensim")), None, GROUP):
         for seed in range(per_task):
             r = np.random.default_rng(seed)
             store.write(Episode(

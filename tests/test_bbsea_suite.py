@@ -11,9 +11,9 @@ from simeval.sim.env import make_env
 from simeval.sim.experts.plan import PlanPolicy
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.goals import task_progress
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec, sample_instance
+from simeval.sim.tasks.spec import suite_dir, SpecError, check_variation, load_suite, parse_spec, sample_instance
 
-SUITE_DIR = SUITES_DIR / "bbsea"
+SUITE_DIR = suite_dir("bbsea")
 SUITE = {s.name: s for s in load_suite(SUITE_DIR)}
 NO_CAMERAS = RecordSettings(cameras=(), scene_view_size=(8, 8))
 

@@ -13,10 +13,10 @@ import pytest
 from simeval.collect import collect
 from simeval.episodes.store import EpisodeStore, read_meta
 from simeval.sim.rollout import RecordSettings
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite
+from simeval.sim.tasks.spec import suite_dir, SpecError, check_variation, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 TINY = ["record.image_size=[16,16]", "record.scene_view_size=[16,16]"]
 
 

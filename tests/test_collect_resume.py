@@ -16,10 +16,10 @@ from simeval.pipelines.importers import IMPORTERS, import_into_store
 from simeval.episodes.store import EpisodeStore
 from simeval.errors import UserError
 from simeval.sim.rollout import RecordSettings
-from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
+from simeval.sim.tasks.spec import suite_dir, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 SMALL = {"image_size": (16, 16), "scene_view_size": (16, 16), "cameras": ("top", "front"), "control_hz": 30.0}
 
 

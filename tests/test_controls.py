@@ -140,11 +140,11 @@ def test_moving_share_by_margin_counts_changed_pixels_outside_the_grown_robot_ma
     from simeval.measures.dynamics_diversity.controls.fixed import DOSES, moving_share_by_margin
 
     from simeval.episodes.store import EpisodeStore
-    from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite
+    from simeval.sim.tasks.spec import suite_dir, check_variation, load_suite
 
     dose = DOSES["dose_push"]
     pipeline, task = dose.task
-    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    spec = next(s for s in load_suite(suite_dir(pipeline)) if s.name == task)
     store = EpisodeStore(tmp_path / "control_episodes")
     rgb = np.zeros((2, 8, 8, 3), np.uint8)
     robot = np.zeros((2, 8, 8), bool)

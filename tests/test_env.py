@@ -10,9 +10,9 @@ import pytest
 from simeval.errors import UserError
 from simeval.sim import OraclePolicy, make_env, rollout_policy
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+from simeval.sim.tasks.spec import suite_dir, load_suite
 
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 
 
 @pytest.mark.parametrize("task", ["stack-two-blocks", "bbsea-open-drawer"])

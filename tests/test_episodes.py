@@ -332,7 +332,7 @@ def test_import_entrypoint_errors_are_one_line(tmp_path):
 
 def test_bbsea_task_folders_must_have_utf8_names(tmp_path):
     from simeval.tasks import load_tasks
-    from simeval.tasks.records import TaskSourceError
+    from simeval.pipelines.task_records import TaskSourceError
 
     os.makedirs(os.fsencode(tmp_path / "trajectory" / "0") + b"/Put the \xe9 block in the drawer")
     with pytest.raises(TaskSourceError, match=r"trajectory/0/Put the \\xe9 block in the drawer: folder name is not"):

@@ -8,7 +8,7 @@ import yaml
 
 import simeval.sim.tasks.goal_types as goal_types
 from simeval.sim.env import make_env
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, parse_spec
+from simeval.sim.tasks.spec import suite_dir, SpecError, parse_spec
 
 TOY = '''
 from simeval.sim.core.geometry import pose
@@ -51,7 +51,7 @@ def test_the_suites_goal_types_are_registered():
 
 
 def test_a_new_goal_type_is_one_file_that_specs_name_and_the_environment_scores(toy_goal):
-    data = yaml.safe_load((SUITES_DIR / "gensim" / "build-bridge.yaml").read_text())
+    data = yaml.safe_load((suite_dir("gensim") / "build-bridge.yaml").read_text())
     with pytest.raises(SpecError, match="above_table needs `height:`"):
         parse_spec({**data, "goals": [{"type": "above_table", "what": "pillar"}]}, "toy")
     with pytest.raises(SpecError, match="one of above_table, at_offset, in_container"):

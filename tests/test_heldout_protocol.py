@@ -407,9 +407,9 @@ def test_exclude_robot_from_loss_trains_on_masks_where_episodes_have_them():
 
 def test_pose_range_shrinks_poses_towards_one_anchor_layout():
     from simeval.sim.core.world import WORKSPACE
-    from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, sample_instance
+    from simeval.sim.tasks.spec import suite_dir, SpecError, check_variation, load_suite, sample_instance
 
-    spec = next(s for s in load_suite(SUITES_DIR / "gensim") if s.name == "put-blocks-in-matching-zones")
+    spec = next(s for s in load_suite(suite_dir("gensim")) if s.name == "put-blocks-in-matching-zones")
 
     def poses(seed, pose_range):
         inst = sample_instance(spec, seed, None, pose_range)

@@ -17,14 +17,14 @@ from simeval.pipelines.base import SuitePipeline
 from simeval.pipelines.gensim_own.pipeline import GensimOwnPipeline
 from simeval.pipelines.metaworld.pipeline import MetaworldPipeline
 from simeval.pipelines.registry import KINDS, own_code_args, pipeline_class, pipeline_from_config
-from simeval.sim.tasks.spec import SUITES_DIR
+from simeval.sim.tasks.spec import suite_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_a_suite_pipeline_and_a_native_one_get_their_classes():
     built = pipeline_from_config({"name": "bbsea", "suite": "bbsea"})
-    assert isinstance(built, SuitePipeline) and built.suite_dir == SUITES_DIR / "bbsea" and built.name == "bbsea"
+    assert isinstance(built, SuitePipeline) and built.suite_dir == suite_dir("bbsea") and built.name == "bbsea"
     assert pipeline_class({"name": "gensim_own", "suite": None, "native": {"hz": 240}}) is GensimOwnPipeline
     assert pipeline_class({"name": "x", "kind": "suite", "suite": "gensim", "native": {"hz": 240}}) is SuitePipeline
     assert pipeline_class({"name": "metaworld", "kind": "metaworld", "suite": None}) is MetaworldPipeline

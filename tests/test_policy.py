@@ -195,11 +195,11 @@ def test_config_mistakes_name_the_key():
 
 def test_native_action_space_is_the_groups_own_and_a_recording_in_another_is_refused():
     from simeval.measures.generalization.run import resolve_action_space
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
+    from simeval.sim.tasks.spec import suite_dir, load_suite, select_specs
 
-    robogen = select_specs(load_suite(SUITES_DIR / "robogen"), None, "table_top")
-    bbsea = select_specs(load_suite(SUITES_DIR / "bbsea"), None, "drawer")
-    gensim = select_specs(load_suite(SUITES_DIR / "gensim"), None, "piles")
+    robogen = select_specs(load_suite(suite_dir("robogen")), None, "table_top")
+    bbsea = select_specs(load_suite(suite_dir("bbsea")), None, "drawer")
+    gensim = select_specs(load_suite(suite_dir("gensim")), None, "piles")
     assert [resolve_action_space("native", g) for g in (gensim, robogen, bbsea)] == ["joint", "ee_delta", "ee_pose"]
     assert resolve_action_space("pick_place", gensim) == "pick_place"
     with pytest.raises(UserError, match="different action spaces"):
@@ -275,9 +275,9 @@ def test_a_repeated_evaluation_reuses_its_rollouts_and_says_so_and_a_corrupt_cac
     # the same task name in another pipeline's environments (simeval's GenSim-style suite and GenSim's own code
     # share names; the chance baseline's cache folder is shared by every pipeline): rolled out again, then reused
     from simeval.pipelines.base import SuitePipeline
-    from simeval.sim.tasks.spec import SUITES_DIR
+    from simeval.sim.tasks.spec import suite_dir
 
-    suite = SuitePipeline("gensim", SUITES_DIR / "gensim").environment_id()
+    suite = SuitePipeline("gensim", suite_dir("gensim")).environment_id()
     other = {**suite, "name": "gensim_own"}
     for environment in (suite, other, other):
         run_splits(policy, plan, [0, 1], None, cache, policy_step=200, environment=environment, compare_starts={})
@@ -445,9 +445,9 @@ def test_a_variation_of_friction_is_one_a_first_observation_cannot_show():
     """Friction changes no pixel and no joint at the start (spec.py draws it last for that reason): the eval split
     must roll such a variation out on every seed, not leave it out as unvaried."""
     from simeval.pipelines.base import SuitePipeline
-    from simeval.sim.tasks.spec import SUITES_DIR
+    from simeval.sim.tasks.spec import suite_dir
 
-    suite = SuitePipeline("bbsea", SUITES_DIR / "bbsea")
+    suite = SuitePipeline("bbsea", suite_dir("bbsea"))
     assert suite.unseen_knobs({"block": {"friction": [0.05, 0.1], "colors": ["red"]}, "robot": {"home_noise": 0.1}}) \
         == ["block.friction"]
     assert suite.unseen_knobs({"robot": {"home_noise": 0.1}}) == [] and suite.unseen_knobs({}) == []

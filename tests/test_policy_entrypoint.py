@@ -16,7 +16,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from simeval.episodes.store import EpisodeStore
-from simeval.sim.tasks.spec import SUITES_DIR, load_suite, select_specs
+from simeval.sim.tasks.spec import suite_dir, load_suite, select_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -186,7 +186,7 @@ def test_training_episodes_are_the_plain_ones_by_seed_not_the_varied_ones_beside
     from simeval.measures.generalization.run import episodes_for
 
     store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=3, T=8))
-    task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
+    task = select_specs(load_suite(suite_dir("gensim")), None, GROUP)[0].name
     plain = store.path_for("gensim", task, 0)
     shutil.copy(plain, plain.with_name("episode_000000.v0123456789.h5"))  # a varied episode's name, stored beside
     train, val, metas = episodes_for(store, "gensim", [task], 2, 1, ["top"])
@@ -204,7 +204,7 @@ def test_successful_demonstrations_pass_over_the_failed_episodes_and_say_how_man
     from simeval.measures.generalization.run import episodes_for
 
     store = EpisodeStore(synthetic_store(tmp_path / "store", per_task=5, T=8))
-    task = select_specs(load_suite(SUITES_DIR / "gensim"), None, GROUP)[0].name
+    task = select_specs(load_suite(suite_dir("gensim")), None, GROUP)[0].name
     for seed, success, known in ((0, True, True), (1, False, True), (2, True, True), (3, False, False),
                                  (4, True, True)):
         with h5py.File(store.path_for("gensim", task, seed), "a") as f:

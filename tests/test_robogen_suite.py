@@ -1,4 +1,4 @@
-"""The RoboGen-style suite (src/simeval/sim/suites/robogen): procedurally generated articulated objects, the
+"""The RoboGen-style suite (src/simeval/pipelines/robogen/suite/): procedurally generated articulated objects, the
 joint_range goal, the ee_delta action space, RoboGen's fixed initial state, the closed-loop controller, stored
 ee_delta episodes replaying exactly, and each task's test-time variation being accepted and solved."""
 
@@ -14,10 +14,10 @@ from simeval.sim.core.articulated import ARTICULATED, joint_fraction, set_joint_
 from simeval.sim.experts.articulation import ArticulationController
 from simeval.sim.rollout import RecordSettings, run_episode
 from simeval.sim.tasks.goals import task_progress
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, check_variation, load_suite, parse_spec
+from simeval.sim.tasks.spec import suite_dir, SpecError, check_variation, load_suite, parse_spec
 from simeval.sim.tasks.splits import load_heldout
 
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "robogen")}
+SUITE = {s.name: s for s in load_suite(suite_dir("robogen"))}
 HUMAN_STUDY = ["open-laptop", "change-lamp-direction", "flush-the-toilet", "extend-display-screen",
                "close-the-oven-door", "set-oven-timer", "close-the-window", "adjust-water-flow",
                "open-both-table-doors", "press-start-button"]
@@ -55,7 +55,7 @@ def test_the_suite_has_both_groups_the_human_study_tasks_and_every_articulated_k
     assert set(groups) == {"table_top", "ground"} and all(len(v) >= 6 for v in groups.values())
     assert set(HUMAN_STUDY) <= set(SUITE)
     assert {o.shape for s in SUITE.values() for o in s.objects} >= set(ARTICULATED)
-    heldout = load_heldout(SUITES_DIR / "robogen", list(SUITE.values()))  # checked against the suite there
+    heldout = load_heldout(suite_dir("robogen"), list(SUITE.values()))  # checked against the suite there
     assert set(heldout) == {"table_top", "ground"} and all(heldout.values())
 
 

@@ -13,7 +13,7 @@ import yaml
 import simeval.sim.robots as robots
 from simeval.errors import UserError
 from simeval.sim.env import make_env, state_names
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, parse_spec
+from simeval.sim.tasks.spec import suite_dir, SpecError, parse_spec
 
 TOY = '''
 from simeval.sim.robots import RobotKind
@@ -50,7 +50,7 @@ def test_the_two_robots_of_the_suites_are_registered_with_their_action_spaces_an
 
 
 def test_a_new_robot_is_one_file_that_specs_name_and_the_environment_builds(toy_robot):
-    data = yaml.safe_load((SUITES_DIR / "gensim" / "build-bridge.yaml").read_text())
+    data = yaml.safe_load((suite_dir("gensim") / "build-bridge.yaml").read_text())
     spec = parse_spec({**data, "robot": "toy_arm", "action_space": "joint"}, "toy")
     env = make_env(spec, image_size=(16, 16), cameras=("top",))
     try:

@@ -14,10 +14,10 @@ import pytest
 
 from simeval.episodes.store import EpisodeStore, read_episode
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, parse_spec, sample_instance
+from simeval.sim.tasks.spec import suite_dir, SpecError, load_suite, parse_spec, sample_instance
 
 ROOT = Path(__file__).resolve().parents[1]
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 
 
 def test_suite_has_every_group_with_enough_tasks():

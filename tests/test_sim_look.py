@@ -14,9 +14,9 @@ from helpers import load_script
 from simeval.sim.core.objects import COLORS, make_object
 from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS, TABLE_Z, TILE_RGB, World
 from simeval.sim.robots.xarm import PARK, Arm, render_urdf
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, sample_instance
+from simeval.sim.tasks.spec import suite_dir, SpecError, load_suite, sample_instance
 
-SUITE = load_suite(SUITES_DIR / "gensim")
+SUITE = load_suite(suite_dir("gensim"))
 MARGIN = 0.05  # of the frame's width/height: 3 pixels at 64x64
 SUITE_COLORS = ("red", "green", "blue", "yellow", "purple", "orange", "cyan", "pink", "gray", "white", "brown",
                 "black")

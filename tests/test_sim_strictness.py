@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, sample_instance, task_seed
+from simeval.sim.tasks.spec import suite_dir, SpecError, load_suite, sample_instance, task_seed
 
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 
 
 # --- section 4: sampling ------------------------------------------------------------------------------------

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from simeval.sim.tasks.spec import SUITES_DIR, SpecError, load_suite, parse_spec, sample_instance
+from simeval.sim.tasks.spec import suite_dir, SpecError, load_suite, parse_spec, sample_instance
 from simeval.sim.tasks.splits import group_and_heldout, load_heldout, split_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
-GENSIM = SUITES_DIR / "gensim"
+GENSIM = suite_dir("gensim")
 
 
 def _spec(**extra):

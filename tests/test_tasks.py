@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from simeval.tasks import SourceNotConfigured, TaskSourceError, groups_of, load_tasks, select_group
-from simeval.tasks.gensim import gensim_groups
+from simeval.pipelines.gensim.tasks import gensim_groups
 
 ALIASES = {"stack": "stacking", "place": "placement", "pile": "piles", "build": "assembling"}
 

@@ -18,9 +18,9 @@ from simeval.episodes.store import (
 from simeval.errors import UserError
 from simeval.sim.env import make_env
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+from simeval.sim.tasks.spec import suite_dir, load_suite
 
-SUITE = {s.name: s for s in load_suite(SUITES_DIR / "gensim")}
+SUITE = {s.name: s for s in load_suite(suite_dir("gensim"))}
 SMALL = RecordSettings(cameras=("top",), image_size=(24, 24), scene_view_size=(16, 16))
 
 

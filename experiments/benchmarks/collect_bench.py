@@ -36,7 +36,7 @@ from simeval.sim.env import find_task
 from simeval.sim.robots import panda, xarm
 from simeval.sim.robots.xarm import Arm
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, load_spec, sample_instance
+from simeval.sim.tasks.spec import suite_dir, load_spec, sample_instance
 
 BBSEA_TASKS = ["bbsea-block-in-bin", "bbsea-stack-three-blocks", "bbsea-open-drawer-put-block",
                "bbsea-put-block-in-drawer-and-close"]  # two per group of the BBSEA suite (--suite bbsea)
@@ -50,7 +50,7 @@ MESHES = ("visual", "collision")
 def render_bound(spec, size: tuple[int, int], mesh: str, n: int = 60, *, bbsea: bool = False) -> float:
     """Observation renders per second in the task's first scene: the most a collection at `size` could record.
     `spec`: a task name of the GenSim/RoboGen suites, or (bbsea) a BBSEA spec file's stem (its Panda, 4 Hz world)."""
-    spec = load_spec(SUITES_DIR / "bbsea" / f"{spec}.yaml") if bbsea else find_task(spec)
+    spec = load_spec(suite_dir("bbsea") / f"{spec}.yaml") if bbsea else find_task(spec)
     inst = sample_instance(spec, 0)
     with World(4.0) if bbsea else World() as w:
         panda.Panda(w, render_mesh=mesh) if bbsea else Arm(w, spec.end_effector, render_mesh=mesh)
@@ -88,7 +88,7 @@ def bbsea_main() -> None:
         default, panda.RENDER_MESH = panda.RENDER_MESH, mesh
         try:
             for task in BBSEA_TASKS:
-                spec = load_spec(SUITES_DIR / "bbsea" / f"{task}.yaml")
+                spec = load_spec(suite_dir("bbsea") / f"{task}.yaml")
                 bound = render_bound(task, size, mesh, bbsea=True)
                 t0 = time.perf_counter()
                 ep = run_episode(spec, 0, RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64)),
@@ -101,7 +101,7 @@ def bbsea_main() -> None:
         out[f"{mesh}_64x64"] = {"tasks": rows, "mean_ratio": round(float(np.mean([r["ratio"] for r in rows.values()])), 3),
                                 "mean_collect_steps_per_s": round(float(np.mean(
                                     [r["collect_steps_per_s"] for r in rows.values()])), 1)}
-    specs = [load_spec(SUITES_DIR / "bbsea" / f"{t}.yaml") for t in BBSEA_TASKS]
+    specs = [load_spec(suite_dir("bbsea") / f"{t}.yaml") for t in BBSEA_TASKS]
     settings = RecordSettings(cameras=CAMERAS, image_size=size, scene_view_size=(64, 64))
     timing = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -26,7 +26,7 @@ from common import machine, save
 from simeval.cli import OneLineParser
 from simeval.pipelines.gensim_own.native import GensimSettings, check_checkout, run_worker
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, load_spec
+from simeval.sim.tasks.spec import suite_dir, load_spec
 
 TASKS = ("place-red-in-green", "stack-block-pyramid")  # in GenSim's registry and in simeval's suite
 
@@ -58,7 +58,7 @@ def main() -> None:
                     rows[name].append({"seconds": time.perf_counter() - t0, "frames": len(arrays["state"]),
                                        "success": bool(meta["success"]), "physics_steps": meta["physics_steps"]})
                 t0 = time.perf_counter()
-                ep = run_episode(load_spec(SUITES_DIR / "gensim" / f"{task}.yaml"), seed,
+                ep = run_episode(load_spec(suite_dir("gensim") / f"{task}.yaml"), seed,
                                  RecordSettings(cameras=("top", "front"), image_size=(64, 64)))
                 rows["suite"].append({"seconds": time.perf_counter() - t0, "frames": ep.n_steps,
                                       "success": ep.success})

@@ -26,7 +26,7 @@ from simeval.pipelines.metaworld.native import (
     record_episode,
 )
 from simeval.sim.rollout import RecordSettings, run_episode
-from simeval.sim.tasks.spec import SUITES_DIR, load_spec
+from simeval.sim.tasks.spec import suite_dir, load_spec
 
 TASKS = ("reach-v3", "push-v3", "door-open-v3")
 
@@ -70,7 +70,7 @@ def main() -> None:
     suite = []
     for seed in range(args.seeds):
         t0 = time.perf_counter()
-        ep = run_episode(load_spec(SUITES_DIR / "gensim" / "place-red-in-green.yaml"), seed,
+        ep = run_episode(load_spec(suite_dir("gensim") / "place-red-in-green.yaml"), seed,
                          RecordSettings(cameras=("top", "front"), image_size=(64, 64)))
         suite.append({"seconds": time.perf_counter() - t0, "frames": ep.n_steps, "success": ep.success})
     out["suite_place_red_in_green"] = {"s_per_episode": sum(r["seconds"] for r in suite) / len(suite),

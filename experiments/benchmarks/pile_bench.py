@@ -29,7 +29,7 @@ from simeval.sim.core.world import PILE_SOLVER_RESIDUAL, World
 from simeval.sim.env import make_env
 from simeval.sim.experts.pick_place import next_primitive
 from simeval.sim.robots import xarm
-from simeval.sim.tasks.spec import SUITES_DIR, load_spec
+from simeval.sim.tasks.spec import suite_dir, load_spec
 
 TASKS = ["sweep-pile-into-zone", "sweep-two-piles", "sweep-pile-into-matching-zone"]
 CONFIGS = {  # (solver residual for pile worlds, particles in maximal coordinates, blade height)
@@ -40,7 +40,7 @@ CONFIGS = {  # (solver residual for pile worlds, particles in maximal coordinate
 
 
 def run(task: str, seed: int, primitives: int) -> dict:
-    spec = load_spec(SUITES_DIR / "gensim" / f"{task}.yaml")
+    spec = load_spec(suite_dir("gensim") / f"{task}.yaml")
     env = make_env(spec, "pick_place", cameras=(), record_low_level=True)
     physics = [0.0]
     step = World.step

@@ -57,11 +57,11 @@ def groups_of(suite: str, tasks_per_group: int | None) -> dict[str, list[str]]:
     """{group: task names}: all of them when `tasks_per_group` is None, else the first `tasks_per_group` tasks by
     name that the policy trains on, plus the group's first held-out task (splits.yaml), so a subset still trains
     on that many tasks and still has a held-out split."""
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+    from simeval.sim.tasks.spec import suite_dir, load_suite
     from simeval.sim.tasks.splits import load_heldout
 
-    specs = sorted(load_suite(SUITES_DIR / suite), key=lambda s: s.name)
-    heldout = load_heldout(SUITES_DIR / suite, specs)
+    specs = sorted(load_suite(suite_dir(suite)), key=lambda s: s.name)
+    heldout = load_heldout(suite_dir(suite), specs)
     groups: dict[str, list[str]] = {}
     for spec in specs:
         groups.setdefault(spec.group, []).append(spec.name)

@@ -145,9 +145,9 @@ class SuitePipeline(Pipeline):
 
     @classmethod
     def from_config(cls, pipeline):
-        from simeval.sim.tasks.spec import SUITES_DIR
+        from simeval.sim.tasks.spec import suite_dir
 
-        return cls(pipeline["name"], SUITES_DIR / pipeline["suite"])
+        return cls(pipeline["name"], suite_dir(pipeline["suite"]))
 
     @classmethod
     def collect(cls, pipeline, *, tasks, task_group, seeds, store, record, variation, workers):

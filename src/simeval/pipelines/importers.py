@@ -34,8 +34,8 @@ from simeval.pipelines.import_parts import (IsStored, NoDemonstrations, Stored, 
 from simeval.pipelines.lerobot_format import import_lerobot
 from simeval.pipelines.robomimic_format import import_robomimic
 from simeval.sim.action_spaces import pick_place_action_space
-from simeval.tasks.bbsea import bbsea_group, utf8_name
-from simeval.tasks.gensim import gensim_groups
+from simeval.pipelines.bbsea.tasks import bbsea_group, utf8_name
+from simeval.pipelines.gensim.tasks import gensim_groups
 
 
 def _episode_files(root: Path, pattern: str, name: str, layout: str) -> list[tuple[Path, re.Match]]:

@@ -86,12 +86,12 @@ from simeval.sim.robots import Robot, robot_kind
 from simeval.sim.robots.xarm import JOINT_LOWER, JOINT_UPPER
 from simeval.sim.tasks.goals import task_progress
 from simeval.sim.tasks.spec import (
-    SUITES_DIR,
     TaskSpec,
     check_variation,
     load_suite,
     sample_instance,
     scene_seed,
+    suite_dirs,
     task_seed,
 )
 
@@ -107,10 +107,10 @@ def state_names(robot: str = "xarm6") -> tuple[str, ...]:
 
 
 def find_task(task: str | TaskSpec) -> TaskSpec:
-    """A TaskSpec as is, or a suite task by name (every suite under simeval/sim/suites)."""
+    """A TaskSpec as is, or a suite task by name (every suite simeval ships, spec.suite_dirs)."""
     if isinstance(task, TaskSpec):
         return task
-    specs = {s.name: s for d in sorted(SUITES_DIR.iterdir()) if d.is_dir() for s in load_suite(d)}
+    specs = {s.name: s for d in suite_dirs().values() for s in load_suite(d)}
     if task not in specs:
         raise UserError(f"task={task!r} is not a suite task; available: {', '.join(sorted(specs))}")
     return specs[task]

@@ -10,8 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from simeval.tasks import bbsea, custom, gensim, robogen
-from simeval.tasks.records import (
+from simeval.pipelines.bbsea import tasks as bbsea
+from simeval.pipelines.custom import tasks as custom
+from simeval.pipelines.gensim import tasks as gensim
+from simeval.pipelines.robogen import tasks as robogen
+from simeval.pipelines.task_records import (
     ALL_GROUPS,
     SourceNotConfigured,
     Task,
@@ -35,10 +38,10 @@ class Source:
 
 def load_suite_tasks(pipeline: str, suite: str, text_template: str = "{description}") -> list[Task]:
     """simeval's own PyBullet suite: one task per spec, its description rendered for seed 0."""
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite, sample_instance
+    from simeval.sim.tasks.spec import suite_dir, load_suite, sample_instance
 
     out = []
-    for spec in load_suite(SUITES_DIR / suite):
+    for spec in load_suite(suite_dir(suite)):
         desc = sample_instance(spec, 0).description
         out.append(Task(pipeline, spec.group, spec.name, desc, text_template.format(name=spec.name, description=desc),
                         {"spec": spec.source}))

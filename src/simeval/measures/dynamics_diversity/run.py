@@ -482,9 +482,9 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
     if not suite:
         return (f"pipeline={pipeline} has no simeval suite (pipeline.suite is null): import its episodes into the "
                 "store with src/import_data.py")
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+    from simeval.sim.tasks.spec import suite_dir, load_suite
 
-    groups = sorted({s.group for s in load_suite(SUITES_DIR / suite)})
+    groups = sorted({s.group for s in load_suite(suite_dir(suite))})
     into = f" store={store}{extra}"
     if group in groups or group == "all":
         return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"

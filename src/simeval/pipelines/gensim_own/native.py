@@ -274,11 +274,11 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
 
 
 def plan_tasks(root: Path, tasks: list[str] | str | None, group: str) -> dict[str, str]:
-    """{task: group} from GenSim's registry (a static parse: simeval.tasks.gensim) by the authors' substring rule:
+    """{task: group} from GenSim's registry (a static parse: simeval.pipelines.gensim.tasks) by the authors' substring rule:
     the tasks of `group` (or of every group for `all`), or the named `tasks` (any registered task; its group is
     the first the rule gives, `ungrouped` for none)."""
-    from simeval.tasks.gensim import gensim_groups, load_gensim_checkout, registered_names
-    from simeval.tasks.records import TaskSourceError
+    from simeval.pipelines.gensim.tasks import gensim_groups, load_gensim_checkout, registered_names
+    from simeval.pipelines.task_records import TaskSourceError
 
     try:
         registry = load_gensim_checkout(root)

@@ -306,7 +306,17 @@ def load_suite(folder: str | os.PathLike) -> list[TaskSpec]:
     return specs
 
 
-SUITES_DIR = Path(__file__).resolve().parents[1] / "suites"
+PIPELINES_DIR = Path(__file__).resolve().parents[2] / "pipelines"  # each suite lives with its pipeline
+
+
+def suite_dir(name: str) -> Path:
+    """The folder of simeval's suite `name`: simeval/pipelines/<name>/suite (one YAML spec per task, splits.yaml)."""
+    return PIPELINES_DIR / name / "suite"
+
+
+def suite_dirs() -> dict[str, Path]:
+    """{name: folder} of every suite simeval ships."""
+    return {p.parent.name: p for p in sorted(PIPELINES_DIR.glob("*/suite")) if p.is_dir()}
 
 
 def select_specs(specs: list[TaskSpec], tasks: list[str] | str | None = None, group: str = "all") -> list[TaskSpec]:

@@ -129,10 +129,10 @@ def dose_sources(dose: Dose, size: int, episodes: int, out: Path, workers: int) 
     from simeval.episodes.dataset import StoreSource
     from simeval.episodes.store import EpisodeStore
     from simeval.sim.rollout import RecordSettings
-    from simeval.sim.tasks.spec import SUITES_DIR, load_suite
+    from simeval.sim.tasks.spec import suite_dir, load_suite
 
     pipeline, task = dose.task
-    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    spec = next(s for s in load_suite(suite_dir(pipeline)) if s.name == task)
     store = EpisodeStore(out / "control_episodes")
     settings = RecordSettings(cameras=(dose.camera,), image_size=(size, size), robot_masks=True)
     data = {}
@@ -354,10 +354,10 @@ def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], marg
     from simeval.episodes.dataset import grow_masks
     from simeval.episodes.store import EpisodeStore
     from simeval.measures.dynamics_diversity.prediction import MOTION_THRESHOLD
-    from simeval.sim.tasks.spec import SUITES_DIR, check_variation, load_suite
+    from simeval.sim.tasks.spec import suite_dir, check_variation, load_suite
 
     pipeline, task = dose.task
-    spec = next(s for s in load_suite(SUITES_DIR / pipeline) if s.name == task)
+    spec = next(s for s in load_suite(suite_dir(pipeline)) if s.name == task)
     store = EpisodeStore(out / "control_episodes")
     shares: dict = {}
     for name, level in dose.levels.items():

@@ -288,7 +288,7 @@ def check_arguments(args) -> None:
         if len(set(args.task_names)) != len(args.task_names):
             fail(f"error: --task-names {' '.join(args.task_names)}: a task twice")
         args.tasks = len(args.task_names)
-    from simeval.tasks.gensim import SUBSTRING_GROUPS
+    from simeval.pipelines.gensim.tasks import SUBSTRING_GROUPS
 
     if args.group not in SUBSTRING_GROUPS.values():
         fail(f"error: --group {args.group}: GenSim's groups (the authors' substring rule) are "

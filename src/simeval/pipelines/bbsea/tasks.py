@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from simeval.tasks.records import Task, TaskSourceError, read_list, require_text
+from simeval.pipelines.task_records import Task, TaskSourceError, read_list, require_text
 
 PIPELINE = "bbsea"
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from simeval.tasks.gensim import grouped_tasks
-from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
+from simeval.pipelines.gensim.tasks import grouped_tasks
+from simeval.pipelines.task_records import Task, TaskSourceError, read_structured, require_text
 
 
 def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template: str = "{description}") -> list[Task]:

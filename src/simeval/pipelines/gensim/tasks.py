@@ -14,7 +14,7 @@ import ast
 import os
 from pathlib import Path
 
-from simeval.tasks.records import Task, TaskSourceError, read_structured, require_text
+from simeval.pipelines.task_records import Task, TaskSourceError, read_structured, require_text
 
 PIPELINE = "gensim"
 # Authors' rule: a task belongs to every group whose keyword is a substring of its registered name.

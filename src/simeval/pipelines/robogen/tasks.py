@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from simeval.tasks.records import Task, TaskSourceError, read_list, require_text
+from simeval.pipelines.task_records import Task, TaskSourceError, read_list, require_text
 
 PIPELINE = "robogen"
 DEFAULT_TEMPLATE = "{name}: {description}"
