@@ -20,7 +20,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.measures.text_diversity.table3 import run_record, tasks_fingerprint
     from simeval.results import RunFolder
-    from simeval.tasks import SourceNotConfigured, load_tasks, source_options
+    from simeval.pipelines.task_texts import SourceNotConfigured, load_tasks, source_options
 
     require_choice("on_missing_source", cfg.on_missing_source, ("error", "record"))
     require_folder("cache_dir", cfg.cache_dir)

@@ -24,7 +24,7 @@ def run(script, *args, env=None, cwd=ROOT, timeout=300):
 
 
 def _load_like_the_entrypoint(p):
-    from simeval.tasks import load_tasks
+    from simeval.pipelines.task_texts import load_tasks
 
     return load_tasks(p.name, p.source, root=p.root, grouped_file=p.grouped_file, tasks_path=p.tasks_path,
                       suite=p.suite, text_template=p.text_template, group_aliases=p.group_aliases)
@@ -33,7 +33,7 @@ def _load_like_the_entrypoint(p):
 def test_every_pipeline_config_loads_its_tasks_with_the_paper_groups(shared_data, tmp_path, monkeypatch):
     """Each shipped pipeline config, fed to the loader as src/text_diversity.py does, gives the paper's groups and
     text format (the config's aliases, templates and env sources are what make this true)."""
-    from simeval.tasks import groups_of, select_group
+    from simeval.pipelines.task_texts import groups_of, select_group
 
     bbsea = tmp_path / "bbsea.yaml"
     bbsea.write_text(yaml.safe_dump(["Open the drawer", "Put the red block in the bin"]))

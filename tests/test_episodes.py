@@ -331,7 +331,7 @@ def test_import_entrypoint_errors_are_one_line(tmp_path):
 
 
 def test_bbsea_task_folders_must_have_utf8_names(tmp_path):
-    from simeval.tasks import load_tasks
+    from simeval.pipelines.task_texts import load_tasks
     from simeval.pipelines.task_records import TaskSourceError
 
     os.makedirs(os.fsencode(tmp_path / "trajectory" / "0") + b"/Put the \xe9 block in the drawer")

@@ -6,7 +6,7 @@ import textwrap
 import pytest
 import yaml
 
-from simeval.tasks import SourceNotConfigured, TaskSourceError, groups_of, load_tasks, select_group
+from simeval.pipelines.task_texts import SourceNotConfigured, TaskSourceError, groups_of, load_tasks, select_group
 from simeval.pipelines.gensim.tasks import gensim_groups
 
 ALIASES = {"stack": "stacking", "place": "placement", "pile": "piles", "build": "assembling"}

@@ -22,7 +22,7 @@ from simeval.measures.text_diversity.metric import (
     vendi_leave_one_out,
     vendi_score,
 )
-from simeval.tasks import Task
+from simeval.pipelines.task_texts import Task
 
 
 def test_identical_embeddings_have_zero_diversity():

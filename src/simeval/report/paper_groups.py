@@ -1,6 +1,6 @@
 """One name per task group across sources, so Tables 4 and 5 put every run beside the paper's value.
 
-The paper (and the importers of real RoboGen/BBSEA task lists, simeval.tasks) call the table groups "table-top";
+The paper (and the importers of real RoboGen/BBSEA task lists, simeval.pipelines.task_texts) call the table groups "table-top";
 simeval's own suites call them `table_top` (RoboGen-style) and `table` (BBSEA-style), since a group name is typed
 on the command line (task_group=table_top). The tables key the paper's values by the suites' names; a run on
 imported episodes is matched through `suite_group`. Every other group has the same name everywhere."""

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from simeval.measures.text_diversity.metric import DiversityInputError, diversity_summary
-from simeval.tasks import ALL_GROUPS, Task, groups_of, select_group
+from simeval.pipelines.task_texts import ALL_GROUPS, Task, groups_of, select_group
 
 EACH = "each"
 log = logging.getLogger(__name__)
