@@ -189,3 +189,17 @@ def test_a_value_that_stood_still_in_training_and_moves_when_held_out_does_not_b
     assert unclipped["summary"]["model"] > 10 * clipped["summary"]["model"]
     with pytest.raises(UserError, match="feature_clip"):
         StateModelConfig(feature_clip=-1.0)
+
+
+def test_validation_stops_on_the_error_in_the_states_units_the_reading_reports():
+    """The stopping rule reads the validation error as the reading scores it (squared error in the state's own
+    units, summed over values, averaged over steps): checked against the kept model's own predictions by hand."""
+    from simeval.measures.dynamics_diversity.state_reading import _predict, fit_state_model
+
+    states, _ = _linear_group(False, n_episodes=12)
+    fit, val = [states[e] for e in range(8)], [states[e] for e in range(8, 12)]
+    net, norm, info = fit_state_model(fit, val, FAST, seed=0)
+    rows = [_steps(s, a, FAST.history) for s, a in val]
+    by_hand = np.mean(np.concatenate([((_predict(net, norm, cur, ch, act) - nxt) ** 2).sum(1)
+                                      for cur, ch, act, nxt in rows]))
+    assert info["val_loss"] == pytest.approx(by_hand, rel=1e-4)

@@ -28,7 +28,7 @@ error (model and baselines) sums over present values only, so a padded value cos
 
 Training budget: at most `max_steps` gradient steps for every episode count; every `eval_every` steps the error on
 validation episodes (the last `val_share` of each task's training episodes, held back from the gradient; never an
-evaluated one) is read, and training stops once it has not improved by 1% for `patience` reads; the model of the
+evaluated one) is read, in the state's units as the reading's error, and training stops once it has not improved by 1% for `patience` reads; the model of the
 best read is kept and `steps_used` recorded. R training seeds give per-episode sums (R, E) for intervals and the
 gate (simeval.measures.dynamics_diversity.gate) against the last and the mean state (GATED says why not constant
 velocity).
@@ -50,6 +50,8 @@ from torch import nn
 from simeval.errors import UserError, require_whole, require_whole_fields, settings_from_dict
 from simeval.measures.dynamics_diversity.gate import GateConfig, gate
 
+# 2: validation read in the state's units (1 read it in normalised units; the random controls' saved runs say which)
+VERSION = 2
 BASELINES = ("last_state", "mean_state", "constant_velocity")
 # what the gate requires the model to beat: the analogues of the pixel reading's last frame and mean image. Not
 # constant velocity: where each episode's dynamics are drawn anew (a diverse group) no model trained on other
@@ -245,6 +247,10 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
     norm = _Norm.fit(train, cfg.feature_clip)
     x, y, mask = _tensors(train, norm, cfg.history)
     xv, yv, mask_v = _tensors(val, norm, cfg.history)
+    # validation reads the error in the state's own units, as the reading reports it: in normalised units a value
+    # that barely moved in training (tiny sd) and moves in a validation episode outweighs everything else, and
+    # stopping then follows that one episode (BBSEA table, 40 episodes: best at step 50 of 550, a val loss of 10^4)
+    scale = torch.as_tensor(norm.sd, dtype=torch.float32)
     torch.manual_seed(seed)
     net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
@@ -259,7 +265,7 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
         step += 1
         if step % cfg.eval_every == 0 or step == cfg.max_steps:
             with torch.no_grad():
-                v = float((net(xv) * mask_v - yv).pow(2).sum(1).mean())
+                v = float(((net(xv) * mask_v - yv) * scale).pow(2).sum(1).mean())
             curve.append([step, v])
             if v < best * 0.99:
                 best, best_state, best_step, since = v, {k: t.clone() for k, t in net.state_dict().items()}, step, 0
@@ -366,7 +372,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
             f"{summary['skill_vs_constant_velocity']:.2f}), {dims} dims{padding}, {len(models)} seeds")
-    return {"dims": int(dims), "padded_from": layouts or None, "summary": summary, "per_episode": per_episode,
+    return {"version": VERSION, "dims": int(dims), "padded_from": layouts or None, "summary": summary,
+            "per_episode": per_episode,
             "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line}

@@ -82,8 +82,10 @@ def protocol(conf_dir: Path) -> dict:
 
 def settings(args) -> dict:
     """What a saved run's numbers depend on besides its draw, group, reading and seed."""
+    from simeval.measures.dynamics_diversity.state_reading import VERSION as STATE_VERSION
+
     return {"preset": args.preset, "episodes": args.episodes, "protocol": protocol(args.conf_dir), "tasks": N_TASKS,
-            "actions": N_ACTIONS, "heldout": list(HELDOUT)}
+            "actions": N_ACTIONS, "heldout": list(HELDOUT), "state_version": STATE_VERSION}
 
 
 def relevant(settings: dict, reading: str) -> dict:
@@ -95,7 +97,7 @@ def relevant(settings: dict, reading: str) -> dict:
         proto = {k: proto.get(k) for k in ("eval_episodes", "gate", "state_model")}
         return {**{k: v for k, v in settings.items() if k != "preset"}, "protocol": proto}
     proto.pop("state_model", None)
-    return {**settings, "protocol": proto}
+    return {**{k: v for k, v in settings.items() if k != "state_version"}, "protocol": proto}
 
 
 def group_source(draw_seed: int, group: str, size: int):
