@@ -65,18 +65,18 @@ def test_config_mistakes_are_user_errors():
 
 def test_fall_verdicts():
     reads = {10: {"passes": True}, 40: {"passes": True}}
-    # errors of 10 at 10 episodes: "no fall" needs an interval within +-0.5 (the gate's margin, 5% of 10)
-    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5), "mean": (0.2, 1.0)}, reads, 10.0) == "falls"
-    # the mean image fell as much, to within 5%: the model's fall is what any predictor trained on more would show
-    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5), "mean": (-0.2, 0.4)}, reads, 10.0) == "no fall"
-    assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-1.5, -0.5)}, reads, 10.0) == "rises"
-    assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.3, 0.4)}, reads, 10.0) == "no fall"
-    # an interval that contains 0 and reaches past +-0.5 cannot tell a fall from none
-    wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.3, 2.0), "mean": (-1.0, 2.0)}, reads, 10.0)
+    # errors of 10 at 10 episodes: "no fall" needs the fall within +-0.5 (5% of 10) or a skill's rise within +-0.05
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (0.02, 0.1)}, reads, 10.0) == "falls"
+    # the skill against the mean image did not rise, to within 0.05: the fall is the mean image's own change
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (-0.02, 0.04)}, reads, 10.0) == "no fall"
+    assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-0.15, -0.05)}, reads, 10.0) == "rises"
+    assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.03, 0.04)}, reads, 10.0) == "no fall"
+    # intervals that contain 0 and reach past both bounds cannot tell a fall from none
+    wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.03, 0.2), "mean": (-0.1, 0.2)}, reads, 10.0)
     assert wide.startswith("no reading: too wide") and "+-0.05 of the error at 10 episodes, 0.5" in wide
-    assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.3, 0.4)}, reads, 1.0).startswith("no reading: too wide")
+    assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.03, 0.4)}, reads, 1.0).startswith("no reading: too wide")
     gated = {10: {"passes": False, "verdict": "no reading: the model does not beat the last frame"}, 40: reads[40]}
-    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.5, 1.5)}, gated, 10.0) == \
+    assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15)}, gated, 10.0) == \
         "no reading: the model does not beat the last frame at 10 episodes"
 
 

@@ -568,3 +568,37 @@ def test_object_skill_against_a_copy_needs_something_outside_the_robot_to_move()
     gated = np.isnan(reps["one_step_object_skill_last"])
     assert gated.any() and not gated.all()
     np.testing.assert_allclose(reps["one_step_object_skill_last"][~gated], -1.0)
+
+
+def _state_reading(model_error: float, mean_error: float, spread: float, seed: int = 0) -> dict:
+    """A state reading of 2 tasks x 10 held-out episodes of 20 steps, 3 seeds: per-step model error around
+    `model_error` (episodes vary by +-`spread`), last state 1.0, mean state `mean_error`."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for e in range(20):
+        wobble = 1 + spread * (rng.uniform(-1, 1))
+        rows.append({"task": "ab"[e % 2], "index": e, "frames": 20,
+                     "model": [20 * model_error * wobble * (1 + 0.01 * s) for s in range(3)],
+                     "last_state": 20.0, "mean_state": 20 * mean_error, "constant_velocity": 20.0})
+    return {"per_episode": rows, "gate": {"passes": True, "verdict": "reads"}}
+
+
+def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
+    from simeval.measures.dynamics_diversity.table4_heldout import state_fall
+
+    # 0.5 -> 0.2 per step, the mean state unchanged: a fall of 0.3 beyond both baselines' change
+    out = state_fall(_state_reading(0.5, 2.0, 0.1), _state_reading(0.2, 2.0, 0.1, seed=1), 10, 40)
+    assert out["state_fall_verdict"] == "falls"
+    assert out["state_drop"] == pytest.approx(0.5 * 1.01 - 0.2 * 1.01, abs=0.02)
+    assert out["state_drop_lo"] < out["state_drop"] < out["state_drop_hi"]
+    # the same error at both counts, episodes that barely vary: an interval within +-5% of 0.5
+    assert state_fall(_state_reading(0.5, 2.0, 0.01), _state_reading(0.5, 2.0, 0.01), 10, 40)[
+        "state_fall_verdict"] == "no fall"
+    # episodes that vary by +-90%: the interval reaches past +-0.025 and cannot tell
+    wide = state_fall(_state_reading(0.5, 2.0, 0.9), _state_reading(0.5, 2.0, 0.9, seed=1), 10, 40)
+    assert wide["state_fall_verdict"].startswith("no reading: too wide")
+    gated = {**_state_reading(0.2, 2.0, 0.1), "gate": {"passes": False, "verdict": "no reading: the model does not "
+                                                        "beat the last state"}}
+    assert state_fall(_state_reading(0.5, 2.0, 0.1), gated, 10, 40)["state_fall_verdict"] == \
+        "no reading: the model does not beat the last state at 40 episodes"
+    assert state_fall(None, _state_reading(0.2, 2.0, 0.1), 10, 40) == {}

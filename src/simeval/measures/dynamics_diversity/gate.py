@@ -147,34 +147,41 @@ def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig(
     return gate(arrays["model"], {"last": arrays["last"], "mean": arrays["mean"]}, [t for t, _ in order], cfg)
 
 
-def fall_verdict(model_fall: tuple[float, float, float], baseline_excess: dict[str, tuple[float, float]],
+def fall_verdict(model_fall: tuple[float, float, float], skill_rise: dict[str, tuple[float, float]],
                  gates: dict[int, dict], first_error: float, margin: float = GateConfig.margin) -> str:
     """Whether a fall of the error from the fewest to the most training episodes is read: `model_fall` (point, lo,
-    hi) of error_first - error_last; `baseline_excess` {baseline: (lo, hi)} the interval of the model's fall minus
-    that baseline's own fall on the same resamples (the mean image changes with the training episodes; a copy of
-    the last frame does not); `gates` {count: gate} of each count; `first_error` the model's error at the fewest.
+    hi) of error_first - error_last; `skill_rise` {baseline: (lo, hi)} the interval of the model's skill against
+    that baseline at the most episodes minus at the fewest (1 - error / baseline error, on the same resamples: a
+    fall beyond what the baseline's own change gives, at any scale; the mean image or mean state changes with the
+    training episodes, a copy of the last frame or state does not); `gates` {count: gate} of each count;
+    `first_error` the model's error at the fewest.
 
         "no reading: ... at k episodes"   a count is gated
-        "falls" / "rises"                 the fall's interval and every excess's exclude zero on the same side
-        "no fall"                         the fall's interval, or one baseline's excess's, lies within
-                                          +-margin * first_error: no change, or none beyond what that baseline's
-                                          own change gives, to within the gate's margin
+        "falls" / "rises"                 the fall's interval and every skill rise's exclude zero on the same side
+        "no fall"                         the fall's interval lies within +-margin * first_error, or one baseline's
+                                          skill rise within +-margin: no change, or none beyond that baseline's
+                                          own, to within the gate's margin
         "no reading: too wide ..."        otherwise: an interval that contains zero and reaches past the margin
-                                          cannot tell a fall from none (as the random controls' "too wide")"""
+                                          cannot tell a fall from none (as the random controls' "too wide")
+
+    Why skills and not differences of errors: a baseline far worse than the model (a mean state with 40x its error)
+    changes by more than the model's whole error when the training episodes change its mean, so a difference of
+    falls would call any fall of a good model "no fall"; the skill compares the two at their own scales."""
     for k in sorted(gates):
         if not gates[k]["passes"]:
             return f"{gates[k]['verdict']} at {k} episodes"
     _, lo, hi = model_fall
-    excess = list(baseline_excess.values())
-    if lo > 0 and all(e[0] > 0 for e in excess):
+    rises = list(skill_rise.values())
+    if lo > 0 and all(r[0] > 0 for r in rises):
         return "falls"
-    if hi < 0 and all(e[1] < 0 for e in excess):
+    if hi < 0 and all(r[1] < 0 for r in rises):
         return "rises"
     bound = margin * abs(first_error)
-    if any(-bound <= a and b <= bound for a, b in [(lo, hi), *excess]):
+    if -bound <= lo and hi <= bound or any(-margin <= a and b <= margin for a, b in rises):
         return "no fall"
-    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its excess over a baseline's "
-            f"change contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g})")
+    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its skill's rise against a "
+            f"baseline contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g}, "
+            f"or +-{margin:g} of skill)")
 
 
 def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:

@@ -178,21 +178,59 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
                 row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
                 row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
                     reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
-            # the primary number's fall, read only where both counts pass the gate and the fall exceeds what the
-            # baselines' own change gives on the same resamples (the mean image changes with the training episodes)
-            fall = reps_by_k[lo][PRIMARY] - reps_by_k[hi][PRIMARY]
-            excess = {b: resample.percentile(fall - (reps_by_k[lo][f"{PRIMARY}_{b}"] - reps_by_k[hi][f"{PRIMARY}_{b}"]))
-                      for b in ("last", "mean")}
+            # the primary number's fall, read only where both counts pass the gate and its skill against each
+            # baseline rises on the same resamples (the mean image changes with the training episodes)
+            rise = {b: resample.percentile(1 - reps_by_k[hi][PRIMARY] / reps_by_k[hi][f"{PRIMARY}_{b}"]
+                                           - (1 - reps_by_k[lo][PRIMARY] / reps_by_k[lo][f"{PRIMARY}_{b}"]))
+                    for b in ("last", "mean")}
             row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
-                                                row[f"drop_{PRIMARY}_hi"]), excess, {k: gates[k] for k in (lo, hi)},
+                                                row[f"drop_{PRIMARY}_hi"]), rise, {k: gates[k] for k in (lo, hi)},
                                                row[f"{PRIMARY}_{lo}"], gate_cfg.margin)
+            row.update(state_fall(by_k[lo][0]["values"].get("state"), by_k[hi][0]["values"].get("state"), lo, hi,
+                                  n_boot, seed, gate_cfg))
         rows.append(row)
     return rows
 
 
+def _state_sums(state: dict) -> tuple[list, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """(episode keys, model (R, E), frames (R, E), {baseline: (R, E)}) of a state reading's per-episode sums."""
+    rows = sorted(state["per_episode"], key=lambda r: (r["task"], int(r["index"])))
+    n_seeds = len(rows[0]["model"])
+    model = np.array([[r["model"][s] for r in rows] for s in range(n_seeds)], float)
+    frames = np.tile([float(r["frames"]) for r in rows], (n_seeds, 1))
+    bases = {b: np.tile([float(r[b]) for r in rows], (n_seeds, 1)) for b in ("last_state", "mean_state")}
+    return [(r["task"], int(r["index"])) for r in rows], model, frames, bases
+
+
+def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: int = 2000, seed: int = 0,
+               gate_cfg: GateConfig = GateConfig()) -> dict:
+    """The state reading's fall from `lo` to `hi` training episodes, read as the pixels' (fall_verdict): the
+    one-step state error per step, resampled over the state model's seeds and, within task, the held-out episodes,
+    the same draws at both counts (the same episodes); its skill's rise against the last state (which does not
+    train) and the task mean state. {} where either count has no state reading or they scored other episodes."""
+    if not first or not last or not first.get("per_episode") or not last.get("per_episode"):
+        return {}
+    (keys_a, model_a, frames_a, bases_a), (keys_b, model_b, frames_b, bases_b) = _state_sums(first), _state_sums(last)
+    if keys_a != keys_b or model_a.shape != model_b.shape:
+        return {}
+    draws = resample.draws(model_a.shape[0], [t for t, _ in keys_a], n_boot, seed)
+    error = {k: resample.replicates(m, f, draws) for k, m, f in ((lo, model_a, frames_a), (hi, model_b, frames_b))}
+    fall = error[lo] - error[hi]
+    rise = {b: resample.percentile(error[lo] / resample.replicates(bases_a[b], frames_a, draws)
+                                   - error[hi] / resample.replicates(bases_b[b], frames_b, draws))
+            for b in ("last_state", "mean_state")}
+    point = resample.ratio(model_a, frames_a) - resample.ratio(model_b, frames_b)
+    lo_hi = resample.percentile(fall)
+    gates = {k: state["gate"] for k, state in ((lo, first), (hi, last))}
+    verdict = fall_verdict((point, *lo_hi), rise, gates, resample.ratio(model_a, frames_a), gate_cfg.margin)
+    return {"state_drop": point, "state_drop_lo": lo_hi[0], "state_drop_hi": lo_hi[1],
+            "state_fall_verdict": verdict}
+
+
 ROW_KEY = ("pipeline", "group", "preset", "steps")
 REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
-TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict")  # fall_verdict: rows written before the gate have none
+# fall_verdict: rows written before the gate have none; state_fall_verdict: rows without a state reading
+TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict")
 
 
 def is_text(column: str) -> bool:
@@ -295,7 +333,8 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
               "object-focused one-step (x1e-3/pixel)",
               "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
               "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
-              "reconstruction", "state reading (one-step state error; skill vs last state / constant velocity)"]
+              "reconstruction", "state reading (one-step state error; skill vs last state / constant velocity)",
+              "its fall first->last"]
     moving = has_moving(rows)
     if moving:
         header += ["moving pixels (% of kept: one step / open loop)", "moving-pixel one-step (x1e-3/pixel)",
@@ -315,7 +354,7 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
                          _fall(r, counts) if i == 0 else "",
                          _ci(r, f"one_step_{k}", 1), _ci(r, f"one_step_skill_last_{k}", 2),
                          _ci(r, f"open_loop_{k}", 1), _ci(r, f"open_loop_skill_last_{k}", 2),
-                         _ci(r, f"reconstruction_{k}", 1), _state(r, k)]
+                         _ci(r, f"reconstruction_{k}", 1), _state(r, k), _state_fall(r) if i == 0 else ""]
                         + ([_shares(r, k), _milli(r, f"one_step_moving_{k}"),
                             _ci(r, f"one_step_moving_skill_last_{k}", 2),
                             _milli(r, "drop_one_step_moving") if i == 0 else "",
@@ -337,6 +376,19 @@ def _fall(row: dict, counts: list[int]) -> str:
         return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
         return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
+    return number if verdict in ("falls", "rises") else f"no fall: {number}"
+
+
+def _state_fall(row: dict) -> str:
+    """The state reading's fall first -> last count, where it is read ('—' for rows without one)."""
+    verdict = row.get("state_fall_verdict")
+    if not verdict:
+        return "—"
+    if verdict.startswith("no reading: too wide"):
+        return "no reading (interval too wide)"
+    if verdict.startswith("no reading"):
+        return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
+    number = _ci({f"v{s}": row[f"state_drop{s}"] for s in ("", "_lo", "_hi")}, "v", 4)
     return number if verdict in ("falls", "rises") else f"no fall: {number}"
 
 
@@ -379,9 +431,10 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "error (< 0: worse than the baseline). Gate (simeval.measures.dynamics_diversity.gate): a count reads only where the "
             f"object-focused one-step skill is >= {GateConfig.margin:g} against both the last frame and the mean "
             "image with its interval above 0, for the group and each task; elsewhere its number is 'no reading'. "
-            "A fall is read only where both counts read and its interval, and that of its excess over each "
-            f"baseline's own change, exclude 0; 'no fall' only where one of them lies within +-{GateConfig.margin:g} "
-            "of the error at the fewest episodes, else 'no reading (interval too wide)'.")
+            "A fall (pixels and states alike) is read only where both counts read, its interval excludes 0 and its "
+            "skill against each baseline rises (interval above 0: more than the baseline's own change); 'no fall' "
+            f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
+            f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'.")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
@@ -408,12 +461,30 @@ def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
     return f" ({'; '.join(reasons)})" if reasons else ""
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
+    """A row's state reading against training episodes: the model's one-step error (hollow where its count fails
+    the state gate) beside the last state (dash-dot) and the task mean state (dashed)."""
+    have = [k for k in ks if _number(r.get(f"state_model_{k}"))]
+    ax.plot(have, [r[f"state_model_{k}"] for k in have], "-", color=color, lw=1)
+    for k in have:
+        ax.plot([k], [r[f"state_model_{k}"]], marker=marker, ms=6, color=color,
+                mfc=color if r.get(f"state_gate_passes_{k}") else "white")
+    for base, ls, alpha in (("last_state", "-.", 1.0), ("mean_state", "--", 0.5)):
+        ax.plot(have, [r[f"state_{base}_{k}"] for k in have], ls, marker=marker, ms=3, lw=0.9, color=color,
+                alpha=alpha, label=f"{name}: {base.replace('_', ' ')}")
+
+
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     """Per row, against training episodes: the object-focused one-step error per kept pixel (the primary number;
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
     same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
     error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
-    model predicts of the motion outside the robot; a row without a skill reading says why in its key). A row has one
+    model predicts of the motion outside the robot; a row without a skill reading says why in its key) and, where any
+    row has one, the state reading's one-step error beside the last and the mean state (last panel). A row has one
     colour and one marker shape in every panel, a reading one line style; in the right panel an interval far wider
     than the points' spread is cut at the edge and named in its title (simeval.report.figures.cut_wide_intervals).
     Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the
@@ -442,9 +513,10 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
 
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
+    stated = [r for r in rows if any(_number(r.get(f"state_model_{c}")) for c in r["counts"].split("/"))]
+    n_panels = 3 + bool(moving) + bool(stated)
     # keys below the panels: inside, the first panel's covered its own baselines' lines
-    fig, axes = plt.subplots(1, 4 if moving else 3, figsize=(20 if moving else 15, 6.4),
-                             layout="constrained")
+    fig, axes = plt.subplots(1, n_panels, figsize=(5 * n_panels, 6.4), layout="constrained")
     ax1, ax2, ax3 = axes[:3]
     n_gated = 0  # rows with a count that fails the gate (simeval.measures.dynamics_diversity.gate)
     row_keys, moving_drawn = [], []  # one key per row for the whole figure (below); the moving panel's lines
@@ -474,6 +546,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                 drawn.append(bars(axes[3], r, "open_loop_moving_skill_last", ks, ":", color, marker,
                                   f"{name}: open loop", hollow=True, shift=1.04))
             moving_drawn += [(name, *d) for d in drawn if d is not None]
+        if r in stated:
+            _state_panel(axes[-1], r, ks, color, marker, name)
     # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
     ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
             title="object-focused one-step error (primary; model: 95% CI)")
@@ -502,6 +576,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         axes[3].set(ylabel="skill vs last frame (1 - model / baseline)",
                     title="moving pixels: skill vs the last frame"
                     + ("\n(intervals cut: " + "; ".join(cut) + ")" if cut else ""))
+    if stated:
+        axes[-1].set(ylabel="one-step state error per step (state units, log scale)", yscale="log",
+                     title="state reading: one-step state error\n(hollow: gated; baselines dashed)")
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
     for ax in axes:
         ax.set(xlabel="training episodes per task", xscale="log")
@@ -514,16 +591,17 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                   Line2D([], [], color="0.3", marker="o", ms=5, mfc="white", ls=":",
                          label="model, open loop (skill panels)"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="-.",
-                         label="last-frame baseline (left panel)"),
+                         label="last-frame / last-state baseline"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
-                         label="mean-image baseline (left panel)")]
+                         label="mean-image / mean-state baseline")]
     fig.legend(handles=row_keys, loc="outside lower left", ncol=-(-len(row_keys) // 4), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False, handlelength=4,
                title="reading (line style)", title_fontsize=8, alignment="left")
-    fig.suptitle(title + (f"\n{n_gated} of {len(rows)} rows have counts that fail the gate ([no reading at ...]: "
-                          "the model does not beat the last frame or the mean image; their numbers read nothing)"
-                          if n_gated else ""), fontsize=10)
+    fig.suptitle(title + (f"\n{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([no reading at ...]:"
+                          " the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
+                          if n_gated else "") + ("; the state reading (right) has its own gate" if stated else ""),
+                 fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
     return out
