@@ -249,7 +249,8 @@ def stop_sweep_on_user_errors(results: Any) -> None:
 
     if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the job raised the original error: Hydra shows its traceback
         return
-    lines = [str(r._return_value) for r in results  # the exception itself: `return_value` would raise it
+    # JobReturn._return_value is the exception itself: `return_value` re-raises it and Hydra 1.3 has no accessor
+    lines = [str(r._return_value) for r in results
              if r.status == JobStatus.FAILED and isinstance(r._return_value, UserError)]
     if lines:
         for line in dict.fromkeys(lines):
@@ -494,7 +495,9 @@ def _one_line_composition_errors() -> None:
     """Hydra prints a config it could not compose (an override of a key the config lacks, a value of the wrong
     type) as a block and exits 1, in its `run_and_report`, which `hydra.main` looks up at call time. Wrapped here,
     a composition error becomes one `error:` line and exit 2 like every other user error; anything else reaches
-    Hydra's own printer unchanged. HYDRA_FULL_ERROR=1 keeps Hydra's traceback."""
+    Hydra's own printer unchanged. HYDRA_FULL_ERROR=1 keeps Hydra's traceback. Why a patch and not a hook: Hydra 1.3
+    composes the config before any Callback or plugin runs (on_run_start already receives the composed config), so
+    no documented hook sees a composition error."""
     import hydra._internal.utils as hydra_utils
     from hydra.errors import ConfigCompositionException
 
