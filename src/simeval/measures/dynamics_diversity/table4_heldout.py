@@ -489,7 +489,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     than the points' spread is cut at the edge and named in its title (simeval.report.figures.cut_wide_intervals).
     Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the
     same bytes. The first panel has a log scale (its baselines span four decades), the second a symmetric log one
-    (skills from 1 to -800)."""
+    (skills from 1 to -800). Long because it is one figure drawn panel by panel: every panel shares the rows'
+    colours and markers and the figure-wide keys, and each axis setting sits beside the reason it was needed."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -389,7 +389,8 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     of at most GROUPS_PER_ROW groups), successes/rollouts under each interval (in a band below 0, COUNT_BAND, clear
     of the intervals and of the paper's line) and the paper's value as a dashed line
     over its group; where that value is a step-wise reward (GenSim), the eval split's mean progress as an open
-    diamond beside the eval success. Written as `path` with each suffix of `formats`."""
+    diamond beside the eval success. Written as `path` with each suffix of `formats`. Long because it is one figure
+    drawn panel by panel, its bands, labels and keys placed against each other."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -471,6 +471,8 @@ def replot(control: str, out: Path, overwrite: bool) -> Path:
 
 
 def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
+    """The fixed controls' command line (src/controls.py <control>). Long because it declares one option per line
+    and checks each before anything runs."""
     ap = OneLineParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("control", choices=sorted(CONDITIONS))
