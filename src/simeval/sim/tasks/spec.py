@@ -368,79 +368,87 @@ def check_variation(specs: list[TaskSpec], variation: dict | None) -> dict:
         if unknown:
             what = "the robot" if name == "robot" else "the scene" if name == "scene" else "an object"
             raise SpecError(f"{key}: unknown knob(s) {unknown}; valid for {what}: {', '.join(allowed)}")
-        if name == "robot":
-            noise = knobs.get("home_noise", 0.0)
-            if isinstance(noise, bool) or not isinstance(noise, (int, float)) or noise < 0:
-                raise SpecError(f"{key}.home_noise: expected radians >= 0, got {noise!r}")
-            out[name] = dict(knobs)
-            continue
-        if name == "scene":
-            if knobs.get("initial_state", "random") not in INITIAL_STATES:
-                raise SpecError(f"{key}.initial_state: expected one of {', '.join(INITIAL_STATES)}, "
-                                f"got {knobs['initial_state']!r}")
-            pr = knobs.get("pose_range", 1.0)
-            if isinstance(pr, bool) or not isinstance(pr, (int, float)) or not 0 <= pr <= 1:
-                raise SpecError(f"{key}.pose_range: expected a fraction in [0, 1] (0: every episode the task's "
-                                f"one anchor layout, 1: poses uniform over the regions as usual), got {pr!r}")
-            out[name] = dict(knobs)
-            continue
-        if not any(name == o.name for s in specs for o in s.objects):
-            if len(specs) == 1:
-                raise SpecError(f"{key}: task {specs[0].name} has no object '{name}'; its objects: "
-                                f"{', '.join(o.name for o in specs[0].objects)} (and robot)")
-            per_task = "; ".join(f"{s.name}: {', '.join(o.name for o in s.objects)}" for s in specs)
-            raise SpecError(f"{key}: none of the tasks has an object '{name}'; their objects (and robot): {per_task}")
-        knobs = dict(knobs)
-        if "colors" in knobs:
-            colors = [knobs["colors"]] if isinstance(knobs["colors"], str) else knobs["colors"]
-            if not isinstance(colors, list) or not colors or any(c not in COLORS for c in colors):
-                raise SpecError(f"{key}.colors: expected a list of colours from {', '.join(COLORS)}, "
-                                f"got {knobs['colors']!r}")
-            knobs["colors"] = list(colors)
-        if "count" in knobs:
-            c = knobs["count"]
-            whole = lambda x: isinstance(x, int) and not isinstance(x, bool)  # noqa: E731
-            pair = (c, c) if whole(c) else c
-            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(map(whole, pair))
-                    and 0 <= pair[0] <= pair[1]):
-                raise SpecError(f"{key}.count: expected a count >= 0 or [low, high] with 0 <= low <= high, got {c!r}")
-        if "scale" in knobs:
-            sc = knobs["scale"]
-            pair = (sc, sc) if isinstance(sc, (int, float)) and not isinstance(sc, bool) else sc
-            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair) and 0.5 <= pair[0] <= pair[1] <= 1.5):
-                raise SpecError(f"{key}.scale: expected a factor or [low, high] within [0.5, 1.5], got {sc!r}")
-            knobs["scale"] = [float(pair[0]), float(pair[1])]
-        if "joint_init_noise" in knobs:
-            jn = knobs["joint_init_noise"]
-            if isinstance(jn, bool) or not isinstance(jn, (int, float)) or not 0 <= jn <= 0.5:
-                raise SpecError(f"{key}.joint_init_noise: expected a fraction in [0, 0.5], got {jn!r}")
-        if "size" in knobs:
-            sz = knobs["size"]
-            if not (isinstance(sz, (list, tuple)) and len(sz) == 3
-                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
-                raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
-            knobs["size"] = [float(x) for x in sz]
-        if "friction" in knobs:
-            fr = knobs["friction"]
-            pair = (fr, fr) if isinstance(fr, (int, float)) and not isinstance(fr, bool) else fr
-            if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair)
-                    and 0 < pair[0] <= pair[1] <= 2):
-                raise SpecError(f"{key}.friction: expected a coefficient or [low, high] with 0 < low <= high <= 2, "
-                                f"got {fr!r}")
-            knobs["friction"] = [float(pair[0]), float(pair[1])]
-            if not any(o.name == name and o.shape in LOOSE for s in specs for o in s.objects):
-                raise SpecError(f"{key}: friction applies to loose objects ({', '.join(LOOSE)}) only")
-        if "joint_init_noise" in knobs and not any(
-                o.name == name and o.shape in JOINTED for s in specs for o in s.objects):
-            raise SpecError(f"{key}: joint_init_noise applies to articulated objects ({', '.join(JOINTED)}) only")
-        if "scale" in knobs and not any(
-                o.name == name and o.shape in ARTICULATED for s in specs for o in s.objects):
-            raise SpecError(f"{key}: scale applies to articulated objects "
-                            f"({', '.join(ARTICULATED)}) only")
-        out[name] = knobs
+        check = {"robot": _robot_knobs, "scene": _scene_knobs}.get(name)
+        out[name] = check(key, knobs) if check else _object_knobs(specs, name, key, knobs)
     return out
+
+
+def _robot_knobs(key: str, knobs: dict) -> dict:
+    noise = knobs.get("home_noise", 0.0)
+    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or noise < 0:
+        raise SpecError(f"{key}.home_noise: expected radians >= 0, got {noise!r}")
+    return dict(knobs)
+
+
+def _scene_knobs(key: str, knobs: dict) -> dict:
+    if knobs.get("initial_state", "random") not in INITIAL_STATES:
+        raise SpecError(f"{key}.initial_state: expected one of {', '.join(INITIAL_STATES)}, "
+                        f"got {knobs['initial_state']!r}")
+    pr = knobs.get("pose_range", 1.0)
+    if isinstance(pr, bool) or not isinstance(pr, (int, float)) or not 0 <= pr <= 1:
+        raise SpecError(f"{key}.pose_range: expected a fraction in [0, 1] (0: every episode the task's "
+                        f"one anchor layout, 1: poses uniform over the regions as usual), got {pr!r}")
+    return dict(knobs)
+
+
+def _object_knobs(specs: list[TaskSpec], name: str, key: str, knobs: dict) -> dict:
+    """An object's knobs checked against the objects of that name in `specs`, normalised."""
+    if not any(name == o.name for s in specs for o in s.objects):
+        if len(specs) == 1:
+            raise SpecError(f"{key}: task {specs[0].name} has no object '{name}'; its objects: "
+                            f"{', '.join(o.name for o in specs[0].objects)} (and robot)")
+        per_task = "; ".join(f"{s.name}: {', '.join(o.name for o in s.objects)}" for s in specs)
+        raise SpecError(f"{key}: none of the tasks has an object '{name}'; their objects (and robot): {per_task}")
+    knobs = dict(knobs)
+    if "colors" in knobs:
+        colors = [knobs["colors"]] if isinstance(knobs["colors"], str) else knobs["colors"]
+        if not isinstance(colors, list) or not colors or any(c not in COLORS for c in colors):
+            raise SpecError(f"{key}.colors: expected a list of colours from {', '.join(COLORS)}, "
+                            f"got {knobs['colors']!r}")
+        knobs["colors"] = list(colors)
+    if "count" in knobs:
+        c = knobs["count"]
+        whole = lambda x: isinstance(x, int) and not isinstance(x, bool)  # noqa: E731
+        pair = (c, c) if whole(c) else c
+        if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(map(whole, pair))
+                and 0 <= pair[0] <= pair[1]):
+            raise SpecError(f"{key}.count: expected a count >= 0 or [low, high] with 0 <= low <= high, got {c!r}")
+    if "scale" in knobs:
+        sc = knobs["scale"]
+        pair = (sc, sc) if isinstance(sc, (int, float)) and not isinstance(sc, bool) else sc
+        if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair) and 0.5 <= pair[0] <= pair[1] <= 1.5):
+            raise SpecError(f"{key}.scale: expected a factor or [low, high] within [0.5, 1.5], got {sc!r}")
+        knobs["scale"] = [float(pair[0]), float(pair[1])]
+    if "joint_init_noise" in knobs:
+        jn = knobs["joint_init_noise"]
+        if isinstance(jn, bool) or not isinstance(jn, (int, float)) or not 0 <= jn <= 0.5:
+            raise SpecError(f"{key}.joint_init_noise: expected a fraction in [0, 0.5], got {jn!r}")
+    if "size" in knobs:
+        sz = knobs["size"]
+        if not (isinstance(sz, (list, tuple)) and len(sz) == 3
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in sz)):
+            raise SpecError(f"{key}.size: expected [x, y, z] in metres, each > 0, got {sz!r}")
+        knobs["size"] = [float(x) for x in sz]
+    if "friction" in knobs:
+        fr = knobs["friction"]
+        pair = (fr, fr) if isinstance(fr, (int, float)) and not isinstance(fr, bool) else fr
+        if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in pair)
+                and 0 < pair[0] <= pair[1] <= 2):
+            raise SpecError(f"{key}.friction: expected a coefficient or [low, high] with 0 < low <= high <= 2, "
+                            f"got {fr!r}")
+        knobs["friction"] = [float(pair[0]), float(pair[1])]
+        if not any(o.name == name and o.shape in LOOSE for s in specs for o in s.objects):
+            raise SpecError(f"{key}: friction applies to loose objects ({', '.join(LOOSE)}) only")
+    if "joint_init_noise" in knobs and not any(
+            o.name == name and o.shape in JOINTED for s in specs for o in s.objects):
+        raise SpecError(f"{key}: joint_init_noise applies to articulated objects ({', '.join(JOINTED)}) only")
+    if "scale" in knobs and not any(
+            o.name == name and o.shape in ARTICULATED for s in specs for o in s.objects):
+        raise SpecError(f"{key}: scale applies to articulated objects "
+                        f"({', '.join(ARTICULATED)}) only")
+    return knobs
 
 
 def scene_seed(spec: TaskSpec, seed: int, variation: dict | None = None) -> int:
