@@ -372,6 +372,11 @@ def _fall(row: dict, counts: list[int]) -> str:
         if gated:
             return f"no reading (gated at {gated[0]} episodes)"
         return f"{number} (baselines' change not checked)"
+    return _fall_text(verdict, number)
+
+
+def _fall_text(verdict: str, number: str) -> str:
+    """A fall verdict (gate.fall_verdict) as a table cell: the number where it is read."""
     if verdict.startswith("no reading: too wide"):
         return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
@@ -384,12 +389,7 @@ def _state_fall(row: dict) -> str:
     verdict = row.get("state_fall_verdict")
     if not verdict:
         return "—"
-    if verdict.startswith("no reading: too wide"):
-        return "no reading (interval too wide)"
-    if verdict.startswith("no reading"):
-        return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
-    number = _ci({f"v{s}": row[f"state_drop{s}"] for s in ("", "_lo", "_hi")}, "v", 4)
-    return number if verdict in ("falls", "rises") else f"no fall: {number}"
+    return _fall_text(verdict, _ci({f"v{s}": row.get(f"state_drop{s}") for s in ("", "_lo", "_hi")}, "v", 4))
 
 
 def _state(row: dict, k: int) -> str:
