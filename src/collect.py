@@ -11,7 +11,8 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import CollectConfig, check_bounds
 
 log = logging.getLogger("collect")
 
@@ -23,7 +24,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import pipeline_class
     from simeval.results import RunFolder
 
-    require_whole_keys(cfg, {"episodes": 1, "seed_offset": 0})
+    check_bounds(cfg, CollectConfig)
     collector = pipeline_class(cfg.pipeline, needs="collection")
     run = RunFolder.of(cfg)
     try:

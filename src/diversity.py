@@ -6,7 +6,8 @@ import shlex
 import hydra
 from omegaconf import DictConfig
 
-from simeval.cli import exit_cleanly_on_user_error, launch, require_bool_keys, require_whole_keys
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import DiversityConfig, check_bounds
 from simeval.errors import require_folder
 
 log = logging.getLogger("diversity")
@@ -23,9 +24,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 
-    require_whole_keys(cfg, {"episodes": 1, "threads": 1, "seed": 0, "videos": 0, "eval.seed": 0, "eval.context": 1,
-                             "eval.batch_size": 1})
-    require_bool_keys(cfg, ("compile", "capture"))
+    check_bounds(cfg, DiversityConfig)
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)

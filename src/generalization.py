@@ -6,7 +6,8 @@ import logging
 import hydra
 from omegaconf import DictConfig
 
-from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import GeneralizationConfig, check_bounds
 from simeval.errors import require_folder
 
 log = logging.getLogger("generalization")
@@ -24,9 +25,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
 
-    require_whole_keys(cfg, {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "eval.seeds": 1,
-                             "eval.seed_offset": 0, "torch_threads": 1, "eval.max_steps": 1},
-                       optional=("torch_threads", "eval.max_steps"))
+    check_bounds(cfg, GeneralizationConfig)
     torch.set_num_threads(cfg.torch_threads or torch.get_num_threads())  # null: torch's own default
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     require_folder("checkpoint_dir", cfg.checkpoint_dir)

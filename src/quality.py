@@ -10,7 +10,8 @@ import logging
 import hydra
 from omegaconf import DictConfig
 
-from simeval.cli import exit_cleanly_on_user_error, launch, require_whole_keys
+from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import QualityConfig, check_bounds
 from simeval.errors import require_folder
 
 log = logging.getLogger("quality")
@@ -24,7 +25,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.measures.quality.run import Scoring, model_judge, run_quality
     from simeval.results import RunFolder
 
-    require_whole_keys(cfg, {"repeats": 1, "max_reasks": 0, "seed": 0})  # for every judge, oracle included
+    check_bounds(cfg, QualityConfig)  # for every judge, oracle included
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)
     judge = "oracle"

@@ -7,7 +7,7 @@ import logging
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from simeval.cli import exit_cleanly_on_user_error, launch, require_bool_keys
+from simeval.cli import exit_cleanly_on_user_error, launch
 
 log = logging.getLogger("report")
 
@@ -17,7 +17,6 @@ log = logging.getLogger("report")
 def main(cfg: DictConfig) -> None:
     from simeval.overview.rebuild import rebuild, rebuild_all
 
-    require_bool_keys(cfg, ("overwrite",))
     spec = OmegaConf.to_container(cfg.report, resolve=True)
     if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others, but sets the status
         if rebuild_all(spec, overwrite=cfg.overwrite, made_under=cfg.paths.root):

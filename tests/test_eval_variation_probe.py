@@ -53,7 +53,7 @@ def test_a_robot_start_changes_every_scene_and_friction_none_and_is_named(tmp_pa
                       (["pipeline=nowhere"], "pipeline=nowhere"),
                       ([*suite, "eval.variation=[1]"], "eval.variation=[1]"),
                       ([*suite, "eval.seeds=0"], "eval.seeds must be a whole number >= 1, got 0"),
-                      ([*suite, "eval.seeds=abc"], "eval.seeds must be a whole number >= 1, got 'abc'"),
+                      ([*suite, "eval.seeds=abc"], "eval.seeds='abc': expected a whole number"),
                       ([*suite, "eval.seed_offset=-3"], "eval.seed_offset must be a whole number >= 0, got -3"),
                       ([*suite, "eval.max_steps=-1"], "eval.max_steps must be a whole number >= 1, got -1")]:
         for out in (tmp_path / "bad", tmp_path / "friction"):  # the mistake is named, not "already there"

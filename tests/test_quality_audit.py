@@ -204,11 +204,11 @@ def test_budget_stop_keeps_what_finished_and_ends_in_one_line(openai_server, tmp
 
 @pytest.mark.parametrize("override,named", [
     ("repeats=0", "repeats must be a whole number >= 1, got 0"),
-    ("repeats=abc", "repeats must be a whole number >= 1, got 'abc'"),
+    ("repeats=abc", "repeats='abc': expected a whole number"),
     ("max_reasks=-1", "max_reasks must be a whole number >= 0"),
     ("judge.concurrency=0", "judge.concurrency (or captioner.concurrency) must be a whole number >= 1"),
     ("judge.rate_limit_per_min=0", "judge.rate_limit_per_min (or captioner.rate_limit_per_min) must be a number > 0"),
-    ("budget_usd=abc", "budget_usd must be a number of US dollars >= 0 or null"),
+    ("budget_usd=abc", "budget_usd='abc': expected a number"),
     ("budget_usd=-1", "budget_usd must be a number of US dollars >= 0 or null"),
     ("n_frames=0", "n_frames must be a whole number >= 2"),
 ])

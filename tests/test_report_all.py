@@ -183,7 +183,7 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
         f"Table 5: error: {Path('outputs/tables/table5.csv')} is a committed result and would be replaced by a table "
         "of the runs on disk; write elsewhere (report.table5.out= and report.table5.figure=) or replace it with "
         "overwrite=true (make: OVERWRITE=1)"]
-    for value in ("maybe", "no"):  # anything but true/false is refused before anything is written
+    for value in ("maybe", "yess"):  # anything but true/false (or yes/no, on/off, 1/0) is refused before a write
         r = report_all("report.steps=[table4,table5]", f"overwrite={value}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr == f"error: overwrite='{value}': expected true or false\n", r.stderr
     for kind in ("table4", "table5"):  # the report door (what `make report-table4` / `report-table5` run)

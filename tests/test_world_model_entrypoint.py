@@ -154,8 +154,8 @@ def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):
 
 
 def test_capture_is_true_or_false_and_needs_a_gpu_one_line_each(tmp_path):
-    r = run("debug=tiny", "capture=yes", f"store={tmp_path}/store", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr.strip() == "error: capture='yes': expected true or false", r.stderr[-2000:]
+    r = run("debug=tiny", "capture=maybe", f"store={tmp_path}/store", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip() == "error: capture='maybe': expected true or false", r.stderr[-2000:]
     r = run("debug=tiny", "capture=true", "device=cpu", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.strip() == ("error: capture=true needs a CUDA GPU (device=cpu resolves to "
                                                       "cpu here); use capture=false or device=cuda"), r.stderr[-2000:]

@@ -16,11 +16,13 @@ import argparse
 import functools
 import os
 import sys
+import typing
 from collections.abc import Callable
+from dataclasses import is_dataclass
 from pathlib import Path
 from typing import Any
 
-from simeval.errors import UserError, require_whole
+from simeval.errors import UserError
 from simeval.runtime.preemption import requeue_deaf_to_sigterm
 from simeval.secrets import key_shaped_overrides
 
@@ -62,25 +64,6 @@ def _print_error(message: str) -> None:
 def _fail(message: str) -> None:
     _print_error(message)
     sys.exit(USER_ERROR_EXIT)
-
-
-def require_whole_keys(cfg: Any, lows: dict[str, int], optional: tuple[str, ...] = ()) -> None:
-    """require_whole(key, value, low) for each dotted key of a config, where an entrypoint checks its numbers before
-    any data is read or a model trained; a key in `optional` may also be null."""
-    from omegaconf import OmegaConf
-
-    for key, low in lows.items():
-        value = OmegaConf.select(cfg, key)
-        if key not in optional or value is not None:
-            require_whole(key, value, low=low)
-
-
-def require_bool_keys(cfg: Any, keys: tuple[str, ...]) -> None:
-    """Each of `keys` true or false, else a UserError naming the key and its value (null included)."""
-    for key in keys:
-        value = cfg[key]
-        if not isinstance(value, bool):
-            raise UserError(f"{key}={'null' if value is None else repr(value)}: expected true or false")
 
 
 def refuse_secrets_on_command_line(argv: list[str]) -> None:
@@ -466,7 +449,7 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     cause_text = [ln for ln in str(cause or "").strip().splitlines() if ln.strip()]
     parent = getattr(cause, "parent_node", None)
     key = getattr(cause, "key", None)
-    if text and text[0].startswith("Could not override") and cause_text and "not in struct" in cause_text[0] \
+    if text and text[0].startswith("Could not override") and cause_text and ("not in struct" in cause_text[0] or " not in '" in cause_text[0]) \
             and parent is not None and key is not None:
         full_key = getattr(cause, "full_key", None) or key
         valid = [str(k) for k in parent.keys() if k != "hydra"]
@@ -477,6 +460,9 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
         append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
         return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
                 f"write {append}")
+    typed = _type_mistake(cause)
+    if typed is not None:
+        return typed
     head = text[0] if text else type(exc).__name__
     if head.startswith("Ambiguous value for argument"):  # Hydra's numbered advice is on the lines this drops
         head += "; to sweep over the values add -m (a run per value), for a list write key=[a,b]"
@@ -489,6 +475,28 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     if options:
         head = f"{head}; valid: {', '.join(sorted(str(o) for o in options))}"
     return f"{head} {cause_text[0]}" if cause_text else head
+
+
+_EXPECTED = (("to Integer", "a whole number"), ("valid bool", "true or false"), ("to Float", "a number"))
+
+
+def _type_mistake(cause: BaseException | None) -> str | None:
+    """`key='value': expected ...` for a value of the wrong type for its schema (simeval.config_schemas), as the
+    checks after composition word it; None for any other failure."""
+    from omegaconf.errors import ValidationError
+
+    if not isinstance(cause, ValidationError) or not getattr(cause, "full_key", None):
+        return None
+    message = str(getattr(cause, "msg", cause))
+    if "is not Optional" in message:  # null for a typed key: word its type as a wrong value's line would
+        hints = typing.get_type_hints(cause.object_type) if is_dataclass(cause.object_type) else {}
+        kind = hints.get(str(cause.key))
+        message = {int: "to Integer", bool: "valid bool", float: "to Float"}.get(kind, message)
+    expected = next((words for marker, words in _EXPECTED if marker in message), None)
+    if expected is None:
+        return None
+    value = getattr(cause, "value", None)
+    return f"{cause.full_key}={'null' if value is None else repr(value)}: expected {expected}"
 
 
 def _one_line_composition_errors() -> None:

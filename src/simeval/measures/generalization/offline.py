@@ -60,7 +60,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.cli import OneLineParser, require_whole_keys
+from simeval.cli import OneLineParser, composition_error_line
+from simeval.config_schemas import GeneralizationConfig, check_bounds
 from simeval.errors import UserError
 from simeval.runtime.device import describe_device
 from simeval.results import atomic_path, atomic_write_text, dumps_strict
@@ -84,9 +85,8 @@ def compose_generalization(overrides: list[str], conf_dir: Path) -> dict:
         with initialize_config_dir(str(Path(conf_dir).resolve()), version_base="1.3"):
             cfg = compose(config_name="generalization", overrides=list(overrides))
         return OmegaConf.to_container(cfg, resolve=True)
-    except (HydraException, OmegaConfBaseException) as e:  # a bad override: one line, as the entrypoint gives
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise UserError(f"overrides {' '.join(overrides)}: {first}") from None
+    except (HydraException, OmegaConfBaseException) as e:  # a bad override: the entrypoint's one line
+        raise UserError(f"overrides {' '.join(overrides)}: {composition_error_line(e)}") from None
 
 
 def pack(a) -> None:
@@ -99,8 +99,7 @@ def pack(a) -> None:
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides, a.conf_dir)
-    whole = {"episodes_per_task": 1, "val_episodes_per_task": 0, "seed": 0, "torch_threads": 1}
-    require_whole_keys(OmegaConf.create(cfg), whole, optional=("torch_threads",))  # as src/generalization.py does
+    check_bounds(OmegaConf.create(cfg), GeneralizationConfig)  # as src/generalization.py does
     if Path(a.out).is_dir():
         raise UserError(f"--out {a.out}: is a folder; give the pack's file name (e.g. {Path(a.out) / 'pack.pt'})")
     if cfg["policy"]["name"] == "random":

@@ -1,0 +1,170 @@
+"""Typed schemas of the entrypoints' configs (Hydra structured configs, registered in Hydra's ConfigStore).
+
+Each `conf/<entrypoint>.yaml` names its schema first in its defaults list (`- <entrypoint>_schema`); the YAML keeps
+the values and their comments, the schema gives each top-level key its type. OmegaConf then checks a value while
+Hydra composes the config, before any simeval code runs: `episodes=abc`, `episodes=1.5` or `compile=fast` stop with
+one line naming the key (simeval.cli's composition-error line), and a key the schema lacks cannot be added by
+mistake. What a type cannot say, a lower bound, is declared beside the type (`whole(low)`) and checked by
+`check_bounds`, one call per entrypoint, so each number's rule lives in one place.
+
+A config group (pipeline, world_model, protocol, policy, judge, ...) is typed `Any` here: its keys differ by
+option (a plugin pipeline brings its own) and each is read into its own settings dataclass, which names its keys
+(simeval.errors.settings_from_dict).
+
+Fields are MISSING (no default): the YAML is the one place a default is written. `test_config_schemas.py` composes
+each entrypoint and checks that nothing is left missing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import Any, Optional
+
+from omegaconf import MISSING
+
+from simeval.errors import require_whole
+
+
+def whole(low: int) -> Any:
+    """A whole-number field whose value must be >= low (checked by check_bounds; the type by OmegaConf)."""
+    return field(default=MISSING, metadata={"at_least": low})
+
+
+def _group() -> Any:
+    return field(default=MISSING)
+
+
+@dataclass
+class WindowEval:
+    seed: int = whole(0)
+    context: int = whole(1)
+    batch_size: int = whole(1)
+
+
+@dataclass
+class DiversityConfig:
+    task_group: str = MISSING
+    episodes: int = whole(1)
+    eval_episodes: Any = MISSING
+    heldout_episodes: Optional[list[int]] = MISSING
+    store: str = MISSING
+    camera: str = MISSING
+    seed: int = whole(0)
+    eval: WindowEval = field(default_factory=WindowEval)
+    videos: int = whole(0)
+    threads: int = whole(1)
+    device: str = MISSING
+    compile: bool = MISSING
+    capture: bool = MISSING
+    checkpoint_dir: Optional[str] = MISSING
+    progress: bool = MISSING
+    paths: Any = _group()
+    pipeline: Any = _group()
+    world_model: Any = _group()
+    protocol: Any = _group()
+    logger: Any = _group()
+
+
+@dataclass
+class CollectConfig:
+    task_group: str = MISSING
+    tasks: Any = MISSING
+    episodes: int = whole(1)
+    seed_offset: int = whole(0)
+    workers: int = MISSING  # its bound (0: one per core) is worded by the collector
+    store: str = MISSING
+    record: Any = MISSING
+    paths: Any = _group()
+    pipeline: Any = _group()
+    variation: Any = _group()
+    logger: Any = _group()
+
+
+@dataclass
+class PolicyEval:
+    splits: Any = MISSING  # one name or a list: read by the generalization run
+    seeds: int = whole(1)
+    seed_offset: int = whole(0)
+    max_steps: Optional[int] = whole(1)
+    variation: Any = MISSING
+    videos: bool = MISSING
+    video_camera: str = MISSING
+    sampler_check: bool = MISSING
+
+
+@dataclass
+class GeneralizationConfig:
+    task_group: str = MISSING
+    tasks: Any = MISSING
+    heldout_tasks: Any = MISSING
+    episodes_per_task: int = whole(1)
+    val_episodes_per_task: int = whole(0)
+    demonstrations: str = MISSING
+    store: str = MISSING
+    checkpoint_dir: str = MISSING
+    seed: int = whole(0)
+    progress: bool = MISSING
+    torch_threads: Optional[int] = whole(1)
+    device: str = MISSING
+    eval: PolicyEval = field(default_factory=PolicyEval)
+    paths: Any = _group()
+    pipeline: Any = _group()
+    policy: Any = _group()
+    logger: Any = _group()
+
+
+@dataclass
+class QualityConfig:
+    bundles_dir: Optional[str] = MISSING
+    episodes: Any = MISSING
+    metric: str = MISSING
+    scene_alignment_mode: str = MISSING
+    repeats: int = whole(1)
+    max_reasks: int = whole(0)
+    n_frames: int = MISSING  # its bound (>= 2) is the judge's, checked with the frames it samples
+    budget_usd: Optional[float] = MISSING
+    dry_run: bool = MISSING
+    seed: int = whole(0)
+    label: Optional[str] = MISSING
+    cache_dir: str = MISSING
+    prompts: Any = MISSING
+    paths: Any = _group()
+    judge: Any = _group()
+    captioner: Any = _group()
+    logger: Any = _group()
+
+
+@dataclass
+class ReportConfig:
+    overwrite: bool = MISSING
+    paths: Any = _group()
+    report: Any = _group()
+
+
+SCHEMAS = {"diversity": DiversityConfig, "collect": CollectConfig, "generalization": GeneralizationConfig,
+           "quality": QualityConfig, "report": ReportConfig}
+
+
+def register() -> None:
+    """Store each schema as `<entrypoint>_schema` in Hydra's ConfigStore (idempotent)."""
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    for name, schema in SCHEMAS.items():
+        store.store(name=f"{name}_schema", node=schema)
+
+
+def check_bounds(cfg: Any, schema: type, prefix: str = "") -> None:
+    """Each `whole(low)` field of `schema` (nested schemas included) >= its low, else a UserError naming the dotted
+    key; an Optional one may be null. The type was checked by OmegaConf when the config was composed."""
+    for f in fields(schema):
+        key = f"{prefix}{f.name}"
+        value = cfg[f.name]
+        if f.default_factory is not dataclasses.MISSING and is_dataclass(f.default_factory):
+            check_bounds(value, f.default_factory, f"{key}.")
+        elif "at_least" in f.metadata and not (value is None and "Optional" in str(f.type)):
+            require_whole(key, value, low=f.metadata["at_least"])
+
+
+register()
