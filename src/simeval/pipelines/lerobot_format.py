@@ -433,25 +433,11 @@ def _vector_feature(width: int, names: list[str], dtype: str = "float32") -> dic
     return {"dtype": dtype, "shape": [width], "names": names}
 
 
-def export_lerobot(paths: list[os.PathLike], out: str | os.PathLike, *, robot_type: str = "simeval",
-                   fps: float | None = None, progress: bool = True) -> dict:
-    """Write the store episodes at `paths` (one pipeline's; every one with the same cameras, image size, state and
-    action widths and control rate) as a LeRobotDataset v3.0 at `out`: a frame per store row (row T's action
-    included), each camera an AV1 mp4 as lerobot encodes it, the description as the task, next.success where
-    the store knows success (on the last frame), next.reward the store's reward, meta/stats.json over every frame.
-    Written in a temporary folder beside `out` and renamed into place, so a killed export leaves no dataset
-    that looks complete. `fps`: the control rate where the episodes do not record one."""
-    import shutil
-    import tempfile
+def _exportable(paths: list[os.PathLike], fps: float | None) -> tuple[list[dict], float]:
+    """The episodes' metadata and their one control rate, or a UserError naming the first episode that differs
+    from the first in cameras, control rate or action space."""
+    from simeval.episodes.store import read_meta
 
-    import pandas as pd
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    from tqdm import tqdm
-
-    from simeval.episodes.store import read_episode, read_meta
-
-    out = Path(out).expanduser()
     if not paths:
         raise UserError("no episodes to export")
     metas = [read_meta(p) for p in paths]
@@ -464,83 +450,137 @@ def export_lerobot(paths: list[os.PathLike], out: str | os.PathLike, *, robot_ty
     if mismatched:
         raise UserError(f"{mismatched[0]}: its cameras, control rate or action space differ from {first['path']}'s "
                         "(export one pipeline's episodes of one kind)")
+    return metas, rate
+
+
+def _features(ep: Episode, rate: float, success_known: bool) -> dict:
+    """meta/info.json's features, from the first episode: a video per camera, state and action vectors (named as
+    the store names them), reward, success where known, and lerobot's index columns."""
+    h, w = next(iter(ep.rgb.values())).shape[1:3]
+    features = {f"{CAMERA_PREFIX}{c}": {
+        "dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
+        "info": {"video.height": h, "video.width": w, "video.codec": "av1", "video.pix_fmt": "yuv420p",
+                 "video.is_depth_map": False, "video.fps": rate, "video.channels": 3,
+                 "has_audio": False}} for c in sorted(ep.rgb)}
+    features["observation.state"] = _vector_feature(ep.state.shape[1], list(ep.state_names or [])
+                                                    or _names({}, ep.state.shape[1]))
+    dims = list(ep.action_space.get("dims") or [])
+    features["action"] = _vector_feature(ep.action.shape[1], dims if len(dims) == ep.action.shape[1]
+                                         else _names({}, ep.action.shape[1]))
+    features["next.reward"] = {"dtype": "float32", "shape": [1], "names": None}
+    if success_known:
+        features["next.success"] = {"dtype": "bool", "shape": [1], "names": None}
+    features.update({"timestamp": {"dtype": "float32", "shape": [1], "names": None},
+                     **{k: {"dtype": "int64", "shape": [1], "names": None}
+                        for k in ("frame_index", "episode_index", "index", "task_index")}})
+    return features
+
+
+def _frame_table(ep: Episode, episode: int, index: int, rate: float, task: int, success_known: bool):
+    """One episode's rows of data/*.parquet (a pyarrow table): a frame per store row, from global row `index`."""
+    import pyarrow as pa
+
+    n = ep.n_steps
+    columns = {"observation.state": pa.FixedSizeListArray.from_arrays(
+                   pa.array(ep.state.astype(np.float32).ravel()), ep.state.shape[1]),
+               "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.astype(np.float32).ravel()),
+                                                           ep.action.shape[1]),
+               "next.reward": pa.array(np.asarray(ep.reward, np.float32))}
+    if success_known:
+        columns["next.success"] = pa.array((np.arange(n) == n - 1) & bool(ep.success))
+    columns.update({"timestamp": pa.array((np.arange(n) / rate).astype(np.float32)),
+                    "frame_index": pa.array(np.arange(n, dtype=np.int64)),
+                    "episode_index": pa.array(np.full(n, episode, np.int64)),
+                    "index": pa.array(np.arange(index, index + n, dtype=np.int64)),
+                    "task_index": pa.array(np.full(n, task, np.int64))})
+    return pa.table(columns)
+
+
+def _episode_row(ep: Episode, episode: int, index: int, rate: float, starts: dict[str, float]) -> dict:
+    """One row of meta/episodes/*.parquet: where the episode's frames and each camera's video span lie."""
+    n = ep.n_steps
+    row = {"episode_index": episode, "tasks": [ep.description], "length": n, "data/chunk_index": 0,
+           "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
+    for c, start in starts.items():
+        row.update({f"videos/{CAMERA_PREFIX}{c}/chunk_index": 0, f"videos/{CAMERA_PREFIX}{c}/file_index": 0,
+                    f"videos/{CAMERA_PREFIX}{c}/from_timestamp": start,
+                    f"videos/{CAMERA_PREFIX}{c}/to_timestamp": start + n / rate})
+    row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
+    return row
+
+
+def _check_shapes(path: os.PathLike, ep: Episode, features: dict) -> None:
+    if (features["observation.state"]["shape"] != [ep.state.shape[1]]
+            or features["action"]["shape"] != [ep.action.shape[1]]):
+        raise UserError(f"{path}: state or action width differs from the first episode's")
+    for c, frames in ep.rgb.items():
+        if list(frames.shape[1:]) != features[f"{CAMERA_PREFIX}{c}"]["shape"]:
+            raise UserError(f"{path}: camera {c} is {frames.shape[1:3]}, the first episode's "
+                            f"{features[f'{CAMERA_PREFIX}{c}']['shape'][:2]}")
+
+
+def _write_meta(folder: Path, episodes: list[dict], texts: list[str], info: dict, stats: dict) -> None:
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    (folder / "meta" / "episodes" / "chunk-000").mkdir(parents=True)
+    pq.write_table(pa.Table.from_pylist(episodes), folder / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
+    pd.DataFrame({"task_index": range(len(texts))}, index=pd.Index(texts, name="task")).to_parquet(
+        folder / "meta" / "tasks.parquet")
+    (folder / "meta" / "info.json").write_text(json.dumps(info, indent=4))
+    (folder / "meta" / "stats.json").write_text(json.dumps(stats, indent=4))
+
+
+def export_lerobot(paths: list[os.PathLike], out: str | os.PathLike, *, robot_type: str = "simeval",
+                   fps: float | None = None, progress: bool = True) -> dict:
+    """Write the store episodes at `paths` (one pipeline's; every one with the same cameras, image size, state and
+    action widths and control rate) as a LeRobotDataset v3.0 at `out`: a frame per store row (row T's action
+    included), each camera an AV1 mp4 as lerobot encodes it, the description as the task, next.success where
+    the store knows success (on the last frame), next.reward the store's reward, meta/stats.json over every frame.
+    Written in a temporary folder beside `out` and renamed into place, so a killed export leaves no dataset
+    that looks complete. `fps`: the control rate where the episodes do not record one."""
+    import shutil
+    import tempfile
+
+    import pyarrow.parquet as pq
+    from tqdm import tqdm
+
+    from simeval.episodes.store import read_episode
+
+    out = Path(out).expanduser()
+    metas, rate = _exportable(paths, fps)
     texts = list(dict.fromkeys(m["description"] for m in metas))
-    task_index = {t: i for i, t in enumerate(texts)}
     success_known = all(m["success_known"] for m in metas)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        stats, videos, writer = _Stats(), {}, None
-        episodes, features, index = [], None, 0
+        stats, videos, writer, episodes, features, index = _Stats(), {}, None, [], None, 0
         for e, path in enumerate(tqdm(paths, desc="exporting", unit="episode", disable=not progress, delay=1.0)):
             ep = read_episode(path)
-            n = ep.n_steps
             if features is None:
-                h, w = next(iter(ep.rgb.values())).shape[1:3]
-                features = {f"{CAMERA_PREFIX}{c}": {
-                    "dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
-                    "info": {"video.height": h, "video.width": w, "video.codec": "av1", "video.pix_fmt": "yuv420p",
-                             "video.is_depth_map": False, "video.fps": rate, "video.channels": 3,
-                             "has_audio": False}} for c in sorted(ep.rgb)}
-                features["observation.state"] = _vector_feature(ep.state.shape[1], list(ep.state_names or [])
-                                                                or _names({}, ep.state.shape[1]))
-                features["action"] = _vector_feature(ep.action.shape[1], list(ep.action_space.get("dims") or [])
-                                                     if len(ep.action_space.get("dims") or []) == ep.action.shape[1]
-                                                     else _names({}, ep.action.shape[1]))
-                features["next.reward"] = {"dtype": "float32", "shape": [1], "names": None}
-                if success_known:
-                    features["next.success"] = {"dtype": "bool", "shape": [1], "names": None}
-                features.update({"timestamp": {"dtype": "float32", "shape": [1], "names": None},
-                                 **{k: {"dtype": "int64", "shape": [1], "names": None}
-                                    for k in ("frame_index", "episode_index", "index", "task_index")}})
+                features = _features(ep, rate, success_known)
+                h, w = features[f"{CAMERA_PREFIX}{sorted(ep.rgb)[0]}"]["shape"][:2]
                 videos = {c: _VideoWriter(tmp / "videos" / f"{CAMERA_PREFIX}{c}" / "chunk-000" / "file-000.mp4",
                                           rate, h, w) for c in sorted(ep.rgb)}
-            width = {"observation.state": ep.state.shape[1], "action": ep.action.shape[1]}
-            if any(features[k]["shape"] != [v] for k, v in width.items()):
-                raise UserError(f"{path}: state or action width differs from the first episode's")
+            _check_shapes(path, ep, features)
             starts = {c: videos[c].frames / rate for c in videos}
             for c, frames in ep.rgb.items():
-                if list(frames.shape[1:]) != features[f"{CAMERA_PREFIX}{c}"]["shape"]:
-                    raise UserError(f"{path}: camera {c} is {frames.shape[1:3]}, the first episode's "
-                                    f"{features[f'{CAMERA_PREFIX}{c}']['shape'][:2]}")
                 videos[c].add(frames)
-                stats.add(f"{CAMERA_PREFIX}{c}", frames[:: max(1, n // 10)] / 255.0)  # lerobot samples frames too
-            columns = {"observation.state": pa.FixedSizeListArray.from_arrays(
-                           pa.array(ep.state.astype(np.float32).ravel()), width["observation.state"]),
-                       "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.astype(np.float32).ravel()),
-                                                                   width["action"]),
-                       "next.reward": pa.array(np.asarray(ep.reward, np.float32))}
-            if success_known:
-                columns["next.success"] = pa.array((np.arange(n) == n - 1) & bool(ep.success))
-            columns.update({"timestamp": pa.array((np.arange(n) / rate).astype(np.float32)),
-                            "frame_index": pa.array(np.arange(n, dtype=np.int64)),
-                            "episode_index": pa.array(np.full(n, e, np.int64)),
-                            "index": pa.array(np.arange(index, index + n, dtype=np.int64)),
-                            "task_index": pa.array(np.full(n, task_index[ep.description], np.int64))})
-            table = pa.table(columns)
+                stats.add(f"{CAMERA_PREFIX}{c}", frames[:: max(1, ep.n_steps // 10)] / 255.0)  # lerobot samples too
+            table = _frame_table(ep, e, index, rate, texts.index(ep.description), success_known)
             if writer is None:
                 (tmp / "data" / "chunk-000").mkdir(parents=True)
                 writer = pq.ParquetWriter(tmp / "data" / "chunk-000" / "file-000.parquet", table.schema)
             writer.write_table(table)
-            for key in ("observation.state", "action"):
-                stats.add(key, getattr(ep, "state" if key == "observation.state" else "action"))
+            stats.add("observation.state", ep.state)
+            stats.add("action", ep.action)
             stats.add("next.reward", np.asarray(ep.reward)[:, None])
-            row = {"episode_index": e, "tasks": [ep.description], "length": n, "data/chunk_index": 0,
-                   "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
-            for c in videos:
-                row.update({f"videos/{CAMERA_PREFIX}{c}/chunk_index": 0, f"videos/{CAMERA_PREFIX}{c}/file_index": 0,
-                            f"videos/{CAMERA_PREFIX}{c}/from_timestamp": starts[c],
-                            f"videos/{CAMERA_PREFIX}{c}/to_timestamp": starts[c] + n / rate})
-            row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
-            episodes.append(row)
-            index += n
+            episodes.append(_episode_row(ep, e, index, rate, starts))
+            index += ep.n_steps
         writer.close()
         for v in videos.values():
             v.close()
-        (tmp / "meta" / "episodes" / "chunk-000").mkdir(parents=True)
-        pq.write_table(pa.Table.from_pylist(episodes), tmp / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
-        pd.DataFrame({"task_index": range(len(texts))}, index=pd.Index(texts, name="task")).to_parquet(
-            tmp / "meta" / "tasks.parquet")
         info = {"codebase_version": WRITES, "robot_type": robot_type, "total_episodes": len(paths),
                 "total_frames": index, "total_tasks": len(texts), "chunks_size": 1000, "data_files_size_in_mb": 100,
                 "video_files_size_in_mb": 200, "fps": int(rate) if float(rate).is_integer() else rate,
@@ -548,8 +588,7 @@ def export_lerobot(paths: list[os.PathLike], out: str | os.PathLike, *, robot_ty
                 "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
                 "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
                 "features": features}
-        (tmp / "meta" / "info.json").write_text(json.dumps(info, indent=4))
-        (tmp / "meta" / "stats.json").write_text(json.dumps(stats.result(), indent=4))
+        _write_meta(tmp, episodes, texts, info, stats.result())
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
