@@ -290,6 +290,85 @@ def policy_from_checkpoint(ckpt: Mapping, ema: bool = True,
     return policy.to(device).eval()
 
 
+class _PolicyTraining:
+    """One training's state (optimiser, LR schedule, EMA, the batch-and-noise generator, the loss log) and the
+    three things run_steps asks of it: a step, a checkpoint, and the bookkeeping after a step."""
+
+    def __init__(self, policy: DiffusionPolicy, settings: TrainSettings, device: torch.device,
+                 ckpt_path: Path | None, log_fn: Callable[[dict, int], None] | None, extra: Mapping | None) -> None:
+        from diffusers.optimization import get_scheduler
+
+        self.policy, self.settings, self.device, self.ckpt_path = policy, settings, device, ckpt_path
+        self.log_fn, self.extra = log_fn, dict(extra or {})
+        policy.to(device)  # before the optimiser and the EMA are made: their state is created beside the parameters
+        torch.manual_seed(settings.seed)
+        on_gpu = device.type == "cuda"  # launch-bound there: fused/multi-tensor updates (same maths, other rounding)
+        self.optimizer = torch.optim.AdamW(policy.parameters(), lr=settings.lr, betas=settings.betas,
+                                           weight_decay=settings.weight_decay, fused=on_gpu or None)
+        self.lr_sched = get_scheduler(settings.lr_schedule, self.optimizer, num_warmup_steps=settings.warmup_steps,
+                                      num_training_steps=settings.train_steps)
+        self.ema = make_ema(policy, settings, foreach=on_gpu)
+        self.gen = torch.Generator().manual_seed(settings.seed)
+        self.step, self.losses, self.t_train = 0, [], 0.0
+        self.window: list[torch.Tensor] = []  # the losses since the last log step, still on the device
+        self.bar = None
+
+    def resume(self, ckpt: Mapping) -> None:
+        self.policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
+        self.optimizer.load_state_dict(ckpt["optimizer"])  # torch moves the state to its parameters' device
+        self.lr_sched.load_state_dict(ckpt["lr_scheduler"])
+        self.ema.load_state_dict(ckpt["ema"])
+        self.ema.to(self.device)  # EMAModel keeps the loaded (CPU) shadow weights where they are
+        self.gen.set_state(ckpt["generator"])
+        self.step, self.losses, self.t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
+        done = self.step >= self.settings.train_steps
+        log.info("policy training in %s finished at step %d/%d: reused, nothing to train" if done else
+                 "resuming policy training from %s at step %d/%d", self.ckpt_path, self.step, self.settings.train_steps)
+
+    def ema_policy(self) -> DiffusionPolicy:
+        ema_model = copy.deepcopy(self.policy)
+        self.ema.copy_to(ema_model.parameters())
+        return ema_model
+
+    def save(self, step: int) -> None:
+        if self.ckpt_path is None:
+            return
+        policy, settings = self.policy, self.settings
+        # temp file + rename (checkpoints.save_checkpoint): a kill never leaves half a checkpoint
+        save_checkpoint(self.ckpt_path, {
+            "version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
+            "train": dataclasses.asdict(settings), "state_dim": policy.state_dim, "action_dim": policy.action_dim,
+            "model": to_cpu(policy.state_dict()), "ema_model": to_cpu(self.ema_policy().state_dict()),
+            "ema": to_cpu(self.ema.state_dict()), "optimizer": to_cpu(self.optimizer.state_dict()),
+            "lr_scheduler": self.lr_sched.state_dict(), "generator": self.gen.get_state(), "step": step,
+            "losses": self.losses, "train_seconds": self.t_train, "trained_on": describe_device(self.device),
+            "extra": self.extra})
+
+    def take_step(self, batch, step: int) -> dict:  # the noise comes from `gen`, not from the step count
+        loss = self.policy.compute_loss(batch, generator=self.gen)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.lr_sched.step()
+        self.ema.step(self.policy.parameters())
+        # read at the log step: a .item() here would make the CPU wait for each step's kernels on a GPU
+        return {"loss": loss.detach()}
+
+    def after_step(self, step: int, metrics: dict, seconds: float) -> None:
+        self.t_train += seconds
+        self.window.append(metrics["loss"])
+        if self.bar is not None:
+            self.bar.update(1)
+        if step % self.settings.log_every == 0 or step == self.settings.train_steps:
+            mean = float(np.mean([float(loss) for loss in self.window]))
+            self.losses.append([step, mean])
+            self.window = []
+            if self.log_fn is not None:
+                self.log_fn({"train/loss": mean, "train/lr": self.lr_sched.get_last_lr()[0]}, step)
+            if self.bar is not None:
+                self.bar.set_postfix(loss=f"{mean:.4f}")
+
+
 def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt_dir: str | os.PathLike | None = None,
                  log_fn: Callable[[dict, int], None] | None = None, extra: Mapping | None = None,
                  progress: bool = False, device: str | torch.device | None = "auto") -> tuple[DiffusionPolicy, dict]:
@@ -297,20 +376,9 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
     there (model, EMA, optimiser, LR schedule, sampler RNG, config) is written every checkpoint_every steps and
     at the end, atomically, and a run finding one resumes from it: a killed run loses at most checkpoint_every
     steps, and the resumed run draws the same batches as an uninterrupted one would have."""
-    from diffusers.optimization import get_scheduler
-
     device = resolve_device(device)
-    policy.to(device)  # before the optimiser and the EMA are made: their state is created beside the parameters
-    torch.manual_seed(settings.seed)
-    on_gpu = device.type == "cuda"  # launch-bound there: fused/multi-tensor updates (same maths, other rounding)
-    optimizer = torch.optim.AdamW(policy.parameters(), lr=settings.lr, betas=settings.betas,
-                                  weight_decay=settings.weight_decay, fused=on_gpu or None)
-    lr_sched = get_scheduler(settings.lr_schedule, optimizer, num_warmup_steps=settings.warmup_steps,
-                             num_training_steps=settings.train_steps)
-    ema = make_ema(policy, settings, foreach=on_gpu)
-    gen = torch.Generator().manual_seed(settings.seed)
-    step, losses, t_train = 0, [], 0.0
     ckpt_path = Path(ckpt_dir) / "last.ckpt" if ckpt_dir else None
+    run = _PolicyTraining(policy, settings, device, ckpt_path, log_fn, extra)
     if ckpt_path is not None and ckpt_path.is_file():
         ckpt = load_checkpoint(ckpt_path)
         trained = {k: v for k, v in ckpt["policy_config"].items() if k not in SAMPLING_FIELDS}
@@ -319,79 +387,23 @@ def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt
                                "policy.train": dataclasses.asdict(settings)}, "checkpoint_dir")
         if "optimizer" not in ckpt:
             return finished_weights(policy, ckpt, ckpt_path, settings)
-        policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
-        optimizer.load_state_dict(ckpt["optimizer"])  # torch moves the state to its parameters' device
-        lr_sched.load_state_dict(ckpt["lr_scheduler"])
-        ema.load_state_dict(ckpt["ema"])
-        ema.to(device)  # EMAModel keeps the loaded (CPU) shadow weights where they are
-        gen.set_state(ckpt["generator"])
-        step, losses, t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
-        if step >= settings.train_steps:
-            log.info("policy training in %s finished at step %d/%d: reused, nothing to train", ckpt_path, step,
-                     settings.train_steps)
-        else:
-            log.info("resuming policy training from %s at step %d/%d", ckpt_path, step, settings.train_steps)
-
-    def save(step: int) -> None:
-        if ckpt_path is None:
-            return
-        ema_model = copy.deepcopy(policy)
-        ema.copy_to(ema_model.parameters())
-        # temp file + rename (checkpoints.save_checkpoint): a kill never leaves half a checkpoint
-        save_checkpoint(ckpt_path, {
-            "version": CHECKPOINT_VERSION, "policy_config": dataclasses.asdict(policy.cfg),
-            "train": dataclasses.asdict(settings), "state_dim": policy.state_dim, "action_dim": policy.action_dim,
-            "model": to_cpu(policy.state_dict()), "ema_model": to_cpu(ema_model.state_dict()),
-            "ema": to_cpu(ema.state_dict()), "optimizer": to_cpu(optimizer.state_dict()),
-            "lr_scheduler": lr_sched.state_dict(), "generator": gen.get_state(), "step": step, "losses": losses,
-            "train_seconds": t_train, "trained_on": describe_device(device), "extra": dict(extra or {})})
-
-    def take_step(batch, step: int) -> dict:  # the noise comes from `gen`, not from the step count
-        loss = policy.compute_loss(batch, generator=gen)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        lr_sched.step()
-        ema.step(policy.parameters())
-        # read at the log step: a .item() here would make the CPU wait for each step's kernels on a GPU
-        return {"loss": loss.detach()}
-
-    window: list[torch.Tensor] = []  # the losses since the last log step, still on the device
-
-    def after_step(step: int, metrics: dict, seconds: float) -> None:
-        nonlocal t_train, window
-        t_train += seconds
-        window.append(metrics["loss"])
-        if bar is not None:
-            bar.update(1)
-        if step % settings.log_every == 0 or step == settings.train_steps:
-            mean = float(np.mean([float(loss) for loss in window]))
-            losses.append([step, mean])
-            window = []
-            if log_fn is not None:
-                log_fn({"train/loss": mean, "train/lr": lr_sched.get_last_lr()[0]}, step)
-            if bar is not None:
-                bar.set_postfix(loss=f"{mean:.4f}")
-
-    bar = None
+        run.resume(ckpt)
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=settings.train_steps, initial=step, desc="train policy", unit="step")
+        run.bar = tqdm(total=settings.train_steps, initial=run.step, desc="train policy", unit="step")
     policy.train()
     # drawn one at a time, just before their step, from the same generator as the step's noise (as before a resume)
-    batches = (dataset.sample(settings.batch_size, gen) for _ in range(step, settings.train_steps))
+    batches = (dataset.sample(settings.batch_size, run.gen) for _ in range(run.step, settings.train_steps))
     # the last checkpoint is written once, after the loop (last_step), and not again by a run that found it finished
     # (rewriting it would only replace its `extra` with this run's)
-    started = step
-    step = run_steps(batches, take_step, save, step=step, checkpoint_every=settings.checkpoint_every,
-                     last_step=settings.train_steps, after_step=after_step,
-                     final_save=lambda s: None if s == started else save(s))
-    if bar is not None:
-        bar.close()
-    ema_policy = copy.deepcopy(policy)
-    ema.copy_to(ema_policy.parameters())
-    return ema_policy.eval(), training_summary(step, losses, t_train, str(device))
+    started = run.step
+    step = run_steps(batches, run.take_step, run.save, step=run.step, checkpoint_every=settings.checkpoint_every,
+                     last_step=settings.train_steps, after_step=run.after_step,
+                     final_save=lambda s: None if s == started else run.save(s))
+    if run.bar is not None:
+        run.bar.close()
+    return run.ema_policy().eval(), training_summary(step, run.losses, run.t_train, str(device))
 
 
 def training_summary(step: int, losses: list, train_seconds: float, device: str) -> dict:
