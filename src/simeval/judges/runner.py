@@ -8,6 +8,7 @@ import time
 from collections.abc import Sequence
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
+from typing import Any
 
 from simeval.judges.cache import CachedCall, JudgeCache, request_key
 from simeval.judges.ledger import BudgetExceeded, Ledger
@@ -134,11 +135,90 @@ def dry_run(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: Led
             "note": "first asks only; each unparseable reply adds a re-ask (at most max_reasks per repeat)"}
 
 
+@dataclass
+class _Reply:
+    text: str | None
+    latency_s: float
+    cached: bool
+    retries: list
+    cost_usd: float | None  # of a paid call; None for a cached one
+
+
+@dataclass
+class _Asker:
+    """What one ask needs: the provider, the cache and ledger it pays through, and the rate limit."""
+    provider: Any
+    cache: JudgeCache
+    ledger: Ledger
+    settings: JudgeSettings
+    limiter: RateLimiter
+
+    def ask(self, item: JudgeItem, system: str, user: str, repeat: int, ask: int) -> _Reply:
+        """The reply to one ask: from the cache, or paid for (reserved against the budget first) and cached."""
+        provider, cache, ledger = self.provider, self.cache, self.ledger
+        key = _identity(provider, item, system, user, repeat, ask)
+        # claim: a miss leaves this run holding the key's lease until put()/release(); a request another
+        # process is asking right now is waited for, not paid twice
+        hit = cache.get(key) if self.settings.replay else cache.claim(key)
+        if hit is not None:
+            ledger.record_cached(hit.cost_usd, item.cost_label)
+            return _Reply(hit.reply, hit.latency_s, True, [], None)
+        if self.settings.replay:
+            raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
+                             f"repeat {repeat} ask {ask} (endpoint {getattr(provider, 'endpoint', '') or '-'}, "
+                             f"model {provider.model}, template {item.template.sha256[:12]}: all three are part "
+                             "of the cache key, so give the live run's judge.provider.base_url and model); run "
+                             "once with a live judge first")
+        estimate = _estimate(ledger, provider, item, system, user)
+        try:
+            ledger.reserve(estimate)
+        except BaseException:
+            cache.release(key)
+            raise
+        try:
+            self.limiter.acquire()
+            out = provider.complete(system, user, item.images)
+        except BaseException:
+            ledger.release(estimate)
+            cache.release(key)
+            raise
+        cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images),
+                             item.cost_label, retries=len(out.retries))
+        cache.put(CachedCall(key, out.text, out.prompt_tokens, out.completion_tokens, len(item.images), cost,
+                             out.latency_s, time.time()), provider=provider.name, model=provider.model,
+                  item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
+        return _Reply(out.text, out.latency_s, False, out.retries, cost)
+
+    def judge(self, item: JudgeItem, repeat: int, stop: threading.Event) -> ScoreRecord | None:
+        """One repeat of an item: asks until a reply parses or max_reasks re-asks are spent (None once stopped)."""
+        provider = self.provider
+        system, user = item.rendered()
+        rec = ScoreRecord(item.item_id, item.metric, repeat, provider.name, provider.model, item.template.sha256,
+                          [im.sha256 for im in item.images])
+        for ask in range(self.settings.max_reasks + 1):
+            if stop.is_set():
+                return None
+            reply = self.ask(item, system, user, repeat, ask)
+            value, error = _accept(item, reply.text)
+            if value is None and not reply.cached:  # a paid reply that gave nothing: the summary counts these
+                self.ledger.record_invalid(reply.cost_usd, item.cost_label)
+            rec.asks.append({"ask": ask, "reply": reply.text, "valid": value is not None, "error": error,
+                             "latency_s": round(reply.latency_s, 4), "cached": reply.cached,
+                             "retries": reply.retries})
+            if isinstance(value, str):
+                rec.text = value
+            elif value is not None:
+                rec.score = value
+            if value is not None:
+                break
+        return rec
+
+
 def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: Ledger,
               settings: JudgeSettings) -> list[ScoreRecord]:
     """Judge every item `repeats` times. Returns records in (item, repeat) order. Stops at the first error that
     will not heal (HTTP 401/400, budget, replay miss) after the calls in flight finish; what finished is cached."""
-    limiter = RateLimiter(settings.rate_limit_per_min)
+    asker = _Asker(provider, cache, ledger, settings, RateLimiter(settings.rate_limit_per_min))
     stop = threading.Event()
     slots = [(i, r) for i in range(len(items)) for r in range(settings.repeats)]
     records: list[ScoreRecord | None] = [None] * len(slots)
@@ -147,66 +227,11 @@ def run_judge(items: Sequence[JudgeItem], provider, cache: JudgeCache, ledger: L
         if stop.is_set():
             return
         try:
-            judge_slot(slot)
+            i, repeat = slots[slot]
+            records[slot] = asker.judge(items[i], repeat, stop)
         except BaseException:
             stop.set()  # set here, not by the caller: the pool would otherwise start the next queued slot first
             raise
-
-    def judge_slot(slot: int) -> None:
-        i, repeat = slots[slot]
-        item = items[i]
-        system, user = item.rendered()
-        rec = ScoreRecord(item.item_id, item.metric, repeat, provider.name, provider.model, item.template.sha256,
-                          [im.sha256 for im in item.images])
-        for ask in range(settings.max_reasks + 1):
-            if stop.is_set():
-                return
-            key = _identity(provider, item, system, user, repeat, ask)
-            # claim: a miss leaves this run holding the key's lease until put()/release(); a request another
-            # process is asking right now is waited for, not paid twice
-            hit = cache.get(key) if settings.replay else cache.claim(key)
-            if hit is not None:
-                ledger.record_cached(hit.cost_usd, item.cost_label)
-                reply, latency, cached, retries = hit.reply, hit.latency_s, True, []
-            elif settings.replay:
-                raise ReplayMiss(f"judge=replay: no cached reply for item '{item.item_id}' metric {item.metric} "
-                                 f"repeat {repeat} ask {ask} (endpoint {getattr(provider, 'endpoint', '') or '-'}, "
-                                 f"model {provider.model}, template {item.template.sha256[:12]}: all three are part "
-                                 "of the cache key, so give the live run's judge.provider.base_url and model); run "
-                                 "once with a live judge first")
-            else:
-                estimate = _estimate(ledger, provider, item, system, user)
-                try:
-                    ledger.reserve(estimate)
-                except BaseException:
-                    cache.release(key)
-                    raise
-                try:
-                    limiter.acquire()
-                    out = provider.complete(system, user, item.images)
-                except BaseException:
-                    ledger.release(estimate)
-                    cache.release(key)
-                    raise
-                retries = out.retries
-                cost = ledger.settle(estimate, out.prompt_tokens, out.completion_tokens, len(item.images),
-                                     item.cost_label, retries=len(retries))
-                cache.put(CachedCall(key, out.text, out.prompt_tokens, out.completion_tokens, len(item.images), cost,
-                                     out.latency_s, time.time()), provider=provider.name, model=provider.model,
-                          item=item.item_id, metric=item.metric, repeat=repeat, ask=ask)
-                reply, latency, cached = out.text, out.latency_s, False
-            value, error = _accept(item, reply)
-            if value is None and not cached:  # a paid reply that gave nothing: the summary counts these
-                ledger.record_invalid(cost, item.cost_label)
-            rec.asks.append({"ask": ask, "reply": reply, "valid": value is not None, "error": error,
-                             "latency_s": round(latency, 4), "cached": cached, "retries": retries})
-            if isinstance(value, str):
-                rec.text = value
-            elif value is not None:
-                rec.score = value
-            if value is not None:
-                break
-        records[slot] = rec
 
     progress = None
     if settings.progress:
