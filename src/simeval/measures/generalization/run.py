@@ -150,14 +150,8 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         starts = None
         if split == "eval" and task in compare_starts:
             starts = train_starts(policy, task, seeds, rows, compare_starts[task], max_steps, make_env)
-        else:  # left out by a comparison this run does not make (a variation with a knob no first observation
-            # shows): roll those seeds out
-            dropped = [s for s in seeds if done.get(str(s), {}).get("unvaried")]
-            if dropped:
-                log.info("split %s, %s: %d cached rollouts left out as unvaried are rolled out (their variation is "
-                         "not compared by first observation)", split, task, len(dropped))
-                for s in dropped:
-                    del done[str(s)]
+        else:
+            _forget_unvaried(done, seeds, split, task)
         cached = [int(s) for s in seeds if str(s) in done]
         reused += len(cached)
         if starts is not None and cached:  # rolled out before its seeds were compared, or without the train split
@@ -178,11 +172,7 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
             rollout_task(policy, task, left, split=split, variation=var, max_steps=max_steps, make_env=make_env,
                          unvaried_if=starts, on_episode=keep)
         row = {"task": task, "split": split, **episodes_summary([done[str(s)] for s in seeds])}
-        if row["unvaried"]:
-            n, out = len(row["episodes"]), row["unvaried"]
-            log.warning("split %s, %s: the variation %s left %d of %d scenes as the train split's (the same first "
-                        "observation at that seed): %s", split, task, json.dumps(var, sort_keys=True), out, n,
-                        "none rolled out" if out == n else f"the other {n - out} rolled out")
+        _warn_unvaried(row, var)
         rows.append({**row, "variation": var})
         if bar is not None:
             bar.update(1)
@@ -193,6 +183,25 @@ def run_splits(policy, plan: Mapping[str, Sequence[tuple[str, Mapping]]], seeds:
         log.info("reused %d of %d rollouts from %s (same checkpoint step, seed, variation, step limit and sampler); "
                  "delete that file to roll them out again", reused, len(todo) * len(seeds), cache_file)
     return rows
+
+
+def _forget_unvaried(done: dict, seeds: Sequence[int], split: str, task: str) -> None:
+    """Drop the cached rollouts of (split, task) once left out as unvaried, where this run does not compare first
+    observations (a variation with a knob no first observation shows): those seeds are rolled out."""
+    dropped = [s for s in seeds if done.get(str(s), {}).get("unvaried")]
+    if dropped:
+        log.info("split %s, %s: %d cached rollouts left out as unvaried are rolled out (their variation is "
+                 "not compared by first observation)", split, task, len(dropped))
+        for s in dropped:
+            del done[str(s)]
+
+
+def _warn_unvaried(row: Mapping, variation: Mapping) -> None:
+    if row["unvaried"]:
+        n, out = len(row["episodes"]), row["unvaried"]
+        log.warning("split %s, %s: the variation %s left %d of %d scenes as the train split's (the same first "
+                    "observation at that seed): %s", row["split"], row["task"], json.dumps(variation, sort_keys=True),
+                    out, n, "none rolled out" if out == n else f"the other {n - out} rolled out")
 
 
 def rollout_key(policy_step: int, split: str, task: str, variation: Mapping, max_steps: int | None,
