@@ -29,8 +29,6 @@ import numpy as np
 
 from simeval.sim.core.colors import COLORS
 
-ARTICULATED = ("laptop", "lamp", "display", "faucet", "drawer", "oven", "window", "toilet", "dishwasher",
-               "table_doors")
 ON_TABLE_Z = 0.03  # thickness of the wooden board a table-top object stands on (shows it is on a table)
 WOOD = (0.62, 0.45, 0.30, 1.0)
 DARK = (0.15, 0.15, 0.17, 1.0)
@@ -76,124 +74,159 @@ def _cyl(xyz, radius, length, rgba, rpy=(0.0, 0.0, 0.0), collide=True) -> Part:
     return Part("cylinder", tuple(xyz), (radius, length), rgba, tuple(rpy), collide)
 
 
+def _laptop(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """Base with a keyboard; lid hinged at the back edge, screen on its inner face."""
+    tb, tl = 0.35 * H, 0.3 * H
+    base = [_box((0, 0, tb / 2), (D, W, tb), rgba), _box((-0.05 * D, 0, tb), (0.6 * D, 0.85 * W, 0.002), DARK, False)]
+    lid = [_box((-D / 2, 0, tl / 2 + 0.001), (D, W, tl), rgba),
+           _box((-D / 2, 0, 0.0008), (0.9 * D, 0.9 * W, 0.0012), DARK, False)]
+    return Design(base, [Joint("revolute", (D / 2, 0, tb), (0, 1, 0), (0.0, 1.9), lid,
+                               [((-D + 0.025, 0, tl + 0.001), (0, 0, 1))], 0.15)])
+
+
+def _lamp(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """Round foot, pole, head arm that swivels about the pole, shade at the arm's end."""
+    r_foot, arm = 0.45 * min(D, W), 0.55 * max(D, W)
+    base = [_cyl((0, 0, 0.01), r_foot, 0.02, rgba), _cyl((0, 0, H / 2), 0.011, H - 0.04, STEEL)]
+    head = [_cyl((0, 0, 0.0), 0.018, 0.04, rgba), _box((-arm / 2, 0, 0.0), (arm, 0.022, 0.018), STEEL),
+            _cyl((-arm, 0, -0.01), 0.035, 0.05, rgba), _cyl((-arm, 0, -0.036), 0.028, 0.004, (1.0, 0.95, 0.7, 1.0), collide=False)]
+    return Design(base, [Joint("revolute", (0, 0, H - 0.04), (0, 0, 1), (-1.6, 1.6), head,
+                               [((-arm, 0, 0.015), (0, 0, 1))], 0.15)])
+
+
+def _display(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """Foot, post, screen that slides up the post."""
+    sh, st = 0.55 * H, 0.025
+    base = [_box((0.2 * D, 0, 0.01), (0.6 * D, 0.5 * W, 0.02), DARK), _box((0.3 * D, 0, (0.06 + sh / 2) / 2), (0.02, 0.06, 0.06 + sh / 2), STEEL)]  # hidden behind the screen
+    screen = [_box((0, 0, sh / 2), (st, W, sh), rgba), _box((-st / 2 - 0.0006, 0, sh / 2), (0.001, 0.92 * W, 0.88 * sh), DARK, False)]
+    return Design(base, [Joint("prismatic", (0.3 * D - 0.01 - st / 2, 0, 0.06), (0, 0, 1), (0.0, 0.4 * H), screen,
+                               [((0, 0, sh), (0, 0, 1))], 0.2)])
+
+
+def _faucet(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A basin counter, the faucet's body and spout, a lever on top that turns about z."""
+    ch, lever = 0.4 * H, 0.6 * D
+    base = [_box((0, 0, ch / 2), (D, W, ch), WHITE), _box((-0.1 * D, 0, ch + 0.001), (0.5 * D, 0.6 * W, 0.002), STEEL, False),
+            _cyl((0.3 * D, 0, ch + 0.35 * H / 2), 0.02, 0.35 * H, rgba),
+            _box((0.05 * D, 0, ch + 0.35 * H - 0.01), (0.5 * D, 0.025, 0.02), rgba)]
+    handle = [_cyl((0, 0, 0.01), 0.018, 0.02, rgba), _box((-lever / 2, 0, 0.02), (lever, 0.022, 0.016), STEEL)]
+    return Design(base, [Joint("revolute", (0.3 * D, 0, ch + 0.35 * H), (0, 0, 1), (0.0, 1.4), handle,
+                               [((-lever + 0.012, 0, 0.028), (0, 0, 1))], 0.1)])
+
+
+def _drawer(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A cabinet box open at the front; a drawer with a handle bar slides out (-x)."""
+    t = 0.012
+    base = [_box((0, 0, t / 2), (D, W, t), rgba), _box((0, 0, H - t / 2), (D, W, t), rgba),
+            _box((0, W / 2 - t / 2, H / 2), (D, t, H), rgba), _box((0, -W / 2 + t / 2, H / 2), (D, t, H), rgba),
+            _box((D / 2 - t / 2, 0, H / 2), (t, W, H), rgba)]
+    dh, dw, dd = H - 2 * t - 0.01, W - 2 * t - 0.008, D - t - 0.01
+    off = 0.06  # the handle stands well off the drawer: the arm's wrist above the cup clears the cabinet top
+    drawer = [_box((0, 0, 0), (t, dw + 0.006, dh + 0.004), WOOD), _box((dd / 2, 0, -dh / 2 + t / 2), (dd, dw, t), WOOD),
+              _box((dd / 2, dw / 2 - t / 2, 0), (dd, t, dh), WOOD), _box((dd / 2, -dw / 2 + t / 2, 0), (dd, t, dh), WOOD),
+              _box((dd, 0, 0), (t, dw, dh), WOOD), _box((-off, 0, 0.15 * dh), (0.016, 0.45 * dw, 0.016), STEEL),
+              _box((-off / 2 - 0.004, 0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL),
+              _box((-off / 2 - 0.004, -0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL)]
+    return Design(base, [Joint("prismatic", (-D / 2 + t / 2, 0, H / 2), (-1, 0, 0), (0.0, 0.65 * D), drawer,
+                               [((-off, 0, 0.15 * dh + 0.008), (0, 0, 1))], 0.3)])
+
+
+def _oven(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A box open at the front, a door hinged at its bottom edge, a control panel with a timer knob."""
+    t, panel = 0.015, 0.22 * H
+    body_h = H - panel
+    base = [_box((0, 0, t / 2), (D, W, t), rgba), _box((0, 0, body_h - t / 2), (D, W, t), rgba),
+            _box((0, W / 2 - t / 2, body_h / 2), (D, t, body_h), rgba), _box((0, -W / 2 + t / 2, body_h / 2), (D, t, body_h), rgba),
+            _box((D / 2 - t / 2, 0, body_h / 2), (t, W, body_h), rgba), _box((0.05, 0, body_h + panel / 2), (D - 0.1, W, panel), DARK),
+            _box((0, 0, t + 0.003), (D - 2 * t, W - 2 * t, 0.004), DARK, False)]
+    dh = body_h - 0.02
+    door = [_box((-t / 2, 0, dh / 2), (t, W - 0.01, dh), rgba), _box((-t - 0.0006, 0, 0.55 * dh), (0.001, 0.6 * W, 0.45 * dh), DARK, False),
+            _box((-t - 0.03, 0, dh - 0.03), (0.016, 0.7 * W, 0.016), STEEL),
+            _box((-t - 0.015, 0.3 * W, dh - 0.03), (0.03, 0.012, 0.012), STEEL),
+            _box((-t - 0.015, -0.3 * W, dh - 0.03), (0.03, 0.012, 0.012), STEEL)]
+    kr = 0.28 * panel
+    knob = [_cyl((-0.014, 0, 0), kr, 0.028, WHITE, rpy=(0, math.pi / 2, 0)),
+            _box((-0.02, 0, kr - 0.004), (0.024, 0.01, 0.016), DARK)]
+    return Design(base, [
+        Joint("revolute", (-D / 2, 0, 0.01), (0, -1, 0), (0.0, math.pi / 2), door,
+              [((-t - 0.03, 0, dh - 0.022), (0, 0, 1)), ((0, 0, dh - 0.03), (1, 0, 0))], 0.3),
+        Joint("revolute", (-D / 2 + 0.1, 0.25 * W, body_h + panel / 2), (-1, 0, 0), (0.0, math.pi), knob,
+              [((-0.02, 0, kr + 0.004), (0, 0, 1))], 0.05)])
+
+
+def _window(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A frame standing on the floor; the upper pane is fixed, the lower sash slides up."""
+    t, fd = 0.025, D
+    base = [_box((0, 0, t / 2), (fd, W, t), rgba), _box((0, 0, H - t / 2), (fd, W, t), rgba),
+            _box((0, W / 2 - t / 2, H / 2), (fd, t, H), rgba), _box((0, -W / 2 + t / 2, H / 2), (fd, t, H), rgba),
+            _box((fd / 4, 0, 0.75 * H), (0.006, W - 2 * t, H / 2 - t), GLASS), _box((0.01, 0, 0.55 * H), (0.01, W - 2 * t, 0.02), rgba),
+            _box((-fd / 2 - 0.05, 0, 0.01), (0.1, W, 0.02), rgba)]
+    sh, sw = H / 2 - t, W - 2 * t - 0.004
+    sash = [_box((0, 0, 0.012), (0.02, sw, 0.024), rgba), _box((0, 0, sh - 0.012), (0.02, sw, 0.024), rgba),
+            _box((0, sw / 2 - 0.012, sh / 2), (0.02, 0.024, sh), rgba), _box((0, -sw / 2 + 0.012, sh / 2), (0.02, 0.024, sh), rgba),
+            _box((0, 0, sh / 2), (0.006, sw - 0.048, sh - 0.048), GLASS),
+            _box((-0.085, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),  # a handle standing well off the sash:
+            _box((-0.047, 0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL),  # the wrist clears the frame above
+            _box((-0.047, -0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL)]
+    return Design(base, [Joint("prismatic", (-fd / 4, 0, t), (0, 0, 1), (0.0, 0.38 * H), sash,
+                               [((-0.085, 0, 0.058), (0, 0, 1))], 0.25)])
+
+
+def _toilet(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """Bowl with a seat, tank at the back, flush lever on the tank's front that turns down."""
+    tank_d, bowl_h = 0.3 * D, 0.45 * H
+    base = [_cyl((-0.1 * D, 0, bowl_h / 2), 0.33 * min(D, W), bowl_h, WHITE),
+            _cyl((-0.1 * D, 0, bowl_h + 0.008), 0.36 * min(D, W), 0.016, rgba),
+            _cyl((-0.1 * D, 0, bowl_h + 0.0165), 0.22 * min(D, W), 0.001, DARK, collide=False),
+            _box((D / 2 - tank_d / 2, 0, H / 2), (tank_d, 0.8 * W, H), WHITE),
+            _box((D / 2 - tank_d / 2, 0, H + 0.008), (tank_d + 0.01, 0.82 * W, 0.016), rgba)]
+    # the lever stands 7 cm off the tank on a shaft, so the arm's wrist above the cup clears the tank's lid
+    lever, off = 0.22 * W, 0.07
+    handle = [_cyl((-off / 2, 0, 0), 0.01, off, STEEL, rpy=(0, math.pi / 2, 0)),
+              _box((-off, -lever / 2, 0), (0.016, lever, 0.016), STEEL)]
+    return Design(base, [Joint("revolute", (D / 2 - tank_d, 0.32 * W, 0.85 * H), (1, 0, 0), (0.0, 0.7), handle,
+                               [((-off, -lever + 0.01, 0.008), (0, 0, 1))], 0.05)])
+
+
+def _dishwasher(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A box with a front door outline and a control strip; start button pressed down."""
+    base = [_box((0, 0, H / 2), (D, W, H), rgba), _box((-D / 2 - 0.0006, 0, 0.42 * H), (0.001, 0.92 * W, 0.8 * H), STEEL, False),
+            _box((-D / 2 + 0.04, 0, H + 0.004), (0.08, 0.9 * W, 0.008), DARK),
+            _box((-D / 2 - 0.012, 0, 0.8 * H), (0.02, 0.5 * W, 0.018), STEEL)]
+    button = [_cyl((0, 0, 0.006), 0.018, 0.012, (0.30, 0.75, 0.35, 1.0))]
+    return Design(base, [Joint("prismatic", (-D / 2 + 0.04, -0.25 * W, H + 0.008), (0, 0, -1), (0.0, 0.008), button,
+                               [((0, 0, 0.012), (0, 0, 1))], 0.03)])
+
+
+def _table_doors(D: float, W: float, H: float, rgba: tuple) -> Design:
+    """A low table (top, sides, back) with two doors hinged at the sides."""
+    t, dw = 0.015, W / 2 - 0.012
+    base = [_box((0, 0, H - t / 2), (D + 0.02, W + 0.02, t), WOOD), _box((0, W / 2 - t / 2, (H - t) / 2), (D, t, H - t), rgba),
+            _box((0, -W / 2 + t / 2, (H - t) / 2), (D, t, H - t), rgba), _box((D / 2 - t / 2, 0, (H - t) / 2), (t, W, H - t), rgba),
+            _box((0, 0, 0.02), (D, W, 0.04), rgba)]
+    dh = H - t - 0.05
+    off = 0.07  # handles stand well off the doors: the arm's wrist above the cup clears the table top
+
+    def door(sign: float) -> list[Part]:  # sign +1: hinge on the +y side, the door spans towards -y
+        return [_box((-t / 2, -sign * dw / 2, dh / 2), (t, dw - 0.004, dh), rgba),
+                _box((-off, -sign * (dw - 0.03), 0.75 * dh), (0.016, 0.016, 0.14 * dh), STEEL),
+                _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh + 0.05 * dh), (off, 0.012, 0.012), STEEL),
+                _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh - 0.05 * dh), (off, 0.012, 0.012), STEEL)]
+    grips = [[((-off, -s * (dw - 0.03), 0.75 * dh + 0.07 * dh), (0, 0, 1))] for s in (1, -1)]
+    return Design(base, [Joint("revolute", (-D / 2, W / 2 - 0.004, 0.045), (0, 0, -1), (0.0, 1.6), door(1), grips[0], 0.3),
+                         Joint("revolute", (-D / 2, -W / 2 + 0.004, 0.045), (0, 0, 1), (0.0, 1.6), door(-1), grips[1], 0.3)])
+
+
+DESIGNS = {"laptop": _laptop, "lamp": _lamp, "display": _display, "faucet": _faucet, "drawer": _drawer, "oven": _oven, "window": _window, "toilet": _toilet, "dishwasher": _dishwasher, "table_doors": _table_doors}
+ARTICULATED = tuple(DESIGNS)  # a new kind is one function above and its entry here
+
+
 def design(kind: str, size, rgba) -> Design:
     """The parts and joints of one object of `kind` with overall size (depth, width, height) and main colour."""
-    D, W, H = (float(v) for v in size)
-    rgba = tuple(rgba)
-    if kind == "laptop":  # base with a keyboard; lid hinged at the back edge, screen on its inner face
-        tb, tl = 0.35 * H, 0.3 * H
-        base = [_box((0, 0, tb / 2), (D, W, tb), rgba), _box((-0.05 * D, 0, tb), (0.6 * D, 0.85 * W, 0.002), DARK, False)]
-        lid = [_box((-D / 2, 0, tl / 2 + 0.001), (D, W, tl), rgba),
-               _box((-D / 2, 0, 0.0008), (0.9 * D, 0.9 * W, 0.0012), DARK, False)]
-        return Design(base, [Joint("revolute", (D / 2, 0, tb), (0, 1, 0), (0.0, 1.9), lid,
-                                   [((-D + 0.025, 0, tl + 0.001), (0, 0, 1))], 0.15)])
-    if kind == "lamp":  # round foot, pole, head arm that swivels about the pole, shade at the arm's end
-        r_foot, arm = 0.45 * min(D, W), 0.55 * max(D, W)
-        base = [_cyl((0, 0, 0.01), r_foot, 0.02, rgba), _cyl((0, 0, H / 2), 0.011, H - 0.04, STEEL)]
-        head = [_cyl((0, 0, 0.0), 0.018, 0.04, rgba), _box((-arm / 2, 0, 0.0), (arm, 0.022, 0.018), STEEL),
-                _cyl((-arm, 0, -0.01), 0.035, 0.05, rgba), _cyl((-arm, 0, -0.036), 0.028, 0.004, (1.0, 0.95, 0.7, 1.0), collide=False)]
-        return Design(base, [Joint("revolute", (0, 0, H - 0.04), (0, 0, 1), (-1.6, 1.6), head,
-                                   [((-arm, 0, 0.015), (0, 0, 1))], 0.15)])
-    if kind == "display":  # foot, post, screen that slides up the post
-        sh, st = 0.55 * H, 0.025
-        base = [_box((0.2 * D, 0, 0.01), (0.6 * D, 0.5 * W, 0.02), DARK), _box((0.3 * D, 0, (0.06 + sh / 2) / 2), (0.02, 0.06, 0.06 + sh / 2), STEEL)]  # hidden behind the screen
-        screen = [_box((0, 0, sh / 2), (st, W, sh), rgba), _box((-st / 2 - 0.0006, 0, sh / 2), (0.001, 0.92 * W, 0.88 * sh), DARK, False)]
-        return Design(base, [Joint("prismatic", (0.3 * D - 0.01 - st / 2, 0, 0.06), (0, 0, 1), (0.0, 0.4 * H), screen,
-                                   [((0, 0, sh), (0, 0, 1))], 0.2)])
-    if kind == "faucet":  # a basin counter, the faucet's body and spout, a lever on top that turns about z
-        ch, lever = 0.4 * H, 0.6 * D
-        base = [_box((0, 0, ch / 2), (D, W, ch), WHITE), _box((-0.1 * D, 0, ch + 0.001), (0.5 * D, 0.6 * W, 0.002), STEEL, False),
-                _cyl((0.3 * D, 0, ch + 0.35 * H / 2), 0.02, 0.35 * H, rgba),
-                _box((0.05 * D, 0, ch + 0.35 * H - 0.01), (0.5 * D, 0.025, 0.02), rgba)]
-        handle = [_cyl((0, 0, 0.01), 0.018, 0.02, rgba), _box((-lever / 2, 0, 0.02), (lever, 0.022, 0.016), STEEL)]
-        return Design(base, [Joint("revolute", (0.3 * D, 0, ch + 0.35 * H), (0, 0, 1), (0.0, 1.4), handle,
-                                   [((-lever + 0.012, 0, 0.028), (0, 0, 1))], 0.1)])
-    if kind == "drawer":  # a cabinet box open at the front; a drawer with a handle bar slides out (-x)
-        t = 0.012
-        base = [_box((0, 0, t / 2), (D, W, t), rgba), _box((0, 0, H - t / 2), (D, W, t), rgba),
-                _box((0, W / 2 - t / 2, H / 2), (D, t, H), rgba), _box((0, -W / 2 + t / 2, H / 2), (D, t, H), rgba),
-                _box((D / 2 - t / 2, 0, H / 2), (t, W, H), rgba)]
-        dh, dw, dd = H - 2 * t - 0.01, W - 2 * t - 0.008, D - t - 0.01
-        off = 0.06  # the handle stands well off the drawer: the arm's wrist above the cup clears the cabinet top
-        drawer = [_box((0, 0, 0), (t, dw + 0.006, dh + 0.004), WOOD), _box((dd / 2, 0, -dh / 2 + t / 2), (dd, dw, t), WOOD),
-                  _box((dd / 2, dw / 2 - t / 2, 0), (dd, t, dh), WOOD), _box((dd / 2, -dw / 2 + t / 2, 0), (dd, t, dh), WOOD),
-                  _box((dd, 0, 0), (t, dw, dh), WOOD), _box((-off, 0, 0.15 * dh), (0.016, 0.45 * dw, 0.016), STEEL),
-                  _box((-off / 2 - 0.004, 0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL),
-                  _box((-off / 2 - 0.004, -0.2 * dw, 0.15 * dh), (off, 0.012, 0.012), STEEL)]
-        return Design(base, [Joint("prismatic", (-D / 2 + t / 2, 0, H / 2), (-1, 0, 0), (0.0, 0.65 * D), drawer,
-                                   [((-off, 0, 0.15 * dh + 0.008), (0, 0, 1))], 0.3)])
-    if kind == "oven":  # a box open at the front, a door hinged at its bottom edge, a control panel with a timer knob
-        t, panel = 0.015, 0.22 * H
-        body_h = H - panel
-        base = [_box((0, 0, t / 2), (D, W, t), rgba), _box((0, 0, body_h - t / 2), (D, W, t), rgba),
-                _box((0, W / 2 - t / 2, body_h / 2), (D, t, body_h), rgba), _box((0, -W / 2 + t / 2, body_h / 2), (D, t, body_h), rgba),
-                _box((D / 2 - t / 2, 0, body_h / 2), (t, W, body_h), rgba), _box((0.05, 0, body_h + panel / 2), (D - 0.1, W, panel), DARK),
-                _box((0, 0, t + 0.003), (D - 2 * t, W - 2 * t, 0.004), DARK, False)]
-        dh = body_h - 0.02
-        door = [_box((-t / 2, 0, dh / 2), (t, W - 0.01, dh), rgba), _box((-t - 0.0006, 0, 0.55 * dh), (0.001, 0.6 * W, 0.45 * dh), DARK, False),
-                _box((-t - 0.03, 0, dh - 0.03), (0.016, 0.7 * W, 0.016), STEEL),
-                _box((-t - 0.015, 0.3 * W, dh - 0.03), (0.03, 0.012, 0.012), STEEL),
-                _box((-t - 0.015, -0.3 * W, dh - 0.03), (0.03, 0.012, 0.012), STEEL)]
-        kr = 0.28 * panel
-        knob = [_cyl((-0.014, 0, 0), kr, 0.028, WHITE, rpy=(0, math.pi / 2, 0)),
-                _box((-0.02, 0, kr - 0.004), (0.024, 0.01, 0.016), DARK)]
-        return Design(base, [
-            Joint("revolute", (-D / 2, 0, 0.01), (0, -1, 0), (0.0, math.pi / 2), door,
-                  [((-t - 0.03, 0, dh - 0.022), (0, 0, 1)), ((0, 0, dh - 0.03), (1, 0, 0))], 0.3),
-            Joint("revolute", (-D / 2 + 0.1, 0.25 * W, body_h + panel / 2), (-1, 0, 0), (0.0, math.pi), knob,
-                  [((-0.02, 0, kr + 0.004), (0, 0, 1))], 0.05)])
-    if kind == "window":  # a frame standing on the floor; the upper pane is fixed, the lower sash slides up
-        t, fd = 0.025, D
-        base = [_box((0, 0, t / 2), (fd, W, t), rgba), _box((0, 0, H - t / 2), (fd, W, t), rgba),
-                _box((0, W / 2 - t / 2, H / 2), (fd, t, H), rgba), _box((0, -W / 2 + t / 2, H / 2), (fd, t, H), rgba),
-                _box((fd / 4, 0, 0.75 * H), (0.006, W - 2 * t, H / 2 - t), GLASS), _box((0.01, 0, 0.55 * H), (0.01, W - 2 * t, 0.02), rgba),
-                _box((-fd / 2 - 0.05, 0, 0.01), (0.1, W, 0.02), rgba)]
-        sh, sw = H / 2 - t, W - 2 * t - 0.004
-        sash = [_box((0, 0, 0.012), (0.02, sw, 0.024), rgba), _box((0, 0, sh - 0.012), (0.02, sw, 0.024), rgba),
-                _box((0, sw / 2 - 0.012, sh / 2), (0.02, 0.024, sh), rgba), _box((0, -sw / 2 + 0.012, sh / 2), (0.02, 0.024, sh), rgba),
-                _box((0, 0, sh / 2), (0.006, sw - 0.048, sh - 0.048), GLASS),
-                _box((-0.085, 0, 0.05), (0.016, 0.3 * sw, 0.016), STEEL),  # a handle standing well off the sash:
-                _box((-0.047, 0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL),  # the wrist clears the frame above
-                _box((-0.047, -0.12 * sw, 0.05), (0.075, 0.012, 0.012), STEEL)]
-        return Design(base, [Joint("prismatic", (-fd / 4, 0, t), (0, 0, 1), (0.0, 0.38 * H), sash,
-                                   [((-0.085, 0, 0.058), (0, 0, 1))], 0.25)])
-    if kind == "toilet":  # bowl with a seat, tank at the back, flush lever on the tank's front that turns down
-        tank_d, bowl_h = 0.3 * D, 0.45 * H
-        base = [_cyl((-0.1 * D, 0, bowl_h / 2), 0.33 * min(D, W), bowl_h, WHITE),
-                _cyl((-0.1 * D, 0, bowl_h + 0.008), 0.36 * min(D, W), 0.016, rgba),
-                _cyl((-0.1 * D, 0, bowl_h + 0.0165), 0.22 * min(D, W), 0.001, DARK, collide=False),
-                _box((D / 2 - tank_d / 2, 0, H / 2), (tank_d, 0.8 * W, H), WHITE),
-                _box((D / 2 - tank_d / 2, 0, H + 0.008), (tank_d + 0.01, 0.82 * W, 0.016), rgba)]
-        # the lever stands 7 cm off the tank on a shaft, so the arm's wrist above the cup clears the tank's lid
-        lever, off = 0.22 * W, 0.07
-        handle = [_cyl((-off / 2, 0, 0), 0.01, off, STEEL, rpy=(0, math.pi / 2, 0)),
-                  _box((-off, -lever / 2, 0), (0.016, lever, 0.016), STEEL)]
-        return Design(base, [Joint("revolute", (D / 2 - tank_d, 0.32 * W, 0.85 * H), (1, 0, 0), (0.0, 0.7), handle,
-                                   [((-off, -lever + 0.01, 0.008), (0, 0, 1))], 0.05)])
-    if kind == "dishwasher":  # a box with a front door outline and a control strip; start button pressed down
-        base = [_box((0, 0, H / 2), (D, W, H), rgba), _box((-D / 2 - 0.0006, 0, 0.42 * H), (0.001, 0.92 * W, 0.8 * H), STEEL, False),
-                _box((-D / 2 + 0.04, 0, H + 0.004), (0.08, 0.9 * W, 0.008), DARK),
-                _box((-D / 2 - 0.012, 0, 0.8 * H), (0.02, 0.5 * W, 0.018), STEEL)]
-        button = [_cyl((0, 0, 0.006), 0.018, 0.012, (0.30, 0.75, 0.35, 1.0))]
-        return Design(base, [Joint("prismatic", (-D / 2 + 0.04, -0.25 * W, H + 0.008), (0, 0, -1), (0.0, 0.008), button,
-                                   [((0, 0, 0.012), (0, 0, 1))], 0.03)])
-    if kind == "table_doors":  # a low table (top, sides, back) with two doors hinged at the sides
-        t, dw = 0.015, W / 2 - 0.012
-        base = [_box((0, 0, H - t / 2), (D + 0.02, W + 0.02, t), WOOD), _box((0, W / 2 - t / 2, (H - t) / 2), (D, t, H - t), rgba),
-                _box((0, -W / 2 + t / 2, (H - t) / 2), (D, t, H - t), rgba), _box((D / 2 - t / 2, 0, (H - t) / 2), (t, W, H - t), rgba),
-                _box((0, 0, 0.02), (D, W, 0.04), rgba)]
-        dh = H - t - 0.05
-        off = 0.07  # handles stand well off the doors: the arm's wrist above the cup clears the table top
-
-        def door(sign: float) -> list[Part]:  # sign +1: hinge on the +y side, the door spans towards -y
-            return [_box((-t / 2, -sign * dw / 2, dh / 2), (t, dw - 0.004, dh), rgba),
-                    _box((-off, -sign * (dw - 0.03), 0.75 * dh), (0.016, 0.016, 0.14 * dh), STEEL),
-                    _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh + 0.05 * dh), (off, 0.012, 0.012), STEEL),
-                    _box((-off / 2 - 0.004, -sign * (dw - 0.03), 0.75 * dh - 0.05 * dh), (off, 0.012, 0.012), STEEL)]
-        grips = [[((-off, -s * (dw - 0.03), 0.75 * dh + 0.07 * dh), (0, 0, 1))] for s in (1, -1)]
-        return Design(base, [Joint("revolute", (-D / 2, W / 2 - 0.004, 0.045), (0, 0, -1), (0.0, 1.6), door(1), grips[0], 0.3),
-                             Joint("revolute", (-D / 2, -W / 2 + 0.004, 0.045), (0, 0, 1), (0.0, 1.6), door(-1), grips[1], 0.3)])
-    raise ValueError(f"unknown articulated kind '{kind}'; known: {', '.join(ARTICULATED)}")
+    if kind not in DESIGNS:
+        raise ValueError(f"unknown articulated kind '{kind}'; known: {', '.join(ARTICULATED)}")
+    depth, width, height = (float(v) for v in size)
+    return DESIGNS[kind](depth, width, height, tuple(rgba))
 
 
 def _parts_xml(parts: list[Part], tag: str) -> str:
