@@ -278,9 +278,32 @@ def check_heldout_settings(steps, horizon, lr, mask_margin, context: int, exclud
         raise UserError(f"protocol.lr={lr!r}: expected a number > 0, or null for the preset's world_model.train.lr")
 
 
+def _refuse_training_on_evaluated(source, k: int, lo: int, hi: int, how_to_get_more) -> None:
+    """A UserError when training on the first k episodes would reach the evaluated ranks lo..hi-1 (0-based), with
+    the eval_episodes (or the collection) that would fix it."""
+    if lo >= k:
+        return
+    have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
+    fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
+           "with more episodes: "
+           + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
+           + f", then eval_episodes=[{k + 1},{k + 10}]")
+    raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
+                    f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
+
+
+def _refuse_windows_longer_than_episodes(source, evaluated: np.ndarray, context: int, horizon: int) -> None:
+    longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
+    if context + horizon > longest:
+        raise UserError(f"protocol.horizon={horizon} with eval.context={context}: open-loop windows of "
+                        f"{context + horizon} rows, but the evaluated episodes have at most {longest} rows; use "
+                        f"protocol.horizon={max(1, longest - context)} or less")
+
+
 def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training, evaluation: Evaluation,
                               execution: Execution) -> dict:
-    """The `heldout` protocol of fit_and_evaluate (see its docstring)."""
+    """The `heldout` protocol of fit_and_evaluate (see its docstring). Long because it is the protocol read in
+    order, each step one call: refusals, the equal budget, training, the prediction reading, the state reading."""
     from simeval.measures.dynamics_diversity.prediction import evaluate_prediction, task_mean_images
 
     model_cfg, train_cfg, window = training.model, training.train, training.window
@@ -289,14 +312,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     videos, video_dir, compile = evaluation.videos, evaluation.video_dir, execution.compile
     k = int(episodes_per_task)
     lo, hi = evaluation.episodes
-    if lo < k:
-        have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
-        fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
-               "with more episodes: "
-               + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
-               + f", then eval_episodes=[{k + 1},{k + 10}]")
-        raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
-                        f"[{lo + 1},{hi}]); evaluate past the largest episode count of the sweep, {fix}")
+    _refuse_training_on_evaluated(source, k, lo, hi, how_to_get_more)
     context = 5 if evaluation.context is None else int(evaluation.context)
     check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
@@ -316,11 +332,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
         raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
                         "would have to be trained again")
     evaluated = rank_mask(setup.ranks, lo, hi)
-    longest = max(i.n_rows for i, m in zip(source.infos, evaluated) if m)
-    if context + horizon > longest:
-        raise UserError(f"protocol.horizon={horizon} with eval.context={context}: open-loop windows of "
-                        f"{context + horizon} rows, but the evaluated episodes have at most {longest} rows; use "
-                        f"protocol.horizon={max(1, longest - context)} or less")
+    _refuse_windows_longer_than_episodes(source, evaluated, context, horizon)
 
     def held_out(length: int) -> WindowDataset:
         return WindowDataset(source, WindowSpec(length=length, stride=length, pad_end=True), evaluated,
@@ -344,8 +356,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     prediction["episodes"] = [lo + 1, hi]
     values = {"protocol": {"name": "heldout", "steps": steps, "lr": train_cfg.lr, "mask_margin": mask_margin,
                            "exclude_robot_from_loss": exclude_robot_from_loss,
-                           "robot_excluded_from_loss": setup.train_ds.robot_masks,
-                           "trained_on": [1, k],
+                           "robot_excluded_from_loss": setup.train_ds.robot_masks, "trained_on": [1, k],
                            "evaluated_on": [lo + 1, hi], "context": context, "horizon": horizon},
               "prediction": prediction,
               "gate": pixel_gate([prediction["per_episode"]], evaluation.gate or GateConfig()),

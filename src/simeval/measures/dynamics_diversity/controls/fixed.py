@@ -162,6 +162,32 @@ def run_settings(args, has_robot_masks: bool) -> dict:
     return settings
 
 
+def _refuse_other_settings(path: Path, settings: dict) -> None:
+    stored = json.loads(path.read_text()).get("settings")
+    if stored != settings:
+        differ = sorted(key for key in settings if (stored or {}).get(key) != settings[key])
+        fail(f"error: {path} was run with other settings ({', '.join(differ)}: "
+             f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
+             f"--out for these settings, or delete that folder's runs to redo them")
+
+
+def _run_record(path: Path, identity: dict, values: dict, settings: dict) -> dict:
+    """A saved control run: what the table reads (no machine paths, no last batch)."""
+    record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name, "identity": identity,
+              "values": {key: values[key] for key in ("protocol", "prediction", "train", "model")},
+              "settings": settings}
+    record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
+    return record
+
+
+def _one_step_line(values: dict) -> str:
+    one = values["prediction"]["summary"]["one_step"]
+    obj = {who: 1e3 * one[who]["object_error_per_pixel"] for who in ("model", "last", "mean")}
+    return (f"object-focused one-step {obj['model']:.3f} x1e-3 (last frame {obj['last']:.3f}, mean image "
+            f"{obj['mean']:.3f}); full frame {one['model']['error']:.2f} (last frame {one['last']['error']:.2f}, "
+            f"mean image {one['mean']['error']:.2f})")
+
+
 def run_all(args) -> list[dict]:
     import torch
 
@@ -198,12 +224,7 @@ def run_all(args) -> list[dict]:
             for k in args.episodes:
                 path = runs_dir / f"{condition}_k{k}_s{seed}.json"
                 if path.exists():
-                    stored = json.loads(path.read_text()).get("settings")
-                    if stored != settings:
-                        differ = sorted(key for key in settings if (stored or {}).get(key) != settings[key])
-                        fail(f"error: {path} was run with other settings ({', '.join(differ)}: "
-                                         f"{', '.join(str((stored or {}).get(key)) for key in differ)}); give another "
-                                         f"--out for these settings, or delete that folder's runs to redo them")
+                    _refuse_other_settings(path, settings)
                     if not args.reevaluate:
                         print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
                         continue
@@ -223,22 +244,14 @@ def run_all(args) -> list[dict]:
                 execution = Execution(checkpoint_dir=args.out / "checkpoints" / "controls", progress=False,
                                       evaluate_only=reevaluated)
                 values = fit_and_evaluate(source_of(condition), k, training, evaluation, execution)
-                record = {"metric": "dynamics_diversity", "status": "ok", "path": path.name,  # no machine paths
-                          "identity": {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
-                                       "preset": args.preset, "seed": seed, "protocol": "heldout",
-                                       "steps": args.steps},
-                          "values": {key: values[key] for key in ("protocol", "prediction", "train", "model")},
-                          "settings": settings}
-                record["values"]["train"] = {k2: v for k2, v in values["train"].items() if k2 != "last"}
+                identity = {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
+                            "preset": args.preset, "seed": seed, "protocol": "heldout", "steps": args.steps}
                 if reevaluated:
                     print(f"{condition} k={k} seed={seed}: evaluated again from its checkpoint", flush=True)
-                atomic_write_text(path, json.dumps(record, indent=1))  # a kill mid-write leaves the old record
-                one = values["prediction"]["summary"]["one_step"]
-                obj = {who: 1e3 * one[who]["object_error_per_pixel"] for who in ("model", "last", "mean")}
-                print(f"{condition} k={k} seed={seed}: object-focused one-step {obj['model']:.3f} x1e-3 (last frame "
-                      f"{obj['last']:.3f}, mean image {obj['mean']:.3f}); full frame {one['model']['error']:.2f} "
-                      f"(last frame {one['last']['error']:.2f}, mean image {one['mean']['error']:.2f}) in "
-                      f"{time.perf_counter() - t0:.0f} s", flush=True)
+                # a kill mid-write leaves the old record
+                atomic_write_text(path, json.dumps(_run_record(path, identity, values, settings), indent=1))
+                print(f"{condition} k={k} seed={seed}: {_one_step_line(values)} in {time.perf_counter() - t0:.0f} s",
+                      flush=True)
     return [json.loads(p.read_text()) for p in sorted(runs_dir.glob("*.json"))]
 
 
