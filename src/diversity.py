@@ -36,9 +36,10 @@ def main(cfg: DictConfig) -> None:
     searchpath = "".join(f" {shlex.quote(o)}" for o in HydraConfig.get().overrides.hydra
                          if o.startswith("hydra.searchpath="))
     source, how_to_get_more = episode_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera,
-                                             cfg.pipeline.get("suite"), own_code_args(cfg.pipeline),
-                                             measure.episodes_needed,
-                                             HydraConfig.get().runtime.choices.get("debug") or "none", searchpath)
+                                             suite=cfg.pipeline.get("suite"), own_code=own_code_args(cfg.pipeline),
+                                             episodes_needed=measure.episodes_needed,
+                                             debug_overlay=HydraConfig.get().runtime.choices.get("debug") or "none",
+                                             collect_extra=searchpath)
     with run.logger() as logger:
         values = measure.fit(source, checkpoint_dir=cfg.checkpoint_dir, logger=logger, device=device,
                              compile=cfg.compile, capture=cfg.capture, videos=int(cfg.videos), progress=bool(cfg.progress),

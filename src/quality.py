@@ -31,8 +31,10 @@ def main(cfg: DictConfig) -> None:
     judge = "oracle"
     if cfg.judge.kind != "oracle":
         captioner = instantiate(cfg.captioner.provider) if cfg.captioner.kind != "none" else None
-        judge = model_judge(instantiate(cfg.judge.provider), captioner, run.config["judge"], run.config["captioner"],
-                            run.config["prompts"], cfg.cache_dir, cfg.budget_usd, cfg.repeats, cfg.max_reasks)
+        judge = model_judge(instantiate(cfg.judge.provider), captioner, judge=run.config["judge"],
+                            captioner_settings=run.config["captioner"], prompts=run.config["prompts"],
+                            cache_dir=cfg.cache_dir, budget_usd=cfg.budget_usd, repeats=cfg.repeats,
+                            max_reasks=cfg.max_reasks)
     meta = dict(config=run.config, choices=run.choices, seed=cfg.seed, overrides=run.overrides, label=cfg.label)
     with run.logger() as logger:
         out = run_quality(run.output_dir, bundles_dir=cfg.bundles_dir, episodes=run.config["episodes"], judge=judge,

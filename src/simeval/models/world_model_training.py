@@ -133,7 +133,8 @@ def train(model, dataset, cfg: TrainConfig, checkpoint: str | os.PathLike | None
     device = resolve_device(device)
     if capture and device.type != "cuda":
         raise capture_needs_cuda(f"the device is {device}")
-    run = _Training(model, dataset, cfg, checkpoint, dict(meta or {}), log_metrics, progress, device, compile, capture)
+    run = _Training(model, dataset, cfg, checkpoint, dict(meta or {}), log_metrics=log_metrics, progress=progress,
+                    device=device, compile=compile, capture=capture)
     step = run_steps(run.window_batches(), run.take_step, run.save, step=run.first_step,
                      checkpoint_every=cfg.checkpoint_every, after_step=run.after_step,
                      final_save=lambda s: run.save(s, finished=True))
@@ -146,7 +147,7 @@ class _Training:
     checkpoint's epoch, batch and step), and what it has done since; `train` drives it with run_steps (which
     checkpoints at a preemption signal as well as on the cadence)."""
 
-    def __init__(self, model, dataset, cfg: TrainConfig, checkpoint, meta: dict, log_metrics, progress: bool,
+    def __init__(self, model, dataset, cfg: TrainConfig, checkpoint, meta: dict, *, log_metrics, progress: bool,
                  device: torch.device, compile: bool, capture: bool) -> None:
         from simeval.runtime.captured import CapturedTrainStep
 

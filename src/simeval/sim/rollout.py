@@ -11,7 +11,8 @@ from __future__ import annotations
 import numbers
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -213,10 +214,8 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
                  **expert.env_kwargs(settings))
     try:
         obs, info = env.reset(seed=seed)
-        views = info.pop("scene_views")
-        rows, progress, poses = [obs], [info["progress"]], [env.object_poses()]
-        actions: list[np.ndarray] = []
-        high_level, high_level_steps = [], []
+        trace = _Trace(views=info.pop("scene_views"), rows=[obs], progress=[info["progress"]],
+                       poses=[env.object_poses()])
         policy = expert.policy(settings)
         policy.reset(env)
         while True:
@@ -225,35 +224,75 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
                 break
             action = expert.to_env(action)
             obs, _, terminated, truncated, info = env.step(action)
-            low = info.get("low_level")
-            if low is not None:  # a primitive: the control steps it took
-                high_level_steps.append(len(actions))
-                high_level.append(action)
-                actions += low["action"]
-                rows += low["obs"]
-                progress += low["progress"]
-                poses += low["object_poses"]
+            if info.get("low_level") is not None:  # a primitive: the control steps it took
+                trace.add_primitive(action, info["low_level"])
             else:
-                actions.append(expert.stored(env, action))
-                rows.append(obs)
-                progress.append(info["progress"])
-                poses.append(env.object_poses())
+                trace.add_step(expert.stored(env, action), obs, info["progress"], env.object_poses())
             if terminated or truncated:
                 break
-        success = info["success"]
-        extra = expert.extra(env, policy, settings)
-        final_view = expert.final_view(env, final_frame_size) if final_frame_size else None
-        inst, hz = env.inst, env.control_hz
+        trace.success = info["success"]
+        trace.extra = expert.extra(env, policy, settings)
+        trace.final_view = expert.final_view(env, final_frame_size) if final_frame_size else None
+        trace.inst, trace.control_hz = env.inst, env.control_hz
     finally:
         env.close()
-    if not actions:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
+    if not trace.actions:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
         raise RuntimeError(f"{spec.name} seed {seed}: the {expert.name} made no move; is the task solved at start?")
-    fields = {"high_level_action": np.stack(high_level), "high_level_step": np.asarray(high_level_steps, np.int64),
-              "high_level_space": pick_place_action_space(hz)} if high_level else {}
-    return _low_level_episode(
-        spec, seed, pipeline, inst, settings.cameras, rows, actions, progress, poses, success=success, views=views,
-        final_view=final_view, control_hz=hz, action_space=expert.action_space(hz),
-        state_names=expert.state_names(spec), variation=variation, extra=extra, **fields)
+    return trace.episode(spec, seed, pipeline, settings.cameras, variation,
+                         action_space=expert.action_space(trace.control_hz), state_names=expert.state_names(spec))
+
+
+@dataclass
+class _Trace:
+    """What an expert's episode leaves while its environment is open: the reset observation then one row per
+    control step, with its action, task progress and object poses, and the primitives (pick/place) that made them."""
+    views: Any
+    rows: list
+    progress: list
+    poses: list
+    actions: list = field(default_factory=list)
+    high_level: list = field(default_factory=list)
+    high_level_steps: list = field(default_factory=list)
+    success: bool = False
+    extra: dict = field(default_factory=dict)
+    final_view: Any = None
+    inst: Any = None
+    control_hz: float = 0.0
+
+    def add_primitive(self, action: np.ndarray, low: dict) -> None:
+        self.high_level_steps.append(len(self.actions))
+        self.high_level.append(action)
+        self.actions += low["action"]
+        self.rows += low["obs"]
+        self.progress += low["progress"]
+        self.poses += low["object_poses"]
+
+    def add_step(self, action: np.ndarray, obs: dict, progress: float, poses: np.ndarray) -> None:
+        self.actions.append(action)
+        self.rows.append(obs)
+        self.progress.append(progress)
+        self.poses.append(poses)
+
+    def episode(self, spec: TaskSpec, seed: int, pipeline: str, cameras, variation: dict, *, action_space: dict,
+                state_names) -> Episode:
+        """The stored episode: the rows (T + 1), the last row's action repeated as padding (format 2,
+        simeval.episodes.store), and the high-level primitives where the expert used them."""
+        rows, actions, t = self.rows, self.actions, len(self.actions)
+        prog = np.asarray(self.progress, np.float32)
+        high = ({"high_level_action": np.stack(self.high_level),
+                 "high_level_step": np.asarray(self.high_level_steps, np.int64),
+                 "high_level_space": pick_place_action_space(self.control_hz)} if self.high_level else {})
+        return Episode(
+            pipeline=pipeline, task=spec.name, description=self.inst.description, group=spec.group, seed=seed,
+            rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in cameras},
+            state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last: padding
+            reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
+            is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(self.success),
+            scene_views=self.views, control_hz=self.control_hz, source="simeval-suite", final_view=self.final_view,
+            action_space=action_space, state_names=list(state_names), variation=variation,
+            object_poses=np.stack(self.poses).astype(np.float32), robot_mask=robot_masks(rows, cameras),
+            extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
+                               for o in self.inst.objects}, **self.extra}, **high)
 
 
 def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
@@ -261,26 +300,6 @@ def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
     if not rows or "robot_mask" not in rows[0]:
         return None
     return {c: np.stack([o["robot_mask"][c] for o in rows]) for c in cameras}
-
-
-def _low_level_episode(spec: TaskSpec, seed: int, pipeline: str, inst, cameras, rows: list, actions: list,
-                       progress: list, poses: list, *, success: bool, views, final_view, control_hz: float,
-                       action_space: dict, state_names, variation: dict, extra: dict, **fields) -> Episode:
-    """The stored episode: `rows` = the reset observation then one per action (T + 1), the last row's action
-    repeated as padding (format 2, simeval.episodes.store); `fields`: more Episode fields (the high-level ones)."""
-    t = len(actions)
-    prog = np.asarray(progress, np.float32)
-    return Episode(
-        pipeline=pipeline, task=spec.name, description=inst.description, group=spec.group, seed=seed,
-        rgb={c: np.stack([o["rgb"][c] for o in rows]) for c in cameras},
-        state=np.stack([o["state"] for o in rows]), action=np.stack([*actions, actions[-1]]),  # last row: padding
-        reward=np.r_[np.diff(prog), 0.0].astype(np.float32), progress=prog,
-        is_first=np.arange(t + 1) == 0, is_terminal=np.arange(t + 1) == t, success=bool(success),
-        scene_views=views, control_hz=control_hz, source="simeval-suite", final_view=final_view,
-        action_space=action_space, state_names=list(state_names),
-        variation=variation, object_poses=np.stack(poses).astype(np.float32), robot_mask=robot_masks(rows, cameras),
-        extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                           for o in inst.objects}, **extra}, **fields)
 
 
 def _joint_fractions(env: SimEnv, obj) -> list[float]:

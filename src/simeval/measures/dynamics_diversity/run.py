@@ -192,8 +192,9 @@ def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluat
     eval_episodes, heldout_episodes, eval_seed = evaluation.episodes, evaluation.heldout_episodes, evaluation.seed
     videos, video_dir = evaluation.videos, evaluation.video_dir
     progress, compile = execution.progress, execution.compile
-    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes, evaluation.context,
-                     execution.checkpoint_dir, execution.how_to_get_more)
+    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes=eval_episodes,
+                     eval_context=evaluation.context, checkpoint_dir=execution.checkpoint_dir,
+                     how_to_get_more=execution.how_to_get_more)
     tasks, ranks, train_ds, stats = setup.tasks, setup.ranks, setup.train_ds, setup.stats
     model, meta, checkpoint = setup.model, setup.meta, setup.checkpoint
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
@@ -326,8 +327,9 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
         return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
                 "or use protocol=paper")
 
-    setup = _prepare(source, k, model_cfg, train_cfg, window, evaluation.episodes, None, execution.checkpoint_dir,
-                     more, protocol="heldout", loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
+    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes=evaluation.episodes, eval_context=None,
+                     checkpoint_dir=execution.checkpoint_dir, how_to_get_more=more, protocol="heldout",
+                     loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
     if execution.evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
         raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
                         "would have to be trained again")
@@ -413,7 +415,7 @@ class _Setup:
 
 
 def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
-             eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
+             *, eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
              protocol: str = "paper", loss_robot_margin: int | None = None) -> _Setup:
     """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
     checkpoint key is the config + training data (by value: simeval.episodes.digest), and `protocol` for any protocol but the paper's (so the paper's
@@ -551,7 +553,7 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     return StoreSource(paths, camera)
 
 
-def episode_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+def episode_source(store: str | Path, pipeline: str, group: str, camera: str, *, suite: str | None,
                    own_code: str | None, episodes_needed: int, debug_overlay: str = "none", collect_extra: str = ""):
     """(store_source's episodes, how_to_get_more(n): the command that collects n per task): what src/diversity.py
     reads, and tells a user to run when there are too few. `debug_overlay`: the run's debug= choice, which the
@@ -658,9 +660,11 @@ class DiversityRun:
     @classmethod
     def from_config(cls, conf: Mapping) -> DiversityRun:
         """The run conf/diversity.yaml describes (as a plain mapping: the run's resolved config)."""
-        return cls(conf["pipeline"]["name"], conf["task_group"], conf["camera"], int(conf["episodes"]),
-                   int(conf["seed"]), conf["world_model"], conf["protocol"], conf["eval"],
-                   ranks_of(conf["eval_episodes"], "eval_episodes"), ranks_of(conf["heldout_episodes"], "heldout_episodes"))
+        return cls(pipeline=conf["pipeline"]["name"], task_group=conf["task_group"], camera=conf["camera"],
+                   episodes=int(conf["episodes"]), seed=int(conf["seed"]), world_model=conf["world_model"],
+                   protocol=conf["protocol"], evaluation=conf["eval"],
+                   eval_episodes=ranks_of(conf["eval_episodes"], "eval_episodes"),
+                   heldout_episodes=ranks_of(conf["heldout_episodes"], "heldout_episodes"))
 
     @cached_property
     def configs(self) -> tuple[WorldModelConfig, TrainConfig, WindowSpec]:

@@ -336,7 +336,7 @@ def log_task_table(logger, result_path: Path) -> None:
         log.warning("quality/tasks table not logged: %s: %s", type(e).__name__, e)
 
 
-def model_judge(provider, captioner, judge: Mapping, captioner_settings: Mapping, prompts: Mapping[str, str],
+def model_judge(provider, captioner, *, judge: Mapping, captioner_settings: Mapping, prompts: Mapping[str, str],
                 cache_dir: str | os.PathLike, budget_usd: float | None, repeats: int, max_reasks: int) -> ModelJudge:
     """run_quality's ModelJudge (the oracle needs none): `provider` (and `captioner`, None for
     none: it captions each view once and every judge repeat reuses it) with conf/quality.yaml's `judge` and
