@@ -20,7 +20,7 @@ GENSIM_CHECKOUT ?= $(or $(GENSIM_ROOT),$(wildcard ../shared/gensim))
 export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROOT
 
 # Figure 3's input: the paper's appendix score tables, shipped with the package, or a table of yours
-HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/report/paper_human_eval.json)
+HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/writing/paper_human_eval.json)
 
 .PHONY: help setup gensim-env metaworld-env lerobot-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
 

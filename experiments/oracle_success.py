@@ -71,7 +71,7 @@ def table_rows(episodes: dict[tuple[str, int], dict], tasks: list[str], seeds: i
 
 
 def main() -> None:
-    from simeval.report.tables import write_table
+    from simeval.writing.tables import write_table
     from simeval.sim.tasks.spec import suite_dir
 
     ap = OneLineParser()

@@ -18,7 +18,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.measures.agreement.run import agreement_rows, format_rows, load_score_tables
     from simeval.errors import UserError
     from simeval.measures.agreement.metric import METRIC_VERSION
-    from simeval.report.tables import write_table
+    from simeval.writing.tables import write_table
     from simeval.results import RunFolder
 
     if not cfg.scores_path:

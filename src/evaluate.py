@@ -1,5 +1,5 @@
 """A scorecard of one pipeline's episodes in the store: every aspect simeval measures that the episodes allow, each
-beside the committed reference rows (simeval.overview.scorecard). See conf/evaluate.yaml.
+beside the committed reference rows (simeval.report.scorecard). See conf/evaluate.yaml.
 
 The measures run as the entrypoints a user would type (src/quality.py, src/diversity.py, src/generalization.py),
 as subprocesses writing into `out`/<stage>-<key>/ (the key: the stage's settings and the episodes), so a
@@ -52,15 +52,15 @@ def _text(metas, cfg) -> dict:
 
     from simeval.measures.text_diversity.run import text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
-    from simeval.overview.scorecard import aspect
-    from simeval.pipelines.task_records import Task
+    from simeval.report.scorecard import aspect
+    from simeval.pipelines.task_records import TaskText
 
     texts = {}
     for m in metas:
         texts.setdefault(m["description"], m["task"])
     if len(texts) < 2:
         return aspect("text_diversity", "no reading", f"{len(texts)} distinct task text; Eq. 1 needs at least 2")
-    tasks = [Task(pipeline=cfg.episodes.pipeline, group="all", name=name, description=text, text=text)
+    tasks = [TaskText(pipeline=cfg.episodes.pipeline, group="all", name=name, description=text, text=text)
              for text, name in texts.items()]
     Path(cfg.cache_dir).mkdir(parents=True, exist_ok=True)
     embedder = CachedEmbedder(instantiate(cfg.embedding.backend), EmbeddingCache(f"{cfg.cache_dir}/embeddings.sqlite"))
@@ -72,7 +72,7 @@ def _text(metas, cfg) -> dict:
 
 
 def _quality(metas, cfg, out: Path, per_task: int) -> dict:
-    from simeval.overview.scorecard import aspect
+    from simeval.report.scorecard import aspect
 
     if not all(m["success_known"] for m in metas):
         unknown = sum(not m["success_known"] for m in metas)
@@ -98,7 +98,7 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
 
 def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, list[int], list[int]]) -> dict:
     """Table 4 held-out on the last `held` of the `n` episodes every task has (the fewest any task has)."""
-    from simeval.overview.scorecard import aspect
+    from simeval.report.scorecard import aspect
 
     held, wanted, seeds = settings
     counts = [k for k in wanted if k + held <= n]
@@ -139,7 +139,7 @@ def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, l
 
 def _generalization(cfg, out: Path, camera: str, per_task: int, groups: list[str]) -> dict:
     """Table 5 on each group of the pipeline (its policy and the random baseline), where it has an environment."""
-    from simeval.overview.scorecard import aspect
+    from simeval.report.scorecard import aspect
 
     if not cfg.environment:
         return aspect("generalization", "skipped", "no environment to roll a policy out in (imported episodes have "
@@ -212,7 +212,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from simeval.episodes.store import pipeline_episodes
-    from simeval.overview import scorecard
+    from simeval.report import scorecard
     from simeval.results import RunFolder
 
     settings = dynamics_settings(cfg)  # before anything runs

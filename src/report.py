@@ -1,6 +1,6 @@
 """The report door: rebuild a paper table, figure or the HTML report from files on disk (no rerun).
     python src/report.py report=table3|figure4|table4|table4_heldout|table5|html|all [overwrite=true]
-See conf/report.yaml and conf/report/; the builders are simeval.overview.rebuild (callable without Hydra)."""
+See conf/report.yaml and conf/report/; the builders are simeval.report.rebuild (callable without Hydra)."""
 
 import logging
 
@@ -15,7 +15,7 @@ log = logging.getLogger("report")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")
 @exit_cleanly_on_user_error
 def main(cfg: DictConfig) -> None:
-    from simeval.overview.rebuild import rebuild, rebuild_all
+    from simeval.report.rebuild import rebuild, rebuild_all
 
     spec = OmegaConf.to_container(cfg.report, resolve=True)
     if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others, but sets the status

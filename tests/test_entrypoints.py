@@ -69,7 +69,7 @@ def test_shipped_embedding_configs_instantiate_without_loading_models():
 
 
 def test_latex_escaping_is_single_pass():
-    from simeval.report.tables import to_latex
+    from simeval.writing.tables import to_latex
 
     tex = to_latex(["A", "B"], [[r"path\to_x", "{1} & 5%"]])
     assert r"path\textbackslash{}to\_x & \{1\} \& 5\%" in tex

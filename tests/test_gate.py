@@ -151,7 +151,7 @@ def test_paired_episodes_cancel_their_own_spread_and_each_resample_holds_the_sam
 
 
 def test_the_html_report_shows_the_verdict_in_place_of_a_gated_runs_numbers():
-    from simeval.overview.html import headline_values
+    from simeval.report.html import headline_values
 
     one = {"model": {"object_error_per_pixel": 0.002}, "object_skill_vs_last": -3.0, "object_skill_vs_mean": 0.01}
     values = {"prediction": {"summary": {"one_step": one}},

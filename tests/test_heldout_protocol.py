@@ -312,7 +312,7 @@ def test_entrypoint_sweep_reports_heldout_numbers_and_its_table(tmp_path):
     for rec in recs:
         assert rec["values"]["gate"]["passes"] is False and rec["values"]["state"]["dims"] > 0
         assert all(t["steps_used"] <= 3000 for t in rec["values"]["state"]["training"])
-    from simeval.report.tidy import run_rows
+    from simeval.writing.tidy import run_rows
 
     rows = run_rows(recs)  # the notebook's DataFrame: the one-step error is each run's headline
     assert [row["statistic"] for row in rows] == ["heldout_one_step_error"] * 4

@@ -121,7 +121,7 @@ def test_no_arrow_runs_back_up_between_the_librarys_floors():
 def test_the_bundle_format_imports_no_quality_run_and_loggers_import_no_report():
     edges = import_graph()
     assert not {m for m in edges["simeval.measures.quality.bundle"] if m.startswith("simeval.measures.quality")}
-    assert not {m for m in edges["simeval.loggers"] if m.startswith(("simeval.report", "simeval.measures.quality"))}
+    assert not {m for m in edges["simeval.loggers"] if m.startswith(("simeval.writing", "simeval.measures.quality"))}
 
 
 def test_no_test_file_imports_another():

@@ -67,7 +67,7 @@ def test_saved_figures_carry_no_dates(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from simeval.report.figures import save_figure
+    from simeval.writing.figures import save_figure
 
     fig, ax = plt.subplots(figsize=(2, 2))
     ax.plot([0, 1], [1, 0])

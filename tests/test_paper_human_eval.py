@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHIPPED = ROOT / "src" / "simeval" / "report" / "paper_human_eval.json"
+SHIPPED = ROOT / "src" / "simeval" / "writing" / "paper_human_eval.json"
 SHARED = ROOT.parent / "shared"
 
 

@@ -200,8 +200,8 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
 
 def test_the_report_door_builds_tables_4_and_5_as_the_library_does(outputs, tmp_path):
     """src/report.py report=table4|table5 (the one report entrypoint) is the library function it calls
-    (simeval.overview.rebuild), called without Hydra: the same runs give the same bytes."""
-    from simeval.overview.rebuild import rebuild_table4, rebuild_table5
+    (simeval.report.rebuild), called without Hydra: the same runs give the same bytes."""
+    from simeval.report.rebuild import rebuild_table4, rebuild_table5
 
     for kind in ("table4", "table5"):
         a = (tmp_path / "outputs", tmp_path / "a" / kind, tmp_path / "a" / f"{kind}.png")

@@ -176,7 +176,7 @@ def test_an_assets_folder_that_is_not_a_reports_is_never_deleted(tmp_path):
 
 
 def test_an_agreement_run_is_summarised_by_its_pooled_r_over_mae():
-    from simeval.overview.html import headline_values
+    from simeval.report.html import headline_values
 
     rows = [{"table": "scene_alignment", "pipeline": "RoboGen", "judge": "GPT-4v", "r_over_mae": 0.2},
             {"table": "scene_alignment", "pipeline": "all", "judge": "GPT-4v", "r_over_mae": 0.87},
@@ -186,7 +186,7 @@ def test_an_agreement_run_is_summarised_by_its_pooled_r_over_mae():
 
 
 def test_a_runs_table_cell_cut_at_six_values_says_so_and_links_the_whole_record(tmp_path):
-    from simeval.overview.html import build_html_report
+    from simeval.report.html import build_html_report
     from simeval.results import write_result
 
     write_result(tmp_path / "runs" / "many", metric="collect", version="1",
@@ -208,7 +208,7 @@ def test_two_reports_into_one_folder_take_turns(tmp_path, monkeypatch):
     be taken (checked without waiting), and every build takes it."""
     import fcntl
 
-    from simeval.overview import html as report_html
+    from simeval.report import html as report_html
 
     runs = tmp_path / "runs"
     runs.mkdir()
@@ -230,7 +230,7 @@ def test_two_reports_into_one_folder_take_turns(tmp_path, monkeypatch):
 
 
 def test_the_papers_tables_and_figures_lead(tmp_path):
-    from simeval.overview.html import build_html_report
+    from simeval.report.html import build_html_report
 
     runs, tables, figures = tmp_path / "runs", tmp_path / "tables", tmp_path / "figures"
     for d in (runs, tables, figures):
@@ -253,7 +253,7 @@ def test_a_runs_videos_play_in_the_report(tmp_path):
     """A world-model run's open-loop videos (videos/*.mp4) and a policy run's rollout videos (*.mp4) are copied into
     the report and embedded; a run without videos adds nothing."""
     from simeval.media import write_video
-    from simeval.overview.html import build_html_report
+    from simeval.report.html import build_html_report
 
     runs = tmp_path / "runs"
     frames = np.zeros((4, 16, 16, 3), np.uint8)

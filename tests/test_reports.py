@@ -220,7 +220,7 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     metaworld and both robogen rows without a word."""
     from matplotlib.colors import to_rgba
 
-    from simeval.report import figures
+    from simeval.writing import figures
     from simeval.measures.dynamics_diversity import table4_heldout
 
     rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
@@ -265,7 +265,7 @@ def test_a_wide_interval_is_cut_at_the_panel_edge_and_named_instead_of_squeezing
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from simeval.report.figures import cut_wide_intervals
+    from simeval.writing.figures import cut_wide_intervals
 
     fig, ax = plt.subplots()
     a = ("a", [0.5, 0.7], [0.45, 0.65], [0.55, 0.75])
@@ -289,7 +289,7 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from simeval.report.figures import save_figure
+    from simeval.writing.figures import save_figure
 
     fig, ax = plt.subplots()
     ax.plot([0, 1], [1, 0])
@@ -323,7 +323,7 @@ def test_a_figure_save_that_stops_midway_leaves_the_previous_figure_whole(tmp_pa
 def test_a_kept_table_given_without_brackets_is_one_path():
     """`report.keep=outputs/tables/table5.csv` reached the builders as a string and was read one character at a
     time (the error named a file "o")."""
-    from simeval.overview.rebuild import kept_paths
+    from simeval.report.rebuild import kept_paths
 
     assert kept_paths({"keep": "outputs/tables/table5.csv"}) == ["outputs/tables/table5.csv"]
     assert kept_paths({"keep": ["a.csv", "b.csv"]}) == ["a.csv", "b.csv"]

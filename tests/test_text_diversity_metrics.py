@@ -22,7 +22,7 @@ from simeval.measures.text_diversity.metric import (
     vendi_leave_one_out,
     vendi_score,
 )
-from simeval.pipelines.task_texts import Task
+from simeval.pipelines.task_texts import TaskText
 
 
 def test_identical_embeddings_have_zero_diversity():
@@ -213,8 +213,8 @@ def test_self_bleu_jackknife_covers_the_expected_self_bleu(regime):
     assert 0.5 <= width <= 2.0, width
 
 
-def _tasks(n_per_group: dict[str, int]) -> list[Task]:
-    return [Task("p", g, f"{g}{i}", f"move block {i} of {g}", f"move block {i} of {g}")
+def _tasks(n_per_group: dict[str, int]) -> list[TaskText]:
+    return [TaskText("p", g, f"{g}{i}", f"move block {i} of {g}", f"move block {i} of {g}")
             for g, k in n_per_group.items() for i in range(k)]
 
 

@@ -7,7 +7,7 @@ First, two stages that need no episodes:
     table3/         src/text_diversity.py -m experiment=table3 pipeline.source=suite: Table 3's layout on simeval's
                     own suites' task descriptions -> tables/table3.* (the paper's task lists: `make table3`, which
                     `make paper` runs when GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT= name them)
-    figures/figure3/  src/agreement.py on the paper's appendix score tables (simeval/report/paper_human_eval.json;
+    figures/figure3/  src/agreement.py on the paper's appendix score tables (simeval/writing/paper_human_eval.json;
                     SIMEVAL_HUMAN_SCORES=file for yours): the paper's Figure 3
 Then for each pipeline with a simeval suite (conf/pipeline/<name>.yaml `suite:`), it runs the entrypoints a user
 would type, as subprocesses, each into its own folder under `out`:
@@ -48,7 +48,7 @@ from simeval.errors import UserError
 STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
 # Figure 3 from the paper's own appendix score tables, shipped with the package;
 # SIMEVAL_HUMAN_SCORES points it at a table of your own
-PAPER_HUMAN_SCORES = Path(__file__).resolve().parent / "report" / "paper_human_eval.json"
+PAPER_HUMAN_SCORES = Path(__file__).resolve().parent / "writing" / "paper_human_eval.json"
 SUITE_TABLE3_CAPTION = ("Text diversity (paper Eq. 1) of simeval's own suites' task descriptions, not the paper's "
                         "task lists (make table3 with GENSIM_DESCS=/ROBOGEN_ROOT=/BBSEA_ROOT= for those)")
 

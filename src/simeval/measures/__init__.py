@@ -7,5 +7,5 @@
     dynamics_diversity/   a world model's held-out prediction error, its validity gate, the state reading (Table 4)
     generalization/       a Diffusion Policy's success on seen, varied and unseen tasks (Table 5)
 
-Generic statistics live in simeval.stats, generic table and figure writing in simeval.report, the learned models in
+Generic statistics live in simeval.stats, generic table and figure writing in simeval.writing, the learned models in
 simeval.models and their training loop, checkpoints and devices in simeval.runtime."""

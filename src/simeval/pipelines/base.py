@@ -38,6 +38,8 @@ def load_target(target: str, key: str):
 
 @dataclass(frozen=True)
 class NativeTask:
+    """A task a pipeline's own code builds (GenSim's registry, Meta-World): simeval knows it by name, group and the
+    action space its episodes are recorded in, which is what a generalization run reads of a TaskSpec."""
     name: str
     group: str
     action_space: str  # as TaskSpec.action_space: the space its episodes are recorded in ("pick_place" here)

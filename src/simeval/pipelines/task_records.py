@@ -28,7 +28,7 @@ class SourceNotConfigured(TaskSourceError):
 
 
 @dataclass(frozen=True)
-class Task:
+class TaskText:
     """One task of one group. A task in several groups (GenSim's substring rule) appears once per group.
 
     `text` is what text metrics embed: the description, or a template of name and description, chosen by
@@ -78,12 +78,12 @@ def require_text(value: Any, where: str) -> str:
     return value
 
 
-def groups_of(tasks: list[Task]) -> list[str]:
+def groups_of(tasks: list[TaskText]) -> list[str]:
     """Group names in first-seen order."""
     return list(dict.fromkeys(t.group for t in tasks))
 
 
-def select_group(tasks: list[Task], group: str) -> list[Task]:
+def select_group(tasks: list[TaskText], group: str) -> list[TaskText]:
     """The tasks of one group, or of every group concatenated (`all`). Unknown groups list the valid ones."""
     if group == ALL_GROUPS:
         return list(tasks)

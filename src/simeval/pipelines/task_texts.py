@@ -17,13 +17,13 @@ from simeval.pipelines.robogen import tasks as robogen
 from simeval.pipelines.task_records import (
     ALL_GROUPS,
     SourceNotConfigured,
-    Task,
+    TaskText,
     TaskSourceError,
     groups_of,
     select_group,
 )
 
-__all__ = ["ALL_GROUPS", "SOURCES", "SourceNotConfigured", "Task", "TaskSourceError", "groups_of", "load_tasks",
+__all__ = ["ALL_GROUPS", "SOURCES", "SourceNotConfigured", "TaskText", "TaskSourceError", "groups_of", "load_tasks",
            "select_group"]
 
 
@@ -32,18 +32,18 @@ class Source:
     name: str
     needs: str  # the option (config key under `pipeline`) that must be set for this source
     env: str | None  # the environment variable the shipped config reads that key from
-    load: Callable[[dict], list[Task]]
+    load: Callable[[dict], list[TaskText]]
     auto: bool = True  # tried by source=auto; False: only when named
 
 
-def load_suite_tasks(pipeline: str, suite: str, text_template: str = "{description}") -> list[Task]:
+def load_suite_tasks(pipeline: str, suite: str, text_template: str = "{description}") -> list[TaskText]:
     """simeval's own PyBullet suite: one task per spec, its description rendered for seed 0."""
     from simeval.sim.tasks.spec import suite_dir, load_suite, sample_instance
 
     out = []
     for spec in load_suite(suite_dir(suite)):
         desc = sample_instance(spec, 0).description
-        out.append(Task(pipeline, spec.group, spec.name, desc, text_template.format(name=spec.name, description=desc),
+        out.append(TaskText(pipeline, spec.group, spec.name, desc, text_template.format(name=spec.name, description=desc),
                         {"spec": spec.source}))
     return out
 
@@ -104,7 +104,7 @@ def source_hint(pipeline: str) -> str:
 SOURCE_OPTIONS = ("root", "grouped_file", "tasks_path", "suite", "text_template", "group_aliases", "tasks")
 
 
-def config_tasks(pipeline: str, tasks, text_template: str | None = None) -> list[Task]:
+def config_tasks(pipeline: str, tasks, text_template: str | None = None) -> list[TaskText]:
     """The tasks a pipeline config lists itself (`tasks: {name: {group, description, ...}}`, a Gymnasium pipeline's
     or a plugin's): `pipeline.source: config`, or any pipeline simeval has no loader of that lists them."""
     out = []
@@ -113,7 +113,7 @@ def config_tasks(pipeline: str, tasks, text_template: str | None = None) -> list
         if not t.get("group"):
             raise TaskSourceError(f"pipeline.tasks.{name}: no group")
         desc = str(t.get("description") or str(name).replace("-", " "))
-        out.append(Task(pipeline, str(t["group"]), str(name), desc,
+        out.append(TaskText(pipeline, str(t["group"]), str(name), desc,
                         (text_template or "{description}").format(name=name, description=desc)))
     if not out:
         raise TaskSourceError(f"pipeline={pipeline}: pipeline.tasks lists no task")
@@ -125,7 +125,7 @@ def source_options(pipeline_config) -> dict:
     return {k: pipeline_config.get(k) for k in SOURCE_OPTIONS}
 
 
-def load_tasks(pipeline: str, source: str = "auto", **options) -> list[Task]:
+def load_tasks(pipeline: str, source: str = "auto", **options) -> list[TaskText]:
     """Load every task of `pipeline` from the chosen source. Options: root, grouped_file, tasks_path, suite,
     text_template, group_aliases (the keys of the pipeline config)."""
     if source == "config" or (pipeline not in SOURCES and pipeline not in NO_TASK_TEXTS and options.get("tasks")):

@@ -15,7 +15,7 @@ def plot_figure3(rows: list[dict], stem: str | os.PathLike, formats=("png", "pdf
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from simeval.report.figures import save_figure
+    from simeval.writing.figures import save_figure
 
     tables = list(dict.fromkeys(r["table"] for r in rows))
     widths = [max(2, len({r["judge"] for r in rows if r["table"] == t})) for t in tables]

@@ -25,7 +25,7 @@ from simeval.errors import UserError
 from simeval.measures.agreement.metric import STATISTICS, agreement_summary
 
 RESERVED = {"table", "pipeline", "task"}
-PAPER_SCORES = "src/simeval/report/paper_human_eval.json"  # the paper's appendix tables, shipped with the package
+PAPER_SCORES = "src/simeval/writing/paper_human_eval.json"  # the paper's appendix tables, shipped with the package
 DEFAULT_TABLE = "scores"  # a CSV without a `table` column is one table
 
 

@@ -1,6 +1,6 @@
 """A dynamics-diversity sweep's own Table 4 and figure, written into the sweep's folder when it ends, so that
 `python src/diversity.py pipeline=bbsea -m episodes=10,20,40` ends with its numbers in one table and one picture
-(the committed tables under outputs/tables are never touched: simeval.report.tables.refuse_committed).
+(the committed tables under outputs/tables are never touched: simeval.writing.tables.refuse_committed).
 
     write_sweep_tables(sweep_dir) -> [written paths]
 protocol=heldout runs: `<sweep>/table4_heldout.{csv,md}` and `table4_heldout.png` (simeval.measures.dynamics_diversity.table4_heldout:

@@ -1,5 +1,5 @@
 """Paper Table 4 from dynamics_diversity result.json records: the world model's eval error after training on 3
-numbers of episodes per task, per pipeline and group, the paper's values (simeval.report.paper_values) beside ours.
+numbers of episodes per task, per pipeline and group, the paper's values (simeval.writing.paper_values) beside ours.
 
     rows = build(read_results(root, "dynamics_diversity"), episodes=(10, 20, 40))
     write(rows, "outputs/tables/table4", episodes=(10, 20, 40))   # table4.csv (numbers), .md, .tex
@@ -20,11 +20,11 @@ from collections import defaultdict
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.paper_groups import suite_group
-from simeval.report.paper_values import TABLE4 as PAPER
-from simeval.report.paper_values import TABLE4_EPISODES as EPISODES
-from simeval.report.paper_values import TABLE4_PIXELS as PAPER_PIXELS
-from simeval.report.tables import read_csv, to_csv, to_latex, to_markdown
+from simeval.writing.paper_groups import suite_group
+from simeval.writing.paper_values import TABLE4 as PAPER
+from simeval.writing.paper_values import TABLE4_EPISODES as EPISODES
+from simeval.writing.paper_values import TABLE4_PIXELS as PAPER_PIXELS
+from simeval.writing.tables import read_csv, to_csv, to_latex, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
@@ -221,7 +221,7 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from simeval.report.figures import distinct_colors, save_figure
+    from simeval.writing.figures import distinct_colors, save_figure
 
     groups = list(dict.fromkeys((r["pipeline"], suite_group(r["pipeline"], r["group"])) for r in rows))
     color = dict(zip(groups, distinct_colors(len(groups)), strict=True))

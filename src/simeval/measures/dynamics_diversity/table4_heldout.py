@@ -38,7 +38,7 @@ from simeval.stats import resample
 from simeval.measures.dynamics_diversity.gate import GateConfig, fall_verdict, gate
 from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.measures.dynamics_diversity.table4 import one_setting
-from simeval.report.tables import read_csv, to_csv, to_markdown
+from simeval.writing.tables import read_csv, to_csv, to_markdown
 from simeval.results import atomic_write_text
 
 METRIC = "dynamics_diversity"
@@ -486,8 +486,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     model predicts of the motion outside the robot; a row without a skill reading says why in its key) and, where any
     row has one, the state reading's one-step error beside the last and the mean state (last panel). A row has one
     colour and one marker shape in every panel, a reading one line style; in the right panel an interval far wider
-    than the points' spread is cut at the edge and named in its title (simeval.report.figures.cut_wide_intervals).
-    Saved without dates or versions (simeval.report.figures.save_figure), so a rebuild from the same runs gives the
+    than the points' spread is cut at the edge and named in its title (simeval.writing.figures.cut_wide_intervals).
+    Saved without dates or versions (simeval.writing.figures.save_figure), so a rebuild from the same runs gives the
     same bytes. The first panel has a log scale (its baselines span four decades), the second a symmetric log one
     (skills from 1 to -800). Long because it is one figure drawn panel by panel: every panel shares the rows'
     colours and markers and the figure-wide keys, and each axis setting sits beside the reason it was needed."""
@@ -498,7 +498,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
-    from simeval.report.figures import cut_wide_intervals, distinct_colors, row_markers, save_figure
+    from simeval.writing.figures import cut_wide_intervals, distinct_colors, row_markers, save_figure
 
     def bars(ax, r, name, ks, ls, color, marker, label, hollow=False, shift=1.0, scale=1.0):
         """The reading's points with their intervals; (values, lows, highs), or None where there is no reading."""

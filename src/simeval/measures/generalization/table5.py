@@ -9,7 +9,7 @@ group's tasks under variations) with its Wilson 95% interval and its mean progre
 step-wise reward: the progress is what it compares with), and the train/heldout splits beside it when run. Several
 runs of one cell must agree on their identity (settings), one run per training seed; seeds are pooled (successes and
 rollouts add up; table5_detail adds each seed's rate and an interval over seeds and tasks). The
-paper's values (simeval.report.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
+paper's values (simeval.writing.paper_values.TABLE5) are GenSim's step-wise reward and RoboGen/BBSEA's success rate.
 No generalization result.json under runs_dir: one line on stderr, exit status 2. `keep=[outputs/tables/table5.csv]`
 (a list) extends an earlier table: its rows of cells the runs under runs_dir lack are kept (how the committed table
 gathers groups run on different machines, whose result.json files are not all here); the runs under runs_dir still
@@ -24,10 +24,10 @@ from pathlib import Path
 
 from simeval.errors import UserError
 from simeval.stats.intervals import task_bootstrap_interval, wilson_interval
-from simeval.report.paper_groups import suite_group
-from simeval.report.paper_values import TABLE5 as PAPER, paper_table5
-from simeval.report.paper_values import TABLE5_MEANING
-from simeval.report.tables import Rebuilt, kept_only_hint, read_csv, read_kept, refuse_committed, write_table
+from simeval.writing.paper_groups import suite_group
+from simeval.writing.paper_values import TABLE5 as PAPER, paper_table5
+from simeval.writing.paper_values import TABLE5_MEANING
+from simeval.writing.tables import Rebuilt, kept_only_hint, read_csv, read_kept, refuse_committed, write_table
 from simeval.results import identity_difference, read_results, rolled_out
 
 METRIC = "generalization"
@@ -397,7 +397,7 @@ def plot(rows: list[dict], path: str | Path, formats: tuple[str, ...] = ("png", 
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from simeval.report.figures import save_figure
+    from simeval.writing.figures import save_figure
 
     pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
     per = {p: [r for r in rows if r["pipeline"] == p] for p in pipelines}
@@ -485,7 +485,7 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
                    overwrite: bool = False, overwrite_flag: str = "--overwrite",
                    elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
-    simeval.overview.rebuild, which the report door calls)."""
+    simeval.report.rebuild, which the report door calls)."""
     kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
     beside = {Path(path): Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep}

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from simeval.errors import UserError
-from simeval.report.figures import save_figure
-from simeval.report.tables import write_table
+from simeval.writing.figures import save_figure
+from simeval.writing.tables import write_table
 from simeval.results import identity_difference, read_results, record_identity
 
 

@@ -1,6 +1,6 @@
 """Per-task view of a quality run, from its result.json and its task bundles: what the judge saw and what it said.
 
-Shared by the HTML report's gallery (simeval.overview.html) and the loggers' table of per-task scores
+Shared by the HTML report's gallery (simeval.report.html) and the loggers' table of per-task scores
 (simeval.measures.quality.run.log_task_table). Bundles are found from the record's `config.bundles_dir` (absolute, or
 relative to the working directory) or the `<run>/bundles` export of an episode-store run. Frames are sampled exactly as
 simeval.measures.quality.run samples them for the completion judge (`n_frames` evenly, first and last included).

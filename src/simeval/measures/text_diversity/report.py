@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from simeval.report.tables import to_csv, write_table
+from simeval.writing.tables import to_csv, write_table
 from simeval.errors import UserError
 from simeval.measures.text_diversity.table3 import (SOURCE_COLUMNS, STATISTICS, TIDY_COLUMNS, rank_agreement, source_rows,
                                            table3, tidy_rows)

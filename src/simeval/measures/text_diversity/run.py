@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from simeval.measures.text_diversity.metric import DiversityInputError, diversity_summary
-from simeval.pipelines.task_texts import ALL_GROUPS, Task, groups_of, select_group
+from simeval.pipelines.task_texts import ALL_GROUPS, TaskText, groups_of, select_group
 
 EACH = "each"
 log = logging.getLogger(__name__)
@@ -32,7 +32,7 @@ def _check_settings(n_boot, subsample_n, subsample_repeats) -> None:
 
 
 def text_diversity_by_group(
-    tasks: Sequence[Task],
+    tasks: Sequence[TaskText],
     encode: Callable[[list[str]], np.ndarray],
     task_group: str = EACH,
     *,

@@ -35,7 +35,7 @@ from pathlib import Path
 from simeval.errors import UserError
 from simeval.measures.agreement.metric import kendall_tau_b
 from simeval.measures.text_diversity.metric import METRIC_VERSION, STATISTICS
-from simeval.report.paper_groups import paper_group
+from simeval.writing.paper_groups import paper_group
 from simeval.results import identity_difference, record_identity
 
 TIDY_COLUMNS = ["pipeline", "group", "embedding", "statistic", "value", "ci_low", "ci_high", "n", "status", "note",

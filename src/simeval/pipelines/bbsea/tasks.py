@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from simeval.pipelines.task_records import Task, TaskSourceError, read_list, require_text
+from simeval.pipelines.task_records import TaskText, TaskSourceError, read_list, require_text
 
 PIPELINE = "bbsea"
 
@@ -30,7 +30,7 @@ def utf8_name(path: Path) -> str:
     return path.name
 
 
-def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
+def load_bbsea_output(root: str | os.PathLike) -> list[TaskText]:
     """One task per (scene, task-description folder). `root` is the output folder or its `trajectory/`."""
     root = Path(root).expanduser()
     traj = root / "trajectory" if (root / "trajectory").is_dir() else root
@@ -39,16 +39,16 @@ def load_bbsea_output(root: str | os.PathLike) -> list[Task]:
     for scene in scenes:
         for task_dir in sorted(p for p in scene.iterdir() if p.is_dir()):
             desc, scene_name = utf8_name(task_dir), utf8_name(scene)
-            out.append(Task(PIPELINE, bbsea_group(desc), f"{scene_name}/{desc}", desc, desc, {"scene": scene_name}))
+            out.append(TaskText(PIPELINE, bbsea_group(desc), f"{scene_name}/{desc}", desc, desc, {"scene": scene_name}))
     if not out:
         raise TaskSourceError(f"{root}: no BBSEA tasks found (expected trajectory/<scene>/<task description>/)")
     return out
 
 
-def load_bbsea_list(path: str | os.PathLike) -> list[Task]:
+def load_bbsea_list(path: str | os.PathLike) -> list[TaskText]:
     data = read_list(path, "task descriptions")
     out = []
     for i, item in enumerate(data):
         desc = require_text(item, f"{path}: item {i}")
-        out.append(Task(PIPELINE, bbsea_group(desc), f"task-{i}", desc, desc))
+        out.append(TaskText(PIPELINE, bbsea_group(desc), f"task-{i}", desc, desc))
     return out

@@ -10,10 +10,10 @@ import os
 from pathlib import Path
 
 from simeval.pipelines.gensim.tasks import grouped_tasks
-from simeval.pipelines.task_records import Task, TaskSourceError, read_structured, require_text
+from simeval.pipelines.task_records import TaskText, TaskSourceError, read_structured, require_text
 
 
-def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template: str = "{description}") -> list[Task]:
+def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template: str = "{description}") -> list[TaskText]:
     data = read_structured(path)
     if isinstance(data, dict):
         return grouped_tasks(data, path, pipeline)
@@ -22,7 +22,7 @@ def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template
     if all(isinstance(x, str) for x in data):
         group = Path(path).stem
         texts = [require_text(x, f"{path}: item {i}") for i, x in enumerate(data)]
-        return [Task(pipeline, group, f"{group}-{i}", t, t) for i, t in enumerate(texts)]
+        return [TaskText(pipeline, group, f"{group}-{i}", t, t) for i, t in enumerate(texts)]
     out = []
     for i, rec in enumerate(data):
         if not isinstance(rec, dict):
@@ -33,5 +33,5 @@ def load_custom(path: str | os.PathLike, pipeline: str = "custom", text_template
         name = require_text(rec["name"], f"{path}: record {i} name")
         desc = require_text(rec["description"], f"{path}: record {i} description")
         group = require_text(str(rec["group"]), f"{path}: record {i} group")
-        out.append(Task(pipeline, group, name, desc, text_template.format(name=name, description=desc)))
+        out.append(TaskText(pipeline, group, name, desc, text_template.format(name=name, description=desc)))
     return out

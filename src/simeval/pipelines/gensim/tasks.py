@@ -14,7 +14,7 @@ import ast
 import os
 from pathlib import Path
 
-from simeval.pipelines.task_records import Task, TaskSourceError, read_structured, require_text
+from simeval.pipelines.task_records import TaskText, TaskSourceError, read_structured, require_text
 
 PIPELINE = "gensim"
 # Authors' rule: a task belongs to every group whose keyword is a substring of its registered name.
@@ -64,7 +64,7 @@ def gensim_groups(name: str) -> list[str]:
     return [group for key, group in SUBSTRING_GROUPS.items() if key in name]
 
 
-def load_gensim_checkout(root: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[Task]:
+def load_gensim_checkout(root: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[TaskText]:
     """Every registered task that falls in a group, once per group it falls in."""
     root = Path(root).expanduser()
     tasks_dir, gen_dir = root / "cliport" / "tasks", root / "cliport" / "generated_tasks"
@@ -91,20 +91,20 @@ def load_gensim_checkout(root: str | os.PathLike, text_template: str = DEFAULT_T
     for name, doc, origin in registry:
         description = doc if doc is not None else "None"
         for group in gensim_groups(name):
-            out.append(Task(PIPELINE, group, name, description, text_template.format(name=name, description=description),
+            out.append(TaskText(PIPELINE, group, name, description, text_template.format(name=name, description=description),
                             {"origin": origin}))
     return out
 
 
 def load_grouped_texts(
     path: str | os.PathLike, pipeline: str, group_aliases: dict[str, str] | None = None
-) -> list[Task]:
+) -> list[TaskText]:
     """A YAML/JSON mapping group -> list of strings, verbatim and in order, duplicates included."""
     return grouped_tasks(read_structured(path), path, pipeline, group_aliases)
 
 
 def grouped_tasks(data, path: str | os.PathLike, pipeline: str, group_aliases: dict[str, str] | None = None
-                  ) -> list[Task]:
+                  ) -> list[TaskText]:
     """Tasks from an already parsed mapping group -> list of strings (`path` names it in errors)."""
     if not isinstance(data, dict) or not data:
         raise TaskSourceError(f"{path}: expected a mapping of group -> list of strings, got {type(data).__name__}")
@@ -117,5 +117,5 @@ def grouped_tasks(data, path: str | os.PathLike, pipeline: str, group_aliases: d
         for i, item in enumerate(items):
             text = require_text(item, f"{path}: group '{key}' item {i}")
             name = text.split("\n", 1)[0].removeprefix("Task:").strip() if text.startswith("Task:") else f"{key}-{i}"
-            out.append(Task(pipeline, group, name, text, text, {"index": i}))
+            out.append(TaskText(pipeline, group, name, text, text, {"index": i}))
     return out

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from simeval.pipelines.task_records import Task, TaskSourceError, read_list, require_text
+from simeval.pipelines.task_records import TaskText, TaskSourceError, read_list, require_text
 
 PIPELINE = "robogen"
 DEFAULT_TEMPLATE = "{name}: {description}"
@@ -26,7 +26,7 @@ def placement_group(config: list) -> str:
     return "table-top" if use_table and on_table else "ground"
 
 
-def load_robogen_checkout(root: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[Task]:
+def load_robogen_checkout(root: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[TaskText]:
     base = Path(root).expanduser() / "example_tasks"
     if not base.is_dir():
         raise TaskSourceError(f"{root} is not a RoboGen checkout: {base} not found")
@@ -43,14 +43,14 @@ def load_robogen_checkout(root: str | os.PathLike, text_template: str = DEFAULT_
             continue
         name = require_text(meta.get("task_name"), f"{path}: task_name")
         desc = require_text(meta.get("task_description"), f"{path}: task_description")
-        out.append(Task(PIPELINE, placement_group(config), name, desc, text_template.format(name=name, description=desc),
+        out.append(TaskText(PIPELINE, placement_group(config), name, desc, text_template.format(name=name, description=desc),
                         {"config_file": str(path)}))
     if not out:
         raise TaskSourceError(f"{base}: no task configs (*/*.yaml with task_name and task_description) found")
     return out
 
 
-def load_robogen_records(path: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[Task]:
+def load_robogen_records(path: str | os.PathLike, text_template: str = DEFAULT_TEMPLATE) -> list[TaskText]:
     """Records with task_name/name, task_description/description and placement_label/group; a top-level
     `tasks:` key is accepted (the layout of an exported task list)."""
     data = read_list(path, "task records")
@@ -63,5 +63,5 @@ def load_robogen_records(path: str | os.PathLike, text_template: str = DEFAULT_T
         label = str(rec.get("placement_label", rec.get("group", ""))).lower()
         if label not in LABEL_TO_GROUP:
             raise TaskSourceError(f"{path}: record {i} ('{name}') has group {label!r}; expected table-top or ground")
-        out.append(Task(PIPELINE, LABEL_TO_GROUP[label], name, desc, text_template.format(name=name, description=desc)))
+        out.append(TaskText(PIPELINE, LABEL_TO_GROUP[label], name, desc, text_template.format(name=name, description=desc)))
     return out

@@ -114,6 +114,8 @@ class GoalSpec:
 
 @dataclass
 class TaskSpec:
+    """A task simeval's simulator builds (a suite's YAML file): its objects, goal, plan and variations. The other
+    task records (TaskText, NativeTask, TaskBundle) are listed in docs/concepts.md."""
     name: str
     group: str
     description: str

@@ -393,7 +393,7 @@ def moving_share_by_margin(dose: Dose, out: Path, heldout: tuple[int, int], marg
 def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     """Against the dose's level, each with its interval and both baselines on the same pixels: the object-focused
     one-step error, the moving-pixel one-step error (where the runs summed it) and the full-frame one-step error;
-    the panel of the dose's judged number says so, and the title when it has no reading. Saved without dates (simeval.report.figures.save_figure): the
+    the panel of the dose's judged number says so, and the title when it has no reading. Saved without dates (simeval.writing.figures.save_figure): the
     same runs give the same bytes."""
     import matplotlib
 
@@ -401,7 +401,7 @@ def plot_dose(rows: list[dict], dose: Dose, path: Path, title: str) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from simeval.report.figures import save_figure
+    from simeval.writing.figures import save_figure
 
     by_level = {r["group"]: r for r in rows}
     names = [n for n in dose.levels if n in by_level]

@@ -339,7 +339,7 @@ def main(argv: list[str] | None = None, conf_dir: Path = Path("conf")) -> None:
     args.conf_dir = conf_dir
     check_arguments(args)
     from simeval.errors import UserError
-    from simeval.report.tables import refuse_committed
+    from simeval.writing.tables import refuse_committed
     from simeval.results import atomic_write_text, dumps_strict
 
     try:

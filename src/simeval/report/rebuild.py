@@ -5,7 +5,7 @@
     rebuild_table4_heldout(root, out, figure, keep=(), overwrite=False) -> Rebuilt
     rebuild_table5(root, out, figure, policy=None, keep=(), overwrite=False) -> Rebuilt   (simeval.measures.generalization.table5)
 Each reads every result.json of its metric under `root` (none: a UserError saying what makes them), refuses to
-replace files git tracks unless `overwrite` (simeval.report.tables.refuse_committed), writes the tables at `out`
+replace files git tracks unless `overwrite` (simeval.writing.tables.refuse_committed), writes the tables at `out`
 (a path without suffix) and the figure at `figure` (.png; a .pdf beside it for Tables 4 and 5), and returns what it
 wrote with the Markdown table and notes to print. `keep`: CSVs of earlier tables whose rows the runs on disk lack
 are kept (groups run on other machines). Tables 4 (held-out) and 5 take `root=None` (`report.runs_dir=null`):
@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.report.tables import Rebuilt, kept_only_hint, read_kept, refuse_committed
+from simeval.writing.tables import Rebuilt, kept_only_hint, read_kept, refuse_committed
 from simeval.measures.generalization.table5 import rebuild_table5
 from simeval.results import read_results
 
@@ -122,14 +122,14 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
                               keep=kept_paths(spec), overwrite=overwrite, overwrite_flag=flag,
                               elsewhere=elsewhere, keep_key=f"{key}.keep")
     if kind == "html":
-        from simeval.overview.html import build_html_report
+        from simeval.report.html import build_html_report
 
         page = build_html_report(spec["runs_dir"], spec.get("out_dir"), tables_dir=spec.get("tables_dir"),
                                  figures_dir=spec.get("figures_dir"), title=spec.get("title", "simeval report"))
         return Rebuilt([page], f"HTML report: {page} (open it in a browser; the folder is self-contained)")
     if kind not in ("table3", "figure4"):
         raise UserError(f"{key}.kind={kind!r}: expected one of {', '.join(k for k in KINDS if k != 'all')}")
-    from simeval.report.tables import outputs_named
+    from simeval.writing.tables import outputs_named
 
     if read_results(spec["runs_dir"], spec["metric"]):  # without runs, the builder's own error says what to run
         refuse_committed(outputs_named(spec["out_dir"], spec["id"]), overwrite, flag, elsewhere)

@@ -1,5 +1,5 @@
 """The paper's numbers that our tables and figures show beside ours, keyed by our suites' group names
-(simeval.report.paper_groups maps the paper's "Table-Top" to `table_top` / `table`).
+(simeval.writing.paper_groups maps the paper's "Table-Top" to `table_top` / `table`).
 
 TABLE4: world-model eval error (paper Table 4), pipeline -> group -> {training episodes per task: error}, the
     posterior image error summed over 128x128x3 pixels in [0, 1] (per pixel: value / TABLE4_PIXELS).

@@ -9,7 +9,7 @@ the folder can be zipped and opened on another machine. Sections:
   `result.json` under outputs/ must not count a report's copy as a run).
 - Videos: per run, the mp4s it left beside its result.json (open-loop predictions of a world model, a policy's best
   and worst rollouts), played in the page.
-- Tables: every Markdown table under `tables_dir` (as written by simeval.report.tables), with links to its CSV/TeX.
+- Tables: every Markdown table under `tables_dir` (as written by simeval.writing.tables), with links to its CSV/TeX.
 - Figures: every PNG under `figures_dir` (PDF siblings linked).
 - Quality gallery: per quality run, one card per task, the lowest-scoring first, with what the judge saw (the scene
   views and the trajectory frames sampled as simeval.measures.quality.run samples them, and the video when there is
@@ -37,7 +37,7 @@ from simeval.results import RESULT_FILE, atomic_write_text, read_results
 
 ASSETS = "assets"
 LONG_TABLE_ROWS = 30
-GENERATOR_TAG = '<meta name="generator" content="simeval.overview.html">'  # marks a folder this module may rewrite
+GENERATOR_TAG = '<meta name="generator" content="simeval.report.html">'  # marks a folder this module may rewrite
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 CSS = """
@@ -108,7 +108,7 @@ class _Assets:
 
 
 def markdown_blocks(text: str) -> list[tuple[str, object]]:
-    """[("table", (header, rows)) | ("text", line)] from a Markdown file as simeval.report.tables writes it."""
+    """[("table", (header, rows)) | ("text", line)] from a Markdown file as simeval.writing.tables writes it."""
     blocks: list[tuple[str, object]] = []
     lines = text.splitlines()
     i = 0

@@ -13,7 +13,7 @@ from simeval.results import atomic_write_text
 
 @dataclass
 class Rebuilt:
-    """What a report rebuild wrote, the Markdown table to print and notes for the user (simeval.overview.rebuild)."""
+    """What a report rebuild wrote, the Markdown table to print and notes for the user (simeval.report.rebuild)."""
     written: list[Path]
     markdown: str
     notes: list[str] = field(default_factory=list)
