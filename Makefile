@@ -22,7 +22,7 @@ export GENSIM_DESCS GENSIM_ROOT ROBOGEN_TASKS ROBOGEN_ROOT BBSEA_TASKS BBSEA_ROO
 # Figure 3's input: the paper's appendix score tables, shipped with the package, or a table of yours
 HUMAN_SCORES ?= $(or $(wildcard ../shared/data/human_eval_tables.json),src/simeval/writing/paper_human_eval.json)
 
-.PHONY: help setup gensim-env metaworld-env lerobot-env test table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
+.PHONY: help setup gensim-env metaworld-env lerobot-env test test-order table3 report-table3 figure3 contact-sheet oracle-table collect bench bench-slurm clean clean-caches table5 report-table5
 
 help: ## list the targets
 	@c=; r=; if [ -t 1 ]; then c='\033[36m'; r='\033[0m'; fi; \
@@ -43,6 +43,10 @@ $(STAMP): requirements.txt requirements-dev.txt requirements-models.txt pyprojec
 
 test: setup gensim-env metaworld-env lerobot-env docs-env ## run the test suite on 2 workers, a test file per worker at a time (what CI runs; the 25 slowest tests are listed at the end; one worker: .venv/bin/python -m pytest -q)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25
+
+test-order: setup gensim-env metaworld-env lerobot-env docs-env ## the test suite as `make test`, then tests/file_seconds.json from its times (the order `make test` hands files to its workers: longest first)
+	$(PY) -m pytest -q -n 2 --dist loadfile --junitxml=$(VENV)/junit.xml
+	$(PY) tests/file_seconds.py $(VENV)/junit.xml
 
 METAWORLD_STAMP := $(VENV)/.metaworld-installed
 metaworld-env: $(METAWORLD_STAMP) ## Meta-World and MuJoCo beside simeval's pins, for pipeline=metaworld (requirements-metaworld.txt)

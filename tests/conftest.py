@@ -15,6 +15,22 @@ from simeval.devserver import LoopbackOpenAI  # noqa: E402
 from helpers import SECRET  # noqa: E402
 
 
+FILE_SECONDS = Path(__file__).with_name("file_seconds.json")
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Longest test files first (their seconds in the last full run, tests/file_seconds.json; `make test-order`
+    rewrites it): `-n 2 --dist loadfile` hands out files in collection order, so a long file collected last keeps
+    one worker busy alone at the end. Within a file the order is unchanged; a file not listed counts as long."""
+    import json
+
+    if not FILE_SECONDS.is_file():
+        return
+    seconds = json.loads(FILE_SECONDS.read_text())
+    longest = max(seconds.values(), default=0.0)
+    items.sort(key=lambda item: -seconds.get(Path(item.fspath).name, longest))
+
+
 @pytest.fixture
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
