@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from simeval.measures.text_diversity.report import build_text_diversity_report
+from simeval.measures.text_diversity.artefacts import build_text_diversity_report
 from simeval.results import write_result
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from simeval.errors import UserError
-from simeval.measures.text_diversity.report import build_text_diversity_report
+from simeval.measures.text_diversity.artefacts import build_text_diversity_report
 from simeval.measures.quality.figure4 import build_quality_figure, quality_points
 from simeval.measures.text_diversity.metric import STATISTICS
 from simeval.measures.text_diversity.table3 import tidy_rows

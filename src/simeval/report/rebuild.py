@@ -74,7 +74,7 @@ def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str
     if not records and root is not None:
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
-                        + kept_only_hint(keep, keep_key))
+                        + kept_only_hint(keep, keep_key, Path(out).with_suffix(".csv")))
     out, figure = Path(out), Path(figure)
     refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere,
                      source="the kept tables alone" if root is None else "the runs on disk")
@@ -138,7 +138,7 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
 
         written = build_quality_figure(spec["runs_dir"], spec["out_dir"], id=spec["id"])
         return Rebuilt([p for paths in written.values() for p in paths], Path(written["table"][1]).read_text())
-    from simeval.measures.text_diversity.report import build_text_diversity_report
+    from simeval.measures.text_diversity.artefacts import build_text_diversity_report
 
     written = build_text_diversity_report(
         spec["runs_dir"], spec["out_dir"], id=spec["id"], rows=spec["rows"], columns=spec["columns"],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,10 +131,15 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewher
                         f"elsewhere ({elsewhere}) or replace it with {flag}")
 
 
-def kept_only_hint(keep, keep_key: str = "keep") -> str:
-    """What to add to "no result.json under <runs_dir>" when the user gave kept tables: that they can be drawn
-    alone, on purpose (`runs_dir=null`)."""
-    return f" ({keep_key.removesuffix('keep')}runs_dir=null draws from the kept tables alone)" if keep else ""
+def kept_only_hint(keep, keep_key: str = "keep", committed: str | os.PathLike | None = None) -> str:
+    """What to add to "no result.json under <runs_dir>": that kept tables can be drawn alone, on purpose
+    (`runs_dir=null`), and where none was kept, how to keep the `committed` table (a fresh clone has no runs)."""
+    prefix = keep_key.removesuffix("keep")
+    if keep:
+        return f" ({prefix}runs_dir=null draws from the kept tables alone)"
+    if committed is not None and Path(committed).is_file():
+        return f" (or redraw {committed} alone: {keep_key}=[{committed}] {prefix}runs_dir=null)"
+    return ""
 
 
 def read_kept(reader, keep, keep_key: str = "keep", table: str = "table") -> list:

@@ -498,7 +498,8 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
     records = [] if root is None else read_results(root, metric=METRIC)  # None: the kept tables alone
     if not records and root is not None:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
-                        "src/generalization.py), or give the folder that holds them" + kept_only_hint(keep, keep_key))
+                        "src/generalization.py), or give the folder that holds them"
+                        + kept_only_hint(keep, keep_key, Path(out).with_suffix(".csv")))
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
                       *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere,
                      source="the kept tables alone" if root is None else "the runs on disk")
