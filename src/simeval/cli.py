@@ -449,8 +449,9 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     cause_text = [ln for ln in str(cause or "").strip().splitlines() if ln.strip()]
     parent = getattr(cause, "parent_node", None)
     key = getattr(cause, "key", None)
-    if text and text[0].startswith("Could not override") and cause_text and ("not in struct" in cause_text[0] or " not in '" in cause_text[0]) \
-            and parent is not None and key is not None:
+    # "not in struct": a key missing from a plain config; "not in '<Schema>'": from a typed one (config_schemas)
+    not_there = bool(cause_text) and ("not in struct" in cause_text[0] or " not in '" in cause_text[0])
+    if text and text[0].startswith("Could not override") and not_there and parent is not None and key is not None:
         full_key = getattr(cause, "full_key", None) or key
         valid = [str(k) for k in parent.keys() if k != "hydra"]
         close = difflib.get_close_matches(str(key), valid, n=2, cutoff=0.6)

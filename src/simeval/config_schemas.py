@@ -3,8 +3,8 @@
 Each `conf/<entrypoint>.yaml` names its schema first in its defaults list (`- <entrypoint>_schema`); the YAML keeps
 the values and their comments, the schema gives each top-level key its type. OmegaConf then checks a value while
 Hydra composes the config, before any simeval code runs: `episodes=abc`, `episodes=1.5` or `compile=fast` stop with
-one line naming the key (simeval.cli's composition-error line), and a key the schema lacks cannot be added by
-mistake. What a type cannot say, a lower bound, is declared beside the type (`whole(low)`) and checked by
+one line naming the key (simeval.cli's composition-error line), and a mistyped key is refused with the valid
+ones. What a type cannot say, a lower bound, is declared beside the type (`whole(low)`) and checked by
 `check_bounds`, one call per entrypoint, so each number's rule lives in one place.
 
 A config group (pipeline, world_model, protocol, policy, judge, ...) is typed `Any` here: its keys differ by
@@ -17,9 +17,8 @@ each entrypoint and checks that nothing is left missing.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any, Optional
+from typing import Any, Optional, get_args, get_type_hints
 
 from omegaconf import MISSING
 
@@ -29,10 +28,6 @@ from simeval.errors import require_whole
 def whole(low: int) -> Any:
     """A whole-number field whose value must be >= low (checked by check_bounds; the type by OmegaConf)."""
     return field(default=MISSING, metadata={"at_least": low})
-
-
-def _group() -> Any:
-    return field(default=MISSING)
 
 
 @dataclass
@@ -59,11 +54,11 @@ class DiversityConfig:
     capture: bool = MISSING
     checkpoint_dir: Optional[str] = MISSING
     progress: bool = MISSING
-    paths: Any = _group()
-    pipeline: Any = _group()
-    world_model: Any = _group()
-    protocol: Any = _group()
-    logger: Any = _group()
+    paths: Any = MISSING
+    pipeline: Any = MISSING
+    world_model: Any = MISSING
+    protocol: Any = MISSING
+    logger: Any = MISSING
 
 
 @dataclass
@@ -75,10 +70,10 @@ class CollectConfig:
     workers: int = MISSING  # its bound (0: one per core) is worded by the collector
     store: str = MISSING
     record: Any = MISSING
-    paths: Any = _group()
-    pipeline: Any = _group()
-    variation: Any = _group()
-    logger: Any = _group()
+    paths: Any = MISSING
+    pipeline: Any = MISSING
+    variation: Any = MISSING
+    logger: Any = MISSING
 
 
 @dataclass
@@ -108,10 +103,10 @@ class GeneralizationConfig:
     torch_threads: Optional[int] = whole(1)
     device: str = MISSING
     eval: PolicyEval = field(default_factory=PolicyEval)
-    paths: Any = _group()
-    pipeline: Any = _group()
-    policy: Any = _group()
-    logger: Any = _group()
+    paths: Any = MISSING
+    pipeline: Any = MISSING
+    policy: Any = MISSING
+    logger: Any = MISSING
 
 
 @dataclass
@@ -129,17 +124,17 @@ class QualityConfig:
     label: Optional[str] = MISSING
     cache_dir: str = MISSING
     prompts: Any = MISSING
-    paths: Any = _group()
-    judge: Any = _group()
-    captioner: Any = _group()
-    logger: Any = _group()
+    paths: Any = MISSING
+    judge: Any = MISSING
+    captioner: Any = MISSING
+    logger: Any = MISSING
 
 
 @dataclass
 class ReportConfig:
     overwrite: bool = MISSING
-    paths: Any = _group()
-    report: Any = _group()
+    paths: Any = MISSING
+    report: Any = MISSING
 
 
 SCHEMAS = {"diversity": DiversityConfig, "collect": CollectConfig, "generalization": GeneralizationConfig,
@@ -158,12 +153,12 @@ def register() -> None:
 def check_bounds(cfg: Any, schema: type, prefix: str = "") -> None:
     """Each `whole(low)` field of `schema` (nested schemas included) >= its low, else a UserError naming the dotted
     key; an Optional one may be null. The type was checked by OmegaConf when the config was composed."""
+    hints = get_type_hints(schema)
     for f in fields(schema):
-        key = f"{prefix}{f.name}"
-        value = cfg[f.name]
-        if f.default_factory is not dataclasses.MISSING and is_dataclass(f.default_factory):
-            check_bounds(value, f.default_factory, f"{key}.")
-        elif "at_least" in f.metadata and not (value is None and "Optional" in str(f.type)):
+        key, value, kind = f"{prefix}{f.name}", cfg[f.name], hints[f.name]
+        if is_dataclass(kind):
+            check_bounds(value, kind, f"{key}.")
+        elif "at_least" in f.metadata and not (value is None and type(None) in get_args(kind)):
             require_whole(key, value, low=f.metadata["at_least"])
 
 
