@@ -119,19 +119,37 @@ def up(state: str | os.PathLike) -> dict[str, str]:
     for sub in ("log", "state", "spool", "db"):
         (d / sub).mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "SLURM_CONF": str(d / "slurm.conf")}
-    if not _munge_answers():
-        key = d / "munge.key"
-        key.write_bytes(os.urandom(1024))
-        key.chmod(0o600)
-        MUNGE_SOCKET.parent.mkdir(parents=True, exist_ok=True)
-        _run("munged", f"--key-file={key}", f"--pid-file={d / 'munged.pid'}", f"--log-file={d / 'log' / 'munged.log'}",
-             f"--seed-file={d / 'munged.seed'}", "--force")
-        _wait("munged", _munge_answers, 20)
+    _start_munge(d)
     db_port, dbd_port, ctld_port, slurmd_port = (_free_port() for _ in range(4))
+    _start_mariadb(d, db_port)
+    _write_configs(d, db_port=db_port, dbd_port=dbd_port, ctld_port=ctld_port, slurmd_port=slurmd_port)
+    _run("slurmdbd", env=env)
+    _wait("slurmdbd", lambda: _run("sacctmgr", "-n", "list", "cluster", env=env, check=False).returncode == 0)
+    _run("sacctmgr", "-i", "add", "cluster", "simeval", env=env)
+    _run("slurmctld", env=env)
+    _run("slurmd", env=env)
+    _wait("the node", lambda: "idle" in _run("sinfo", "-h", "-o", "%T", env=env, check=False).stdout)
+    return {"SLURM_CONF": env["SLURM_CONF"]}
+
+
+def _start_munge(d: Path) -> None:
+    if _munge_answers():  # a munged already answers (the machine's, or one started earlier): the daemons use it
+        return
+    key = d / "munge.key"
+    key.write_bytes(os.urandom(1024))
+    key.chmod(0o600)
+    MUNGE_SOCKET.parent.mkdir(parents=True, exist_ok=True)
+    _run("munged", f"--key-file={key}", f"--pid-file={d / 'munged.pid'}", f"--log-file={d / 'log' / 'munged.log'}",
+         f"--seed-file={d / 'munged.seed'}", "--force")
+    _wait("munged", _munge_answers, 20)
+
+
+def _start_mariadb(d: Path, port: int) -> None:
+    """slurmdbd's database, with its user: MariaDB on `port` with its data under `d`/db."""
     _run("mariadb-install-db", "--no-defaults", f"--datadir={d / 'db'}", "--user=root", "--skip-test-db",
          "--auth-root-authentication-method=normal", timeout=120)
     mariadbd = ["mariadbd", "--no-defaults", f"--datadir={d / 'db'}", f"--socket={d / 'mysql.sock'}",
-                f"--port={db_port}", "--bind-address=127.0.0.1", "--user=root", f"--pid-file={d / 'mariadb.pid'}",
+                f"--port={port}", "--bind-address=127.0.0.1", "--user=root", f"--pid-file={d / 'mariadb.pid'}",
                 f"--log-error={d / 'log' / 'mariadb.log'}", "--innodb-buffer-pool-size=32M"]
     # started by a shell that exits at once: the daemon is init's child, not a zombie of the caller when it stops
     _run("sh", "-c", " ".join(f"'{a}'" for a in mariadbd) + " >/dev/null 2>&1 &")
@@ -140,6 +158,10 @@ def up(state: str | os.PathLike) -> dict[str, str]:
     _wait("MariaDB", lambda: _run("mariadb", "--no-defaults", "-S", str(d / "mysql.sock"), "-u", "root", "-e",
                                   "SELECT 1", check=False).returncode == 0)
     _run("mariadb", "--no-defaults", "-S", str(d / "mysql.sock"), "-u", "root", "-e", sql)
+
+
+def _write_configs(d: Path, *, db_port: int, dbd_port: int, ctld_port: int, slurmd_port: int) -> None:
+    """slurmdbd.conf and slurm.conf under `d`: one node (this machine, all its cores and memory), one partition."""
     host, cpus, mem_mb = _node()
     dbd = d / "slurmdbd.conf"
     dbd.write_text("\n".join([
@@ -164,13 +186,6 @@ def up(state: str | os.PathLike) -> dict[str, str]:
         "BatchStartTimeout=60", "MessageTimeout=30",
         f"NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory={mem_mb} State=UNKNOWN",
         f"PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP", ""]))
-    _run("slurmdbd", env=env)
-    _wait("slurmdbd", lambda: _run("sacctmgr", "-n", "list", "cluster", env=env, check=False).returncode == 0)
-    _run("sacctmgr", "-i", "add", "cluster", "simeval", env=env)
-    _run("slurmctld", env=env)
-    _run("slurmd", env=env)
-    _wait("the node", lambda: "idle" in _run("sinfo", "-h", "-o", "%T", env=env, check=False).stdout)
-    return {"SLURM_CONF": env["SLURM_CONF"]}
 
 
 def down(state: str | os.PathLike) -> None:

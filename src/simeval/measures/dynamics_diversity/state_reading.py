@@ -321,14 +321,7 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     line} or {reading: None, why} where there is no state to read."""
     if set(train_idx) & set(eval_idx):
         raise RuntimeError("an evaluated episode is among the training episodes")
-    sizes = {}  # values per step -> the first episode of that size, for the message
-    for i in (*train_idx, *eval_idx):
-        sizes.setdefault(states[i][0].shape[1], i)
-    if len(sizes) > 1:  # read_states pads a group's layouts to one; states given unpadded cannot be read as one
-        (d0, i0), (d1, i1) = sorted(sizes.items())[:2]
-        raise UserError(f"the recorded states differ in size between episodes ({d0} values per step in "
-                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s) and come without a presence mask; pad them with "
-                        "state_reading.pad_states")
+    _refuse_unpadded(states, tasks, [*train_idx, *eval_idx])
     present = {i: _entry(states[i])[2] for i in (*train_idx, *eval_idx)}
     dims = states[eval_idx[0]][0].shape[1]
     if dims == 0:
@@ -347,23 +340,12 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
         net, norm, info = fit_state_model(fit, val, cfg, seed)
         models.append((net, norm))
         training.append({"seed": int(seed), **info})
-    per_episode = []
-    for e in eval_idx:
-        s, a, m = _entry(states[e])
-        cur, changes, act, nxt = _steps(s, a, cfg.history)
-        row = {"task": tasks[e], "index": int(e), "frames": int(len(nxt)),
-               "model": [episode_sums(_predict(net, norm, cur, changes, act, m), nxt, m) for net, norm in models],
-               "last_state": episode_sums(cur, nxt, m),
-               "mean_state": episode_sums(np.broadcast_to(task_mean[tasks[e]], nxt.shape), nxt, m),
-               "constant_velocity": episode_sums(cur + changes[:, 0], nxt, m)}
-        per_episode.append(row)
+    per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history)
+                   for e in eval_idx]
     frames = sum(r["frames"] for r in per_episode)
     model = np.array([[r["model"][k] for r in per_episode] for k in range(len(models))])  # (R, E)
     bases = {b: np.tile([r[b] for r in per_episode], (len(models), 1)) for b in BASELINES}
-    summary = {"model": float(model.sum() / (len(models) * frames)) if frames else None,
-               **{b: float(bases[b][0].sum() / frames) if frames else None for b in BASELINES}}
-    for b in BASELINES:
-        summary[f"skill_vs_{b}"] = float(1 - model.sum() / bases[b].sum()) if bases[b].sum() > 0 else None
+    summary = _summary(model, bases, frames)
     g = gate(model, {b: bases[b] for b in GATED}, [r["task"] for r in per_episode], gate_cfg)
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
@@ -377,3 +359,34 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line}
+
+
+def _refuse_unpadded(states: dict, tasks: list[str], idx: list[int]) -> None:
+    sizes = {}  # values per step -> the first episode of that size, for the message
+    for i in idx:
+        sizes.setdefault(states[i][0].shape[1], i)
+    if len(sizes) > 1:  # read_states pads a group's layouts to one; states given unpadded cannot be read as one
+        (d0, i0), (d1, i1) = sorted(sizes.items())[:2]
+        raise UserError(f"the recorded states differ in size between episodes ({d0} values per step in "
+                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s) and come without a presence mask; pad them with "
+                        "state_reading.pad_states")
+
+
+def _episode_sums(entry, task: str, index: int, models: list, task_mean: np.ndarray, history: int) -> dict:
+    """One held-out episode's summed one-step errors: each seed's model's, and each baseline's."""
+    s, a, m = _entry(entry)
+    cur, changes, act, nxt = _steps(s, a, history)
+    return {"task": task, "index": int(index), "frames": int(len(nxt)),
+            "model": [episode_sums(_predict(net, norm, cur, changes, act, m), nxt, m) for net, norm in models],
+            "last_state": episode_sums(cur, nxt, m),
+            "mean_state": episode_sums(np.broadcast_to(task_mean, nxt.shape), nxt, m),
+            "constant_velocity": episode_sums(cur + changes[:, 0], nxt, m)}
+
+
+def _summary(model: np.ndarray, bases: dict[str, np.ndarray], frames: int) -> dict:
+    """Mean error per step of the model (over its seeds) and of each baseline, and the model's skill against each."""
+    summary = {"model": float(model.sum() / (len(model) * frames)) if frames else None,
+               **{b: float(bases[b][0].sum() / frames) if frames else None for b in BASELINES}}
+    for b in BASELINES:
+        summary[f"skill_vs_{b}"] = float(1 - model.sum() / bases[b].sum()) if bases[b].sum() > 0 else None
+    return summary

@@ -126,6 +126,26 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
           gate_cfg: GateConfig = GateConfig()) -> list[dict]:
     """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring). Runs
     of one seed found twice (a sweep run again: it resumes and evaluates again) count once, the newest."""
+    rows = []
+    for (p, g, pr, steps), by_k in sorted(_cells(records).items(), key=lambda kv: tuple(map(str, kv[0]))):
+        counts = sorted(by_k)
+        one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
+        row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
+        reps_by_k, gates = {}, {}
+        for k in counts:
+            reps_by_k[k], gates[k] = _count_columns(row, k, by_k[k], n_boot=n_boot, seed=seed, gate_cfg=gate_cfg)
+        lo, hi = counts[0], counts[-1]
+        if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
+                row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
+            _fall_columns(row, lo, hi, reps_by_k, gates, gate_cfg.margin)
+            row.update(state_fall(by_k[lo][0]["values"].get("state"), by_k[hi][0]["values"].get("state"), lo, hi,
+                                  n_boot, seed, gate_cfg))
+        rows.append(row)
+    return rows
+
+
+def _cells(records: list[dict]) -> dict:
+    """{(pipeline, group, preset, steps): {episodes: [one record per seed]}} from the held-out runs that ended ok."""
     cells: dict = defaultdict(lambda: defaultdict(list))
     for rec in records:
         ident = rec.get("identity") or {}
@@ -139,57 +159,52 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
             for rec in sorted(recs, key=lambda r: str(r.get("created", ""))):
                 newest[int(rec["identity"].get("seed", 0))] = rec
             by_k[k] = list(newest.values())
-    rows = []
-    for (p, g, pr, steps), by_k in sorted(cells.items(), key=lambda kv: tuple(map(str, kv[0]))):
-        counts = sorted(by_k)
-        one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
-        row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
-        reps_by_k, gates = {}, {}
-        for k in counts:
-            recs = sorted(by_k[k], key=lambda r: int(r["identity"].get("seed", 0)))
-            sums, tasks = sum_arrays(recs)
-            draws = resample.draws(len(recs), tasks, n_boot, seed)  # the same draws for every count: paired
-            point, reps = cell_replicates(sums, draws)
-            reps_by_k[k] = reps
-            row[f"runs_{k}"] = len(recs)
-            row[f"heldout_episodes_{k}"] = len(tasks)
-            row[f"robot_mask_{k}"] = all(r["values"]["prediction"].get("robot_mask") for r in recs)
-            g = gate(sums["one_step/model/object"], {b: sums[f"one_step/{b}/object"] for b in ("last", "mean")},
-                     tasks, gate_cfg)
-            row[f"gate_{k}"], row[f"gate_passes_{k}"] = g["verdict"], g["passes"]
-            gates[k] = g
-            state = recs[0]["values"].get("state")  # the same in every seed's run (its own seeds inside)
-            if state and state.get("gate"):
-                row[f"state_gate_{k}"] = state["gate"]["verdict"]
-                row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
-                for key, v in state["summary"].items():
-                    row[f"state_{key}_{k}"] = v
-            for name, v in point.items():
-                row[f"{name}_{k}"] = v
-                # a moving ratio's interval only where nearly every resample had enough moving pixels to read
-                row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(
-                    reps[name], max_missing=max_missing(name))
-        lo, hi = counts[0], counts[-1]
-        if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
-                row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
-            for kind in ("one_step_object", "one_step", "open_loop", "one_step_moving"):
-                if kind not in reps_by_k[lo] or kind not in reps_by_k[hi]:  # runs recorded before it was summed
-                    continue
-                row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
-                row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
-                    reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
-            # the primary number's fall, read only where both counts pass the gate and its skill against each
-            # baseline rises on the same resamples (the mean image changes with the training episodes)
-            rise = {b: resample.percentile(1 - reps_by_k[hi][PRIMARY] / reps_by_k[hi][f"{PRIMARY}_{b}"]
-                                           - (1 - reps_by_k[lo][PRIMARY] / reps_by_k[lo][f"{PRIMARY}_{b}"]))
-                    for b in ("last", "mean")}
-            row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
-                                                row[f"drop_{PRIMARY}_hi"]), rise, {k: gates[k] for k in (lo, hi)},
-                                               row[f"{PRIMARY}_{lo}"], gate_cfg.margin)
-            row.update(state_fall(by_k[lo][0]["values"].get("state"), by_k[hi][0]["values"].get("state"), lo, hi,
-                                  n_boot, seed, gate_cfg))
-        rows.append(row)
-    return rows
+    return cells
+
+
+def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: int,
+                   gate_cfg: GateConfig) -> tuple[dict, dict]:
+    """One episode count's columns, added to `row`; returns its resampled replicates and its pixel gate."""
+    recs = sorted(recs, key=lambda r: int(r["identity"].get("seed", 0)))
+    sums, tasks = sum_arrays(recs)
+    draws = resample.draws(len(recs), tasks, n_boot, seed)  # the same draws for every count: paired
+    point, reps = cell_replicates(sums, draws)
+    row[f"runs_{k}"] = len(recs)
+    row[f"heldout_episodes_{k}"] = len(tasks)
+    row[f"robot_mask_{k}"] = all(r["values"]["prediction"].get("robot_mask") for r in recs)
+    g = gate(sums["one_step/model/object"], {b: sums[f"one_step/{b}/object"] for b in ("last", "mean")},
+             tasks, gate_cfg)
+    row[f"gate_{k}"], row[f"gate_passes_{k}"] = g["verdict"], g["passes"]
+    state = recs[0]["values"].get("state")  # the same in every seed's run (its own seeds inside)
+    if state and state.get("gate"):
+        row[f"state_gate_{k}"] = state["gate"]["verdict"]
+        row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
+        for key, v in state["summary"].items():
+            row[f"state_{key}_{k}"] = v
+    for name, v in point.items():
+        row[f"{name}_{k}"] = v
+        # a moving ratio's interval only where nearly every resample had enough moving pixels to read
+        row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(
+            reps[name], max_missing=max_missing(name))
+    return reps, g
+
+
+def _fall_columns(row: dict, lo: int, hi: int, reps_by_k: dict, gates: dict, margin: float) -> None:
+    """The pixel errors' falls lo -> hi (paired resamples) and the primary number's fall verdict, added to `row`."""
+    for kind in ("one_step_object", "one_step", "open_loop", "one_step_moving"):
+        if kind not in reps_by_k[lo] or kind not in reps_by_k[hi]:  # runs recorded before it was summed
+            continue
+        row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
+        row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
+            reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
+    # the primary number's fall, read only where both counts pass the gate and its skill against each
+    # baseline rises on the same resamples (the mean image changes with the training episodes)
+    rise = {b: resample.percentile(1 - reps_by_k[hi][PRIMARY] / reps_by_k[hi][f"{PRIMARY}_{b}"]
+                                   - (1 - reps_by_k[lo][PRIMARY] / reps_by_k[lo][f"{PRIMARY}_{b}"]))
+            for b in ("last", "mean")}
+    row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
+                                        row[f"drop_{PRIMARY}_hi"]), rise, {k: gates[k] for k in (lo, hi)},
+                                       row[f"{PRIMARY}_{lo}"], margin)
 
 
 def _state_sums(state: dict) -> tuple[list, np.ndarray, np.ndarray, dict[str, np.ndarray]]:

@@ -393,23 +393,7 @@ def run_generalization(run: GeneralizationRun, *, checkpoint_dir: str, run_dir: 
     group = [s.name for s in specs]
     trained = [t for t in group if t not in heldout]
     chance = policy_name == "random"  # the chance baseline: uniform random actions, nothing trained
-    override = eval_override(evaluation)
-    plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
-            for split in names(evaluation["splits"])}  # split names and variation keys are checked before training
-    for split in [s for s, pairs in plan.items() if not pairs]:
-        log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
-                 else "no task of the group has an eval variation" if split == "eval" else "no trained task")
-    plan = {split: pairs for split, pairs in plan.items() if pairs}
-    pipeline.check_environment([pair for pairs in plan.values() for pair in pairs])
-    compare = {}  # eval tasks whose seeds are compared with the train split's (see run_splits)
-    if plan.get("eval"):
-        trained_variation = {s.name: dict(v or {}) for s, v in pipeline.split_tasks(specs, "train", heldout)}
-        for task, var in plan["eval"]:
-            if unseen := pipeline.unseen_knobs(var):
-                log.info("split eval, %s: its variation changes what a first observation cannot show (%s): every "
-                         "seed rolled out", task, ", ".join(unseen))
-            elif task in trained_variation:
-                compare[task] = trained_variation[task]
+    plan, compare = _rollout_plan(pipeline, specs, heldout, evaluation)
     model = dict(model)
     if chance:
         policy = RandomActions(resolve_action_space(model["action_space"], specs), model["cameras"],
@@ -427,12 +411,7 @@ def run_generalization(run: GeneralizationRun, *, checkpoint_dir: str, run_dir: 
                       compare_starts=compare)
     values.update(tasks=rows, splits=ev.summarize(rows))
     if evaluation["videos"] and rows and not chance:
-        values["videos"] = ev.best_and_worst_videos(policy, rows, seeds[0], evaluation["max_steps"],
-                                                    evaluation["video_camera"], run_dir, pipeline.make_env)
-        for which, video in values["videos"].items():
-            _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
-            logger.log_video(f"rollout/{which}", video, caption=(
-                f"{which} task of the {split} split: {task} (seed {seeds[0]}, camera {evaluation['video_camera']})"))
+        values["videos"] = _best_and_worst_videos(policy, rows, seeds[0], evaluation, run_dir, pipeline, logger)
     identity = {"pipeline": pipeline.name, "task_group": task_group, "tasks": group, "policy": policy_name,
                 "heldout_tasks": heldout, "episodes_per_task": episodes_per_task,
                 "variations": {t: v for t, v in plan.get("eval", [])},
@@ -442,6 +421,42 @@ def run_generalization(run: GeneralizationRun, *, checkpoint_dir: str, run_dir: 
     if demonstrations != "all" and not chance:  # absent = all (the runs made before the key), so those still pool
         identity["demonstrations"] = demonstrations  # runs trained on other data are not pooled into one cell
     return values, identity
+
+
+def _rollout_plan(pipeline, specs, heldout: list[str], evaluation: Mapping) -> tuple[dict, dict]:
+    """{split: [(task, variation)]} for the splits that have tasks, and the eval tasks whose seeds are compared
+    with the train split's (see run_splits). Split names and variation keys are checked here, before training."""
+    override = eval_override(evaluation)
+    plan = {split: [(s.name, v) for s, v in pipeline.split_tasks(specs, split, heldout, eval_override=override)]
+            for split in names(evaluation["splits"])}
+    for split in [s for s, pairs in plan.items() if not pairs]:
+        log.info("split %s: nothing to roll out (%s), skipped", split, "no held-out task" if split == "heldout"
+                 else "no task of the group has an eval variation" if split == "eval" else "no trained task")
+    plan = {split: pairs for split, pairs in plan.items() if pairs}
+    pipeline.check_environment([pair for pairs in plan.values() for pair in pairs])
+    compare = {}
+    if plan.get("eval"):
+        trained_variation = {s.name: dict(v or {}) for s, v in pipeline.split_tasks(specs, "train", heldout)}
+        for task, var in plan["eval"]:
+            if unseen := pipeline.unseen_knobs(var):
+                log.info("split eval, %s: its variation changes what a first observation cannot show (%s): every "
+                         "seed rolled out", task, ", ".join(unseen))
+            elif task in trained_variation:
+                compare[task] = trained_variation[task]
+    return plan, compare
+
+
+def _best_and_worst_videos(policy, rows: list[dict], seed: int, evaluation: Mapping, run_dir: str, pipeline,
+                           logger) -> dict:
+    from simeval.measures.generalization import rollouts as ev
+
+    videos = ev.best_and_worst_videos(policy, rows, seed, evaluation["max_steps"], evaluation["video_camera"],
+                                      run_dir, pipeline.make_env)
+    for which, video in videos.items():
+        _, split, task = Path(video).stem.split("_", 2)  # videos/<which>_<split>_<task>.mp4
+        logger.log_video(f"rollout/{which}", video, caption=(
+            f"{which} task of the {split} split: {task} (seed {seed}, camera {evaluation['video_camera']})"))
+    return videos
 
 
 @dataclass(frozen=True)

@@ -373,47 +373,19 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
     if model is None and judge != "oracle":
         raise UserError(f"judge {judge!r}: expected a ModelJudge or 'oracle'")
     judge = "model" if model is not None else "oracle"  # the kind result.json records
-    n_frames = scoring.n_frames
-    if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 2:
-        raise UserError(f"n_frames must be a whole number >= 2 (first and last frame at least), got {n_frames!r}")
-    check_metric_and_mode(scoring.metric, scoring.mode)  # the oracle ignores both; a typo is still a mistake
+    _check_scoring(scoring)
     out_dir = Path(out_dir)
     bundles, errors = _tasks_and_errors(judge, bundles_dir, episodes, out_dir)
     names = [b.name for b in bundles] + [k for k in errors if k not in {b.name for b in bundles}]
     result = dict(metric="quality", version=VERSION, judge=judge, **(meta or {}),
                   tasks={b.name: {"pipeline": b.pipeline} for b in bundles})
-    records, cost, extra = [], None, {}
     if judge == "oracle":
-        values = {"task_completion": oracle_completion(bundles)}
-        errors.update({b.name: "no ground truth (success or progress) recorded" for b in bundles
-                       if b.name not in values["task_completion"]})
-        if dry_run:
-            plan = {"calls": 0, "bundles": len(names), "skipped": len(errors), "skip": dict(sorted(errors.items()))}
-            return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {len(errors)} of {len(names)} tasks "
-                                  f"skipped (see skip)", plan=plan)
+        scores = _oracle_scores(bundles, names, errors, dry_run)
     else:
-        from simeval.judges.ledger import BudgetExceeded
-        from simeval.judges.runner import ReplayMiss
-
-        try:
-            out = evaluate_quality(bundles, model, scoring, dry=dry_run)
-        except (BudgetExceeded, ReplayMiss) as e:  # keep what finished (it is cached too), then stop loudly
-            write_result(out_dir, values=summarize(getattr(e, "partial", [])), errors=errors,
-                         cost=model.ledger.totals(),
-                         status="stopped", stopped=str(e), **result)
-            raise
-        errors.update(out["errors"])
-        if dry_run:
-            plan = {**out["dry_run"], "bundles": len(names), "skipped": len(errors),
-                    "skip": dict(sorted(errors.items()))}
-            return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {plan['calls']} calls; {len(errors)} "
-                                  f"of {len(names)} bundles skipped in part or whole (see skip)", plan=plan)
-        records, values = out["records"], out["summary"]
-        for task, msg in no_score_errors(values, records).items():
-            errors[task] = errors[task] + "; " + msg if task in errors else msg
-        write_scores(out_dir / "scores.jsonl", records)
-        cost = model.ledger.totals()
-        extra = {"cost": cost, "reliability": judge_reliability(records)}
+        scores = _model_scores(bundles, names, errors, model, scoring, dry_run, out_dir, result)
+    if isinstance(scores, QualityOutcome):  # a dry run's plan
+        return scores
+    values, records, cost, extra = scores
     scored, failed = _outcome_of(values, names, errors)
     summary = _summary_line(judge, scored, failed, cost) + _means_line(values)
     status, error = "ok", None
@@ -432,3 +404,51 @@ def run_quality(out_dir: str | os.PathLike, *, bundles_dir: str | os.PathLike | 
         log_task_table(logger, path)
     return QualityOutcome(status, values, errors, scored, failed, summary, cost=cost, error=error, records=records,
                           result_path=path)
+
+
+def _check_scoring(scoring: Scoring) -> None:
+    n_frames = scoring.n_frames
+    if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 2:
+        raise UserError(f"n_frames must be a whole number >= 2 (first and last frame at least), got {n_frames!r}")
+    check_metric_and_mode(scoring.metric, scoring.mode)  # the oracle ignores both; a typo is still a mistake
+
+
+def _oracle_scores(bundles, names: list, errors: dict, dry_run: bool):
+    """The store's ground truth as scores: (values, records, cost, extra), or a dry run's QualityOutcome."""
+    values = {"task_completion": oracle_completion(bundles)}
+    errors.update({b.name: "no ground truth (success or progress) recorded" for b in bundles
+                   if b.name not in values["task_completion"]})
+    if dry_run:
+        plan = {"calls": 0, "bundles": len(names), "skipped": len(errors), "skip": dict(sorted(errors.items()))}
+        return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {len(errors)} of {len(names)} tasks "
+                              f"skipped (see skip)", plan=plan)
+    return values, [], None, {}
+
+
+def _model_scores(bundles, names: list, errors: dict, model: ModelJudge, scoring: Scoring, dry_run: bool,
+                  out_dir: Path, result: dict):
+    """The model judge's scores (scores.jsonl written): (values, records, cost, extra), or a dry run's
+    QualityOutcome. A budget or replay stop writes status "stopped" with what finished and re-raises."""
+    from simeval.judges.ledger import BudgetExceeded
+    from simeval.judges.runner import ReplayMiss
+    from simeval.results import write_result
+
+    try:
+        out = evaluate_quality(bundles, model, scoring, dry=dry_run)
+    except (BudgetExceeded, ReplayMiss) as e:  # keep what finished (it is cached too), then stop loudly
+        write_result(out_dir, values=summarize(getattr(e, "partial", [])), errors=errors,
+                     cost=model.ledger.totals(),
+                     status="stopped", stopped=str(e), **result)
+        raise
+    errors.update(out["errors"])
+    if dry_run:
+        plan = {**out["dry_run"], "bundles": len(names), "skipped": len(errors),
+                "skip": dict(sorted(errors.items()))}
+        return QualityOutcome("dry_run", {}, errors, [], [], f"dry run: {plan['calls']} calls; {len(errors)} "
+                              f"of {len(names)} bundles skipped in part or whole (see skip)", plan=plan)
+    records, values = out["records"], out["summary"]
+    for task, msg in no_score_errors(values, records).items():
+        errors[task] = errors[task] + "; " + msg if task in errors else msg
+    write_scores(out_dir / "scores.jsonl", records)
+    cost = model.ledger.totals()
+    return values, records, cost, {"cost": cost, "reliability": judge_reliability(records)}

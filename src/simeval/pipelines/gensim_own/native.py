@@ -224,7 +224,6 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
     recorded_as = RecordSettings(cameras=tuple(cameras), image_size=image_size, control_hz=settings.control_hz)
     todo = missing_episodes(store, pipeline, dict.fromkeys(tasks), seeds, recorded_as, dict.fromkeys(tasks, JOINT_KIND))
     skipped = len(tasks) * len(seeds) - len(todo)
-    new, failed = [], []
     plural = "" if workers == 1 else "s"
     bar = tqdm(total=len(todo), desc=f"GenSim episodes ({workers} worker{plural})", unit="episode", disable=not progress)
     _remove_stale_scratch(store.root)
@@ -242,35 +241,43 @@ def collect_gensim(tasks: dict[str, str], seeds: Sequence[int], store: EpisodeSt
                     "seconds": time.perf_counter() - t0, "gensim_seconds": meta["seconds"],
                     "bytes": os.path.getsize(path)}
 
-        with ThreadPoolExecutor(max(1, workers)) as pool:  # threads only wait: each episode is its own process
-            futures = {pool.submit(one, t, s): (t, s) for t, s in todo}
-            try:
-                for f in as_completed(futures):
-                    try:
-                        new.append(f.result())
-                    except EpisodeFailed as e:
-                        if e.unusable:
-                            raise UserError(f"GenSim at {settings.root} cannot be used: {e.error}"
-                                            + (f" (at {e.where})" if e.where else "")
-                                            + "; set up its environment with `make gensim-env` (README, GenSim's "
-                                              "own code)") from None
-                        log.warning("GenSim %s seed %d failed, reported: %s%s", e.task, e.seed, e.error,
-                                    f" (at {e.where})" if e.where else "")
-                        failed.append({"task": e.task, "seed": e.seed, "error": e.error, "where": e.where})
-                    bar.update(1)
-            except BaseException:  # Ctrl-C, or GenSim unusable: stop the workers now, keep what is stored
-                for f in futures:
-                    f.cancel()
-                for proc in list(live):
-                    proc.kill()
-                raise
-            finally:
-                bar.close()
+        new, failed = _record_in_workers(one, todo, workers, live, bar, settings)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     out = stored_summary(store, pipeline, tasks, seeds, failed=failed)
     return {"new": sorted(new, key=lambda r: (r["task"], r["seed"])), "skipped": skipped,
             "failed": sorted(failed, key=lambda r: (r["task"], r["seed"])), "tasks": out}
+
+
+def _record_in_workers(one, todo: list, workers: int, live: set, bar, settings: GensimSettings) -> tuple[list, list]:
+    """`one(task, seed)` for each of `todo` on `workers` threads: (what each returned, the failures reported).
+    A GenSim that cannot be used at all stops every worker with a UserError; so does Ctrl-C (re-raised)."""
+    new, failed = [], []
+    with ThreadPoolExecutor(max(1, workers)) as pool:  # threads only wait: each episode is its own process
+        futures = {pool.submit(one, t, s): (t, s) for t, s in todo}
+        try:
+            for f in as_completed(futures):
+                try:
+                    new.append(f.result())
+                except EpisodeFailed as e:
+                    if e.unusable:
+                        raise UserError(f"GenSim at {settings.root} cannot be used: {e.error}"
+                                        + (f" (at {e.where})" if e.where else "")
+                                        + "; set up its environment with `make gensim-env` (README, GenSim's "
+                                          "own code)") from None
+                    log.warning("GenSim %s seed %d failed, reported: %s%s", e.task, e.seed, e.error,
+                                f" (at {e.where})" if e.where else "")
+                    failed.append({"task": e.task, "seed": e.seed, "error": e.error, "where": e.where})
+                bar.update(1)
+        except BaseException:  # Ctrl-C, or GenSim unusable: stop the workers now, keep what is stored
+            for f in futures:
+                f.cancel()
+            for proc in list(live):
+                proc.kill()
+            raise
+        finally:
+            bar.close()
+    return new, failed
 
 
 def plan_tasks(root: Path, tasks: list[str] | str | None, group: str) -> dict[str, str]:

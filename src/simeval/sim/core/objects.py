@@ -90,7 +90,6 @@ def make_object(client, obj: SimObject, position: np.ndarray, yaw: float, rng: n
         obj.body_ids = [make_fixture(c, obj.shape, obj.size, rgba, x, y, yaw, table_z)]
     elif obj.shape == "pile":
         n = int(sz)  # for piles, size z holds the number of particles
-        r = sx / 2
         col = c.createCollisionShape(c.GEOM_BOX, halfExtents=[PARTICLE / 2] * 3)
         vis = c.createVisualShape(c.GEOM_BOX, halfExtents=[PARTICLE / 2] * 3, rgbaColor=rgba)
         ids = []

@@ -535,6 +535,20 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
     unknown = set(variation) - {o.name for o in spec.objects}
     if unknown:
         raise SpecError(f"task {spec.name}: variation names unknown object(s) {sorted(unknown)}")
+    # the draws' order is the task's stream: objects, layout, joints, then frictions
+    objects = _draw_objects(spec, variation, rng)
+    _check_one_per_place(spec, objects)
+    poses = _draw_layout(spec, objects, rng, float(pose_range), seed)
+    objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
+    joints = _draw_joints(spec, objects, variation, rng)
+    # drawn last, and only where the knob is given, so every other draw of a task stays what it was
+    frictions = {obj.id: float(rng.uniform(*variation[obj.name]["friction"])) for obj in objects
+                 if "friction" in variation.get(obj.name, {})}
+    return Instance(spec, seed, objects, poses, _describe(spec, objects), joints, frictions)
+
+
+def _draw_objects(spec: TaskSpec, variation: dict, rng: np.random.Generator) -> list[SimObject]:
+    """Each object name's count, colours and size (a variation's overrides applied)."""
     used_colors: set[str] = set()
     named_color: dict[str, str] = {}
     objects: list[SimObject] = []
@@ -558,6 +572,10 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
         if o.shape in ARTICULATED and "scale" in v:
             size = _scaled(o.size, rng, v["scale"])  # one factor per object name: its instances alike
         objects += [SimObject(o.name, i, o.shape, chosen[i], size, on_table=o.on_table) for i in range(n)]
+    return objects
+
+
+def _check_one_per_place(spec: TaskSpec, objects: list[SimObject]) -> None:
     for g in spec.goals:
         if g.each:
             n_what = sum(o.name in g.what for o in objects)
@@ -565,15 +583,21 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
             if n_what != n_where:
                 raise SpecError(f"task {spec.name}: goal '{g.type}' asks for one {'/'.join(g.what)} per "
                                 f"{'/'.join(g.where)}, but the counts are {n_what} and {n_where}; give them equal counts")
+
+
+def _draw_layout(spec: TaskSpec, objects: list[SimObject], rng: np.random.Generator, pose_range: float,
+                 seed: int) -> dict:
     anchor = _anchor_layout(spec, objects) if pose_range < 1 else None  # 1: the usual draws, bit for bit
     for _ in range(_LAYOUT_ATTEMPTS):  # a layout that does not fit is redrawn from the same stream
-        poses = _layout(spec, objects, rng, anchor, float(pose_range))
+        poses = _layout(spec, objects, rng, anchor, pose_range)
         if poses is not None:
-            break
-    else:
-        raise SpecError(f"task {spec.name} seed {seed}: cannot place its {len(objects)} objects without overlap in "
-                        f"{_LAYOUT_ATTEMPTS} layouts; enlarge the regions or reduce counts/sizes")
-    objects.sort(key=lambda o: (spec.objects.index(spec.object(o.name)), o.index))
+            return poses
+    raise SpecError(f"task {spec.name} seed {seed}: cannot place its {len(objects)} objects without overlap in "
+                    f"{_LAYOUT_ATTEMPTS} layouts; enlarge the regions or reduce counts/sizes")
+
+
+def _draw_joints(spec: TaskSpec, objects: list[SimObject], variation: dict,
+                 rng: np.random.Generator) -> dict[str, list[float]]:
     joints: dict[str, list[float]] = {}
     for obj in objects:  # drawn after the layout, so tasks without articulated objects keep their streams
         if obj.shape in JOINTED:
@@ -584,18 +608,18 @@ def sample_instance(spec: TaskSpec, seed: int, variation: dict | None = None, po
                 raise SpecError(f"task {spec.name}: joint_init of '{o.name}' gives {len(o.joint_init)} fractions, "
                                 f"a {o.shape} has {k} joint(s)")
             joints[obj.id] = [float(np.clip(f + rng.uniform(-noise, noise), 0, 1)) if noise else f for f in init]
-    # drawn last, and only where the knob is given, so every other draw of a task stays what it was
-    frictions = {obj.id: float(rng.uniform(*variation[obj.name]["friction"])) for obj in objects
-                 if "friction" in variation.get(obj.name, {})}
+    return joints
+
+
+def _describe(spec: TaskSpec, objects: list[SimObject]) -> str:
     fields = {}
     for o in spec.objects:
         inst = [x for x in objects if x.name == o.name]
         fields[o.name] = SimpleNamespace(color=inst[0].color if inst else o.colors[0], count=len(inst))
     try:
-        description = spec.description.format(**fields)
+        return spec.description.format(**fields)
     except (KeyError, AttributeError) as e:
         raise SpecError(f"task {spec.name}: description field {e} is not <object>.color or <object>.count") from e
-    return Instance(spec, seed, objects, poses, description, joints, frictions)
 
 
 def _scaled(size, rng: np.random.Generator, scale) -> tuple[float, float, float]:
