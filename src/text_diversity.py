@@ -6,6 +6,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import TextDiversityConfig, check_bounds
 from simeval.errors import require_choice, require_folder
 
 log = logging.getLogger("text_diversity")
@@ -22,6 +23,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.results import RunFolder
     from simeval.pipelines.task_texts import SourceNotConfigured, load_tasks, source_options
 
+    check_bounds(cfg, TextDiversityConfig)
     require_choice("on_missing_source", cfg.on_missing_source, ("error", "record"))
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)

@@ -169,6 +169,20 @@ def test_quality_and_text_diversity_name_bad_values_and_paths(entrypoint, args, 
     assert expected in one_line_exit_2(run_plain(entrypoint, *args, *store, *run_dir, cwd=tmp_path))
 
 
+@pytest.mark.parametrize("entrypoint, args, expected", [
+    ("text_diversity", ["seed=abc"], "seed='abc': expected a whole number"),
+    ("agreement", ["scores_path=x.json", "n_boot=lots"], "n_boot='lots': expected a whole number"),
+    ("evaluate", ["episodes.pipeline=mine", "dynamics.heldout=0"], "dynamics.heldout must be a whole number >= 1"),
+    ("export_data", ["out=x", "overwrite=maybe"], "overwrite='maybe': expected true or false"),
+    ("import_data", ["src=x", "overwrite=maybe"], "overwrite='maybe': expected true or false"),
+    ("paper", ["sbatch_args=[a]"], "sbatch_args=['a']: expected text"),
+])
+def test_every_entrypoint_names_a_value_of_the_wrong_type_before_reading_anything(entrypoint, args, expected,
+                                                                                  tmp_path):
+    assert expected in one_line_exit_2(run_plain(entrypoint, *args, f"hydra.run.dir={tmp_path / 'run'}",
+                                                 cwd=tmp_path))
+
+
 def test_a_comma_list_without_m_and_a_group_of_another_command_say_what_to_do(tmp_path):
     line = one_line_exit_2(run("diversity", "episodes=2,3", cwd=tmp_path))
     assert "Ambiguous value for argument 'episodes=2,3'; to sweep over the values add -m" in line

@@ -43,6 +43,13 @@ def test_each_schema_key_has_its_value_in_the_yaml_and_the_yaml_no_key_outside_t
     ("quality", "budget_usd=lots", "budget_usd='lots': expected a number"),
     ("report", "overwrite=please", "overwrite='please': expected true or false"),
     ("generalization", "eval.videos=some", "eval.videos='some': expected true or false"),
+    ("text_diversity", "seed=abc", "seed='abc': expected a whole number"),
+    ("agreement", "n_boot=1e3", "n_boot=1000.0: expected a whole number"),
+    ("evaluate", "dynamics.heldout=ten", "dynamics.heldout='ten': expected a whole number"),
+    ("evaluate", "generalization.random_baseline=perhaps",
+     "generalization.random_baseline='perhaps': expected true or false"),
+    ("export_data", "overwrite=maybe", "overwrite='maybe': expected true or false"),
+    ("import_data", "overwrite=sure", "overwrite='sure': expected true or false"),
 ])
 def test_a_value_of_the_wrong_type_stops_at_composition_with_the_key_and_the_type(name, override, line):
     with pytest.raises(ConfigCompositionException) as e:
@@ -61,6 +68,8 @@ def test_values_omegaconf_converts_are_accepted():
     ("diversity", "videos=-1", "videos must be a whole number >= 0, got -1"),
     ("generalization", "eval.max_steps=0", "eval.max_steps must be a whole number >= 1, got 0"),
     ("collect", "seed_offset=-2", "seed_offset must be a whole number >= 0, got -2"),
+    ("evaluate", "dynamics.heldout=0", "dynamics.heldout must be a whole number >= 1, got 0"),
+    ("agreement", "seed=-1", "seed must be a whole number >= 0, got -1"),
 ])
 def test_a_lower_bound_names_the_dotted_key(name, override, message):
     with pytest.raises(UserError, match=message.replace("(", r"\(")):

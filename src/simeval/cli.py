@@ -478,7 +478,8 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     return f"{head} {cause_text[0]}" if cause_text else head
 
 
-_EXPECTED = (("to Integer", "a whole number"), ("valid bool", "true or false"), ("to Float", "a number"))
+_EXPECTED = (("to Integer", "a whole number"), ("valid bool", "true or false"), ("to Float", "a number"),
+             ("to string", "text"))
 
 
 def _type_mistake(cause: BaseException | None) -> str | None:

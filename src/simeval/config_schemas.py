@@ -137,8 +137,120 @@ class ReportConfig:
     report: Any = MISSING
 
 
+@dataclass
+class TextMetrics:
+    n_boot: int = MISSING  # its bound (>= 10) is the metric's, worded with why
+    subsample_n: Any = MISSING  # auto, a whole number or null: read by the metric
+    subsample_repeats: int = MISSING  # its bound is the metric's
+
+
+@dataclass
+class TextDiversityConfig:
+    task_group: str = MISSING
+    on_missing_source: str = MISSING
+    seed: int = whole(0)
+    cache_dir: str = MISSING
+    metrics: TextMetrics = field(default_factory=TextMetrics)
+    paths: Any = MISSING
+    pipeline: Any = MISSING
+    embedding: Any = MISSING
+    logger: Any = MISSING
+
+
+@dataclass
+class AgreementConfig:
+    scores_path: Optional[str] = MISSING
+    human_column: str = MISSING
+    n_boot: int = MISSING  # its bound is the statistic's
+    seed: int = whole(0)
+    figure_formats: list[str] = MISSING
+    paths: Any = MISSING
+    logger: Any = MISSING
+
+
+@dataclass
+class EpisodeSelection:
+    store: str = MISSING
+    pipeline: Optional[str] = MISSING
+    group: str = MISSING
+
+
+@dataclass
+class DynamicsStage:
+    counts: Any = MISSING  # lists of whole numbers, checked with an example (src/evaluate.py dynamics_settings)
+    heldout: int = whole(1)
+    seeds: Any = MISSING
+    debug: str = MISSING
+    overrides: Any = MISSING
+
+
+@dataclass
+class GeneralizationStage:
+    debug: str = MISSING
+    random_baseline: bool = MISSING
+    overrides: Any = MISSING
+
+
+@dataclass
+class QualityStage:
+    overrides: Any = MISSING
+
+
+@dataclass
+class EvaluateConfig:
+    environment: Optional[str] = MISSING
+    episodes: EpisodeSelection = field(default_factory=EpisodeSelection)
+    camera: Optional[str] = MISSING
+    out: str = MISSING
+    tables: str = MISSING
+    cache_dir: str = MISSING
+    dynamics: DynamicsStage = field(default_factory=DynamicsStage)
+    generalization: GeneralizationStage = field(default_factory=GeneralizationStage)
+    quality: QualityStage = field(default_factory=QualityStage)
+    paths: Any = MISSING
+    embedding: Any = MISSING
+
+
+@dataclass
+class ExportDataConfig:
+    format: str = MISSING
+    episodes: EpisodeSelection = field(default_factory=EpisodeSelection)
+    out: Optional[str] = MISSING
+    fps: Any = MISSING  # a number > 0 or null, kept as written (info.json records it): checked by the exporter
+    robot_type: str = MISSING
+    overwrite: bool = MISSING
+    paths: Any = MISSING
+
+
+@dataclass
+class ImportDataConfig:
+    format: str = MISSING
+    src: Optional[str] = MISSING
+    store: str = MISSING
+    image_size: Any = MISSING  # [H, W] or null: checked by the importers' image_size_option
+    overwrite: bool = MISSING
+    groups: Any = MISSING
+    descriptions: Any = MISSING
+    name: Optional[str] = MISSING
+    filter_key: Optional[str] = MISSING
+    paths: Any = MISSING
+
+
+@dataclass
+class PaperConfig:
+    pipelines: Any = MISSING  # one name or a list (src/paper.py names())
+    stages: Any = MISSING
+    out: str = MISSING
+    launcher: str = MISSING
+    sbatch_args: Optional[str] = MISSING
+    paths: Any = MISSING
+    profile: Any = MISSING
+
+
 SCHEMAS = {"diversity": DiversityConfig, "collect": CollectConfig, "generalization": GeneralizationConfig,
-           "quality": QualityConfig, "report": ReportConfig}
+           "quality": QualityConfig, "report": ReportConfig, "text_diversity": TextDiversityConfig,
+           "agreement": AgreementConfig, "evaluate": EvaluateConfig, "export_data": ExportDataConfig,
+           "import_data": ImportDataConfig, "paper": PaperConfig}
 
 
 def register() -> None:
