@@ -7,7 +7,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import AgreementConfig, check_bounds
+from simeval.config_schemas import AgreementConfig, check_values
 
 log = logging.getLogger("agreement")
 
@@ -22,7 +22,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.writing.tables import write_table
     from simeval.results import RunFolder
 
-    check_bounds(cfg, AgreementConfig)
+    check_values(cfg, AgreementConfig)
     if not cfg.scores_path:
         raise UserError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
     run = RunFolder.of(cfg)

@@ -12,7 +12,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import CollectConfig, check_bounds
+from simeval.config_schemas import CollectConfig, check_values
 
 log = logging.getLogger("collect")
 
@@ -24,7 +24,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import pipeline_class
     from simeval.results import RunFolder
 
-    check_bounds(cfg, CollectConfig)
+    check_values(cfg, CollectConfig)
     collector = pipeline_class(cfg.pipeline, needs="collection")
     run = RunFolder.of(cfg)
     try:

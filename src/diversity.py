@@ -7,7 +7,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import DiversityConfig, check_bounds
+from simeval.config_schemas import DiversityConfig, check_values
 from simeval.errors import require_folder
 
 log = logging.getLogger("diversity")
@@ -24,7 +24,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 
-    check_bounds(cfg, DiversityConfig)
+    check_values(cfg, DiversityConfig)
     if cfg.checkpoint_dir is not None:  # null: no checkpoints (no resume)
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)

@@ -186,10 +186,10 @@ def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
     """(heldout, counts, seeds) of `dynamics`, checked (one line naming the key)."""
     from omegaconf import OmegaConf
 
-    from simeval.config_schemas import EvaluateConfig, check_bounds
+    from simeval.config_schemas import EvaluateConfig, check_values
     from simeval.errors import require_whole
 
-    check_bounds(cfg, EvaluateConfig)
+    check_values(cfg, EvaluateConfig)
     out = []
     for key, low in (("counts", 1), ("seeds", 0)):
         values = OmegaConf.to_container(cfg.dynamics[key]) if OmegaConf.is_config(cfg.dynamics[key]) else \

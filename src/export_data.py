@@ -24,9 +24,9 @@ def main(cfg: DictConfig) -> None:
     require_choice("format", cfg.format, ("lerobot",))
     if not cfg.out:
         raise UserError("out is not set: out=/path/to/new_dataset")
-    metas = pipeline_episodes(cfg.episodes.store, cfg.episodes.pipeline, cfg.episodes.group)
     if cfg.fps is not None and (isinstance(cfg.fps, bool) or not isinstance(cfg.fps, (int, float)) or cfg.fps <= 0):
         raise UserError(f"fps={cfg.fps!r}: expected frames per second > 0 (null: the episodes' control rate)")
+    metas = pipeline_episodes(cfg.episodes.store, cfg.episodes.pipeline, cfg.episodes.group)
     out = Path(str(cfg.out)).expanduser()
     if out.exists() and not out.is_dir():
         raise UserError(f"out={cfg.out}: is a file; give a folder for the new dataset")

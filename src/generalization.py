@@ -7,7 +7,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import GeneralizationConfig, check_bounds
+from simeval.config_schemas import GeneralizationConfig, check_values
 from simeval.errors import require_folder
 
 log = logging.getLogger("generalization")
@@ -25,7 +25,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.pipelines.registry import pipeline_from_config
     from simeval.results import RunFolder
 
-    check_bounds(cfg, GeneralizationConfig)
+    check_values(cfg, GeneralizationConfig)
     torch.set_num_threads(cfg.torch_threads or torch.get_num_threads())  # null: torch's own default
     device = resolve_device(cfg.device)  # a bad value or a missing GPU stops here, before any data is read
     require_folder("checkpoint_dir", cfg.checkpoint_dir)

@@ -9,6 +9,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.config_schemas import ImportDataConfig, check_values
 from simeval.errors import UserError
 
 log = logging.getLogger("import_data")
@@ -21,6 +22,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.episodes.store import EpisodeStore
     from simeval.results import RunFolder
 
+    check_values(cfg, ImportDataConfig)
     if cfg.format not in IMPORTERS:
         raise UserError(f"format={cfg.format!r}: expected one of {', '.join(IMPORTERS)}")
     if not cfg.src:
@@ -30,7 +32,7 @@ def main(cfg: DictConfig) -> None:
     importer = IMPORTERS[cfg.format]
     size = OmegaConf.to_container(cfg.image_size) if OmegaConf.is_config(cfg.image_size) else cfg.image_size
     options = {"image_size": image_size_option(size, "image_size"),
-               "groups": OmegaConf.to_container(cfg.groups), "descriptions": OmegaConf.to_container(cfg.descriptions), "name": cfg.name,
+               "groups": _mapping(cfg.groups), "descriptions": _mapping(cfg.descriptions), "name": cfg.name,
                "filter_key": cfg.filter_key}
     accepted = inspect.signature(importer).parameters  # each format takes the options it has a use for
     summary = import_into_store(importer, cfg.src, EpisodeStore(cfg.store), overwrite=cfg.overwrite,
@@ -38,6 +40,10 @@ def main(cfg: DictConfig) -> None:
     RunFolder.of(cfg).write(metric="import", version="1.0", values=summary)
     log.info("%s: %d written, %d already in %s (pipeline %s)", cfg.format, summary["written"], summary["skipped"],
              cfg.store, ", ".join(summary["pipelines"]) or "none")
+
+
+def _mapping(value) -> dict:
+    return {} if value is None else OmegaConf.to_container(value)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import QualityConfig, check_bounds
+from simeval.config_schemas import QualityConfig, check_values
 from simeval.errors import require_folder
 
 log = logging.getLogger("quality")
@@ -25,7 +25,7 @@ def main(cfg: DictConfig) -> None:
     from simeval.measures.quality.run import Scoring, model_judge, run_quality
     from simeval.results import RunFolder
 
-    check_bounds(cfg, QualityConfig)  # for every judge, oracle included
+    check_values(cfg, QualityConfig)  # for every judge, oracle included
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)
     judge = "oracle"

@@ -6,7 +6,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.config_schemas import TextDiversityConfig, check_bounds
+from simeval.config_schemas import TextDiversityConfig, check_values
 from simeval.errors import require_choice, require_folder
 
 log = logging.getLogger("text_diversity")
@@ -17,13 +17,14 @@ log = logging.getLogger("text_diversity")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import instantiate
 
-    from simeval.measures.text_diversity.run import log_groups, text_diversity_by_group
+    from simeval.measures.text_diversity.run import check_settings, log_groups, text_diversity_by_group
     from simeval.embeddings import CachedEmbedder, EmbeddingCache
     from simeval.measures.text_diversity.table3 import run_record, tasks_fingerprint
     from simeval.results import RunFolder
     from simeval.pipelines.task_texts import SourceNotConfigured, load_tasks, source_options
 
-    check_bounds(cfg, TextDiversityConfig)
+    check_values(cfg, TextDiversityConfig)
+    check_settings(**cfg.metrics)  # before the tasks are read or the model loaded
     require_choice("on_missing_source", cfg.on_missing_source, ("error", "record"))
     require_folder("cache_dir", cfg.cache_dir)
     run = RunFolder.of(cfg)

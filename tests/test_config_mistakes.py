@@ -50,6 +50,9 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
     (["protocol.model.pixel_norm=zscore"], "world_model.pixel_norm='zscore': expected one of none, standardise"),
+    (["world_model.train.lr=fast"], "world_model.train.lr='fast': expected a number"),
+    (["world_model.train.max_steps=1.5"], "world_model.train.max_steps=1.5: expected a whole number or null"),
+    (["world_model.model.free_nats=abc"], "world_model.model.free_nats='abc': expected a number"),
 ])
 def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):
     (tmp_path / "a_file").write_text("")
@@ -72,6 +75,9 @@ def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, 
     (["eval.splits=tst"], "eval.splits: split 'tst' is not one of"),  # one name, not the letters t, s, t
     (["heldout_tasks=nope"], "heldout_tasks=['nope']: ['nope'] not in task_group=stacking"),
     (["checkpoint_dir=a_file"], "checkpoint_dir=a_file: is a file, not a folder"),
+    (["policy.train.lr=abc"], "policy.train.lr='abc': expected a number"),
+    (["policy.model.stem_pool=maybe"], "policy.model.stem_pool='maybe': expected true or false"),
+    (["tasks=5"], "tasks=5: expected a task name, a list of names (e.g. tasks=[a,b]) or null"),
 ])
 def test_generalization_names_the_bad_value_before_training(args, expected, tmp_path):
     (tmp_path / "a_file").write_text("")

@@ -2,6 +2,7 @@
 type stops at composition with one line naming the key, and a lower bound stops before any data is read."""
 
 import dataclasses
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +13,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 from simeval.cli import composition_error_line
-from simeval.config_schemas import SCHEMAS, check_bounds
+from simeval.config_schemas import SCHEMAS, check_values
 from simeval.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +31,7 @@ def test_each_schema_key_has_its_value_in_the_yaml_and_the_yaml_no_key_outside_t
     assert OmegaConf.missing_keys(cfg) == set()  # nothing left MISSING: the YAML writes every default
     schema_keys = {f.name for f in dataclasses.fields(SCHEMAS[name])}
     assert set(cfg.keys()) == schema_keys
-    check_bounds(cfg, SCHEMAS[name])  # the shipped defaults are in bounds
+    check_values(cfg, SCHEMAS[name])  # the shipped defaults are in bounds
 
 
 @pytest.mark.parametrize("name, override, line", [
@@ -50,6 +51,8 @@ def test_each_schema_key_has_its_value_in_the_yaml_and_the_yaml_no_key_outside_t
      "generalization.random_baseline='perhaps': expected true or false"),
     ("export_data", "overwrite=maybe", "overwrite='maybe': expected true or false"),
     ("import_data", "overwrite=sure", "overwrite='sure': expected true or false"),
+    ("diversity", "heldout_episodes=abc", "heldout_episodes='abc': expected a list in brackets, e.g. [a,b]"),
+    ("agreement", "figure_formats=png", "figure_formats='png': expected a list in brackets, e.g. [a,b]"),
 ])
 def test_a_value_of_the_wrong_type_stops_at_composition_with_the_key_and_the_type(name, override, line):
     with pytest.raises(ConfigCompositionException) as e:
@@ -70,16 +73,20 @@ def test_values_omegaconf_converts_are_accepted():
     ("collect", "seed_offset=-2", "seed_offset must be a whole number >= 0, got -2"),
     ("evaluate", "dynamics.heldout=0", "dynamics.heldout must be a whole number >= 1, got 0"),
     ("agreement", "seed=-1", "seed must be a whole number >= 0, got -1"),
+    ("quality", "episodes.max_frames=1", "episodes.max_frames must be a whole number >= 2, got 1"),
+    ("generalization", "tasks=5", "tasks=5: expected a task name, a list of names (e.g. tasks=[a,b]) or null"),
+    ("collect", "tasks=[a,3]", "tasks=['a', 3]: expected a task name, a list of names (e.g. tasks=[a,b]) or null"),
+    ("import_data", "groups=abc", "groups='abc': expected a mapping, e.g. groups={task: group}"),
 ])
-def test_a_lower_bound_names_the_dotted_key(name, override, message):
-    with pytest.raises(UserError, match=message.replace("(", r"\(")):
-        check_bounds(composed(name, [override]), SCHEMAS[name])
+def test_a_value_outside_its_rule_names_the_dotted_key(name, override, message):
+    with pytest.raises(UserError, match=re.escape(message)):
+        check_values(composed(name, [override]), SCHEMAS[name])
 
 
 def test_an_optional_bounded_key_may_be_null_but_not_below_its_bound():
-    check_bounds(composed("generalization", ["torch_threads=null", "eval.max_steps=null"]), SCHEMAS["generalization"])
+    check_values(composed("generalization", ["torch_threads=null", "eval.max_steps=null"]), SCHEMAS["generalization"])
     with pytest.raises(UserError, match="torch_threads must be a whole number >= 1, got 0"):
-        check_bounds(composed("generalization", ["torch_threads=0"]), SCHEMAS["generalization"])
+        check_values(composed("generalization", ["torch_threads=0"]), SCHEMAS["generalization"])
 
 
 def test_a_notebook_composes_without_importing_simeval_first(tmp_path):
@@ -90,3 +97,83 @@ def test_a_notebook_composes_without_importing_simeval_first(tmp_path):
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path,
                        env={"PYTHONPATH": str(ROOT / "src"), "PATH": "/usr/bin:/bin"})
     assert r.returncode == 0 and r.stdout.strip() == "40", r.stderr[-2000:]
+
+
+@dataclasses.dataclass
+class _Settings:
+    count: int = 1
+    rate: float = 0.5
+    cap: "int | None" = None
+    flag: bool = True
+    name: str = "a"
+    sizes: tuple = (1, 2)
+
+
+@pytest.mark.parametrize("field, value, line", [
+    ("count", "3", "s.count='3': expected a whole number"),
+    ("count", True, "s.count=True: expected a whole number"),
+    ("count", 2.0, "s.count=2.0: expected a whole number"),
+    ("rate", "fast", "s.rate='fast': expected a number"),
+    ("cap", 1.5, "s.cap=1.5: expected a whole number or null"),
+    ("flag", 1, "s.flag=1: expected true or false"),
+    ("name", 5, "s.name=5: expected text"),
+])
+def test_a_config_groups_settings_refuse_a_value_of_the_wrong_type(field, value, line):
+    """Settings classes of config groups (world model, policy) check their scalar fields' types from the
+    annotations (simeval.errors.check_field_types), worded as a schema's composition error."""
+    from simeval.errors import check_field_types
+
+    with pytest.raises(UserError) as e:
+        check_field_types(_Settings(**{field: value}), "s")
+    assert str(e.value) == line
+
+
+def test_values_of_the_right_type_pass_a_settings_check():
+    from simeval.errors import check_field_types
+
+    check_field_types(_Settings(count=3, rate=2, cap=None, flag=False, name="b", sizes="not read"), "s")
+    check_field_types(_Settings(cap=4), "s")
+
+
+@pytest.mark.parametrize("kind, override, message", [
+    ("table3", "report.statistic=foo", "report.statistic='foo': expected one of div, vendi, cos_dist, self_bleu"),
+    ("table3", "report.digits=-1", "report.digits must be a whole number >= 0, got -1"),
+    ("table3", "report.digits=abc", "report.digits='abc': expected a whole number"),
+    ("table3", "report.rows=5", "report.rows=5: expected a list of mappings with pipeline, display, groups"),
+    ("table4", "report.episodes=abc", "report.episodes='abc': expected a list of episode counts, e.g. [10,20,40]"),
+    ("table4", "report.episodes=[10,0,40]", "report.episodes[] must be a whole number >= 1, got 0"),
+    ("table4_heldout", "report.keep=5", "report.keep=5: expected a CSV path or a list of them"),
+    ("table5", "+report.polcy=x", "report: unknown key(s) polcy; expected kind, runs_dir, out, figure, policy, keep"),
+])
+def test_a_report_kinds_settings_are_checked_before_anything_is_read(kind, override, message):
+    from simeval.report.specs import check_report
+
+    spec = OmegaConf.to_container(composed("report", [f"report={kind}", override]).report, resolve=True)
+    with pytest.raises(UserError, match=re.escape(message)):
+        check_report(spec)
+
+
+def test_every_shipped_report_kind_passes_its_check():
+    from simeval.report.specs import KIND_SETTINGS, check_report
+
+    for kind in KIND_SETTINGS:
+        check_report(OmegaConf.to_container(composed("report", [f"report={kind}"]).report, resolve=True))
+    every = OmegaConf.to_container(composed("report", ["report=all"]).report, resolve=True)
+    for step in every["steps"]:
+        check_report(every[step], f"report.{step}")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("profile.tasks_per_group=0", "profile.tasks_per_group must be a whole number >= 1, got 0"),
+    ("profile.episodes=abc", "profile.episodes must be a whole number >= 1, got 'abc'"),
+    ("profile.world_model_episodes=[0,1]", "profile.world_model_episodes[] must be a whole number >= 1, got 0"),
+    ("profile.world_model_episodes=[1,2,8]", "8 is more than the profile.episodes=4 collected per task"),
+    ("+profile.extra=1", "profile: unknown key(s) extra"),
+])
+def test_a_profiles_values_are_checked_whichever_stages_run(override, message):
+    from simeval.orchestrate import check_profile
+
+    with pytest.raises(UserError, match=re.escape(message)):
+        check_profile(OmegaConf.to_container(composed("paper", [override]).profile, resolve=True))
+    for name in ("quick", "cpu", "paper"):
+        check_profile(OmegaConf.to_container(composed("paper", [f"profile={name}"]).profile, resolve=True))

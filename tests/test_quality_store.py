@@ -118,7 +118,8 @@ def test_a_vlm_judge_gets_the_store_episodes_as_bundles(store, openai_server, tm
     (["episodes.store={store}", "episodes.group=nosuch"],
      "has no episodes of episodes.pipeline=null, episodes.group=nosuch; it holds: gensim (stacking)"),
     (["episodes.store={store}", "episodes.per_task=-1"], "episodes.per_task must be a whole number >= 1, got -1"),
-    (["episodes.store={store}", "episodes.per_task=abc"], "episodes.per_task must be a whole number >= 1, got 'abc'"),
+    (["episodes.store={store}", "episodes.per_task=abc"], "episodes.per_task='abc': expected a whole number"),
+    (["episodes.store={store}", "episodes.max_frames=1"], "episodes.max_frames must be a whole number >= 2, got 1"),
     (["episodes.store={store}", "episodes.per_task=5"],
      "episodes.store={store}: task 'align-rope' has 1 episodes, fewer than the 5 asked for (episodes.per_task=5;"),
 ])

@@ -479,7 +479,7 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
 
 
 _EXPECTED = (("to Integer", "a whole number"), ("valid bool", "true or false"), ("to Float", "a number"),
-             ("to string", "text"))
+             ("to string", "text"), ("is not a ListConfig", "a list in brackets, e.g. [a,b]"))
 
 
 def _type_mistake(cause: BaseException | None) -> str | None:

@@ -5,7 +5,7 @@ the values and their comments, the schema gives each top-level key its type. Ome
 Hydra composes the config, before any simeval code runs: `episodes=abc`, `episodes=1.5` or `compile=fast` stop with
 one line naming the key (simeval.cli's composition-error line), and a mistyped key is refused with the valid
 ones. What a type cannot say, a lower bound, is declared beside the type (`whole(low)`) and checked by
-`check_bounds`, one call per entrypoint, so each number's rule lives in one place.
+`check_values`, one call per entrypoint, so each number's rule lives in one place.
 
 A config group (pipeline, world_model, protocol, policy, judge, ...) is typed `Any` here: its keys differ by
 option (a plugin pipeline brings its own) and each is read into its own settings dataclass, which names its keys
@@ -20,14 +20,27 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Optional, get_args, get_type_hints
 
-from omegaconf import MISSING
+from omegaconf import MISSING, OmegaConf
 
-from simeval.errors import require_whole
+from simeval.errors import UserError, require_whole
 
 
 def whole(low: int) -> Any:
-    """A whole-number field whose value must be >= low (checked by check_bounds; the type by OmegaConf)."""
+    """A whole-number field whose value must be >= low (checked by check_values; the type by OmegaConf)."""
     return field(default=MISSING, metadata={"at_least": low})
+
+
+def task_names() -> Any:
+    """A field of task names: null, one name, or a list of names (checked by check_values). Why not a type:
+    OmegaConf has no union of a string and a list."""
+    return field(default=MISSING, metadata={"names": True})
+
+
+def mapping(example: str) -> Any:
+    """A field holding a mapping of names to text, e.g. `{task: group}`, or null (checked by check_values). Its YAML
+    default is null rather than {}: Hydra refuses a new key in an empty mapping (`groups={a: b}` would need a `+`),
+    not a value that replaces null."""
+    return field(default=MISSING, metadata={"mapping": example})
 
 
 @dataclass
@@ -64,7 +77,7 @@ class DiversityConfig:
 @dataclass
 class CollectConfig:
     task_group: str = MISSING
-    tasks: Any = MISSING
+    tasks: Any = task_names()
     episodes: int = whole(1)
     seed_offset: int = whole(0)
     workers: int = MISSING  # its bound (0: one per core) is worded by the collector
@@ -91,8 +104,8 @@ class PolicyEval:
 @dataclass
 class GeneralizationConfig:
     task_group: str = MISSING
-    tasks: Any = MISSING
-    heldout_tasks: Any = MISSING
+    tasks: Any = task_names()
+    heldout_tasks: Any = task_names()
     episodes_per_task: int = whole(1)
     val_episodes_per_task: int = whole(0)
     demonstrations: str = MISSING
@@ -110,9 +123,19 @@ class GeneralizationConfig:
 
 
 @dataclass
+class QualityEpisodes:
+    store: Optional[str] = MISSING
+    pipeline: Optional[str] = MISSING
+    group: Optional[str] = MISSING
+    per_task: int = whole(1)
+    camera: Optional[str] = MISSING
+    max_frames: int = whole(2)  # the first and the last frame at least
+
+
+@dataclass
 class QualityConfig:
     bundles_dir: Optional[str] = MISSING
-    episodes: Any = MISSING
+    episodes: QualityEpisodes = field(default_factory=QualityEpisodes)
     metric: str = MISSING
     scene_alignment_mode: str = MISSING
     repeats: int = whole(1)
@@ -161,7 +184,7 @@ class TextDiversityConfig:
 class AgreementConfig:
     scores_path: Optional[str] = MISSING
     human_column: str = MISSING
-    n_boot: int = MISSING  # its bound is the statistic's
+    n_boot: int = whole(1)
     seed: int = whole(0)
     figure_formats: list[str] = MISSING
     paths: Any = MISSING
@@ -229,8 +252,8 @@ class ImportDataConfig:
     store: str = MISSING
     image_size: Any = MISSING  # [H, W] or null: checked by the importers' image_size_option
     overwrite: bool = MISSING
-    groups: Any = MISSING
-    descriptions: Any = MISSING
+    groups: Any = mapping("{task: group}")
+    descriptions: Any = mapping("{task: 'the task text'}")
     name: Optional[str] = MISSING
     filter_key: Optional[str] = MISSING
     paths: Any = MISSING
@@ -262,16 +285,38 @@ def register() -> None:
         store.store(name=f"{name}_schema", node=schema)
 
 
-def check_bounds(cfg: Any, schema: type, prefix: str = "") -> None:
-    """Each `whole(low)` field of `schema` (nested schemas included) >= its low, else a UserError naming the dotted
-    key; an Optional one may be null. The type was checked by OmegaConf when the config was composed."""
+def check_values(cfg: Any, schema: type, prefix: str = "") -> None:
+    """Each `whole(low)` field of `schema` (nested schemas included) >= its low, each `task_names()` field null, a
+    name or a list of names, each `mapping()` field a mapping of names to text; else a UserError naming the dotted
+    key. An Optional field may be null. The type was checked by OmegaConf when the config was composed."""
     hints = get_type_hints(schema)
     for f in fields(schema):
         key, value, kind = f"{prefix}{f.name}", cfg[f.name], hints[f.name]
         if is_dataclass(kind):
-            check_bounds(value, kind, f"{key}.")
+            check_values(value, kind, f"{key}.")
         elif "at_least" in f.metadata and not (value is None and type(None) in get_args(kind)):
             require_whole(key, value, low=f.metadata["at_least"])
+        elif "names" in f.metadata:
+            _check_names(key, value)
+        elif "mapping" in f.metadata:
+            _check_mapping(key, value, f.metadata["mapping"])
+
+
+def _check_names(key: str, value: Any) -> None:
+    items = [value] if value is None or isinstance(value, str) else value if OmegaConf.is_list(value) else None
+    if items is None or not all(v is None and value is None or isinstance(v, str) for v in items):
+        raise UserError(f"{key}={_shown(value)}: expected a task name, a list of names (e.g. {key}=[a,b]) or null")
+
+
+def _check_mapping(key: str, value: Any, example: str) -> None:
+    if value is None:
+        return
+    if not OmegaConf.is_dict(value) or not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
+        raise UserError(f"{key}={_shown(value)}: expected a mapping, e.g. {key}={example}")
+
+
+def _shown(value: Any) -> str:
+    return repr(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
 
 
 register()

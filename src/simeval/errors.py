@@ -9,9 +9,47 @@ message names that thing and what would be valid, e.g.::
 
 from __future__ import annotations
 
+import dataclasses
+import types
+import typing
+
 
 class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
+
+
+_TYPE_WORDS = {int: "a whole number", float: "a number", bool: "true or false", str: "text", type(None): "null"}
+
+
+def check_field_types(settings: object, prefix: str) -> None:
+    """Each int, float, bool or str field of a settings dataclass (Optional ones may be None) holds a value of its
+    type, else a UserError `<prefix>.<field>=<value>: expected <type>`, worded as a typed schema's composition
+    error (simeval.config_schemas). Why here: a config group's keys differ by option, so no schema types them; a
+    string where a number belongs would otherwise fail deep in a comparison or in torch. Other annotations
+    (tuples, lists, mappings) are read by the class itself."""
+    hints = typing.get_type_hints(type(settings))
+    for f in dataclasses.fields(settings):
+        value, kind = getattr(settings, f.name), hints[f.name]
+        if not _is_of(value, kind):
+            raise UserError(f"{prefix}.{f.name}={'null' if value is None else repr(value)}: expected "
+                            + " or ".join(_TYPE_WORDS[k] for k in _scalar_kinds(kind)))
+
+
+def _scalar_kinds(kind) -> list:
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):
+        return [k for k in typing.get_args(kind) if k in _TYPE_WORDS]
+    return [kind] if kind in _TYPE_WORDS else []
+
+
+def _is_of(value, kind) -> bool:
+    kinds = _scalar_kinds(kind)
+    if not kinds or len(kinds) < len(typing.get_args(kind) or [kind]):  # not (only) scalars: the class reads it
+        return True
+    return any(value is None if k is type(None) else
+               isinstance(value, bool) if k is bool else
+               isinstance(value, int) and not isinstance(value, bool) if k is int else
+               isinstance(value, (int, float)) and not isinstance(value, bool) if k is float else
+               isinstance(value, str) for k in kinds)
 
 
 def require_whole(key: str, value: object, low: int = 1) -> None:

@@ -250,6 +250,7 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, s
     """Every stage in `stages` for `pipelines` at the profile's cost (conf/profile/<name>.yaml, as a mapping), into
     `out`; `suites`: {pipeline: its simeval suite or None} for every known pipeline; launcher_name: local | slurm."""
     t_start = time.monotonic()
+    check_profile(prof)
     unknown_pipelines = [p for p in pipelines if p not in suites]
     if unknown_pipelines:
         raise UserError(f"pipelines: {unknown_pipelines[0]}: no conf/pipeline/{unknown_pipelines[0]}.yaml; "
@@ -279,6 +280,35 @@ def run_profile(prof: dict, pipelines: list[str], stages: set[str], out: Path, s
         _report_stage(plan, jobs)
     launcher.finish()
     _list_outputs(plan, stages, time.monotonic() - t_start)
+
+
+PROFILE_KEYS = ("name", "tasks_per_group", "episodes", "world_model_episodes", "overrides", "pipeline_overrides")
+
+
+def check_profile(prof: dict) -> None:
+    """A profile's values (conf/profile/<name>.yaml), checked before any stage runs, whichever stages use them:
+    one UserError naming `profile.<key>`."""
+    from simeval.errors import require_whole
+
+    unknown = sorted(set(prof) - set(PROFILE_KEYS))
+    missing = [k for k in PROFILE_KEYS[:-1] if k not in prof]  # pipeline_overrides may be left out
+    if unknown or missing:
+        what = f"unknown key(s) {', '.join(unknown)}" if unknown else f"missing {', '.join(missing)}"
+        raise UserError(f"profile: {what}; a profile has {', '.join(PROFILE_KEYS)} (conf/profile/quick.yaml)")
+    if prof["tasks_per_group"] is not None:
+        require_whole("profile.tasks_per_group", prof["tasks_per_group"], 1)
+    require_whole("profile.episodes", prof["episodes"], 1)
+    counts = prof["world_model_episodes"]
+    if not isinstance(counts, list) or not counts:
+        raise UserError(f"profile.world_model_episodes={counts!r}: expected a list of episode counts, e.g. [10,20,40]")
+    for count in counts:
+        require_whole("profile.world_model_episodes[]", count, 1)
+    if max(counts) > prof["episodes"]:
+        raise UserError(f"profile.world_model_episodes={counts}: {max(counts)} is more than the "
+                        f"profile.episodes={prof['episodes']} collected per task")
+    for key in ("overrides", "pipeline_overrides"):
+        if prof.get(key) is not None and not isinstance(prof[key], dict):
+            raise UserError(f"profile.{key}={prof[key]!r}: expected a mapping of entrypoint to overrides")
 
 
 def _paper_wide_stages(plan: Plan, stages: set[str], with_suite: list[str]) -> list:

@@ -36,7 +36,7 @@ from einops import rearrange
 from torch import nn
 from torch.nn import functional as F
 
-from simeval.errors import UserError, require_whole_fields
+from simeval.errors import UserError, check_field_types, require_whole_fields
 from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 from simeval.runtime.device import describe_device, module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy_networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
@@ -79,6 +79,7 @@ class PolicyConfig:
     normalize_quaternions: bool = False
 
     def __post_init__(self) -> None:
+        check_field_types(self, "policy.model")
         self.cameras, self.image_size, self.down_dims = list(self.cameras), list(self.image_size), list(self.down_dims)
         require_whole_fields(self, "policy.model", ("crop", "encoder_width", "keypoints", "feature_dim", "horizon",
                                                     "n_obs_steps", "n_action_steps", "step_embed_dim", "kernel_size",
@@ -255,6 +256,7 @@ class TrainSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "policy.train")
         require_whole_fields(self, "policy.train", ("train_steps", "batch_size", "checkpoint_every", "log_every"))
         if not self.lr > 0:
             raise UserError(f"policy.train.lr must be > 0, got {self.lr!r}")

@@ -39,7 +39,7 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import nn
 
-from simeval.errors import UserError, require_whole_fields
+from simeval.errors import UserError, check_field_types, require_whole_fields
 from simeval.runtime.device import module_device, to_device
 
 VERSION = "1.0"
@@ -74,6 +74,7 @@ class WorldModelConfig:
     pixel_std_floor: float = 0.05
 
     def __post_init__(self) -> None:
+        check_field_types(self, "world_model.model")
         require_whole_fields(self, "world_model.model", ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth",
                                                          "minres", "mlp_layers", "mlp_units"))
         if self.kernel < 2:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simeval.errors import UserError, require_whole_fields
+from simeval.errors import UserError, check_field_types, require_whole_fields
 from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 from simeval.runtime.device import module_device, resolve_device, to_cpu, to_device
 from simeval.runtime.trainer import refuse_other_settings, run_steps
@@ -58,6 +58,7 @@ class TrainConfig:
     num_workers: int = 0  # DataLoader workers reading windows
 
     def __post_init__(self) -> None:
+        check_field_types(self, "world_model.train")
         require_whole_fields(self, "world_model.train", ("batch_size", "epochs", "checkpoint_every"))
         if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
             raise UserError(f"world_model.train.max_steps={self.max_steps!r}: expected null or a whole number >= 1")

@@ -100,6 +100,9 @@ def kept_paths(spec: dict) -> list:
 def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt:
     """One report of conf/report/<kind>.yaml (`spec`, resolved): its `kind` picks the builder. `key`: where the
     user's config holds `spec` (report=all's steps: report.<step>), for the keys a note names."""
+    from simeval.report.specs import check_report
+
+    check_report(spec, key)
     kind = spec.get("kind")
     if spec.get("runs_dir") is None:
         check_kept_only(spec, key)

@@ -61,7 +61,7 @@ import numpy as np
 import torch
 
 from simeval.cli import OneLineParser, composition_error_line
-from simeval.config_schemas import GeneralizationConfig, check_bounds
+from simeval.config_schemas import GeneralizationConfig, check_values
 from simeval.errors import UserError
 from simeval.runtime.device import describe_device
 from simeval.results import atomic_path, atomic_write_text, dumps_strict
@@ -99,7 +99,7 @@ def pack(a) -> None:
     from simeval.pipelines.registry import pipeline_from_config
 
     cfg = compose_generalization(a.overrides, a.conf_dir)
-    check_bounds(OmegaConf.create(cfg), GeneralizationConfig)  # as src/generalization.py does
+    check_values(OmegaConf.create(cfg), GeneralizationConfig)  # as src/generalization.py does
     if Path(a.out).is_dir():
         raise UserError(f"--out {a.out}: is a folder; give the pack's file name (e.g. {Path(a.out) / 'pack.pt'})")
     if cfg["policy"]["name"] == "random":

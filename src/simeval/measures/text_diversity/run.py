@@ -18,7 +18,7 @@ def _is_int(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def _check_settings(n_boot, subsample_n, subsample_repeats) -> None:
+def check_settings(n_boot, subsample_n, subsample_repeats) -> None:
     """The `metrics:` block of conf/text_diversity.yaml, checked before any work (UserError names the key)."""
     if not _is_int(n_boot) or n_boot < 10:
         raise DiversityInputError(f"metrics.n_boot must be an integer >= 10 (bootstrap resamples for the div and "
@@ -47,7 +47,7 @@ def text_diversity_by_group(
     recorded as {"n": .., "error": reason} so the other groups still report; a single requested group raises.
     `subsample_n="auto"` uses the smallest group's size so every group is also compared at a common N.
     """
-    _check_settings(n_boot, subsample_n, subsample_repeats)
+    check_settings(n_boot, subsample_n, subsample_repeats)
     tasks = list(tasks)
     if not tasks:
         raise DiversityInputError("no tasks loaded")
