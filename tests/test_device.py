@@ -230,6 +230,23 @@ def test_world_model_checkpoint_holds_cpu_tensors_and_is_found_again_whatever_th
         assert again["eval"] == first["eval"]
 
 
+def test_policy_training_without_a_progress_bar_logs_its_pace_each_tenth(tmp_path, caplog):
+    """progress=false (SLURM logs): a line per tenth of the steps with the loss logged last, the pace and the time
+    left; a finished training found again is reused and logs none."""
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="simeval.models.diffusion_policy"):
+        _train_policy("cpu", tmp_path, steps=10)
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("policy training: step")]
+    assert [int(m.split()[3].split("/")[0]) for m in lines] == list(range(1, 11))
+    assert lines[0].startswith("policy training: step 1/10, loss not logged yet, ") and lines[0].endswith(" left")
+    assert lines[1].startswith("policy training: step 2/10, loss ")  # log_every=2: its first mean
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="simeval.models.diffusion_policy"):
+        _train_policy("cpu", tmp_path, steps=10)  # finished: reused, nothing to train and no pace line
+    assert not [r for r in caplog.records if r.getMessage().startswith("policy training: step")]
+
+
 def test_policy_checkpoint_holds_cpu_tensors_and_loads_onto_a_device(tmp_path):
     policy, summary, _ = _train_policy("cpu", tmp_path)
     path = tmp_path / "last.ckpt"

@@ -25,6 +25,7 @@ import copy
 import dataclasses
 import logging
 import os
+import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -40,7 +41,7 @@ from simeval.errors import UserError, check_field_types, require_whole_fields
 from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 from simeval.runtime.device import describe_device, module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy_networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
-from simeval.runtime.trainer import refuse_other_settings, run_steps
+from simeval.runtime.trainer import duration, refuse_other_settings, run_steps
 
 log = logging.getLogger(__name__)
 CHECKPOINT_VERSION = 1
@@ -314,6 +315,7 @@ class _PolicyTraining:
         self.step, self.losses, self.t_train = 0, [], 0.0
         self.window: list[torch.Tensor] = []  # the losses since the last log step, still on the device
         self.bar = None
+        self.since = (time.perf_counter(), 0)  # (clock, step) where this process started training: the pace's origin
 
     def resume(self, ckpt: Mapping) -> None:
         self.policy.load_state_dict(ckpt["model"])  # copied into the parameters on `device`
@@ -323,6 +325,7 @@ class _PolicyTraining:
         self.ema.to(self.device)  # EMAModel keeps the loaded (CPU) shadow weights where they are
         self.gen.set_state(ckpt["generator"])
         self.step, self.losses, self.t_train = ckpt["step"], list(ckpt["losses"]), ckpt.get("train_seconds", 0.0)
+        self.since = (time.perf_counter(), self.step)
         done = self.step >= self.settings.train_steps
         log.info("policy training in %s finished at step %d/%d: reused, nothing to train" if done else
                  "resuming policy training from %s at step %d/%d", self.ckpt_path, self.step, self.settings.train_steps)
@@ -369,6 +372,17 @@ class _PolicyTraining:
                 self.log_fn({"train/loss": mean, "train/lr": self.lr_sched.get_last_lr()[0]}, step)
             if self.bar is not None:
                 self.bar.set_postfix(loss=f"{mean:.4f}")
+        if self.bar is None and (step % max(1, self.settings.train_steps // 10) == 0
+                                 or step == self.settings.train_steps):
+            self._log_pace(step)
+
+    def _log_pace(self, step: int) -> None:
+        """A line per tenth of the training where no progress bar is drawn (progress=false, SLURM logs): its pace
+        since this process started training and what is left."""
+        pace = (time.perf_counter() - self.since[0]) / max(step - self.since[1], 1)
+        loss = f"{self.losses[-1][1]:.4f}" if self.losses else "not logged yet"
+        log.info("policy training: step %d/%d, loss %s, %.3f s/step, ~%s left", step, self.settings.train_steps,
+                 loss, pace, duration((self.settings.train_steps - step) * pace))
 
 
 def train_policy(policy: DiffusionPolicy, dataset, settings: TrainSettings, ckpt_dir: str | os.PathLike | None = None,

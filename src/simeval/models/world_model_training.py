@@ -38,7 +38,7 @@ import torch
 from simeval.errors import UserError, check_field_types, require_whole_fields
 from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 from simeval.runtime.device import module_device, resolve_device, to_cpu, to_device
-from simeval.runtime.trainer import refuse_other_settings, run_steps
+from simeval.runtime.trainer import duration, refuse_other_settings, run_steps
 
 log = logging.getLogger(__name__)
 
@@ -262,10 +262,6 @@ def _planned_steps(cfg: TrainConfig, epoch: int, done_in_epoch: int, step: int, 
     return total if cfg.max_steps is None else min(total, cfg.max_steps)
 
 
-def _duration(seconds: float) -> str:
-    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
-
-
 def _log_epoch(epoch: int, cfg: TrainConfig, step: int, last: dict, since: tuple[float, int], batches: int) -> None:
     """One line per finished epoch, so a run without progress bars (progress=false, SLURM logs) shows its pace and
     what is left. The pace is that of every step since `since` (clock, step), where this process started training:
@@ -273,7 +269,7 @@ def _log_epoch(epoch: int, cfg: TrainConfig, step: int, last: dict, since: tuple
     pace = (time.perf_counter() - since[0]) / max(step - since[1], 1)
     left = max(_planned_steps(cfg, epoch, 0, step, batches) - step, 0)
     log.info("epoch %d/%d done: step %d, loss %.1f, %.3f s/step, ~%s left", epoch, cfg.epochs, step,
-             last.get("loss", float("nan")), pace, _duration(left * pace))
+             last.get("loss", float("nan")), pace, duration(left * pace))
 
 
 @torch.no_grad()

@@ -26,6 +26,11 @@ from simeval.errors import UserError
 from simeval.runtime.preemption import PreemptionPoint
 
 
+def duration(seconds: float) -> str:
+    """A time left as a log line says it: seconds under 90 s, minutes above."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
 def settings_difference(stored: Mapping, current: Mapping) -> list[str]:
     """The keys whose values differ between two settings mappings (a key missing on one side differs), sorted;
     nested mappings by their dotted keys."""
