@@ -466,13 +466,13 @@ def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
     no_object = not any(np.isfinite(row.get(f"one_step_object_skill_last_{k}", np.nan)) for k in counts)
     reasons = []
     if few_moved:
-        panels = ["second"] * no_object + ["right"] * moving_panel
+        panels = ["second"] * no_object + ["fourth"] * moving_panel
         if panels:
             reasons.append(f"{' and '.join(panels)} panel{'s' * (len(panels) > 1)}: no reading, under "
                            f"{MIN_MOVING_PIXELS} pixels moved")
     else:
         reasons += ["second panel: no reading"] * no_object
-        reasons += ["right panel: its runs did not sum moving pixels"] * (moving_panel and not summed)
+        reasons += ["fourth panel: its runs did not sum moving pixels"] * (moving_panel and not summed)
     return f" ({'; '.join(reasons)})" if reasons else ""
 
 
@@ -497,11 +497,12 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     """Per row, against training episodes: the object-focused one-step error per kept pixel (the primary number;
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
     same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
-    error (third) and, where the runs summed them, the moving pixels' skill against the last frame (right: what the
+    error (third) and, where the runs summed them, the moving pixels' skill against the last frame (fourth: what the
     model predicts of the motion outside the robot; a row without a skill reading says why in its key) and, where any
-    row has one, the state reading's one-step error beside the last and the mean state (last panel). A row has one
-    colour and one marker shape in every panel, a reading one line style; in the right panel an interval far wider
-    than the points' spread is cut at the edge and named in its title (simeval.writing.figures.cut_wide_intervals).
+    row has one, the state reading's one-step error beside the last and the mean state (last panel); more than three
+    panels wrap onto two rows. A row has one colour and one marker shape in every panel, a reading one line style; in
+    the fourth panel an interval far wider than the points' spread is cut at the edge and named in its title
+    (simeval.writing.figures.cut_wide_intervals).
     Saved without dates or versions (simeval.writing.figures.save_figure), so a rebuild from the same runs gives the
     same bytes. The first panel has a log scale (its baselines span four decades), the second a symmetric log one
     (skills from 1 to -800). Long because it is one figure drawn panel by panel: every panel shares the rows'
@@ -531,8 +532,20 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                                      for k in (int(c) for c in r["counts"].split("/")))]
     stated = [r for r in rows if any(_number(r.get(f"state_model_{c}")) for c in r["counts"].split("/"))]
     n_panels = 3 + bool(moving) + bool(stated)
-    # keys below the panels: inside, the first panel's covered its own baselines' lines
-    fig, axes = plt.subplots(1, n_panels, figsize=(5 * n_panels, 6.4), layout="constrained")
+    # the rows' keys below the panels (inside, the first panel's covered its own baselines' lines), the line
+    # styles' in a cell of their own after the panels; more than four cells wrap onto two rows, since five panels
+    # in one row made a strip too wide to read at a page's width
+    n_cells = n_panels + 1
+    n_rows = 1 if n_cells <= 4 else 2
+    n_cols = -(-n_cells // n_rows)
+    fig, grid = plt.subplots(n_rows, n_cols, figsize=(5.2 * n_cols, 5.4 * n_rows + 1.4), layout="constrained",
+                             squeeze=False)
+    axes = list(grid.flat)
+    key_cell = axes[n_panels]
+    key_cell.axis("off")
+    for spare in axes[n_panels + 1:]:
+        spare.remove()
+    axes = axes[:n_panels]
     ax1, ax2, ax3 = axes[:3]
     n_gated = 0  # rows with a count that fails the gate (simeval.measures.dynamics_diversity.gate)
     row_keys, moving_drawn = [], []  # one key per row for the whole figure (below); the moving panel's lines
@@ -610,13 +623,13 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                          label="last-frame / last-state baseline"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
                          label="mean-image / mean-state baseline")]
-    fig.legend(handles=row_keys, loc="outside lower left", ncol=-(-len(row_keys) // 4), fontsize=8,
+    fig.legend(handles=row_keys, loc="outside lower center", ncol=-(-len(row_keys) // 4), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
-    fig.legend(handles=style_keys, loc="outside lower right", ncol=1, fontsize=8, frameon=False, handlelength=4,
-               title="reading (line style)", title_fontsize=8, alignment="left")
+    key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
+                    title="reading (line style)", title_fontsize=9, alignment="left")
     fig.suptitle(title + (f"\n{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([no reading at ...]:"
                           " the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
-                          if n_gated else "") + ("; the state reading (right) has its own gate" if stated else ""),
+                          if n_gated else "") + ("; the state reading (its own panel) has its own gate" if stated else ""),
                  fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
