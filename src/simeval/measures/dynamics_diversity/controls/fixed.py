@@ -192,8 +192,7 @@ def run_all(args) -> list[dict]:
     import torch
 
     from simeval.episodes.dataset import WindowSpec
-    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training, fit_and_evaluate
-    from simeval.models.world_model_training import TrainConfig
+    from simeval.measures.dynamics_diversity.run import fit_and_evaluate
     from simeval.models.world_model import WorldModelConfig
     from simeval.results import atomic_write_text
 
@@ -223,26 +222,11 @@ def run_all(args) -> list[dict]:
         for condition in CONDITIONS[args.control]:
             for k in args.episodes:
                 path = runs_dir / f"{condition}_k{k}_s{seed}.json"
-                if path.exists():
-                    _refuse_other_settings(path, settings)
-                    if not args.reevaluate:
-                        print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
-                        continue
-                if args.conditions and condition not in args.conditions:
+                if not _to_run(path, condition, k, seed, args, settings):
                     continue
-                if not path.exists() and not args.overwrite and tracks_any_in(runs_dir):  # before training, not after
-                    fail(f"error: {runs_dir} holds committed runs and {path.name} is not among them; "
-                                     "write elsewhere with --out DIR, or add to them with --overwrite")
                 t0 = time.perf_counter()
                 reevaluated = path.exists()  # --reevaluate: from its checkpoint, refused where it is gone
-                training = Training(model_cfg, TrainConfig.from_dict({**wm["train"], "seed": seed}), window,
-                                    steps=args.steps, lr=args.lr,
-                                    exclude_robot_from_loss=args.exclude_robot_from_loss)
-                evaluation = Evaluation(protocol="heldout", episodes=(args.heldout[0] - 1, args.heldout[1]),
-                                        seed=seed, context=args.context, horizon=args.horizon,
-                                        mask_margin=args.mask_margin)
-                execution = Execution(checkpoint_dir=args.out / "checkpoints" / "controls", progress=False,
-                                      evaluate_only=reevaluated)
+                training, evaluation, execution = _run_parts(args, wm, model_cfg, window, seed, reevaluated)
                 values = fit_and_evaluate(source_of(condition), k, training, evaluation, execution)
                 identity = {"pipeline": f"control-{args.control}", "task_group": condition, "episodes": k,
                             "preset": args.preset, "seed": seed, "protocol": "heldout", "steps": args.steps}
@@ -253,6 +237,36 @@ def run_all(args) -> list[dict]:
                 print(f"{condition} k={k} seed={seed}: {_one_step_line(values)} in {time.perf_counter() - t0:.0f} s",
                       flush=True)
     return [json.loads(p.read_text()) for p in sorted(runs_dir.glob("*.json"))]
+
+
+def _to_run(path: Path, condition: str, k: int, seed: int, args, settings: dict) -> bool:
+    """Whether the run saved at `path` is to be trained (or, with --reevaluate, evaluated again); a saved run of
+    other settings, or a new one beside committed runs without --overwrite, is refused."""
+    if path.exists():
+        _refuse_other_settings(path, settings)
+        if not args.reevaluate:
+            print(f"{condition} k={k} seed={seed}: saved already ({path.name}), reused", flush=True)
+            return False
+    if args.conditions and condition not in args.conditions:
+        return False
+    if not path.exists() and not args.overwrite and tracks_any_in(path.parent):  # before training, not after
+        fail(f"error: {path.parent} holds committed runs and {path.name} is not among them; "
+             "write elsewhere with --out DIR, or add to them with --overwrite")
+    return True
+
+
+def _run_parts(args, wm: dict, model_cfg, window, seed: int, reevaluated: bool) -> tuple:
+    """(Training, Evaluation, Execution) of one run of the control: the preset's world model and the options."""
+    from simeval.measures.dynamics_diversity.run import Evaluation, Execution, Training
+    from simeval.models.world_model_training import TrainConfig
+
+    training = Training(model_cfg, TrainConfig.from_dict({**wm["train"], "seed": seed}), window, steps=args.steps,
+                        lr=args.lr, exclude_robot_from_loss=args.exclude_robot_from_loss)
+    evaluation = Evaluation(protocol="heldout", episodes=(args.heldout[0] - 1, args.heldout[1]), seed=seed,
+                            context=args.context, horizon=args.horizon, mask_margin=args.mask_margin)
+    execution = Execution(checkpoint_dir=args.out / "checkpoints" / "controls", progress=False,
+                          evaluate_only=reevaluated)
+    return training, evaluation, execution
 
 
 def verdicts(records: list[dict], conditions: tuple[str, str], n_boot: int = 2000) -> dict:
