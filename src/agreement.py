@@ -19,10 +19,12 @@ def main(cfg: DictConfig) -> None:
     from simeval.measures.agreement.run import agreement_rows, format_rows, load_score_tables
     from simeval.errors import UserError
     from simeval.measures.agreement.metric import METRIC_VERSION
+    from simeval.writing.figures import check_figure_formats
     from simeval.writing.tables import write_table
     from simeval.results import RunFolder
 
     check_values(cfg, AgreementConfig)
+    check_figure_formats("figure_formats", list(cfg.figure_formats))  # before the tables are written
     if not cfg.scores_path:
         raise UserError("scores_path is not set: scores_path=FILE (or env SIMEVAL_HUMAN_SCORES)")
     run = RunFolder.of(cfg)

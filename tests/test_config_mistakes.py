@@ -216,3 +216,26 @@ def test_the_value_of_hydras_own_flags_is_not_read_as_an_override(tmp_path):
     (conf / "pipeline" / "a.yaml").write_text("name: a\n")
     assert config_mistakes(["--cfg", "job", "-p", "pipeline", "pipeline=a"], conf) is None
     assert config_mistakes(["-c", "all", "pipeline=b"], conf) == "pipeline=b: no conf/pipeline/b.yaml; valid: a"
+
+
+@pytest.mark.parametrize("entrypoint, args, expected", [
+    ("generalization", ["pipeline=bbsea", "policy.model.down_dims=abc"],
+     "policy.model.down_dims=['a', 'b', 'c']: expected a list of channel counts"),
+    ("generalization", ["pipeline=bbsea", "policy.model.beta_schedule=foo"], "policy.model.beta_schedule='foo'"),
+    ("generalization", ["pipeline=bbsea", "policy.train.betas=[0.9]"], "policy.train.betas=[0.9]: expected two"),
+    ("generalization", ["pipeline=bbsea", "policy.train.lr_schedule=foo"], "policy.train.lr_schedule='foo'"),
+    ("generalization", ["pipeline=bbsea", "policy.train.warmup_steps=-1"],
+     "policy.train.warmup_steps must be a whole number >= 0, got -1"),
+    ("diversity", ["pipeline=bbsea", "world_model.window.random_offset=maybe"],
+     "world_model.window.random_offset='maybe': expected true or false"),
+    ("collect", ["pipeline=bbsea", "record.robot_masks=maybe"], "record.robot_masks='maybe': expected true or false"),
+    ("agreement", ["scores_path=x", "figure_formats=[xyz]"], "figure_formats: 'xyz' is not a figure format"),
+    ("report", ["report=table4_heldout", "report.figure=t4.xyz"], "report.figure=t4.xyz: 'xyz' is not a figure"),
+    ("paper", ["stages=[figure3]", "profile.name=[a]"], "profile.name=['a']: expected a name"),
+    ("paper", ["profile.overrides.collect=abc"], "profile.overrides.collect='abc': expected a list of overrides"),
+])
+def test_a_fresh_clone_trials_mistakes_are_one_line_before_any_work(entrypoint, args, expected, tmp_path):
+    """Mistakes a fresh-clone trial found reaching a traceback (torch, diffusers, matplotlib) or a run that went
+    on: each is refused first, in one line naming its key."""
+    assert expected in one_line_exit_2(run_plain(entrypoint, *args, f"hydra.run.dir={tmp_path / 'run'}",
+                                                 cwd=tmp_path))

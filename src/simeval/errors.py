@@ -10,6 +10,7 @@ message names that thing and what would be valid, e.g.::
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import types
 import typing
 
@@ -45,10 +46,13 @@ def _is_of(value, kind) -> bool:
     kinds = _scalar_kinds(kind)
     if not kinds or len(kinds) < len(typing.get_args(kind) or [kind]):  # not (only) scalars: the class reads it
         return True
+    # numpy's bool too (values read from files); numpy's numbers are numbers.Integral / numbers.Real
+    numpy_bool = type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_")
+    is_bool = isinstance(value, bool) or numpy_bool
     return any(value is None if k is type(None) else
-               isinstance(value, bool) if k is bool else
-               isinstance(value, int) and not isinstance(value, bool) if k is int else
-               isinstance(value, (int, float)) and not isinstance(value, bool) if k is float else
+               is_bool if k is bool else
+               isinstance(value, numbers.Integral) and not is_bool if k is int else
+               isinstance(value, numbers.Real) and not is_bool if k is float else
                isinstance(value, str) for k in kinds)
 
 

@@ -306,9 +306,19 @@ def check_profile(prof: dict) -> None:
     if max(counts) > prof["episodes"]:
         raise UserError(f"profile.world_model_episodes={counts}: {max(counts)} is more than the "
                         f"profile.episodes={prof['episodes']} collected per task")
-    for key in ("overrides", "pipeline_overrides"):
-        if prof.get(key) is not None and not isinstance(prof[key], dict):
-            raise UserError(f"profile.{key}={prof[key]!r}: expected a mapping of entrypoint to overrides")
+    if not isinstance(prof["name"], str) or not prof["name"]:
+        raise UserError(f"profile.name={prof['name']!r}: expected a name (it names the output folder)")
+    overrides = prof["overrides"] or {}
+    per_pipeline = prof.get("pipeline_overrides") or {}
+    if not isinstance(overrides, dict) or not isinstance(per_pipeline, dict) or not all(
+            isinstance(v, dict) for v in per_pipeline.values()):
+        raise UserError("profile.overrides / profile.pipeline_overrides: expected mappings of entrypoint to a list "
+                        "of overrides (conf/profile/quick.yaml)")
+    for where, args in [*((f"overrides.{k}", v) for k, v in overrides.items()),
+                        *((f"pipeline_overrides.{p}.{k}", v) for p, d in per_pipeline.items() for k, v in d.items())]:
+        if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
+            raise UserError(f"profile.{where}={args!r}: expected a list of overrides, e.g. "
+                            f"\"profile.{where}=['episodes=4']\"")
 
 
 def _paper_wide_stages(plan: Plan, stages: set[str], with_suite: list[str]) -> list:

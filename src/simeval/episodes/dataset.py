@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from simeval.episodes.episode import EpisodeFormatError
-from simeval.errors import UserError, require_whole_fields
+from simeval.errors import UserError, check_field_types, require_whole_fields
 
 
 @dataclass
@@ -51,6 +51,7 @@ class WindowSpec:
     pad_end: bool = False  # a last window may run past the final row (padded)
 
     def __post_init__(self) -> None:
+        check_field_types(self, "world_model.window")
         require_whole_fields(self, "world_model.window", ("length", "stride"))
         if not 0 <= self.offset < self.stride:
             raise UserError(f"window.offset={self.offset}: expected 0 <= offset < stride ({self.stride})")

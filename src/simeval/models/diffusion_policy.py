@@ -37,7 +37,7 @@ from einops import rearrange
 from torch import nn
 from torch.nn import functional as F
 
-from simeval.errors import UserError, check_field_types, require_whole_fields
+from simeval.errors import UserError, check_field_types, require_whole, require_whole_fields
 from simeval.runtime.checkpoints import read_checkpoint, save_checkpoint
 from simeval.runtime.device import describe_device, module_device, resolve_device, to_cpu, to_device
 from simeval.models.policy_networks import ConditionalUnet1D, ImageEncoder, center_crop, random_crop
@@ -48,6 +48,9 @@ CHECKPOINT_VERSION = 1
 SCHEDULERS = ("ddpm", "ddim")
 SAMPLING_FIELDS = ("inference_scheduler", "num_inference_steps")  # inference only: not part of a checkpoint's identity
 POLICY_ACTION_SPACES = ("native", "joint", "ee_delta", "ee_pose", "pick_place", "metaworld", "recorded")
+
+
+BETA_SCHEDULES = ("linear", "scaled_linear", "squaredcos_cap_v2")  # what diffusers' DDPM and DDIM schedulers take
 
 
 @dataclass
@@ -88,6 +91,13 @@ class PolicyConfig:
         if self.action_space not in POLICY_ACTION_SPACES:
             raise UserError(f"policy.action_space={self.action_space!r}: expected one of "
                             f"{', '.join(POLICY_ACTION_SPACES)}")
+        if not self.down_dims or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1
+                                         for d in self.down_dims):
+            raise UserError(f"policy.model.down_dims={self.down_dims!r}: expected a list of channel counts, e.g. "
+                            "[64,128,256]")
+        if self.beta_schedule not in BETA_SCHEDULES:
+            raise UserError(f"policy.model.beta_schedule={self.beta_schedule!r}: expected one of "
+                            f"{', '.join(BETA_SCHEDULES)}")
         if not self.cameras:
             raise UserError("policy.cameras must name at least one camera (an image policy), got []")
         if len(self.image_size) != 2 or self.crop > min(self.image_size):
@@ -261,6 +271,16 @@ class TrainSettings:
         require_whole_fields(self, "policy.train", ("train_steps", "batch_size", "checkpoint_every", "log_every"))
         if not self.lr > 0:
             raise UserError(f"policy.train.lr must be > 0, got {self.lr!r}")
+        require_whole("policy.train.warmup_steps", self.warmup_steps, 0)
+        betas = list(self.betas) if isinstance(self.betas, list | tuple) else None
+        if betas is None or len(betas) != 2 or not all(isinstance(b, int | float) and not isinstance(b, bool)
+                                                       and 0 <= b < 1 for b in betas):
+            raise UserError(f"policy.train.betas={self.betas!r}: expected two numbers in [0, 1), e.g. [0.95,0.999]")
+        from diffusers.optimization import SchedulerType
+
+        schedules = [s.value for s in SchedulerType]
+        if self.lr_schedule not in schedules:
+            raise UserError(f"policy.train.lr_schedule={self.lr_schedule!r}: expected one of {', '.join(schedules)}")
         self.betas = tuple(self.betas)
 
 

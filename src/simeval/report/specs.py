@@ -9,6 +9,7 @@ range (a Table 3 statistic that no run records would otherwise give a table of d
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any, Optional
 
 from simeval.errors import UserError, check_field_types, require_whole, settings_from_dict
@@ -108,6 +109,11 @@ def check_report(spec: dict, key: str = "report") -> None:
             raise UserError(f"{key}.episodes={episodes!r}: expected a list of episode counts, e.g. [10,20,40]")
         for count in episodes:
             require_whole(f"{key}.episodes[]", count, 1)
+    figure = getattr(settings, "figure", None)
+    if figure is not None:
+        from simeval.writing.figures import check_figure_formats
+
+        check_figure_formats(f"{key}.figure={figure}", [Path(figure).suffix.lstrip(".")])
     keep = getattr(settings, "keep", None)
     if keep is not None and not isinstance(keep, str) and not (
             isinstance(keep, list | tuple) and all(isinstance(path, str) for path in keep)):

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from simeval.episodes.episode import Episode
-from simeval.errors import UserError
+from simeval.errors import UserError, check_field_types
 from simeval.sim.action_spaces import (
     EE_HIGH,
     EE_LOW,
@@ -46,6 +46,7 @@ class RecordSettings:
     def __post_init__(self) -> None:
         # configs give lists; the settings travel to worker processes and into keys, so keep them immutable.
         # Messages name the config keys (record.*), where these values come from on the command line.
+        check_field_types(self, "record")
         self.cameras = (self.cameras,) if isinstance(self.cameras, str) else tuple(self.cameras or ())
         self.image_size = image_size_pair(self.image_size, "record.image_size")
         self.scene_view_size = image_size_pair(self.scene_view_size, "record.scene_view_size")

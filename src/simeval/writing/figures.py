@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from simeval.results import atomic_path
+from simeval.errors import UserError
 
 # per format: metadata keys set to None are left out of the file
 REPRODUCIBLE_METADATA = {
@@ -83,3 +84,15 @@ def distinct_colors(n: int) -> list:
         return [f"C{i}" for i in range(n)]
     tab20 = colormaps["tab20"]
     return [tab20((2 * (i % 10) + (i // 10) % 2) / 19.999) for i in range(n)]
+
+
+def check_figure_formats(key: str, formats: list[str]) -> None:
+    """Each of `formats` a file type matplotlib writes, else a UserError naming `key`: checked before any work,
+    since matplotlib refuses an unknown one only when the figure is saved, after the tables."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    known = sorted(FigureCanvasBase.get_supported_filetypes())
+    unknown = [f for f in formats if f not in known]
+    if unknown:
+        raise UserError(f"{key}: {', '.join(map(repr, unknown))} is not a figure format matplotlib writes; "
+                        f"expected {', '.join(known)}")
