@@ -22,7 +22,7 @@ from dataclasses import is_dataclass
 from pathlib import Path
 from typing import Any
 
-from simeval.errors import UserError
+from simeval.errors import TYPE_WORDS, UserError
 from simeval.runtime.preemption import requeue_deaf_to_sigterm
 from simeval.secrets import key_shaped_overrides
 
@@ -478,8 +478,8 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     return f"{head} {cause_text[0]}" if cause_text else head
 
 
-_EXPECTED = (("to Integer", "a whole number"), ("valid bool", "true or false"), ("to Float", "a number"),
-             ("to string", "text"), ("is not a ListConfig", "a list in brackets, e.g. [a,b]"))
+_EXPECTED = (("to Integer", TYPE_WORDS[int]), ("valid bool", TYPE_WORDS[bool]), ("to Float", TYPE_WORDS[float]),
+             ("to string", TYPE_WORDS[str]), ("is not a ListConfig", "a list in brackets, e.g. [a,b]"))
 
 
 def _type_mistake(cause: BaseException | None) -> str | None:

@@ -19,7 +19,7 @@ class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
 
 
-_TYPE_WORDS = {int: "a whole number", float: "a number", bool: "true or false", str: "text", type(None): "null"}
+TYPE_WORDS = {int: "a whole number", float: "a number", bool: "true or false", str: "text", type(None): "null"}
 
 
 def check_field_types(settings: object, prefix: str) -> None:
@@ -33,13 +33,13 @@ def check_field_types(settings: object, prefix: str) -> None:
         value, kind = getattr(settings, f.name), hints[f.name]
         if not _is_of(value, kind):
             raise UserError(f"{prefix}.{f.name}={'null' if value is None else repr(value)}: expected "
-                            + " or ".join(_TYPE_WORDS[k] for k in _scalar_kinds(kind)))
+                            + " or ".join(TYPE_WORDS[k] for k in _scalar_kinds(kind)))
 
 
 def _scalar_kinds(kind) -> list:
     if typing.get_origin(kind) in (typing.Union, types.UnionType):
-        return [k for k in typing.get_args(kind) if k in _TYPE_WORDS]
-    return [kind] if kind in _TYPE_WORDS else []
+        return [k for k in typing.get_args(kind) if k in TYPE_WORDS]
+    return [kind] if kind in TYPE_WORDS else []
 
 
 def _is_of(value, kind) -> bool:
