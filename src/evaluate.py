@@ -8,6 +8,7 @@ Text diversity runs here (one embedding call)."""
 
 import json
 import logging
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,21 +17,27 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import UserError
+from simeval.errors import REFUSAL_FILE_ENV, UserError
 
 log = logging.getLogger("evaluate")
 SRC = Path(__file__).resolve().parent
 
 
-def _stage(cmd: list[str], log_path: Path) -> str | None:
-    """Run an entrypoint; None when it finished, else its last line (its one-line error)."""
+def _stage(cmd: list[str], log_path: Path) -> tuple[str, bool] | None:
+    """Run an entrypoint; None when it finished, else (its last line: its one-line error, whether it stopped because
+    the episodes cannot serve the measure: simeval.errors.EpisodesUnfit, recorded through REFUSAL_FILE_ENV)."""
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    refusal = log_path.with_suffix(".refusal.json")
+    refusal.unlink(missing_ok=True)
     with log_path.open("a") as f:
-        res = subprocess.run([sys.executable, *cmd], stdout=f, stderr=subprocess.STDOUT)
+        res = subprocess.run([sys.executable, *cmd], stdout=f, stderr=subprocess.STDOUT,
+                             env={**os.environ, REFUSAL_FILE_ENV: str(refusal)})
     if res.returncode == 0:
         return None
     tail = [x for x in log_path.read_text().strip().splitlines() if x.strip()][-1:] or ["(no output)"]
-    return f"{Path(cmd[0]).name} stopped (exit {res.returncode}; log {log_path}): {tail[0].removeprefix('error: ')}"
+    unfit = refusal.is_file() and json.loads(refusal.read_text()).get("episodes_unfit") is True
+    return (f"{Path(cmd[0]).name} stopped (exit {res.returncode}; log {log_path}): {tail[0].removeprefix('error: ')}",
+            unfit)
 
 
 def _stage_dir(out: Path, stage: str, settings: dict) -> Path:
@@ -86,7 +93,7 @@ def _quality(metas, cfg, out: Path, per_task: int) -> dict:
         stopped = _stage([str(SRC / "quality.py"), *args, f"cache_dir={cfg.cache_dir}", f"hydra.run.dir={run}"],
                          out / "logs" / "quality.log")
         if stopped:  # a judge that cannot run is a mistake to fix, not a reading: the last card stays as it was
-            raise UserError(stopped)
+            raise UserError(stopped[0])
     values = json.loads((run / "result.json").read_text())["values"]
     scores = [v["mean"] for v in values.get("task_completion", {}).values() if v.get("mean") is not None]
     mean = sum(scores) / len(scores) if scores else None
@@ -113,9 +120,11 @@ def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, l
     if len(list(sweep.glob("*/result.json"))) < len(counts) * len(seeds):
         stopped = _stage([str(SRC / "diversity.py"), "-m", *args, f"hydra.sweep.dir={sweep}"],
                          out / "logs" / "dynamics.log")
-        if stopped:  # the world model could not run on these episodes: no reading, and the card is still written
-            return aspect("dynamics_diversity", "no reading", stopped + " (its settings: dynamics.overrides=[...], "
-                          "e.g. 'dynamics.overrides=[\"world_model.window.length=7\"]')")
+        if stopped and not stopped[1]:  # a value of dynamics.* refused: a mistake to fix, as quality's
+            raise UserError(stopped[0])
+        if stopped:  # the episodes cannot serve the world model: no reading, and the card is still written
+            return aspect("dynamics_diversity", "no reading", stopped[0] + " (its settings: "
+                          "dynamics.overrides=[...], e.g. 'dynamics.overrides=[\"world_model.window.length=7\"]')")
     from simeval.measures.dynamics_diversity.table4_heldout import build
     from simeval.results import read_results
 
@@ -166,7 +175,7 @@ def _generalization(cfg, out: Path, camera: str, per_task: int, groups: list[str
                 stopped = _stage([str(SRC / "generalization.py"), *run_args, f"checkpoint_dir={out / 'policies'}",
                                   f"hydra.run.dir={folder}"], out / "logs" / f"generalization_{name}.log")
                 if stopped:  # the environment or the policy could not run: a mistake to fix, not a reading
-                    raise UserError(stopped)
+                    raise UserError(stopped[0])
             splits = json.loads((folder / "result.json").read_text())["values"]["splits"]
             shown = []
             for split in ("eval", "train", "heldout"):
@@ -200,6 +209,14 @@ def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
         for v in values:
             require_whole(f"dynamics.{key}", v, low)
         out.append(sorted(set(values)))
+    from hydra.core.global_hydra import GlobalHydra
+
+    from simeval.errors import require_choice
+
+    debug_overlays = tuple(o for o in GlobalHydra.instance().config_loader().get_group_options("debug")
+                           if "/" not in o)  # the stage's own overlays (conf/debug/*.yaml), not evaluate's
+    for stage in ("dynamics", "generalization"):  # before any stage runs, not when the stage gets to it
+        require_choice(f"{stage}.debug", cfg[stage].debug, debug_overlays)
     overrides = cfg.dynamics.overrides
     if not OmegaConf.is_list(overrides) or not all(isinstance(x, str) for x in overrides):
         raise UserError("dynamics.overrides: expected a list of quoted overrides for src/diversity.py, e.g. "

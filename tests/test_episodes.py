@@ -17,6 +17,7 @@ from simeval.pipelines.importers import (import_bbsea_pt, import_gensim_pt, impo
                                         import_robogen_pt)
 from simeval.episodes.episode import Episode, EpisodeFormatError
 from simeval.episodes.store import EpisodeStore, WindowSpec, iter_windows, read_episode, read_meta, write_episode
+from simeval.errors import UserError
 from helpers import _write_ravens
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,6 +54,15 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(read_episode(write_episode(tmp_path / "f.h5", ep)).final_view, ep.scene_views[0])
     meta = read_meta(path)
     assert meta["total_reward"] == 1.0 and meta["n_steps"] == 10 and meta["cameras"] == ["front"]
+
+
+def test_a_camera_the_episode_does_not_record_names_the_key_that_asked_for_it(tmp_path):
+    path = write_episode(tmp_path / "e.h5", episode())
+    with pytest.raises(UserError) as e:
+        read_episode(path, ["front", "side"], "policy.model.cameras")
+    assert str(e.value) == (f"policy.model.cameras=[front,side]: {path} records the cameras front; use those, or "
+                            "collect with record.cameras including the others")
+    assert list(read_episode(path, ["front"], "policy.model.cameras").rgb) == ["front"]
 
 
 def test_inconsistent_episode_is_rejected(tmp_path):

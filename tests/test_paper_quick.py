@@ -87,6 +87,21 @@ def test_pipelines_without_a_suite_only_are_one_line_not_a_run_that_does_nothing
     assert not (tmp_path / "out").exists()
 
 
+def test_a_stage_that_refuses_a_value_is_its_one_line_and_exit_2(tmp_path):
+    """A stage's own user error (here collect's workers=-1, given through the profile) reaches the console as that
+    stage's one line, naming the stage and its log, as the stage alone would print it; not its log's tail."""
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, str(ROOT / "src" / "paper.py"), "profile=quick", "pipelines=[bbsea]",
+                        "stages=[collect]", "profile.overrides.collect=['debug=tiny','workers=-1']", f"out={out}"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    log = out / "logs" / "collect_bbsea_drawer.log"
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        "error: collect_bbsea_drawer: workers must be 0 (one per CPU core) or a positive number of processes, got -1 "
+        f"(log: {log})"], p.stderr
+    assert log.read_text().strip().splitlines()[-1] == ("error: workers must be 0 (one per CPU core) or a positive "
+                                                        "number of processes, got -1")
+
+
 def test_the_slurm_launcher_without_a_reachable_controller_is_one_line(tmp_path):
     """squeue here fails as Debian's does on a machine with the client but no slurm.conf (stand-in scripts on PATH,
     so the test does not depend on what this machine has installed)."""

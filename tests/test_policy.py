@@ -185,9 +185,9 @@ def test_pick_place_policy_outputs_unit_quaternions_and_uses_primitive_steps():
 
 
 def test_config_mistakes_name_the_key():
-    with pytest.raises(UserError, match="policy.horizon=2 must be a multiple of 4"):
+    with pytest.raises(UserError, match="policy.model.horizon=2 must be a multiple of 4"):
         PolicyConfig(**{**TINY, "horizon": 2, "n_obs_steps": 1, "n_action_steps": 1, "down_dims": [8, 16, 32]})
-    with pytest.raises(UserError, match="policy.crop=40"):
+    with pytest.raises(UserError, match="policy.model.crop=40"):
         PolicyConfig(**{**TINY, "crop": 40})
     with pytest.raises(UserError, match="unknown key"):
         PolicyConfig.from_mapping({**TINY, "hidden": 3})

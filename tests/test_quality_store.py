@@ -122,6 +122,8 @@ def test_a_vlm_judge_gets_the_store_episodes_as_bundles(store, openai_server, tm
     (["episodes.store={store}", "episodes.max_frames=1"], "episodes.max_frames must be a whole number >= 2, got 1"),
     (["episodes.store={store}", "episodes.per_task=5"],
      "episodes.store={store}: task 'align-rope' has 1 episodes, fewer than the 5 asked for (episodes.per_task=5;"),
+    (["episodes.store={store}", "episodes.camera=side"], "episodes.camera=side: {store}/gensim/"),
+    (["episodes.store={store}", "episodes.camera=side"], "records the cameras front, top"),
 ])
 def test_a_store_that_cannot_give_the_episodes_asked_for_is_one_line_naming_the_key(store, tmp_path, args, says):
     fill = {"tmp": tmp_path, "store": store.root}

@@ -102,8 +102,15 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
                                                                                     "record top")
     one_line_error(_run(user, evaluate, "episodes.pipeline=mine", "dynamics.heldout=0"), "dynamics.heldout")
     for bad, key in (("dynamics.counts=[abc]", "dynamics.counts"), ("dynamics.counts=[]", "dynamics.counts=[]"),
-                     ("dynamics.seeds=[x]", "dynamics.seeds"), ("dynamics.counts=5", "dynamics.counts=5")):
+                     ("dynamics.seeds=[x]", "dynamics.seeds"), ("dynamics.counts=5", "dynamics.counts=5"),
+                     ("dynamics.debug=huge", "dynamics.debug='huge': expected none or tiny"),
+                     ("generalization.debug=big", "generalization.debug='big': expected none or tiny")):
         one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad), key)
+    # a value only the dynamics stage refuses stops the scorecard as quality's and generalization's do, exit 2
+    one_line_error(_run(user, evaluate, "episodes.pipeline=mine", "debug=tiny", "dynamics.overrides=['episodes=0']",
+                        f"out={tmp_path / 'card'}", f"tables={ROOT / 'outputs' / 'tables'}"),
+                   "diversity.py stopped (exit 2", "episodes must be a whole number >= 1, got 0")
+    assert not (tmp_path / "card" / "scorecard.json").exists()
 
 
 @pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores

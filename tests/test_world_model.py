@@ -236,7 +236,7 @@ def test_mask_excludes_padded_steps():
 
 
 def test_bad_config_is_a_user_error_naming_the_key():
-    with pytest.raises(UserError, match="world_model.image_size=48"):
+    with pytest.raises(UserError, match="world_model.model.image_size=48"):
         WorldModelConfig(image_size=48, minres=4)
     with pytest.raises(UserError, match="unknown key"):
         WorldModelConfig.from_dict({"deterr": 3})

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import os
 import sys
 import typing
@@ -22,12 +23,11 @@ from dataclasses import is_dataclass
 from pathlib import Path
 from typing import Any
 
-from simeval.errors import TYPE_WORDS, UserError
+from simeval.errors import REFUSAL_FILE_ENV, TYPE_WORDS, USER_ERROR_EXIT, EpisodesUnfit, UserError
 from simeval.runtime.preemption import requeue_deaf_to_sigterm
 from simeval.secrets import key_shaped_overrides
 
 MULTIRUN_FLAGS = ("-m", "--multirun")
-USER_ERROR_EXIT = 2
 
 
 def move_multirun_flag_first(argv: list[str]) -> list[str]:
@@ -214,6 +214,7 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             text = str(cause).strip()
             line = text.splitlines()[0] if text else type(cause).__name__
+            _record_refusal(line, isinstance(cause, EpisodesUnfit))
             if in_submitit_job():
                 _print_error(line)
                 raise UserError(line) from None  # picklable, unlike some config errors and their chained causes
@@ -221,6 +222,14 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
             _fail(line)
 
     return wrapper
+
+
+def _record_refusal(line: str, episodes_unfit: bool) -> None:
+    """When the process that started this one asked (REFUSAL_FILE_ENV), tell it why this run stopped and whether the
+    episodes, not a setting, were at fault (simeval.errors.EpisodesUnfit)."""
+    path = os.environ.get(REFUSAL_FILE_ENV)
+    if path:
+        Path(path).write_text(json.dumps({"error": line, "episodes_unfit": episodes_unfit}))
 
 
 def stop_sweep_on_user_errors(results: Any) -> None:

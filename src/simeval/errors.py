@@ -15,8 +15,19 @@ import types
 import typing
 
 
+USER_ERROR_EXIT = 2  # the exit status of a run stopped by a UserError
+REFUSAL_FILE_ENV = "SIMEVAL_REFUSAL_FILE"  # where an entrypoint records why it stopped, for the process that ran it
+
+
 class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
+
+
+class EpisodesUnfit(UserError):
+    """The episodes cannot serve the measure's settings (too short for a window, frames smaller than the model's,
+    state layouts that differ). Alone it stops a run like any UserError; a caller that measures whatever episodes
+    it is given (src/evaluate.py) reads it, through REFUSAL_FILE_ENV, as "no reading" for that measure rather than
+    a mistake in its own settings."""
 
 
 TYPE_WORDS = {int: "a whole number", float: "a number", bool: "true or false", str: "text", type(None): "null"}

@@ -170,12 +170,19 @@ def read_recording(path: str | os.PathLike) -> dict:
             "record.control_hz": hz, "action_space": kind}
 
 
-def read_episode(path: str | os.PathLike, cameras: list[str] | None = None) -> Episode:
+def read_episode(path: str | os.PathLike, cameras: list[str] | None = None, cameras_key: str = "cameras") -> Episode:
+    """The episode at `path`, with the frames of `cameras` (None: every recorded camera). A camera it does not
+    record is a UserError naming `cameras_key`, the config key that asked for it."""
     path = Path(path)
     try:
         with _open(path) as f:
             a = dict(f.attrs)
             cams = json.loads(a["cameras"]) if cameras is None else cameras
+            recorded = sorted(f["obs/rgb"]) if "obs/rgb" in f else []
+            if cameras is not None and any(c not in recorded for c in cams):
+                raise UserError(f"{cameras_key}=[{','.join(cams)}]: {path} records the cameras "
+                                f"{', '.join(recorded) or '(none)'}; use those, or collect with record.cameras "
+                                "including the others")
             hl = "high_level/action" in f
             return Episode(
                 pipeline=a["pipeline"], task=a["task"], description=a["description"], group=a["group"],

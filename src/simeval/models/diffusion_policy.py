@@ -89,7 +89,7 @@ class PolicyConfig:
                                                     "n_obs_steps", "n_action_steps", "step_embed_dim", "kernel_size",
                                                     "n_groups", "num_train_timesteps", "num_inference_steps"))
         if self.action_space not in POLICY_ACTION_SPACES:
-            raise UserError(f"policy.action_space={self.action_space!r}: expected one of "
+            raise UserError(f"policy.model.action_space={self.action_space!r}: expected one of "
                             f"{', '.join(POLICY_ACTION_SPACES)}")
         if not self.down_dims or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1
                                          for d in self.down_dims):
@@ -99,20 +99,21 @@ class PolicyConfig:
             raise UserError(f"policy.model.beta_schedule={self.beta_schedule!r}: expected one of "
                             f"{', '.join(BETA_SCHEDULES)}")
         if not self.cameras:
-            raise UserError("policy.cameras must name at least one camera (an image policy), got []")
+            raise UserError("policy.model.cameras must name at least one camera (an image policy), got []")
         if len(self.image_size) != 2 or self.crop > min(self.image_size):
-            raise UserError(f"policy.crop={self.crop} must fit policy.image_size={self.image_size} ([H, W])")
+            raise UserError(f"policy.model.crop={self.crop} must fit policy.model.image_size={self.image_size} "
+                            "([H, W])")
         if self.n_obs_steps + self.n_action_steps - 1 > self.horizon:
-            raise UserError(f"policy.horizon={self.horizon} must cover n_obs_steps-1+n_action_steps="
+            raise UserError(f"policy.model.horizon={self.horizon} must cover n_obs_steps-1+n_action_steps="
                             f"{self.n_obs_steps - 1 + self.n_action_steps}")
         halvings = len(self.down_dims) - 1
         if self.horizon % (2**halvings):
-            raise UserError(f"policy.horizon={self.horizon} must be a multiple of {2**halvings}: the U-Net with "
+            raise UserError(f"policy.model.horizon={self.horizon} must be a multiple of {2**halvings}: the U-Net with "
                             f"down_dims={self.down_dims} halves the sequence {halvings} time(s)")
         if self.inference_scheduler not in SCHEDULERS:
-            raise UserError(f"policy.inference_scheduler={self.inference_scheduler!r}: expected ddpm or ddim")
+            raise UserError(f"policy.model.inference_scheduler={self.inference_scheduler!r}: expected ddpm or ddim")
         if self.num_inference_steps > self.num_train_timesteps:
-            raise UserError(f"policy.num_inference_steps={self.num_inference_steps} exceeds "
+            raise UserError(f"policy.model.num_inference_steps={self.num_inference_steps} exceeds "
                             f"num_train_timesteps={self.num_train_timesteps}")
 
     def training_fields(self) -> dict:

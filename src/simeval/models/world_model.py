@@ -78,20 +78,21 @@ class WorldModelConfig:
         require_whole_fields(self, "world_model.model", ("image_size", "deter", "hidden", "stoch", "classes", "cnn_depth",
                                                          "minres", "mlp_layers", "mlp_units"))
         if self.kernel < 2:
-            raise UserError(f"world_model.kernel={self.kernel}: expected >= 2 (stride-2 convolutions)")
+            raise UserError(f"world_model.model.kernel={self.kernel}: expected >= 2 (stride-2 convolutions)")
         ratio = self.image_size / self.minres
         if ratio < 2 or ratio != int(ratio) or int(ratio) & (int(ratio) - 1):
-            raise UserError(f"world_model.image_size={self.image_size} with minres={self.minres}: image_size must "
-                            f"be minres times a power of two >= 2 (e.g. 64 with minres 4)")
+            raise UserError(f"world_model.model.image_size={self.image_size} with minres={self.minres}: image_size "
+                            f"must be minres times a power of two >= 2 (e.g. 64 with minres 4)")
         if not 0.0 <= self.unimix < 1.0:
-            raise UserError(f"world_model.unimix={self.unimix}: expected a fraction in [0, 1)")
+            raise UserError(f"world_model.model.unimix={self.unimix}: expected a fraction in [0, 1)")
         for name in ("free_nats", "dyn_scale", "rep_scale", "image_scale", "state_scale"):
             if getattr(self, name) < 0:
-                raise UserError(f"world_model.{name}={getattr(self, name)}: expected >= 0")
+                raise UserError(f"world_model.model.{name}={getattr(self, name)}: expected >= 0")
         if self.pixel_norm not in PIXEL_NORMS:
-            raise UserError(f"world_model.pixel_norm={self.pixel_norm!r}: expected one of {', '.join(PIXEL_NORMS)}")
+            raise UserError(f"world_model.model.pixel_norm={self.pixel_norm!r}: expected one of "
+                            f"{', '.join(PIXEL_NORMS)}")
         if not 0 < self.pixel_std_floor <= 1:
-            raise UserError(f"world_model.pixel_std_floor={self.pixel_std_floor}: expected a deviation in (0, 1]")
+            raise UserError(f"world_model.model.pixel_std_floor={self.pixel_std_floor}: expected a deviation in (0, 1]")
 
     @property
     def stages(self) -> int:

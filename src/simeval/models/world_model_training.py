@@ -65,7 +65,7 @@ class TrainConfig:
         if self.lr <= 0 or self.clip <= 0:
             raise UserError(f"world_model.train.lr={self.lr}, world_model.train.clip={self.clip}: both must be > 0")
         if self.num_workers < 0:
-            raise UserError(f"train.num_workers={self.num_workers}: expected >= 0")
+            raise UserError(f"world_model.train.num_workers={self.num_workers}: expected >= 0")
 
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:

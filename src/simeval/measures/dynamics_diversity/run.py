@@ -33,7 +33,7 @@ from simeval.episodes.dataset import (
     window_starts,
 )
 from simeval.episodes.digest import source_digest
-from simeval.errors import UserError
+from simeval.errors import EpisodesUnfit, UserError
 from simeval.media import write_video
 from simeval.runtime.device import resolve_device
 from simeval.measures.dynamics_diversity.gate import GateConfig, pixel_gate
@@ -81,9 +81,10 @@ def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSp
         listed = ", ".join(f"{t} ({n})" for t, n in short.items())
         start = offsets[0] - window.pad_start
         where = f"; the windows start {start} row{'s' * (start != 1)} in at the earliest" if start > 0 else ""
-        raise UserError(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have no "
-                        f"training episode that holds a window, so the model would never see them (longest rows: "
-                        f"{listed}{where}); use world_model.window.length={fits} or world_model.window.pad_end=true")
+        raise EpisodesUnfit(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have "
+                            "no training episode that holds a window, so the model would never see them (longest "
+                            f"rows: {listed}{where}); use world_model.window.length={fits} or "
+                            "world_model.window.pad_end=true")
 
 
 def check_frames_not_upsampled(source, image_size: int) -> None:
@@ -95,11 +96,11 @@ def check_frames_not_upsampled(source, image_size: int) -> None:
     small = sorted(s for s in sizes if min(s) < image_size)
     if small:
         h, w = small[0]
-        raise UserError(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model.image_size="
-                        f"{image_size}: they would be upsampled; record the episodes at that size in a store of their "
-                        f"own (src/collect.py ... 'record.image_size=[{image_size},{image_size}]' store=DIR, then "
-                        f"store=DIR here), or set world_model.model.image_size to at most {min(h, w)} (minres "
-                        f"times a power of two)")
+        raise EpisodesUnfit(f"the episodes' frames are {h}x{w}, smaller than the model's world_model.model."
+                            f"image_size={image_size}: they would be upsampled; record the episodes at that size in a "
+                            f"store of their own (src/collect.py ... 'record.image_size=[{image_size},{image_size}]' "
+                            f"store=DIR, then store=DIR here), or set world_model.model.image_size to at most "
+                            f"{min(h, w)} (minres times a power of two)")
 
 
 @dataclass(frozen=True)
@@ -202,7 +203,7 @@ def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluat
     def run_eval(lo: int, hi: int) -> dict:
         ds = WindowDataset(source, eval_spec, rank_mask(ranks, lo, hi), stats=stats, image_size=model_cfg.image_size)
         if ds.action_space.get("kind") != train_ds.action_space.get("kind"):
-            raise UserError("evaluation episodes have another action space than the training ones")
+            raise EpisodesUnfit("evaluation episodes have another action space than the training ones")
         out = evaluate(model, ds, seed=eval_seed, batch_size=evaluation.batch_size, context=evaluation.context,
                        progress=progress)
         out["episodes"] = [lo + 1, hi]
@@ -343,7 +344,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
 
     step_ds, eval_ds = held_out(window.length), held_out(context + horizon)  # one step; open loop
     if eval_ds.action_space.get("kind") != setup.train_ds.action_space.get("kind"):
-        raise UserError("evaluation episodes have another action space than the training ones")
+        raise EpisodesUnfit("evaluation episodes have another action space than the training ones")
     if np.any(setup.train_mask & eval_ds.episodes):  # the ranks above make this impossible; a guard on the plumbing
         raise RuntimeError("an evaluated episode is among the training episodes")
     means = task_mean_images(source, setup.train_mask, model_cfg.image_size)

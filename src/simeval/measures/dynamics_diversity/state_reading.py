@@ -47,7 +47,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from simeval.errors import UserError, require_whole, require_whole_fields, settings_from_dict
+from simeval.errors import (EpisodesUnfit, UserError, require_whole, require_whole_fields,
+                            settings_from_dict)
 from simeval.measures.dynamics_diversity.gate import GateConfig, gate
 
 # 2: validation read in the state's units (1 read it in normalised units; the random controls' saved runs say which)
@@ -164,8 +165,8 @@ def _steps(s: np.ndarray, a: np.ndarray, history: int):
     n = len(s)
     t = np.arange(history, n - 1)
     if not len(t):
-        raise UserError(f"state reading: an episode of {n} states is too short for a history of {history} steps "
-                        "(protocol.state_model.history)")
+        raise EpisodesUnfit(f"state reading: an episode of {n} states is too short for a history of {history} "
+                            "steps (protocol.state_model.history)")
     j = np.arange(1, history + 1)
     ti = t[:, None] - j[None] + 1  # (m, H)
     return s[t], s[ti] - s[ti - 1], a[ti], s[t + 1]
@@ -329,7 +330,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
                 "why": "no state"}
     fit_idx, val_idx = split_training(tasks, train_idx, cfg.val_share)
     if not val_idx:
-        raise UserError("state reading: every task has a single training episode; validation needs two or more")
+        raise EpisodesUnfit("state reading: every task has a single training episode; validation needs two or "
+                            "more")
     fit = [states[i] for i in fit_idx]
     val = [states[i] for i in val_idx]
     task_mean = {t: _present_mean([states[i][0] for i in train_idx if tasks[i] == t],
@@ -367,9 +369,9 @@ def _refuse_unpadded(states: dict, tasks: list[str], idx: list[int]) -> None:
         sizes.setdefault(states[i][0].shape[1], i)
     if len(sizes) > 1:  # read_states pads a group's layouts to one; states given unpadded cannot be read as one
         (d0, i0), (d1, i1) = sorted(sizes.items())[:2]
-        raise UserError(f"the recorded states differ in size between episodes ({d0} values per step in "
-                        f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s) and come without a presence mask; pad them with "
-                        "state_reading.pad_states")
+        raise EpisodesUnfit(f"the recorded states differ in size between episodes ({d0} values per step in "
+                            f"{tasks[i0]}'s, {d1} in {tasks[i1]}'s) and come without a presence mask; pad them "
+                            "with state_reading.pad_states")
 
 
 def _episode_sums(entry, task: str, index: int, models: list, task_mean: np.ndarray, history: int) -> dict:

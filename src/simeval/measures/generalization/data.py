@@ -45,11 +45,11 @@ def _resize(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tuple[dict, np.ndarray, np.ndarray]:
     """(rgb {cam: (N, H, W, 3)}, state (N, S), action (N, A)): the observation before each of the N actions."""
     if action_space not in ACTION_SPACES:
-        raise UserError(f"policy.action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
+        raise UserError(f"policy.model.action_space={action_space!r}: expected one of {', '.join(ACTION_SPACES)}")
     missing = [c for c in cameras if c not in ep.rgb]
     if missing:
         raise UserError(f"{ep.task} seed {ep.seed}: no camera {missing} in the stored episode (has {sorted(ep.rgb)});"
-                        f" set policy.cameras to stored ones or collect with record.cameras including them")
+                        f" set policy.model.cameras to stored ones or collect with record.cameras including them")
     if action_space in LOW_LEVEL:
         # the store's rows 0..T-1 with the action taken after each (row T, the final observation, has padding)
         from simeval.pipelines.metaworld.native import ACTION_KIND as METAWORLD_KIND
@@ -68,7 +68,7 @@ def episode_steps(ep: Episode, action_space: str, cameras: Sequence[str]) -> tup
     else:
         if ep.high_level_action is None or len(ep.high_level_action) == 0:
             raise UserError(f"{ep.task} seed {ep.seed}: no high-level (pick/place) actions stored; "
-                            f"policy.action_space=pick_place needs them")
+                            f"policy.model.action_space=pick_place needs them")
         idx = np.minimum(np.asarray(ep.high_level_step, np.int64), len(ep.state) - 1)
         action = np.asarray(ep.high_level_action, np.float32)
     return {c: ep.rgb[c][idx] for c in cameras}, np.asarray(ep.state, np.float32)[idx], action

@@ -118,8 +118,9 @@ def pack(a) -> None:
     if not held:
         raise UserError(f"store {store.root}: no episode after the first episodes_per_task={k} of any trained task, "
                         f"so nothing is held out to score on; collect more (episodes={k + 5} or more)")
-    held_data = PolicyDataset([read_episode(p, list(pcfg.cameras)) for _, p in held], pcfg.action_space,
-                              pcfg.cameras, pcfg.image_size, pcfg.horizon, pcfg.n_obs_steps)
+    held_episodes = [read_episode(p, list(pcfg.cameras), "policy.model.cameras") for _, p in held]
+    held_data = PolicyDataset(held_episodes, pcfg.action_space, pcfg.cameras, pcfg.image_size, pcfg.horizon,
+                              pcfg.n_obs_steps)
     key = checkpoint_key(metas, vars(pcfg), vars(settings), seed)
     out = {"format": PACK_FORMAT, "config": cfg, "pipeline": pipeline.name, "task_group": cfg["task_group"],
            "trained_tasks": trained, "episodes_per_task": k, "demonstrations": cfg["demonstrations"],

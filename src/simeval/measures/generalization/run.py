@@ -93,8 +93,8 @@ def episodes_for(store: EpisodeStore, pipeline: str, tasks: Sequence[str], k: in
                         f"store={store.root}")
     for task in tasks:
         paths = plain[task]
-        train += [read_episode(p, list(cameras)) for p in paths[:k]]
-        val += [read_episode(p, list(cameras)) for p in paths[k : k + val_k]]
+        train += [read_episode(p, list(cameras), "policy.model.cameras") for p in paths[:k]]
+        val += [read_episode(p, list(cameras), "policy.model.cameras") for p in paths[k : k + val_k]]
         metas += [(str(p.relative_to(store.root)), p.stat().st_size) for p in paths[:k]]
     return train, val, metas
 

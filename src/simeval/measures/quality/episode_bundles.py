@@ -61,15 +61,22 @@ def _episodes(store_root, pipeline, group, per_task) -> list[dict]:
     return metas
 
 
+def _no_such_camera(camera: str, path, recorded) -> None:
+    raise UserError(f"episodes.camera={camera}: {path} records the cameras {', '.join(recorded)}")
+
+
 def store_tasks(store_root: str | os.PathLike, *, pipeline: str | None = None, group: str | None = None,
-                per_task: int = 1) -> tuple[list, dict[str, str]]:
+                per_task: int = 1, camera: str | None = None) -> tuple[list, dict[str, str]]:
     """(tasks, errors) for judge=oracle: TaskBundles whose `path` is the episode file and whose ground truth is
     what the episode recorded (success if `success_known`, the last progress if `progress_known`; an unknown is
-    left out, never scored as 0). An episode whose recorded truth is invalid is a per-task error."""
+    left out, never scored as 0). An episode whose recorded truth is invalid is a per-task error. The oracle looks
+    at no frame, but a `camera` the episodes do not record is refused as a VLM judge would refuse it."""
     import h5py
 
     tasks, errors = [], {}
     for m in _episodes(store_root, pipeline, group, per_task):
+        if camera is not None and camera not in m["cameras"]:
+            _no_such_camera(camera, m["path"], m["cameras"])
         truth = {}
         if m.get("success_known", True):
             truth["success"] = bool(m["success"])
@@ -97,7 +104,7 @@ def export_bundles(store_root: str | os.PathLike, out_dir: str | os.PathLike, *,
         ep = read_episode(meta["path"])
         cam = camera or next(iter(ep.rgb))
         if cam not in ep.rgb:
-            raise UserError(f"{meta['path']}: no camera '{cam}' (has {sorted(ep.rgb)}); set episodes.camera")
+            _no_such_camera(cam, meta["path"], sorted(ep.rgb))
         vid = f".v{meta['variation_id']}" if meta.get("variation_id") else ""  # a varied episode beside the plain one
         d = out / f"{ep.task.replace('/', '_')}__seed{ep.seed}{vid}"
         (d / "scene").mkdir(parents=True, exist_ok=True)

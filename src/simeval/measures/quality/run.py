@@ -289,7 +289,7 @@ def _tasks_and_errors(judge: str, bundles_dir, episodes: dict | None, out_dir: P
         from simeval.measures.quality.episode_bundles import store_tasks
 
         return store_tasks(episodes["store"], **{k: v for k, v in episodes.items()
-                                                 if k in ("pipeline", "group", "per_task")})
+                                                 if k in ("pipeline", "group", "per_task", "camera")})
     return load_bundles(resolve_bundles_dir(bundles_dir, episodes, out_dir))
 
 

@@ -207,8 +207,8 @@ class AdaptedEnv(gym.Env):
                  cameras: Sequence[str], max_steps: int | None = None) -> None:
         unknown = [c for c in cameras if c not in settings.adapter.cameras]
         if unknown:
-            raise UserError(f"policy.cameras: the pipeline's adapter has cameras {list(settings.adapter.cameras)}, "
-                            f"not {unknown}")
+            raise UserError(f"policy.model.cameras: the pipeline's adapter has cameras "
+                            f"{list(settings.adapter.cameras)}, not {unknown}")
         self.settings, self.task, self.cameras = settings, task, list(cameras)
         self.size, self.max_steps = tuple(int(x) for x in image_size), int(max_steps or settings.max_steps)
         self.env = settings.make(task, variation)

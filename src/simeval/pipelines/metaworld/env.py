@@ -41,7 +41,8 @@ class MetaworldEnv(gym.Env):
             "state": gym.spaces.Box(-np.inf, np.inf, (len(STATE_NAMES),), np.float32)})
         unknown = [c for c in cameras if c not in CAMERAS]
         if unknown:
-            raise UserError(f"policy.cameras: Meta-World's environment has cameras {list(CAMERAS)}, not {unknown}")
+            raise UserError(f"policy.model.cameras: Meta-World's environment has cameras {list(CAMERAS)}, not "
+                            f"{unknown}")
         self._env = self._cams = None
 
     def _observe(self, obs: np.ndarray) -> dict:
