@@ -20,7 +20,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from simeval.runtime.captured import training_device
-    from simeval.measures.dynamics_diversity.run import VERSION, DiversityRun, episode_source, headline
+    from simeval.measures.dynamics_diversity.run import VERSION, DiversityRun, Execution, episode_source, headline
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 
@@ -41,9 +41,9 @@ def main(cfg: DictConfig) -> None:
                                              debug_overlay=HydraConfig.get().runtime.choices.get("debug") or "none",
                                              collect_extra=searchpath)
     with run.logger() as logger:
-        values = measure.fit(source, checkpoint_dir=cfg.checkpoint_dir, logger=logger, device=device,
-                             compile=cfg.compile, capture=cfg.capture, videos=int(cfg.videos), progress=bool(cfg.progress),
-                             video_dir=f"{run.output_dir}/videos", how_to_get_more=how_to_get_more)
+        execution = Execution(checkpoint_dir=cfg.checkpoint_dir, device=device, compile=cfg.compile,
+                              capture=cfg.capture, progress=bool(cfg.progress), how_to_get_more=how_to_get_more)
+        values = measure.fit(source, execution, logger, videos=int(cfg.videos), video_dir=f"{run.output_dir}/videos")
         path = run.write(metric="dynamics_diversity", version=VERSION, values=values, seed=int(cfg.seed),
                          identity=measure.identity(source), overrides=run.overrides)
         logger.log_metrics(headline(values))

@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.writing.tables import Rebuilt, kept_only_hint, read_kept, refuse_committed
+from simeval.writing.tables import Rebuilt, ReportWords, kept_only_hint, read_kept, refuse_committed
 from simeval.measures.generalization.table5 import rebuild_table5
 from simeval.results import read_results
 
@@ -33,21 +33,20 @@ def _with(stem: str | Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 
 def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, episodes=(10, 20, 40),
-                   preset: str | None = None, keep=(), overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                   elsewhere: str = "another output path", episodes_key: str = "episodes",
-                   keep_key: str = "keep") -> Rebuilt:
-    """`overwrite_flag`, `elsewhere`, `episodes_key`, `keep_key`: how the caller's user asks to replace a committed
-    file, to write elsewhere, to choose the columns and to keep earlier rows, named in the refusal and in notes."""
+                   preset: str | None = None, keep=(), overwrite: bool = False,
+                   words: ReportWords = ReportWords()) -> Rebuilt:
+    """`words`: how the caller's user asks to replace a committed file, to write elsewhere, to choose the columns
+    and to keep earlier rows, named in the refusal and in notes."""
     from simeval.measures.dynamics_diversity import table4
 
     episodes = [int(k) for k in episodes]
-    kept = read_kept(table4.read_rows, keep, keep_key, "Table 4")
+    kept = read_kept(table4.read_rows, keep, words.keep, "Table 4")
     records = read_results(root, metric=table4.METRIC)
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
     replaced = [*_with(Path(out), (".csv", ".md", ".tex")), *_with(Path(figure).with_suffix(""), (".png", ".pdf"))]
-    refuse_committed(replaced, overwrite, overwrite_flag, elsewhere)
+    refuse_committed(replaced, overwrite, words.overwrite, words.elsewhere)
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
@@ -59,25 +58,24 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     written = table4.write(rows, out, episodes, unused)
     figures = table4.plot(rows, figure)
     notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
-             f"({episodes_key} {','.join(map(str, episodes))} chose its columns)"] if unused else []
+             f"({words.episodes} {','.join(map(str, episodes))} chose its columns)"] if unused else []
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
 def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str | Path, *, keep=(),
-                           overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                           elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
+                           overwrite: bool = False, words: ReportWords = ReportWords()) -> Rebuilt:
     from simeval.measures.dynamics_diversity import table4_heldout
 
-    kept = read_kept(table4_heldout.read_rows, keep, keep_key, "held-out Table 4")
+    kept = read_kept(table4_heldout.read_rows, keep, words.keep, "held-out Table 4")
     records = [] if root is None else [r for r in read_results(root, metric=table4_heldout.METRIC)
                                        if (r.get("identity") or {}).get("protocol") == "heldout"]
     if not records and root is not None:
         raise UserError(f"no protocol=heldout {table4_heldout.METRIC} result.json under {root}: run "
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
-                        + kept_only_hint(keep, keep_key, Path(out).with_suffix(".csv")))
+                        + kept_only_hint(keep, words.keep, Path(out).with_suffix(".csv")))
     out, figure = Path(out), Path(figure)
-    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, overwrite_flag, elsewhere,
-                     source="the kept tables alone" if root is None else "the runs on disk")
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, words.overwrite,
+                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk")
     rows = table4_heldout.build(records)
     for rows_of_file in kept:  # the rows merged so far win: the first file that has a row gives it
         rows = table4_heldout.merge(rows_of_file, rows)
@@ -110,20 +108,17 @@ def rebuild(spec: dict, overwrite: bool = False, key: str = "report") -> Rebuilt
         check_runs_dir(Path(spec["runs_dir"]), key, kind)
     flag = "overwrite=true (make: OVERWRITE=1)"  # how a user of the door, or of its make targets, asks to replace one
     elsewhere = f"{key}.out= and {key}.figure=" if kind in ("table4", "table4_heldout", "table5") else f"{key}.out_dir="
+    words = ReportWords(overwrite=flag, elsewhere=elsewhere, keep=f"{key}.keep", episodes=f"{key}.episodes")
     if kind == "table4":
         return rebuild_table4(spec["runs_dir"], spec["out"], spec["figure"],
                               episodes=spec.get("episodes", (10, 20, 40)), preset=spec.get("preset"),
-                              keep=kept_paths(spec), overwrite=overwrite,
-                              overwrite_flag=flag, elsewhere=elsewhere, episodes_key=f"{key}.episodes",
-                              keep_key=f"{key}.keep")
+                              keep=kept_paths(spec), overwrite=overwrite, words=words)
     if kind == "table4_heldout":
         return rebuild_table4_heldout(spec["runs_dir"], spec["out"], spec["figure"], keep=kept_paths(spec),
-                                      overwrite=overwrite, overwrite_flag=flag, elsewhere=elsewhere,
-                                      keep_key=f"{key}.keep")
+                                      overwrite=overwrite, words=words)
     if kind == "table5":
         return rebuild_table5(spec["runs_dir"], spec["out"], spec["figure"], policy=spec.get("policy"),
-                              keep=kept_paths(spec), overwrite=overwrite, overwrite_flag=flag,
-                              elsewhere=elsewhere, keep_key=f"{key}.keep")
+                              keep=kept_paths(spec), overwrite=overwrite, words=words)
     if kind == "html":
         from simeval.report.html import build_html_report
 

@@ -115,6 +115,18 @@ def outputs_named(out_dir: str | Path, id: str) -> list[Path]:
     return sorted({*out.glob(f"{id}.*"), *out.glob(f"{id}_*.*")})
 
 
+@dataclass(frozen=True)
+class ReportWords:
+    """How the caller's user asks for things, as a refusal or a note names them: `overwrite`, the flag that
+    replaces a committed file; `elsewhere`, what writes somewhere else; `keep`, the key of the kept tables;
+    `episodes`, the key that chooses Table 4's columns. The defaults are a Python caller's keyword arguments."""
+
+    overwrite: str = "--overwrite"
+    elsewhere: str = "another output path"
+    keep: str = "keep"
+    episodes: str = "episodes"
+
+
 def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewhere: str = "another output path",
                      source: str = "the runs on disk") -> None:
     """A report of the runs on disk must not replace a committed result unless asked: raises a UserError naming the

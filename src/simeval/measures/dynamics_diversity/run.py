@@ -193,9 +193,8 @@ def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluat
     eval_episodes, heldout_episodes, eval_seed = evaluation.episodes, evaluation.heldout_episodes, evaluation.seed
     videos, video_dir = evaluation.videos, evaluation.video_dir
     progress, compile = execution.progress, execution.compile
-    setup = _prepare(source, episodes_per_task, model_cfg, train_cfg, window, eval_episodes=eval_episodes,
-                     eval_context=evaluation.context, checkpoint_dir=execution.checkpoint_dir,
-                     how_to_get_more=execution.how_to_get_more)
+    setup = _prepare(source, episodes_per_task, training, execution, eval_episodes=eval_episodes,
+                     eval_context=evaluation.context)
     tasks, ranks, train_ds, stats = setup.tasks, setup.ranks, setup.train_ds, setup.stats
     model, meta, checkpoint = setup.model, setup.meta, setup.checkpoint
     eval_spec = WindowSpec(length=window.length, stride=window.length, pad_end=True)
@@ -328,8 +327,8 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
         return (f"{how}; or evaluate episodes the store has past the training ones, eval_episodes=[{k + 1},LAST], "
                 "or use protocol=paper")
 
-    setup = _prepare(source, k, model_cfg, train_cfg, window, eval_episodes=evaluation.episodes, eval_context=None,
-                     checkpoint_dir=execution.checkpoint_dir, how_to_get_more=more, protocol="heldout",
+    setup = _prepare(source, k, replace(training, train=train_cfg), replace(execution, how_to_get_more=more),
+                     eval_episodes=evaluation.episodes, eval_context=None, protocol="heldout",
                      loss_robot_margin=mask_margin if exclude_robot_from_loss else None)
     if execution.evaluate_only and (setup.checkpoint is None or not Path(setup.checkpoint).exists()):
         raise UserError(f"no checkpoint to evaluate from ({setup.checkpoint or 'checkpoint_dir is null'}): this run "
@@ -415,13 +414,17 @@ class _Setup:
                 "segments": summary["segments"]}
 
 
-def _prepare(source, episodes_per_task: int, model_cfg: WorldModelConfig, train_cfg: TrainConfig, window: WindowSpec,
-             *, eval_episodes: tuple[int, int], eval_context: int | None, checkpoint_dir, how_to_get_more,
-             protocol: str = "paper", loss_robot_margin: int | None = None) -> _Setup:
-    """Checks (episodes per task, context, windows per task, frame size) and the objects training needs. The
-    checkpoint key is the config + training data (by value: simeval.episodes.digest), and `protocol` for any protocol but the paper's (so the paper's
-    checkpoints keep their names). `loss_robot_margin`: None trains on the full frame; a margin leaves the robot's
-    pixels (masks grown by it) out of the loss where the episodes carry masks (and is then part of the key)."""
+def _prepare(source, episodes_per_task: int, training: Training, execution: Execution, *,
+             eval_episodes: tuple[int, int], eval_context: int | None, protocol: str = "paper",
+             loss_robot_margin: int | None = None) -> _Setup:
+    """Checks (episodes per task, context, windows per task, frame size) and the objects training needs (of
+    `training`: its model, train and window configs; of `execution`: checkpoint_dir, how_to_get_more). The
+    checkpoint key is the config + training data (by value: simeval.episodes.digest), and `protocol` for any
+    protocol but the paper's (so the paper's checkpoints keep their names). `loss_robot_margin`: None trains on the
+    full frame; a margin leaves the robot's pixels (masks grown by it) out of the loss where the episodes carry masks
+    (and is then part of the key)."""
+    model_cfg, train_cfg, window = training.model, training.train, training.window
+    checkpoint_dir, how_to_get_more = execution.checkpoint_dir, execution.how_to_get_more
     infos = source.infos
     tasks, seeds = [i.task for i in infos], [i.seed for i in infos]
     ranks = episode_ranks(tasks, seeds)
@@ -718,9 +721,9 @@ class DiversityRun:
             ident["settings"]["protocol"] = self.protocol
         return ident
 
-    def fit(self, source, *, checkpoint_dir, logger, device, compile: bool, videos: int, video_dir: str,
-            progress: bool, how_to_get_more=None, capture: bool = False) -> dict:
-        """fit_and_evaluate with this run's settings; the open-loop videos go to the logger too."""
+    def fit(self, source, execution: Execution, logger, *, videos: int = 0, video_dir: str | None = None) -> dict:
+        """fit_and_evaluate with this run's settings, executed as `execution` says (its log_metrics: the logger's
+        when it has none); the open-loop videos go to the logger too."""
         model_cfg, train_cfg, window = self.configs
         paper = self.protocol["name"] == "paper"
         training = Training(model_cfg, train_cfg, window, steps=self.protocol["steps"], lr=self.protocol["lr"],
@@ -733,8 +736,8 @@ class DiversityRun:
             gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
             state_model=None if paper or self.protocol.get("state_model") is None else
             StateModelConfig.from_dict(self.protocol["state_model"]), videos=videos, video_dir=video_dir)
-        execution = Execution(checkpoint_dir=checkpoint_dir, device=device, compile=compile, capture=capture,
-                              progress=progress, log_metrics=logger.log_metrics, how_to_get_more=how_to_get_more)
+        if execution.log_metrics is None:
+            execution = replace(execution, log_metrics=logger.log_metrics)
         values = fit_and_evaluate(source, int(self.episodes), training, evaluation, execution)
         for task, video in values["videos"].items():
             logger.log_video(f"open_loop/{task}", video, fps=VIDEO_FPS, caption=(

@@ -27,7 +27,8 @@ from simeval.stats.intervals import task_bootstrap_interval, wilson_interval
 from simeval.writing.paper_groups import suite_group
 from simeval.writing.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.writing.paper_values import TABLE5_MEANING
-from simeval.writing.tables import Rebuilt, kept_only_hint, read_csv, read_kept, refuse_committed, write_table
+from simeval.writing.tables import (Rebuilt, ReportWords, kept_only_hint, read_csv, read_kept, refuse_committed,
+                                    write_table)
 from simeval.results import identity_difference, read_results, rolled_out
 
 METRIC = "generalization"
@@ -483,10 +484,10 @@ def pack_panels(sizes: list[int], per_row: int) -> list[list[int]]:
 
 
 def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path, *, policy: str | None = None, keep=(),
-                   overwrite: bool = False, overwrite_flag: str = "--overwrite",
-                   elsewhere: str = "another output path", keep_key: str = "keep") -> Rebuilt:
+                   overwrite: bool = False, words: ReportWords = ReportWords()) -> Rebuilt:
     """Table 5, its per-task detail and its figure from every generalization result.json under `root` (see
     simeval.report.rebuild, which the report door calls)."""
+    keep_key = words.keep
     kept = read_kept(read_rows, keep, keep_key, "Table 5")
     # each kept table's per-task table beside it (table5.csv -> table5_detail.csv), where there is one
     beside = {Path(path): Path(path).with_name(Path(path).stem + "_detail.csv") for path in keep}
@@ -502,8 +503,8 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
                         "src/generalization.py), or give the folder that holds them"
                         + kept_only_hint(keep, keep_key, Path(out).with_suffix(".csv")))
     refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
-                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, overwrite_flag, elsewhere,
-                     source="the kept tables alone" if root is None else "the runs on disk")
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, words.overwrite,
+                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk")
     rows = build(records, policy=policy)
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
