@@ -24,8 +24,9 @@ SRC = Path(__file__).resolve().parent
 
 
 def _stage(cmd: list[str], log_path: Path) -> tuple[str, bool] | None:
-    """Run an entrypoint; None when it finished, else (its last line: its one-line error, whether it stopped because
-    the episodes cannot serve the measure: simeval.errors.EpisodesUnfit, recorded through REFUSAL_FILE_ENV)."""
+    """Run an entrypoint; None when it finished, else (why it stopped, whether the episodes cannot serve the
+    measure: simeval.errors.EpisodesUnfit, recorded through REFUSAL_FILE_ENV). Why: its one-line error, or for a
+    run that stopped otherwise its exit status and last line; with its log."""
     log_path.parent.mkdir(parents=True, exist_ok=True)
     refusal = log_path.with_suffix(".refusal.json")
     refusal.unlink(missing_ok=True)
@@ -34,10 +35,14 @@ def _stage(cmd: list[str], log_path: Path) -> tuple[str, bool] | None:
                              env={**os.environ, REFUSAL_FILE_ENV: str(refusal)})
     if res.returncode == 0:
         return None
+    said = json.loads(refusal.read_text()) if refusal.is_file() else None
+    if said is not None and said.get("episodes_unfit") is True:
+        return f"{said['error']} (log {log_path})", True
+    if said is not None:
+        return f"{Path(cmd[0]).name}: {said['error']} (log {log_path})", False
     tail = [x for x in log_path.read_text().strip().splitlines() if x.strip()][-1:] or ["(no output)"]
-    unfit = refusal.is_file() and json.loads(refusal.read_text()).get("episodes_unfit") is True
     return (f"{Path(cmd[0]).name} stopped (exit {res.returncode}; log {log_path}): {tail[0].removeprefix('error: ')}",
-            unfit)
+            False)
 
 
 def _stage_dir(out: Path, stage: str, settings: dict) -> Path:
@@ -74,8 +79,9 @@ def _text(metas, cfg) -> dict:
     v = text_diversity_by_group(tasks, embedder.encode, "all", subsample_n=None)["all"]
     lo, hi = v["div_ci"] if "div_ci" in v else (None, None)
     interval = f" [{lo:.2f}, {hi:.2f}]" if lo is not None else ""
-    return aspect("text_diversity", "reads", f"{v['div']:.2f}{interval} over {len(texts)} task texts "
-                  f"({cfg.embedding.name})", value=float(v["div"]))
+    n_tasks = len({m["task"] for m in metas})
+    return aspect("text_diversity", "reads", f"{v['div']:.2f}{interval} over {len(texts)} distinct task texts of "
+                  f"{n_tasks} task{'s' * (n_tasks != 1)} ({cfg.embedding.name})", value=float(v["div"]))
 
 
 def _quality(metas, cfg, out: Path, per_task: int) -> dict:
@@ -123,8 +129,9 @@ def _dynamics(metas, cfg, out: Path, camera: str, n: int, settings: tuple[int, l
         if stopped and not stopped[1]:  # a value of dynamics.* refused: a mistake to fix, as quality's
             raise UserError(stopped[0])
         if stopped:  # the episodes cannot serve the world model: no reading, and the card is still written
-            return aspect("dynamics_diversity", "no reading", stopped[0] + " (its settings: "
-                          "dynamics.overrides=[...], e.g. 'dynamics.overrides=[\"world_model.window.length=7\"]')")
+            return aspect("dynamics_diversity", "no reading", "the episodes cannot serve the world model: "
+                          f"{stopped[0]}; its settings go through dynamics.overrides, e.g. "
+                          "'dynamics.overrides=[\"world_model.window.pad_end=true\"]'")
     from simeval.measures.dynamics_diversity.table4_heldout import build
     from simeval.results import read_results
 
@@ -221,7 +228,39 @@ def dynamics_settings(cfg) -> tuple[int, list[int], list[int]]:
     if not OmegaConf.is_list(overrides) or not all(isinstance(x, str) for x in overrides):
         raise UserError("dynamics.overrides: expected a list of quoted overrides for src/diversity.py, e.g. "
                         "'dynamics.overrides=[\"world_model=paper\",\"device=cuda\"]'")
+    _check_dynamics_overrides(cfg, out[0][0], out[1][0])
     return int(cfg.dynamics.heldout), out[0], out[1]
+
+
+def _check_dynamics_overrides(cfg, count: int, seed: int) -> None:
+    """The dynamics stage's config composed here, before any stage runs, with its first count and seed: a key or
+    value of dynamics.overrides that src/diversity.py would refuse is one line now, not after the other stages ran
+    (nor never, where the episodes are too few for the stage to run)."""
+    from hydra import compose
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from simeval.cli import composition_error_line, config_mistakes, entry_conf_dir
+    from simeval.config_schemas import DiversityConfig, check_values
+    from simeval.measures.dynamics_diversity.run import DiversityRun
+
+    args = ["pipeline=custom", f"pipeline.name={cfg.episodes.pipeline}", f"task_group={cfg.episodes.group}",
+            f"episodes={count}", f"seed={seed}",
+            *([f"debug={cfg.dynamics.debug}"] if cfg.dynamics.debug != "none" else []), *cfg.dynamics.overrides]
+    line = config_mistakes(args, entry_conf_dir())
+    if line is None:
+        try:
+            composed = compose("diversity", overrides=args)
+            check_values(composed, DiversityConfig)
+            plain = OmegaConf.to_container(composed, resolve=True)
+            _ = DiversityRun.from_config(plain).configs  # every world_model.* and protocol.* value checked
+        except (HydraException, OmegaConfBaseException) as e:
+            line = composition_error_line(e, "diversity", entry_conf_dir())
+        except UserError as e:
+            line = str(e)
+    if line is not None:
+        raise UserError(f"dynamics.overrides: {line}")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")

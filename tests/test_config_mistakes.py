@@ -53,6 +53,8 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["world_model.train.lr=fast"], "world_model.train.lr='fast': expected a number"),
     (["world_model.train.max_steps=1.5"], "world_model.train.max_steps=1.5: expected a whole number or null"),
     (["world_model.model.free_nats=abc"], "world_model.model.free_nats='abc': expected a number"),
+    (["world_model.unimix=0.1"], "override world_model.unimix: no such key (did you mean world_model.model.unimix? "
+                                 "valid here: name, model, train, window)"),
 ])
 def test_diversity_names_the_bad_value_before_reading_the_store(args, expected, tmp_path):
     (tmp_path / "a_file").write_text("")

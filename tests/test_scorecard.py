@@ -72,7 +72,8 @@ def test_the_readmes_commands_give_a_scorecard_of_a_lerobot_dataset(user):
     assert f"{by['text_diversity']['value']:.2f}" in lines["text_diversity"]
     assert "pixel reading" in lines["dynamics_diversity"] and "state reading" in lines["dynamics_diversity"]
     assert by["dynamics_diversity"]["reading"] in ("reads", "no reading")
-    assert by["generalization"]["reading"] == "skipped" and "no environment" in lines["generalization"]
+    assert by["generalization"]["reading"] == "skipped"
+    assert lines["generalization"].startswith("generalization: skipped: no environment")  # the verdict, then why
     assert len(list(out.glob("dynamics-*/*/result.json"))) == 2  # counts 2 and 4, one seed
     for aspect in ("text_diversity", "quality", "dynamics_diversity", "generalization"):
         assert by[aspect]["references"], f"{aspect}: no reference rows"
@@ -106,11 +107,17 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
                      ("dynamics.debug=huge", "dynamics.debug='huge': expected none or tiny"),
                      ("generalization.debug=big", "generalization.debug='big': expected none or tiny")):
         one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad), key)
-    # a value only the dynamics stage refuses stops the scorecard as quality's and generalization's do, exit 2
+    # a value the dynamics stage would refuse stops the scorecard before any stage runs, exit 2
     one_line_error(_run(user, evaluate, "episodes.pipeline=mine", "debug=tiny", "dynamics.overrides=['episodes=0']",
                         f"out={tmp_path / 'card'}", f"tables={ROOT / 'outputs' / 'tables'}"),
-                   "diversity.py stopped (exit 2", "episodes must be a whole number >= 1, got 0")
-    assert not (tmp_path / "card" / "scorecard.json").exists()
+                   "dynamics.overrides: episodes must be a whole number >= 1, got 0")
+    assert not (tmp_path / "card").exists()
+    # checked before any stage runs (here the dynamics stage would run; with too few episodes it would not run at
+    # all), the key one level too high pointed to where it lives
+    for bad, says in (("dynamics.overrides=['world_model.unimix=0.1']", "did you mean world_model.model.unimix?"),
+                      ("dynamics.overrides=['protocol.steps=0']", "dynamics.overrides: protocol.steps=0")):
+        one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad, f"out={tmp_path / 'card2'}"), says)
+        assert not (tmp_path / "card2").exists()
 
 
 @pytest.mark.timeout(900)  # world models, policies and rollouts at tiny sizes: ~2-3 min on 2 busy cores
@@ -136,5 +143,7 @@ def test_a_measure_that_cannot_run_is_no_reading_and_the_card_is_still_written(t
     card = json.loads((tmp_path / "outputs" / "scorecards" / "short" / "scorecard.json").read_text())
     by = {a["aspect"]: a for a in card["aspects"]}
     assert by["dynamics_diversity"]["reading"] == "no reading"
-    assert "diversity.py stopped" in by["dynamics_diversity"]["line"] and "window" in by["dynamics_diversity"]["line"]
+    line = by["dynamics_diversity"]["line"]
+    assert line.startswith("the episodes cannot serve the world model: world_model.window.length=") and "(log " in line
+    assert "dynamics_diversity: no reading: the episodes cannot serve the world model" in res.stdout
     assert by["quality"]["value"] == pytest.approx(10.0)  # every demo reached the sparse reward of 1

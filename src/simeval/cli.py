@@ -464,6 +464,8 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
         full_key = getattr(cause, "full_key", None) or key
         valid = [str(k) for k in parent.keys() if k != "hydra"]
         close = difflib.get_close_matches(str(key), valid, n=2, cutoff=0.6)
+        prefix = str(full_key)[: -len(str(key))]  # "world_model." of "world_model.unimix"
+        close = close or [f"{prefix}{k}.{key}" for k in _holding(parent, str(key))]  # a level left out
         mean = f"did you mean {' or '.join(close)}? " if close else ""
         if close:  # a typo: '+key=...' would add the misspelt key, which nothing reads, and the run would go on
             return f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)})"
@@ -485,6 +487,22 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     if options:
         head = f"{head}; valid: {', '.join(sorted(str(o) for o in options))}"
     return f"{head} {cause_text[0]}" if cause_text else head
+
+
+def _holding(parent: Any, key: str) -> list[str]:
+    """The keys of `parent` whose own mapping has `key`: where a key given one level too high lives."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    out = []
+    for k in parent.keys():
+        try:
+            child = parent[k]
+        except OmegaConfBaseException:  # an interpolation that cannot resolve here: not where the key lives
+            continue
+        if OmegaConf.is_dict(child) and key in child:
+            out.append(str(k))
+    return out
 
 
 _EXPECTED = (("to Integer", TYPE_WORDS[int]), ("valid bool", TYPE_WORDS[bool]), ("to Float", TYPE_WORDS[float]),

@@ -181,7 +181,9 @@ class _Training:
         if ck.get("finished"):  # a finished run only evaluates: "resumed" would say it trains on
             log.info("trained already (%d steps): %s; evaluating only", step, self.checkpoint)
         else:
-            log.info("resumed from %s at epoch %d, batch %d (step %d)", self.checkpoint, self.epoch, self.batch, step)
+            # counted from 1, as the per-epoch lines count: it goes on at this epoch's batch
+            log.info("resumed from %s at epoch %d, batch %d (step %d)", self.checkpoint, self.epoch + 1,
+                     self.batch + 1, step)
 
     def trained_by(self, step: int) -> list[dict]:
         here = {"steps": [self.first_step, step], "device": str(self.device), "compile": bool(self.compile),

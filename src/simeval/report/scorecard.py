@@ -101,15 +101,20 @@ def build(pipeline: str, aspects: list[dict], tables: str | Path) -> dict:
 
 
 def lines(card: dict) -> list[str]:
-    """One line per aspect: what it reads or why it has no reading."""
-    return [f"{a['aspect']}: {a['line']}" for a in card["aspects"]]
+    """One line per aspect: what it reads, or "no reading: " / "skipped: " and why."""
+    return [f"{a['aspect']}: {_verdict(a)}" for a in card["aspects"]]
+
+
+def _verdict(a: dict) -> str:
+    """The aspect's line, led by its reading where that is not "reads" (the line says why, not whether)."""
+    return a["line"] if a["reading"] == "reads" or a["line"].startswith(a["reading"]) else f"{a['reading']}: {a['line']}"
 
 
 def markdown(card: dict) -> str:
     out = [f"# Scorecard: {card['pipeline']}", "", *([f"**{card['note']}**", ""] if card.get("note") else []),
            *[f"- {x}" for x in lines(card)], ""]
     for a in card["aspects"]:
-        out += [f"## {TITLES[a['aspect']]}", "", f"**{card['pipeline']}**: {a['line']}", ""]
+        out += [f"## {TITLES[a['aspect']]}", "", f"**{card['pipeline']}**: {_verdict(a)}", ""]
         if a["references"]:
             out += ["| reference pipeline | group | reading |", "|---|---|---|"]
             out += [f"| {r['pipeline']} | {r['group']} | {r['text']} |" for r in a["references"]]
