@@ -107,7 +107,9 @@ def lines(card: dict) -> list[str]:
 
 def _verdict(a: dict) -> str:
     """The aspect's line, led by its reading where that is not "reads" (the line says why, not whether)."""
-    return a["line"] if a["reading"] == "reads" or a["line"].startswith(a["reading"]) else f"{a['reading']}: {a['line']}"
+    if a["reading"] == "reads" or a["line"].startswith(a["reading"]):
+        return a["line"]
+    return f"{a['reading']}: {a['line']}"
 
 
 def markdown(card: dict) -> str:
