@@ -174,13 +174,14 @@ def test_a_rebuild_with_keep_keeps_the_committed_per_task_table_beside_the_new_g
         'mypipeline,mygroup,cpu,eval,reach,0.50 (1/2),"[0.09, 0.91]",-,-,0.75,1']
     # a per-task table beside a kept one that is cut short fails before any work, naming the key and the file
     from simeval.errors import UserError
+    from simeval.writing.tables import ReportWords
 
     (tmp_path / "kept").mkdir()
     (tmp_path / "kept" / "table5.csv").write_text((ROOT / "outputs" / "tables" / "table5.csv").read_text())
     (tmp_path / "kept" / "table5_detail.csv").write_text("\n".join(committed[:3] + [committed[3][:20]]) + "\n")
     with pytest.raises(UserError, match="^report.keep: .*table5_detail.csv, line 4: "):
         rebuild_table5(tmp_path / "runs", tmp_path / "t5b", tmp_path / "t5b.png",
-                       keep=[tmp_path / "kept" / "table5.csv"], keep_key="report.keep")
+                       keep=[tmp_path / "kept" / "table5.csv"], words=ReportWords(keep="report.keep"))
     assert not (tmp_path / "t5b.csv").exists()
 
 
