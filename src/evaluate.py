@@ -17,7 +17,7 @@ import hydra
 from omegaconf import DictConfig
 
 from simeval.cli import exit_cleanly_on_user_error, launch
-from simeval.errors import REFUSAL_FILE_ENV, UserError
+from simeval.errors import REFUSAL_FILE_ENV, UserError, read_refusal
 
 log = logging.getLogger("evaluate")
 SRC = Path(__file__).resolve().parent
@@ -35,7 +35,7 @@ def _stage(cmd: list[str], log_path: Path) -> tuple[str, bool] | None:
                              env={**os.environ, REFUSAL_FILE_ENV: str(refusal)})
     if res.returncode == 0:
         return None
-    said = json.loads(refusal.read_text()) if refusal.is_file() else None
+    said = read_refusal(refusal)
     if said is not None and said.get("episodes_unfit") is True:
         return f"{said['error']} (log {log_path})", True
     if said is not None:

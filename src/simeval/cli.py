@@ -61,7 +61,9 @@ def _print_error(message: str) -> None:
     sys.stderr.flush()
 
 
-def _fail(message: str) -> None:
+def _fail(message: str, episodes_unfit: bool = False) -> None:
+    """Stop on a user error: its one line on stderr, recorded for the process that ran this one, exit 2."""
+    _record_refusal(message, episodes_unfit)
     _print_error(message)
     sys.exit(USER_ERROR_EXIT)
 
@@ -214,12 +216,12 @@ def exit_cleanly_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             text = str(cause).strip()
             line = text.splitlines()[0] if text else type(cause).__name__
-            _record_refusal(line, isinstance(cause, EpisodesUnfit))
             if in_submitit_job():
+                _record_refusal(line, isinstance(cause, EpisodesUnfit))
                 _print_error(line)
                 raise UserError(line) from None  # picklable, unlike some config errors and their chained causes
             remove_refused_run_folder()
-            _fail(line)
+            _fail(line, isinstance(cause, EpisodesUnfit))
 
     return wrapper
 
@@ -245,6 +247,9 @@ def stop_sweep_on_user_errors(results: Any) -> None:
     lines = [str(r._return_value) for r in results
              if r.status == JobStatus.FAILED and isinstance(r._return_value, UserError)]
     if lines:
+        recorded = os.environ.get(REFUSAL_FILE_ENV)
+        if recorded and not Path(recorded).is_file():  # a job on another machine could not record it here
+            _record_refusal(lines[0], False)
         for line in dict.fromkeys(lines):
             _print_error(line)
         sys.exit(USER_ERROR_EXIT)
@@ -357,8 +362,7 @@ def stop_sweep_on_dead_jobs(launch: Callable[[], Any]) -> Any:
             raise
         refused = refused_submission_line(e)
         if refused is not None:  # nothing ran: a setting to change, not a job to rerun
-            _print_error(refused)
-            sys.exit(USER_ERROR_EXIT)
+            _fail(refused)
         _print_error(dead_job_line(e))
         sys.exit(1)
 

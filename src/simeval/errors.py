@@ -19,6 +19,16 @@ USER_ERROR_EXIT = 2  # the exit status of a run stopped by a UserError
 REFUSAL_FILE_ENV = "SIMEVAL_REFUSAL_FILE"  # where an entrypoint records why it stopped, for the process that ran it
 
 
+def read_refusal(path) -> dict | None:
+    """What a child run recorded at REFUSAL_FILE_ENV when it stopped on a UserError ({error: its one line,
+    episodes_unfit}), or None when it recorded nothing (it finished, or stopped otherwise)."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
 class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
 

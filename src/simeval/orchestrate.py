@@ -43,7 +43,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from simeval.errors import USER_ERROR_EXIT, UserError
+from simeval.errors import REFUSAL_FILE_ENV, USER_ERROR_EXIT, UserError, read_refusal
 
 STAGES = ("table3", "figure3", "collect", "quality", "table4", "table5", "report")
 # Figure 3 from the paper's own appendix score tables, shipped with the package;
@@ -92,11 +92,14 @@ def run(cmd: list[str], log: Path, cwd: Path, echo: bool = False) -> None:
     log.parent.mkdir(parents=True, exist_ok=True)
     print(f"  $ {shlex.join(cmd)}", flush=True)
     t0 = time.monotonic()
+    refusal = log.with_suffix(".refusal.json")  # where the stage says which value it refused, if it does
+    refusal.unlink(missing_ok=True)
     with log.open("w") as f:
-        p = subprocess.run(cmd, cwd=cwd, stdout=f, stderr=subprocess.STDOUT, preexec_fn=_stop_with_parent)
-    refusal = _refusal(log) if p.returncode == USER_ERROR_EXIT else None
-    if refusal:  # a value the stage refused: its one line is the whole story, as when the user runs it alone
-        print(f"error: {log.stem}: {refusal} (log: {log})", file=sys.stderr)
+        p = subprocess.run(cmd, cwd=cwd, stdout=f, stderr=subprocess.STDOUT, preexec_fn=_stop_with_parent,
+                           env={**os.environ, REFUSAL_FILE_ENV: str(refusal)})
+    said = read_refusal(refusal) if p.returncode == USER_ERROR_EXIT else None
+    if said:  # a value the stage refused: its one line is the whole story, as when the user runs it alone
+        print(f"error: {log.stem}: {said['error']} (log: {log})", file=sys.stderr)
         raise SystemExit(USER_ERROR_EXIT)
     if p.returncode != 0:
         tail = log.read_text().splitlines()[-15:]
@@ -107,12 +110,6 @@ def run(cmd: list[str], log: Path, cwd: Path, echo: bool = False) -> None:
     if echo:
         print("\n".join(f"    {line}" for line in log.read_text().splitlines()))
     print(f"    done in {time.monotonic() - t0:.0f} s ({log.stem})", flush=True)
-
-
-def _refusal(log: Path) -> str | None:
-    """The one-line error a stage stopped on (its log's last line, `error: ...`), or None."""
-    lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
-    return lines[-1].removeprefix("error: ") if lines and lines[-1].startswith("error: ") else None
 
 
 def finished(run_dir: Path, done: bool | None = None) -> bool:
