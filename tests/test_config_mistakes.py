@@ -49,6 +49,9 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.state_model.max_steps=abc"], "protocol.state_model.max_steps must be a whole number >= 1"),
     (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
+    (["protocol.pixels=maybe"], "protocol.pixels='maybe': expected true (the world model's reading beside the state"),
+    (["protocol.pixels=false", "protocol.state_model=null"], "protocol.pixels=false with protocol.state_model=null: "
+                                                              "the run would read nothing"),
     (["protocol.model.pixel_norm=zscore"], "world_model.model.pixel_norm='zscore': expected one of none, standardise"),
     (["world_model.train.lr=fast"], "world_model.train.lr='fast': expected a number"),
     (["world_model.train.max_steps=1.5"], "world_model.train.max_steps=1.5: expected a whole number or null"),

@@ -602,3 +602,86 @@ def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
     assert state_fall(_state_reading(0.5, 2.0, 0.1), gated, 10, 40)["state_fall_verdict"] == \
         "no reading: the model does not beat the last state at 40 episodes"
     assert state_fall(None, _state_reading(0.2, 2.0, 0.1), 10, 40) == {}
+
+
+def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trains_no_world_model(monkeypatch):
+    """protocol.pixels=false: the same training and evaluated episodes, the same state reading to the last digit as
+    the run that also trains the world model, and no world model built nor frame read."""
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig
+
+    source = RecordingSource(make_physics_group("varied", 2, 12, 20, 16))
+    state_model = StateModelConfig(max_steps=200, eval_every=50, patience=2, seeds=(0, 1))
+
+    def evaluate(pixels: bool) -> dict:
+        training = dd.Training(WorldModelConfig.from_dict(TINY["model"]),
+                               TrainConfig.from_dict({**TINY["train"], "seed": 0}), WindowSpec(**TINY["window"]),
+                               steps=12)
+        evaluation = dd.Evaluation(protocol="heldout", episodes=(8, 12), context=3, horizon=5,
+                                   state_model=state_model, pixels=pixels)
+        return dd.fit_and_evaluate(source, 4, training, evaluation, dd.Execution(progress=False))
+
+    both = evaluate(True)
+    source.reads.clear()
+
+    def no_world_model(*args, **kwargs):
+        raise AssertionError("a state-only run built a world model")
+
+    monkeypatch.setattr(dd, "WorldModel", no_world_model)
+    monkeypatch.setattr(ArraySource, "read", lambda *a, **k: pytest.fail("a state-only run read frames"))
+    alone = evaluate(False)
+    assert alone["prediction"] is None and alone["gate"] is None and alone["train"] is None
+    assert alone["protocol"] == {"name": "heldout", "pixels": False, "trained_on": [1, 4], "evaluated_on": [9, 12]}
+    assert {e for _, e in source.reads} == set(range(24)) - {4, 5, 6, 7, 16, 17, 18, 19}  # ranks 1-4 and 9-12
+    drop = ("seconds",)
+    assert {k: v for k, v in alone["state"].items() if k not in drop} == \
+        {k: v for k, v in both["state"].items() if k not in drop}
+    assert dd.summary_line(alone) == f"held-out episodes [9, 12]: state reading: {alone['state']['line']}"
+    assert set(dd.headline(alone)["heldout"]) >= {"state/gate_passes", "state/model"}
+    with pytest.raises(UserError, match="protocol.pixels=false with protocol.state_model=null"):
+        dd.fit_and_evaluate(source, 4, dd.Training(WorldModelConfig.from_dict(TINY["model"]),
+                                                   TrainConfig.from_dict(TINY["train"]), WindowSpec(**TINY["window"])),
+                            dd.Evaluation(protocol="heldout", episodes=(8, 12), pixels=False),
+                            dd.Execution(progress=False))
+
+
+def _state_only_record(seed: int, episodes: int, n_heldout: int) -> dict:
+    state = {"gate": {"passes": True, "verdict": "reads"}, "line": "reads",
+             "summary": {"model": 0.01 * (50 - episodes) / 40, "last_state": 0.2, "mean_state": 1.0,
+                         "constant_velocity": 0.05, "skill_vs_last_state": 0.9, "skill_vs_mean_state": 0.99,
+                         "skill_vs_constant_velocity": 0.5},
+             "per_episode": [{"task": f"t{i % 2}", "index": i, "frames": 20, "model": [0.2 - 0.001 * episodes] * 3,
+                              "last_state": 4.0, "mean_state": 20.0, "constant_velocity": 1.0}
+                             for i in range(n_heldout)]}
+    return {"metric": "dynamics_diversity", "status": "ok", "created": str(seed),
+            "identity": {"pipeline": "bbsea", "task_group": "drawer", "preset": "cpu", "steps": 1000,
+                         "episodes": episodes, "seed": seed, "protocol": "heldout"},
+            "values": {"protocol": {"name": "heldout", "pixels": False}, "prediction": None, "gate": None,
+                       "state": state}}
+
+
+def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_of_the_same_episodes(tmp_path):
+    """A sweep with protocol.pixels=false beside the committed table: the kept row keeps its pixel columns and
+    takes the fresh state columns (and says so), where both scored as many episodes with as many runs; otherwise
+    the fresh row stands alone and its pixel cells say they were not read. Its table and figure are written."""
+    from simeval.measures.dynamics_diversity.table4_heldout import build, display, merge, plot, read_rows
+
+    kept = read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
+    old = next(r for r in kept if (r["pipeline"], r["group"]) == ("bbsea", "drawer"))
+    recs = [_state_only_record(s, k, old["heldout_episodes_10"]) for s in range(3) for k in (10, 20, 40)]
+    fresh = build(recs, n_boot=100)
+    assert len(fresh) == 1 and not any(c.startswith(("gate_", "one_step")) for c in fresh[0])
+    assert fresh[0]["state_model_10"] == pytest.approx(0.01) and fresh[0]["state_fall_verdict"] == "falls"
+    merged = {(r["pipeline"], r["group"]): r for r in merge(kept, fresh)}
+    row = merged[("bbsea", "drawer")]
+    assert {c: v for c, v in row.items() if not c.startswith("state_")} == \
+        {c: v for c, v in old.items() if not c.startswith("state_")}
+    assert row["state_model_40"] == fresh[0]["state_model_40"] and row["state_drop"] == fresh[0]["state_drop"]
+    assert row["state_runs"].startswith("runs of the state reading only, beside the kept row's pixel reading")
+    assert len(merged) == len(kept)
+    # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
+    other = build([_state_only_record(s, k, 40) for s in range(3) for k in (10, 20, 40)], n_boot=100)
+    alone = {(r["pipeline"], r["group"]): r for r in merge(kept, other)}[("bbsea", "drawer")]
+    _, body = display([alone])
+    assert body[0][5] == "not read (protocol.pixels=false)" and body[0][6] == "—" and body[0][9] == "—"
+    assert body[0][15].startswith("0.01 (0.90 / 0.50)")
+    assert plot([alone, merged[("bbsea", "table")]], tmp_path / "f.png").stat().st_size > 10_000

@@ -53,6 +53,29 @@ def test_quaternion_sign_is_canonical_and_poses_follow_the_state():
     assert out.shape == (2, 9) and np.array_equal(out[0], out[1])
 
 
+def test_a_block_turning_through_180_degrees_moves_its_quaternion_a_little_each_step():
+    """A block turned 1 degree per step about the vertical from 170 to 190 degrees (scipy's quaternions, whose w
+    changes sign at 180): every step's quaternion change is the 1-degree turn's, 2 sin(0.25 deg), not the jump of
+    ~2 a sign fixed per row by w >= 0 gives, and every row is still the block's rotation."""
+    from scipy.spatial.transform import Rotation
+
+    yaw = np.deg2rad(np.arange(170, 191))
+    quats = Rotation.from_euler("z", yaw[:, None]).as_quat()  # xyzw, scipy's sign
+    quats[quats[:, 3] < 0] *= -1  # the per-row canonical form the store may hold
+    assert np.abs(np.diff(quats, axis=0)).max() > 1.9  # the jump this test exists for
+    poses = np.zeros((len(yaw), 2, 7))
+    poses[:, 0, :3] = [0.4, 0.1, 0.02]
+    poses[:, 0, 3:] = quats
+    poses[:, 1, 3:] = [0, 0, 0, -1]  # a second object that never turns, stored with w < 0
+    out = low_dim_state(np.zeros((len(yaw), 1)), poses)[:, 1:].reshape(len(yaw), 2, 7)
+    steps = np.linalg.norm(np.diff(out[:, 0, 3:], axis=0), axis=1)
+    np.testing.assert_allclose(steps, 2 * np.sin(np.deg2rad(0.25)), rtol=1e-9)
+    assert out[0, 0, 6] >= 0 and np.array_equal(out[:, 1, 3:], np.tile([0, 0, 0, 1.0], (len(yaw), 1)))
+    np.testing.assert_allclose(Rotation.from_quat(out[:, 0, 3:]).as_matrix(), Rotation.from_euler("z", yaw[:, None]).as_matrix(),
+                               atol=1e-12)
+    np.testing.assert_array_equal(out[:, 0, :3], poses[:, 0, :3])
+
+
 def test_validation_episodes_come_from_the_training_split_only():
     tasks = ["a"] * 5 + ["b"] * 5
     fit, val = split_training(tasks, [0, 1, 2, 3, 5, 6, 7, 8], 0.25)

@@ -235,10 +235,12 @@ def dynamics_headline(values: dict) -> list[tuple[str, object]]:
     the baselines (simeval.measures.dynamics_diversity.gate), else the primary number and its skills; then the state
     reading's line."""
     gate = values.get("gate")
-    one = values["prediction"]["summary"]["one_step"]
-    if gate is not None and not gate["passes"]:
+    if values.get("prediction") is None:  # protocol.pixels=false: the state reading only
+        out = [("pixel reading", "not read (protocol.pixels=false)")]
+    elif gate is not None and not gate["passes"]:
         out = [("pixel reading", gate["verdict"])]
     else:
+        one = values["prediction"]["summary"]["one_step"]
         out = [("object-focused one-step error (x1e-3/pixel)", 1e3 * one["model"]["object_error_per_pixel"]),
                ("skill vs last frame", one.get("object_skill_vs_last")),
                ("skill vs mean image", one.get("object_skill_vs_mean"))]

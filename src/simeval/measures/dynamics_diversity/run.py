@@ -123,8 +123,8 @@ class Evaluation:
     """What a run is scored on and how: the protocol ("paper" or "heldout", PROTOCOLS), the evaluated ranks
     `episodes` [lo, hi) and the paper protocol's `heldout_episodes`, the evaluation's seed, observed context, batch
     size and open-loop `horizon`, the robot masks' `mask_margin` (pixels), the validity `gate` and the
-    `state_model` of the heldout protocol (None: their defaults / no state reading), and `videos` open-loop
-    videos written to `video_dir`."""
+    `state_model` of the heldout protocol (None: their defaults / no state reading), `pixels` (heldout: False reads
+    the states only, no world model trained), and `videos` open-loop videos written to `video_dir`."""
 
     protocol: str = "paper"
     episodes: tuple[int, int] = (0, 40)
@@ -136,6 +136,7 @@ class Evaluation:
     mask_margin: int = 0
     gate: GateConfig | None = None
     state_model: StateModelConfig | None = None
+    pixels: bool = True
     videos: int = 0
     video_dir: str | Path | None = None
 
@@ -182,7 +183,8 @@ def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluat
     (simeval.measures.dynamics_diversity.prediction); `values["gate"]` says whether the model beats both baselines
     on the held-out frames, per task and for the group (where it does not, its numbers are no reading);
     `values["state"]` is the state-space reading on the same episodes (simeval.measures.dynamics_diversity.
-    state_reading), gated on its own."""
+    state_reading), gated on its own. With `evaluation.pixels` False (heldout) no world model is trained nor read:
+    `values["prediction"]`, `["gate"]`, `["train"]` and `["model"]` are None and the state reading is the run's."""
     device = resolve_device(execution.device)  # a bad value fails here, before any data is read
     execution = replace(execution, device=device)
     if evaluation.protocol not in PROTOCOLS:
@@ -314,6 +316,8 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     k = int(episodes_per_task)
     lo, hi = evaluation.episodes
     _refuse_training_on_evaluated(source, k, lo, hi, how_to_get_more)
+    if not evaluation.pixels:
+        return _states_only(source, k, evaluation, how_to_get_more)
     context = 5 if evaluation.context is None else int(evaluation.context)
     check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
@@ -363,7 +367,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
               "prediction": prediction,
               "gate": pixel_gate([prediction["per_episode"]], evaluation.gate or GateConfig()),
               "state": None if evaluation.state_model is None else
-              _state_reading(source, setup, evaluated, evaluation.state_model, evaluation.gate),
+              _state_reading(source, setup.train_mask, evaluated, evaluation.state_model, evaluation.gate),
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
               "train": setup.train_summary(summary, execution.device, compile, execution.capture),
@@ -373,8 +377,27 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     return values
 
 
-def _state_reading(source, setup, evaluated: np.ndarray, cfg: StateModelConfig, gate: GateConfig | None) -> dict:
-    train_idx, eval_idx = np.flatnonzero(setup.train_mask).tolist(), np.flatnonzero(evaluated).tolist()
+def _states_only(source, k: int, evaluation: Evaluation, how_to_get_more) -> dict:
+    """The heldout protocol with `evaluation.pixels` False: the same training and evaluated episodes as a run with
+    pixels (the ranks), the state reading alone; no frame is read, so episodes without frames serve."""
+    if evaluation.state_model is None:
+        raise UserError("protocol.pixels=false with protocol.state_model=null: the run would read nothing; give "
+                        "protocol.state_model its settings (conf/protocol/heldout.yaml) or protocol.pixels=true")
+    lo, hi = evaluation.episodes
+    tasks = [i.task for i in source.infos]
+    ranks = episode_ranks(tasks, [i.seed for i in source.infos])
+    require_ranks(tasks, ranks, max(k, hi), f"training on {k} and evaluating on episodes {lo + 1}-{hi}",
+                  how_to_get_more)
+    train_mask, evaluated = rank_mask(ranks, 0, k), rank_mask(ranks, lo, hi)
+    return {"protocol": {"name": "heldout", "pixels": False, "trained_on": [1, k], "evaluated_on": [lo + 1, hi]},
+            "prediction": None, "gate": None,
+            "state": _state_reading(source, train_mask, evaluated, evaluation.state_model, evaluation.gate),
+            "videos": {}, "train": None, "model": None, "tasks": sorted(set(tasks)), "checkpoint": None}
+
+
+def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: StateModelConfig,
+                   gate: GateConfig | None) -> dict:
+    train_idx, eval_idx = np.flatnonzero(train_mask).tolist(), np.flatnonzero(evaluated).tolist()
     states = read_states(source, train_idx + eval_idx)
     started = time.perf_counter()
     try:
@@ -585,7 +608,7 @@ def headline(values: dict) -> dict:
     if "prediction" not in values:
         return {"eval": {k: v for k, v in values["eval"].items() if isinstance(v, float)}}
     out = {}
-    for kind, block in values["prediction"]["summary"].items():
+    for kind, block in (values["prediction"] or {"summary": {}})["summary"].items():
         for name, v in block.items():
             if isinstance(v, dict):  # a predictor: model, last, mean
                 out.update({f"{kind}/{name}_{k}": x for k, x in v.items() if isinstance(x, float)})
@@ -606,6 +629,8 @@ def summary_line(values: dict) -> str:
         e = values["eval"]
         return (f"eval error {e['image_error']:.2f} ({e['image_error_per_pixel']:.5f} per pixel), state "
                 f"{e['state_error']:.3f}, KL {e['kl_dyn']:.2f}, open-loop {e['open_loop_image_error']:.2f}")
+    if values["prediction"] is None:  # protocol.pixels=false
+        return f"held-out episodes {values['protocol']['evaluated_on']}: state reading: {values['state']['line']}"
     p = values["prediction"]["summary"]
     f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
     verdict = values.get("gate", {}).get("verdict")  # runs recorded before the gate have none
@@ -686,7 +711,16 @@ class DiversityRun:
             GateConfig.from_dict(self.protocol.get("gate"))
             if self.protocol.get("state_model") is not None:
                 StateModelConfig.from_dict(self.protocol["state_model"])
+            if not isinstance(self.pixels, bool):
+                raise UserError(f"protocol.pixels={self.pixels!r}: expected true (the world model's reading beside "
+                                "the state one) or false (the state reading only)")
+            if not self.pixels and self.protocol.get("state_model") is None:
+                raise UserError("protocol.pixels=false with protocol.state_model=null: the run would read nothing")
         return model_cfg, train_cfg, window
+
+    @property
+    def pixels(self):  # protocol=heldout: whether the world model is trained and read (else the states only)
+        return self.protocol.get("pixels", True) if self.protocol["name"] == "heldout" else True
 
     @property
     def episodes_needed(self) -> int:
@@ -735,7 +769,8 @@ class DiversityRun:
             horizon=self.protocol["horizon"], mask_margin=self.mask_margin,
             gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
             state_model=None if paper or self.protocol.get("state_model") is None else
-            StateModelConfig.from_dict(self.protocol["state_model"]), videos=videos, video_dir=video_dir)
+            StateModelConfig.from_dict(self.protocol["state_model"]), pixels=self.pixels, videos=videos,
+            video_dir=video_dir)
         if execution.log_metrics is None:
             execution = replace(execution, log_metrics=logger.log_metrics)
         values = fit_and_evaluate(source, int(self.episodes), training, evaluation, execution)

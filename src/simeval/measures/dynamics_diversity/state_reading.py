@@ -3,8 +3,9 @@ on held-out episodes beside trivial predictors, under the same protocol as the p
 prediction) but blind to rendering (small objects, the arm filling the frame, colours).
 
 State: s_t (D,) = [obs/state_t (the robot's proprioception, what the pipeline records), then per object pose where
-the store has obs/object_poses (T+1, N, 7): x, y, z and the quaternion xyzw with w >= 0 (q and -q are one
-rotation)]. Units are the store's (metres, radians): errors of two groups of one pipeline compare.
+the store has obs/object_poses (T+1, N, 7): x, y, z and the quaternion xyzw, its sign chosen so that w >= 0 at the
+episode's first row and q_t . q_{t-1} >= 0 after (q and -q are one rotation; a sign fixed per row by w >= 0 jumps by
+up to 2 in a value where w crosses 0, as a block turned near 180 degrees about the vertical does)]. Units are the store's (metres, radians): errors of two groups of one pipeline compare.
 
 Where a group's tasks record different sizes (a task group's scenes hold 1-3 objects; robots of different
 proprioception), the robot state is padded to the group's largest Dr and the objects to its largest N, with zeros,
@@ -51,8 +52,9 @@ from simeval.errors import (EpisodesUnfit, UserError, require_whole, require_who
                             settings_from_dict)
 from simeval.measures.dynamics_diversity.gate import GateConfig, gate
 
-# 2: validation read in the state's units (1 read it in normalised units; the random controls' saved runs say which)
-VERSION = 2
+# 3: quaternion signs continuous in time (2: w >= 0 per row); 2: validation read in the state's units (1 read it
+# in normalised units); the random controls' saved runs say which
+VERSION = 3
 BASELINES = ("last_state", "mean_state", "constant_velocity")
 # what the gate requires the model to beat: the analogues of the pixel reading's last frame and mean image. Not
 # constant velocity: where each episode's dynamics are drawn anew (a diverse group) no model trained on other
@@ -104,14 +106,27 @@ class StateModelConfig:
 
 
 def low_dim_state(state: np.ndarray, object_poses: np.ndarray | None) -> np.ndarray:
-    """(n, D) float64: the robot state (n, Dr), then per object x, y, z and the quaternion with w >= 0."""
+    """(n, D) float64: the robot state (n, Dr), then per object x, y, z and the quaternion, continuous in time:
+    w >= 0 at row 0, then each row's sign the one nearer the row before (continuous_quaternions)."""
     parts = [np.asarray(state, np.float64).reshape(len(state), -1)]
     if object_poses is not None and np.size(object_poses):
         poses = np.asarray(object_poses, np.float64).copy()  # (n, N, 7)
-        flip = poses[..., 6:7] < 0
-        poses[..., 3:] = np.where(flip, -poses[..., 3:], poses[..., 3:])
+        poses[..., 3:] = continuous_quaternions(poses[..., 3:])
         parts.append(poses.reshape(len(poses), -1))
     return np.concatenate(parts, 1)
+
+
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+    """(n, N, 4) xyzw quaternions of N objects over n rows -> the same rotations with w >= 0 at row 0 and
+    q_t . q_{t-1} >= 0 after, so a small turn is a small change whatever the rotation (the sign-continuity fix of
+    rotation trajectories; a zero quaternion, an absent object's padding, stays zero)."""
+    q = np.asarray(q, np.float64).copy()
+    if not len(q):
+        return q
+    q[0] = np.where(q[0, :, 3:4] < 0, -q[0], q[0])
+    for t in range(1, len(q)):
+        q[t] = np.where(np.sum(q[t] * q[t - 1], -1, keepdims=True) < 0, -q[t], q[t])
+    return q
 
 
 def read_states(source, episodes) -> dict[int, tuple]:

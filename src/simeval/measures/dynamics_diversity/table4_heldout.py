@@ -137,7 +137,8 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
-            _fall_columns(row, lo, hi, reps_by_k, gates, gate_cfg.margin)
+            if reps_by_k[lo] is not None and reps_by_k[hi] is not None:
+                _fall_columns(row, lo, hi, reps_by_k, gates, gate_cfg.margin)
             row.update(state_fall(by_k[lo][0]["values"].get("state"), by_k[hi][0]["values"].get("state"), lo, hi,
                                   n_boot, seed, gate_cfg))
         rows.append(row)
@@ -163,9 +164,17 @@ def _cells(records: list[dict]) -> dict:
 
 
 def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: int,
-                   gate_cfg: GateConfig) -> tuple[dict, dict]:
-    """One episode count's columns, added to `row`; returns its resampled replicates and its pixel gate."""
+                   gate_cfg: GateConfig) -> tuple[dict | None, dict | None]:
+    """One episode count's columns, added to `row`; returns its resampled replicates and its pixel gate (None, None
+    for runs of the state reading only, protocol.pixels=false)."""
     recs = sorted(recs, key=lambda r: int(r["identity"].get("seed", 0)))
+    if any(r["values"].get("prediction") is None for r in recs):
+        state = recs[0]["values"].get("state") or {}
+        row[f"runs_{k}"] = len(recs)
+        row[f"heldout_episodes_{k}"] = len(state.get("per_episode") or [])
+        row["state_runs"] = STATE_ONLY
+        _state_columns(row, k, state)
+        return None, None
     sums, tasks = sum_arrays(recs)
     draws = resample.draws(len(recs), tasks, n_boot, seed)  # the same draws for every count: paired
     point, reps = cell_replicates(sums, draws)
@@ -175,18 +184,26 @@ def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: in
     g = gate(sums["one_step/model/object"], {b: sums[f"one_step/{b}/object"] for b in ("last", "mean")},
              tasks, gate_cfg)
     row[f"gate_{k}"], row[f"gate_passes_{k}"] = g["verdict"], g["passes"]
-    state = recs[0]["values"].get("state")  # the same in every seed's run (its own seeds inside)
-    if state and state.get("gate"):
-        row[f"state_gate_{k}"] = state["gate"]["verdict"]
-        row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
-        for key, v in state["summary"].items():
-            row[f"state_{key}_{k}"] = v
+    _state_columns(row, k, recs[0]["values"].get("state"))  # the same in every seed's run (its own seeds inside)
     for name, v in point.items():
         row[f"{name}_{k}"] = v
         # a moving ratio's interval only where nearly every resample had enough moving pixels to read
         row[f"{name}_{k}_lo"], row[f"{name}_{k}_hi"] = resample.percentile(
             reps[name], max_missing=max_missing(name))
     return reps, g
+
+
+def _state_columns(row: dict, k: int, state: dict | None) -> None:
+    if state and state.get("gate"):
+        row[f"state_gate_{k}"] = state["gate"]["verdict"]
+        row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
+        for key, v in state["summary"].items():
+            row[f"state_{key}_{k}"] = v
+
+
+def has_pixels(row: dict) -> bool:
+    """Whether a row holds a pixel reading (runs of protocol.pixels=false hold the state reading only)."""
+    return any(c.startswith(("gate_", "one_step_object_")) for c in row)
 
 
 def _fall_columns(row: dict, lo: int, hi: int, reps_by_k: dict, gates: dict, margin: float) -> None:
@@ -244,8 +261,11 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
 
 ROW_KEY = ("pipeline", "group", "preset", "steps")
 REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
+# state_runs: where a row's state reading came from, on rows of protocol.pixels=false runs
+STATE_ONLY = "runs of the state reading only (protocol.pixels=false)"
+STATE_BESIDE_KEPT = "runs of the state reading only, beside the kept row's pixel reading of the same episodes"
 # fall_verdict: rows written before the gate have none; state_fall_verdict: rows without a state reading
-TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict")
+TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_runs")
 
 
 def is_text(column: str) -> bool:
@@ -258,9 +278,12 @@ def is_flag(column: str) -> bool:
 
 def row_gate(row: dict, k: int, margin: float = GateConfig.margin) -> tuple[bool, str]:
     """The gate of a count of a row: its own (`gate_<k>`, from the runs' per-episode sums) or, for a kept row
-    written before the gate, the group's gate from the row's skills and their intervals (no per-task check)."""
+    written before the gate, the group's gate from the row's skills and their intervals (no per-task check); a row
+    without a pixel reading (protocol.pixels=false) says so."""
     if f"gate_{k}" in row:
         return bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
+    if not has_pixels(row):
+        return False, "not read (protocol.pixels=false)"
     failed = []
     for b, name in (("last", "the last frame"), ("mean", "the mean image")):
         v, lo = row.get(f"one_step_object_skill_{b}_{k}"), row.get(f"one_step_object_skill_{b}_{k}_lo")
@@ -315,13 +338,27 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
     """`fresh` rows (from result.json files) beside the `kept` rows (an earlier table's, read_rows) that have no
     fresh row of the same (pipeline, group, preset, steps): a table extended with sweeps made on another machine or
     in an earlier checkout, whose result.json files are not here. A row is one sweep's whole set of counts, with
-    intervals drawn jointly over them (the paired falls), so a fresh row replaces a kept one whole, never a cell."""
+    intervals drawn jointly over them (the paired falls), so a fresh row replaces a kept one whole, never a cell;
+    but a fresh row of the state reading only (protocol.pixels=false) replaces only the kept row's state columns,
+    where both scored as many held-out episodes per count with as many runs (the pixel and the state readings draw
+    their intervals apart; `state_runs` says the row's two readings came from two sweeps)."""
     def key(r):
         return tuple(str(r.get(c)) for c in ROW_KEY)
 
     merged = {key(r): r for r in kept}
-    merged.update({key(r): r for r in fresh})
+    for r in fresh:
+        old = merged.get(key(r))
+        if old is not None and not has_pixels(r) and has_pixels(old) and _same_episodes(old, r):
+            r = {**{c: v for c, v in old.items() if not c.startswith("state_")}, **r,
+                 "state_runs": STATE_BESIDE_KEPT}
+        merged[key(r)] = r
     return [merged[k] for k in sorted(merged)]
+
+
+def _same_episodes(a: dict, b: dict) -> bool:
+    counts = a.get("counts")
+    return counts == b.get("counts") and all(
+        a.get(f"{c}_{k}") == b.get(f"{c}_{k}") for k in counts.split("/") for c in ("runs", "heldout_episodes"))
 
 
 def _ci(row: dict, name: str, digits: int) -> str:
@@ -359,7 +396,7 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
         counts = [int(c) for c in r["counts"].split("/")]
         for i, k in enumerate(counts):
             passes, verdict = row_gate(r, k)
-            obj = _milli(r, f"one_step_object_{k}") if passes else "no reading"
+            obj = _milli(r, f"one_step_object_{k}") if passes else "no reading" if has_pixels(r) else "—"
             if obj not in ("—", "no reading") and not r[f"robot_mask_{k}"]:
                 obj += " (no masks: full frame)"
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
@@ -382,6 +419,8 @@ def _fall(row: dict, counts: list[int]) -> str:
     the gate: gated by its rows' skills, the baselines' own change not checked)."""
     number = _milli(row, "drop_one_step_object")
     verdict = row.get("fall_verdict")
+    if not has_pixels(row):
+        return "—"
     if verdict is None:
         gated = [k for k in (counts[0], counts[-1]) if not row_gate(row, k)[0]]
         if gated:
@@ -553,13 +592,18 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     for r, color, marker in zip(rows, distinct_colors(len(rows)), row_markers(len(rows)), strict=True):
         ks = [int(c) for c in r["counts"].split("/")]
         name = f"{r['pipeline']}/{r['group']}"
-        masked = all(r.get(f"robot_mask_{k}") for k in ks)
-        gated = [str(k) for k in ks if not row_gate(r, k)[0]]
+        masked = all(r.get(f"robot_mask_{k}") for k in ks) or not has_pixels(r)
+        gated = [str(k) for k in ks if not row_gate(r, k)[0]] if has_pixels(r) else []
         row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
                                label=name + ("" if masked else " (no masks: full frame)")
                                + (f" [no reading at {'/'.join(gated)}]" if gated else "")
-                               + _missing_readings(r, ks, bool(moving))))
+                               + (_missing_readings(r, ks, bool(moving)) if has_pixels(r) else
+                                  " (states only: protocol.pixels=false)")))
         n_gated += bool(gated)
+        if r in stated:
+            _state_panel(axes[-1], r, ks, color, marker, name)
+        if not has_pixels(r):
+            continue
         bars(ax1, r, "one_step_object", ks, "-", color, marker, f"{name}: model", scale=1e3)
         ax1.plot(ks, [r[f"one_step_object_last_{k}"] * 1e3 for k in ks], "-.", marker=marker, ms=3, lw=0.9,
                  color=color, label=f"{name}: last frame")
@@ -575,8 +619,6 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                 drawn.append(bars(axes[3], r, "open_loop_moving_skill_last", ks, ":", color, marker,
                                   f"{name}: open loop", hollow=True, shift=1.04))
             moving_drawn += [(name, *d) for d in drawn if d is not None]
-        if r in stated:
-            _state_panel(axes[-1], r, ks, color, marker, name)
     # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
     ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
             title="object-focused one-step error (primary; model: 95% CI)")

@@ -97,6 +97,7 @@ def relevant(settings: dict, reading: str) -> dict:
         proto = {k: proto.get(k) for k in ("eval_episodes", "gate", "state_model")}
         return {**{k: v for k, v in settings.items() if k != "preset"}, "protocol": proto}
     proto.pop("state_model", None)
+    proto.pop("pixels", None)  # the controls run each reading on its own, whatever protocol.pixels says
     return {**{k: v for k, v in settings.items() if k != "state_version"}, "protocol": proto}
 
 
