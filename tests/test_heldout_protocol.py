@@ -651,7 +651,7 @@ def _state_only_record(seed: int, episodes: int, n_heldout: int) -> dict:
                          "skill_vs_constant_velocity": 0.5},
              "per_episode": [{"task": f"t{i % 2}", "index": i, "frames": 20, "model": [0.2 - 0.001 * episodes] * 3,
                               "last_state": 4.0, "mean_state": 20.0, "constant_velocity": 1.0}
-                             for i in range(n_heldout)]}
+                             for i in range(n_heldout)], "seeds": [0, 1, 2]}
     return {"metric": "dynamics_diversity", "status": "ok", "created": str(seed),
             "identity": {"pipeline": "bbsea", "task_group": "drawer", "preset": "cpu", "steps": 1000,
                          "episodes": episodes, "seed": seed, "protocol": "heldout"},
@@ -661,15 +661,16 @@ def _state_only_record(seed: int, episodes: int, n_heldout: int) -> dict:
 
 def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_of_the_same_episodes(tmp_path):
     """A sweep with protocol.pixels=false beside the committed table: the kept row keeps its pixel columns and
-    takes the fresh state columns (and says so), where both scored as many episodes with as many runs; otherwise
+    takes the fresh state columns (and says so), where both scored as many held-out episodes; otherwise
     the fresh row stands alone and its pixel cells say they were not read. Its table and figure are written."""
     from simeval.measures.dynamics_diversity.table4_heldout import build, display, merge, plot, read_rows
 
     kept = read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
     old = next(r for r in kept if (r["pipeline"], r["group"]) == ("bbsea", "drawer"))
-    recs = [_state_only_record(s, k, old["heldout_episodes_10"]) for s in range(3) for k in (10, 20, 40)]
+    recs = [_state_only_record(0, k, old["heldout_episodes_10"]) for k in (10, 20, 40)]  # one run per count
     fresh = build(recs, n_boot=100)
     assert len(fresh) == 1 and not any(c.startswith(("gate_", "one_step")) for c in fresh[0])
+    assert fresh[0]["runs_10"] == 3  # the state model's seeds
     assert fresh[0]["state_model_10"] == pytest.approx(0.01) and fresh[0]["state_fall_verdict"] == "falls"
     merged = {(r["pipeline"], r["group"]): r for r in merge(kept, fresh)}
     row = merged[("bbsea", "drawer")]
@@ -679,7 +680,7 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     assert row["state_runs"].startswith("runs of the state reading only, beside the kept row's pixel reading")
     assert len(merged) == len(kept)
     # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
-    other = build([_state_only_record(s, k, 40) for s in range(3) for k in (10, 20, 40)], n_boot=100)
+    other = build([_state_only_record(0, k, 40) for k in (10, 20, 40)], n_boot=100)
     alone = {(r["pipeline"], r["group"]): r for r in merge(kept, other)}[("bbsea", "drawer")]
     _, body = display([alone])
     assert body[0][5] == "not read (protocol.pixels=false)" and body[0][6] == "—" and body[0][9] == "—"

@@ -170,7 +170,7 @@ def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: in
     recs = sorted(recs, key=lambda r: int(r["identity"].get("seed", 0)))
     if any(r["values"].get("prediction") is None for r in recs):
         state = recs[0]["values"].get("state") or {}
-        row[f"runs_{k}"] = len(recs)
+        row[f"runs_{k}"] = len(state.get("seeds") or recs)  # its own training seeds; the run's seed trains nothing
         row[f"heldout_episodes_{k}"] = len(state.get("per_episode") or [])
         row["state_runs"] = STATE_ONLY
         _state_columns(row, k, state)
@@ -340,8 +340,8 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
     in an earlier checkout, whose result.json files are not here. A row is one sweep's whole set of counts, with
     intervals drawn jointly over them (the paired falls), so a fresh row replaces a kept one whole, never a cell;
     but a fresh row of the state reading only (protocol.pixels=false) replaces only the kept row's state columns,
-    where both scored as many held-out episodes per count with as many runs (the pixel and the state readings draw
-    their intervals apart; `state_runs` says the row's two readings came from two sweeps)."""
+    where both scored as many held-out episodes per count (the pixel and the state readings draw their intervals
+    apart; `state_runs` says the row's two readings came from two sweeps)."""
     def key(r):
         return tuple(str(r.get(c)) for c in ROW_KEY)
 
@@ -358,7 +358,7 @@ def merge(kept: list[dict], fresh: list[dict]) -> list[dict]:
 def _same_episodes(a: dict, b: dict) -> bool:
     counts = a.get("counts")
     return counts == b.get("counts") and all(
-        a.get(f"{c}_{k}") == b.get(f"{c}_{k}") for k in counts.split("/") for c in ("runs", "heldout_episodes"))
+        a.get(f"heldout_episodes_{k}") == b.get(f"heldout_episodes_{k}") for k in counts.split("/"))
 
 
 def _ci(row: dict, name: str, digits: int) -> str:
