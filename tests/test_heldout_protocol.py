@@ -677,7 +677,7 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     assert {c: v for c, v in row.items() if not c.startswith("state_")} == \
         {c: v for c, v in old.items() if not c.startswith("state_")}
     assert row["state_model_40"] == fresh[0]["state_model_40"] and row["state_drop"] == fresh[0]["state_drop"]
-    assert row["state_runs"].startswith("runs of the state reading only, beside the kept row's pixel reading")
+    assert row["state_runs"].startswith("runs of the state reading only (protocol.pixels=false), beside the kept")
     assert len(merged) == len(kept)
     # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
     other = build([_state_only_record(0, k, 40) for k in (10, 20, 40)], n_boot=100)

@@ -263,7 +263,8 @@ ROW_KEY = ("pipeline", "group", "preset", "steps")
 REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
 # state_runs: where a row's state reading came from, on rows of protocol.pixels=false runs
 STATE_ONLY = "runs of the state reading only (protocol.pixels=false)"
-STATE_BESIDE_KEPT = "runs of the state reading only, beside the kept row's pixel reading of the same episodes"
+STATE_BESIDE_KEPT = ("runs of the state reading only (protocol.pixels=false), beside the kept row's pixel reading "
+                     "(as many held-out episodes per count; its runs may be of episodes collected apart)")
 # fall_verdict: rows written before the gate have none; state_fall_verdict: rows without a state reading
 TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_runs")
 
