@@ -49,6 +49,9 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.state_model.max_steps=abc"], "protocol.state_model.max_steps must be a whole number >= 1"),
     (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
+    (["protocol.state_model.lr_schedule=linear"], "protocol.state_model.lr_schedule='linear': expected constant or "
+                                                    "cosine"),
+    (["protocol.state_model.patience=0"], "protocol.state_model.patience must be a whole number >= 1"),
     (["protocol.pixels=maybe"], "protocol.pixels='maybe': expected true (the world model's reading beside the state"),
     (["protocol.pixels=false", "protocol.state_model=null"], "protocol.pixels=false with protocol.state_model=null: "
                                                               "the run would read nothing"),

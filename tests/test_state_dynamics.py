@@ -216,13 +216,34 @@ def test_a_value_that_stood_still_in_training_and_moves_when_held_out_does_not_b
 
 def test_validation_stops_on_the_error_in_the_states_units_the_reading_reports():
     """The stopping rule reads the validation error as the reading scores it (squared error in the state's own
-    units, summed over values, averaged over steps): checked against the kept model's own predictions by hand."""
+    units, summed over values), per validation episode averaged over its steps, then the median over the episodes:
+    checked against the kept model's own predictions by hand (numpy's median of the 4 episodes' means)."""
     from simeval.measures.dynamics_diversity.state_reading import _predict, fit_state_model
 
     states, _ = _linear_group(False, n_episodes=12)
     fit, val = [states[e] for e in range(8)], [states[e] for e in range(8, 12)]
     net, norm, info = fit_state_model(fit, val, FAST, seed=0)
     rows = [_steps(s, a, FAST.history) for s, a in val]
-    by_hand = np.mean(np.concatenate([((_predict(net, norm, cur, ch, act) - nxt) ** 2).sum(1)
-                                      for cur, ch, act, nxt in rows]))
-    assert info["val_loss"] == pytest.approx(by_hand, rel=1e-4)
+    per_episode = [((_predict(net, norm, cur, ch, act) - nxt) ** 2).sum(1) for cur, ch, act, nxt in rows]
+    assert info["val_loss"] == pytest.approx(np.median([e.mean() for e in per_episode]), rel=1e-4)
+    assert info["val_loss_mean_of_steps"] == pytest.approx(np.concatenate(per_episode).mean(), rel=1e-4)
+
+
+def test_one_glitched_step_in_a_validation_episode_does_not_move_where_training_stops():
+    """A simulator's glitch (one value jumping by 37 for one step, as a joint velocity did in a GenSim build-house
+    episode) in one of 5 validation episodes: the stopping rule reads nearly the same curve as without it (the
+    median moves only where the glitched episode crosses it) and keeps the model of the same step; the mean over all
+    validation steps (the rule before) is moved 10^6-fold by it."""
+    from simeval.measures.dynamics_diversity.state_reading import fit_state_model
+
+    states, _ = _linear_group(False, n_episodes=13)
+    fit, val = [states[e] for e in range(8)], [states[e] for e in range(8, 13)]
+    s, a = val[2]
+    glitched = s.copy()
+    glitched[15:, 0] += 37.0  # a jump at step 15 that stays: one step's change of 37
+    _, _, clean = fit_state_model(fit, val, FAST, seed=0)
+    _, _, glitch = fit_state_model(fit, val[:2] + [(glitched, a)] + val[3:], FAST, seed=0)
+    assert (glitch["best_step"], glitch["steps_used"]) == (clean["best_step"], clean["steps_used"])
+    ratio = np.array(glitch["val_curve"])[:, 1] / np.array(clean["val_curve"])[:, 1]
+    assert np.all((ratio >= 0.5) & (ratio <= 2)) and np.median(ratio) == 1.0
+    assert glitch["val_loss_mean_of_steps"] > 1e5 * clean["val_loss_mean_of_steps"]
