@@ -490,6 +490,11 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "skill against each baseline rises (interval above 0: more than the baseline's own change); 'no fall' "
             f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
             f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'.")
+    apart = [f"{r['pipeline']}/{r['group']}" for r in rows if r.get("state_runs") == STATE_BESIDE_KEPT]
+    if apart:
+        note += (f" The state reading of {', '.join(apart)} comes from sweeps of the state reading alone "
+                 "(protocol.pixels=false) on as many held-out episodes, beside the pixel reading of an earlier "
+                 "table's row (CSV column state_runs).")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
