@@ -604,7 +604,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                                label=name + ("" if masked else " (no masks: full frame)")
                                + (f" [no reading at {'/'.join(gated)}]" if gated else "")
                                + (_missing_readings(r, ks, bool(moving)) if has_pixels(r) else
-                                  " (states only: protocol.pixels=false)")))
+                                  " (states only: protocol.pixels=false)")
+                               + (" (no state reading)" if stated and r not in stated else "")))
         n_gated += bool(gated)
         if r in stated:
             _state_panel(axes[-1], r, ks, color, marker, name)
