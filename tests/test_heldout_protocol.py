@@ -663,7 +663,7 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     """A sweep with protocol.pixels=false beside the committed table: the kept row keeps its pixel columns and
     takes the fresh state columns (and says so), where both scored as many held-out episodes; otherwise
     the fresh row stands alone and its pixel cells say they were not read. Its table and figure are written."""
-    from simeval.measures.dynamics_diversity.table4_heldout import build, display, merge, plot, read_rows
+    from simeval.measures.dynamics_diversity.table4_heldout import build, display, has_pixels, merge, plot, read_rows
 
     kept = read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
     old = next(r for r in kept if (r["pipeline"], r["group"]) == ("bbsea", "drawer"))
@@ -685,4 +685,11 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     _, body = display([alone])
     assert body[0][5] == "not read (protocol.pixels=false)" and body[0][6] == "—" and body[0][9] == "—"
     assert body[0][15].startswith("0.01 (0.90 / 0.50)")
+    # a sweep with pixels beside the state-only one: its runs make the row (pixel and state columns alike)
+    source = make_physics_group("varied", 2, 12, 20, 16)
+    full = {"metric": "dynamics_diversity", "status": "ok", "created": "9",
+            "identity": {**recs[0]["identity"], "episodes": 4}, "values": run(source, k=4)}
+    state_only = {**recs[0], "identity": {**recs[0]["identity"], "episodes": 4}}
+    both = build([state_only, full], n_boot=50)
+    assert len(both) == 1 and has_pixels(both[0]) and "state_runs" not in both[0]
     assert plot([alone, merged[("bbsea", "table")]], tmp_path / "f.png").stat().st_size > 10_000

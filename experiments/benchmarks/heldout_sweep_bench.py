@@ -14,8 +14,8 @@ paper is measured in this one run; absolute seconds depend on the machine and it
 Issue 50 changed the heldout protocol's model (`pixel_norm: standardise`) and added a state-space reading to every
 run (simeval.measures.dynamics_diversity.state_reading), so both steps are timed here in one process, `before` (the
 preset's model, `pixel_norm: none`, no state reading: the protocol until then) and `now` (the protocol's model, plus
-the state reading of each run, timed on the same episodes' states at the protocol's settings: its training stops on its
-own validation loss, so its seconds are measured, not derived); `now_over_before` per group is the ratio of the two
+the state reading of each run, timed on the same episodes' states at the protocol's settings: 3 seeds x the whole
+3,000-step cap since state reading version 4, measured, not derived); `now_over_before` per group is the ratio of the two
 sweep costs (the issue allows up to 2x).
 """
 
@@ -116,9 +116,10 @@ def main(argv: list[str] | None = None) -> None:
         paper_s = paper_steps * step_s + 3 * 40 * tasks * rows * paper_frame_s
         held_train = 9 * protocol["steps"] * step_s
         held_eval = 9 * 10 * tasks * rows * heldout_frame_s
-        # the state reading's cost grows with the rows it fits on: scaled from the measured group's rows
-        state_run_s = state_s * (10 * tasks * rows) / (10 * 4 * 41)
-        now_s = 9 * protocol["steps"] * now_step_s + held_eval + 9 * state_run_s
+        # the state reading trains a fixed 3 seeds x max_steps per run whatever the rows (version 4), so its
+        # measured seconds stand for every group's run (the wider states of a many-object group cost more: the
+        # sweeps' own result.json files record each run's, e.g. 15-55 s, GenSim piles' 378 values about 130 s)
+        now_s = 9 * protocol["steps"] * now_step_s + held_eval + 9 * state_s
         groups[name] = {"tasks": tasks, "rows": rows, "paper_steps": paper_steps, "paper_minutes": paper_s / 60,
                         "heldout_steps": 9 * protocol["steps"], "heldout_minutes": (held_train + held_eval) / 60,
                         "heldout_eval_share": held_eval / (held_train + held_eval),
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None) -> None:
         "machine": machine(), "threads": a.threads, "load_average": os.getloadavg()[0],
         "step_s": step_s, "now_step_s": now_step_s, "now_step_over_before": now_step_s / step_s,
         "state_reading_s": state_s, "state_reading_steps_used": [t["steps_used"] for t in reading["training"]],
+        "state_only_sweep_minutes": 3 * state_s / 60,  # protocol.pixels=false: one run per count
         "heldout_eval_s_per_frame": heldout_frame_s, "paper_eval_s_per_frame": paper_frame_s,
         "heldout_eval_over_paper_eval_per_frame": heldout_frame_s / paper_frame_s,
         "protocol_steps": protocol["steps"], "groups": groups})

@@ -156,6 +156,10 @@ def _cells(records: list[dict]) -> dict:
             int(ident["episodes"])].append(rec)
     for by_k in cells.values():  # one run per seed: a sweep rerun after a kill writes the same runs again
         for k, recs in by_k.items():
+            # runs with pixels carry the same state reading as a state-only sweep of the group (tested): where a
+            # count has both, its runs with pixels make the row
+            if any(r["values"].get("prediction") is not None for r in recs):
+                recs = [r for r in recs if r["values"].get("prediction") is not None]
             newest = {}
             for rec in sorted(recs, key=lambda r: str(r.get("created", ""))):
                 newest[int(rec["identity"].get("seed", 0))] = rec
