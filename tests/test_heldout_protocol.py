@@ -693,3 +693,23 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     both = build([state_only, full], n_boot=50)
     assert len(both) == 1 and has_pixels(both[0]) and "state_runs" not in both[0]
     assert plot([alone, merged[("bbsea", "table")]], tmp_path / "f.png").stat().st_size > 10_000
+
+
+def test_the_command_line_reads_the_states_alone_and_says_so(tmp_path):
+    """`protocol.pixels=false` from the command line: one line naming the states-only protocol, a result.json with
+    the state reading and no pixel one, and no checkpoint written."""
+    import json
+
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16, pipeline="gensim")
+    r = _diversity("pipeline=gensim", "task_group=diverse", f"store={tmp_path}/store", "eval_episodes=[5,6]",
+                   "episodes=4", "protocol.pixels=false", "protocol.state_model.max_steps=100", "progress=false",
+                   "threads=1", f"checkpoint_dir={tmp_path}/ck", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "gensim/diverse episodes=4 [protocol=heldout, states only]: held-out episodes [5, 6]: state reading: " \
+        in r.stdout + r.stderr
+    rec = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert rec["values"]["prediction"] is None and rec["values"]["state"]["dims"] > 0
+    assert rec["identity"]["settings"]["protocol"]["pixels"] is False
+    assert not any((tmp_path / "ck").glob("*.pt"))

@@ -731,6 +731,9 @@ class DiversityRun:
 
     def describe(self, device, values: dict) -> str:
         """The run's one-line result for the log."""
+        if not self.pixels:  # no world model: its preset and device say nothing of this run
+            return (f"{self.pipeline}/{self.task_group} episodes={self.episodes} [protocol=heldout, states only]: "
+                    f"{summary_line(values)}")
         return (f"{self.pipeline}/{self.task_group} episodes={self.episodes} [preset {self.world_model['name']}, "
                 f"device {device}, protocol={self.protocol['name']}]: {summary_line(values)}")
 
