@@ -676,7 +676,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                          label="last-frame / last-state baseline"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
                          label="mean-image / mean-state baseline")]
-    fig.legend(handles=row_keys, loc="outside lower center", ncol=-(-len(row_keys) // 4), fontsize=8,
+    fig.legend(handles=row_keys, loc="outside lower center", ncol=-(-len(row_keys) // 5), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
                     title="reading (line style)", title_fontsize=9, alignment="left")
