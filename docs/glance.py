@@ -130,8 +130,7 @@ def table4_heldout(ax) -> None:
                        for n, m in markers.items()], fontsize=8, loc="upper left")
     states = [r["state_fall_verdict"] for r in rows if r.get("state_fall_verdict")]
     ax.set_title(f"Table 4 held-out: {reads} of {len(verdicts)} counts pass the pixel gate"
-                 + (f";\nthe state error falls 10 -> 40 in {sum(v == 'falls' for v in states)} of the {len(states)} groups "
-                    "read"
+                 + (f";\nstate error falls 10 -> 40 in {sum(v == 'falls' for v in states)} of {len(states)} groups read"
                     if states else ""))
 
 
