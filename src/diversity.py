@@ -35,7 +35,8 @@ def main(cfg: DictConfig) -> None:
     # a plugin pipeline's config folder: the collect command it suggests needs it too
     searchpath = "".join(f" {shlex.quote(o)}" for o in HydraConfig.get().overrides.hydra
                          if o.startswith("hydra.searchpath="))
-    source, how_to_get_more = episode_source(cfg.store, cfg.pipeline.name, cfg.task_group, cfg.camera,
+    camera = cfg.camera if measure.pixels is not False else None  # states only: episodes without frames serve
+    source, how_to_get_more = episode_source(cfg.store, cfg.pipeline.name, cfg.task_group, camera,
                                              suite=cfg.pipeline.get("suite"), own_code=own_code_args(cfg.pipeline),
                                              episodes_needed=measure.episodes_needed,
                                              debug_overlay=HydraConfig.get().runtime.choices.get("debug") or "none",

@@ -713,3 +713,37 @@ def test_the_command_line_reads_the_states_alone_and_says_so(tmp_path):
     assert rec["values"]["prediction"] is None and rec["values"]["state"]["dims"] > 0
     assert rec["identity"]["settings"]["protocol"]["pixels"] is False
     assert not any((tmp_path / "ck").glob("*.pt"))
+
+
+def test_a_store_recorded_without_frames_serves_the_state_reading_and_refuses_the_pixel_one(tmp_path):
+    """Episodes collected with `record.cameras=[]` (a state-only collection: GenSim's own code renders nothing then):
+    the states-only run reads them and gives the state reading of the same episodes with frames to the last digit;
+    a run with pixels on them is one line naming the file and what to do, exit 2."""
+    import json
+    from dataclasses import replace
+
+    from simeval.episodes.store import EpisodeStore, read_episode
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+
+    paths = write_group(tmp_path / "framed", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16,
+                        pipeline="gensim")
+    frameless = EpisodeStore(tmp_path / "frameless")
+    for p in paths:
+        frameless.write(replace(read_episode(p), rgb={}))
+    common = ("pipeline=gensim", "task_group=diverse", "eval_episodes=[5,6]", "episodes=4",
+              "protocol.state_model.max_steps=100", "progress=false", "threads=1", "checkpoint_dir=null")
+    readings = {}
+    for name in ("framed", "frameless"):
+        r = _diversity(*common, f"store={tmp_path / name}", "protocol.pixels=false",
+                       f"hydra.run.dir={tmp_path / ('run_' + name)}", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr[-2000:]
+        readings[name] = json.loads((tmp_path / f"run_{name}" / "result.json").read_text())["values"]["state"]
+    assert readings["frameless"]["summary"] == readings["framed"]["summary"]
+    assert readings["frameless"]["per_episode"] == readings["framed"]["per_episode"]
+    r = _diversity(*common, f"store={tmp_path / 'frameless'}", f"hydra.run.dir={tmp_path / 'run_pixels'}",
+                   cwd=tmp_path)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert lines[-1].startswith(f"error: {tmp_path / 'frameless'}") and \
+        "recorded without frames (record.cameras=[]), and the pixel reading needs camera 'front': read the state " \
+        "alone (protocol.pixels=false)" in lines[-1]

@@ -198,14 +198,19 @@ class StoreSource:
     """Episodes in the HDF5 store, read lazily: each read opens (once per process) the episode file and slices
     the rows it needs, so a window costs L frames of decompression, not an episode."""
 
-    def __init__(self, paths: Sequence[str | os.PathLike], camera: str) -> None:
+    def __init__(self, paths: Sequence[str | os.PathLike], camera: str | None) -> None:
+        """`camera` None: no frame is read (the state reading alone), so episodes recorded without frames serve."""
         from simeval.episodes.store import read_meta
 
         self.camera = camera
         self.infos = []
         for p in paths:
             m = read_meta(p)
-            if camera not in m["cameras"]:
+            if camera is not None and not m["cameras"]:
+                raise UserError(f"{p}: recorded without frames (record.cameras=[]), and the pixel reading needs "
+                                f"camera '{camera}': read the state alone (protocol.pixels=false) or collect with "
+                                "cameras into another store")
+            if camera is not None and camera not in m["cameras"]:
                 raise UserError(f"{p}: no camera '{camera}' (has {m['cameras']}); set the camera key to one of them")
             self.infos.append(EpisodeInfo(task=m["task"], seed=int(m["seed"]), group=m["group"],
                                           n_rows=int(m["n_steps"]), action_space=m["action_space"], path=str(p),
@@ -225,12 +230,14 @@ class StoreSource:
         inside compressed chunk data is found when it is read (see _damage_named)."""
         with self._damage_named(e):
             f = self._file(e)
-            for key in (f"obs/rgb/{self.camera}", "obs/state", "action"):
+            frames = () if self.camera is None else (f"obs/rgb/{self.camera}",)
+            for key in (*frames, "obs/state", "action"):
                 d = f[key]
                 if d.chunks is not None:
                     d.id.get_num_chunks()
-            self._frame_sizes[e] = tuple(f[f"obs/rgb/{self.camera}"].shape[1:3])
-            self._with_mask.append(f"obs/robot_mask/{self.camera}" in f)
+            if self.camera is not None:
+                self._frame_sizes[e] = tuple(f[f"obs/rgb/{self.camera}"].shape[1:3])
+            self._with_mask.append(self.camera is not None and f"obs/robot_mask/{self.camera}" in f)
 
     def frame_size(self, e: int) -> tuple[int, int]:
         """(H, W) of episode e's frames of this source's camera (read from the file's header when it was opened)."""

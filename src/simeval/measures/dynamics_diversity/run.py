@@ -556,12 +556,12 @@ def _stored_size_override(store: str | Path, pipeline: str, extra: str) -> str:
     return out
 
 
-def store_source(store: str | Path, pipeline: str, group: str, camera: str, suite: str | None,
+def store_source(store: str | Path, pipeline: str, group: str, camera: str | None, suite: str | None,
                  episodes_needed: int = 40, collect_extra: str = "", own_code: str | None = None):
     """The episodes of a pipeline's group in the store, or a UserError saying what is missing and how to get it
     (`suite`: the pipeline's simeval suite, whose groups a collect command may name; None when it has none;
-    `episodes_needed` per task, for that command). A damaged file is named: collecting again moves it aside and
-    makes it anew."""
+    `episodes_needed` per task, for that command; `camera` None: no frame is read, for the state reading alone).
+    A damaged file is named: collecting again moves it aside and makes it anew."""
     from simeval.episodes.dataset import StoreSource, store_paths_for
     from simeval.episodes.episode import EpisodeFormatError
 
@@ -580,7 +580,7 @@ def store_source(store: str | Path, pipeline: str, group: str, camera: str, suit
     return StoreSource(paths, camera)
 
 
-def episode_source(store: str | Path, pipeline: str, group: str, camera: str, *, suite: str | None,
+def episode_source(store: str | Path, pipeline: str, group: str, camera: str | None, *, suite: str | None,
                    own_code: str | None, episodes_needed: int, debug_overlay: str = "none", collect_extra: str = ""):
     """(store_source's episodes, how_to_get_more(n): the command that collects n per task): what src/diversity.py
     reads, and tells a user to run when there are too few. `debug_overlay`: the run's debug= choice, which the

@@ -203,6 +203,7 @@ def to_episode(arrays: dict, meta: dict, group: str, cameras: Sequence[str], set
         high_level_step=arrays["high_level_step"], high_level_space=pick_place_action_space(hz), control_hz=hz,
         source="gensim", action_space=joint_action_space(hz), state_names=list(STATE_NAMES),
         robot_mask={c: arrays[f"robot_mask/{c}"].astype(bool) for c in cameras},
+        object_poses=arrays["object_poses"],
         language=[meta["lang_goal"]] * (t + 1), extra=extra)
 
 

@@ -25,7 +25,11 @@ every `frame_every` physics steps after `env.reset()`, during the joint moves an
 primitive alike. Action t is the UR5's joint position target commanded last in those physics steps (GenSim's
 `movej` commands a new target every physics step, 0.01 rad further towards the goal, so 1 in `frame_every` of
 them is stored: an exact replay from the stored actions is impossible, see the README) and the suction state at
-row t + 1. A partial block of fewer than `frame_every` physics steps at the end is not stored."""
+row t + 1. A partial block of fewer than `frame_every` physics steps at the end is not stored. A row holds the UR5's
+joints and suction (state), the poses of the task's rigid bodies (object_poses: position and xyzw quaternion, in the
+order the task added them) and one frame per requested camera; with no camera requested (`record.cameras=[]`)
+nothing is rendered but GenSim's own observations, and the rows are the same to the bit (the renderer does not step
+the physics): a state-only collection, ~3x faster."""
 
 from __future__ import annotations
 
@@ -186,7 +190,7 @@ class Session:
         self.agent = self.task.oracle(self.env)
         self.total_reward, self.done, self.primitives, self.physics_steps = 0.0, False, 0, 0
         self.movej_timeouts = 0
-        self.rows = {"state": [], "action": [], "progress": [],
+        self.rows = {"state": [], "object_poses": [], "action": [], "progress": [],
                      **{f"{k}/{c}": [] for c in self.cams for k in ("rgb", "robot_mask")}}
         return obs, self.env.info
 
@@ -198,8 +202,12 @@ class Session:
         suction = float(bool(getattr(env.ee, "activated", False)))
         holding = float(bool(env.ee.check_grasp())) if hasattr(env.ee, "check_grasp") else 0.0
         robot = [env.ur5, getattr(env.ee, "base", -1), getattr(env.ee, "body", -1)]
+        # the movable objects' poses (GenSim's "rigid" bodies, in the order the task added them): what the state
+        # reading needs beside the arm; its "fixed" bodies (zones, pallets, stands) never move
+        poses = [[*pos, *orn] for b in env.obj_ids.get("rigid", [])
+                 for pos, orn in (p.getBasePositionAndOrientation(b),)]
         out = {"state": np.asarray([s[0] for s in q] + [s[1] for s in q] + [suction, holding], np.float32),
-               "rgb": {}, "robot_mask": {}}
+               "object_poses": np.asarray(poses, np.float32).reshape(-1, 7), "rgb": {}, "robot_mask": {}}
         for c, config in self.cams.items():
             color, _, segm = env.render_camera(config)
             out["rgb"][c] = np.asarray(color, np.uint8)
@@ -208,6 +216,7 @@ class Session:
 
     def _keep(self, obs: dict) -> None:
         self.rows["state"].append(obs["state"])
+        self.rows["object_poses"].append(obs["object_poses"])
         for c in self.cams:
             self.rows[f"rgb/{c}"].append(obs["rgb"][c])
             self.rows[f"robot_mask/{c}"].append(obs["robot_mask"][c])
@@ -254,6 +263,7 @@ def record(req: dict) -> dict:
     session.recording = False
     arrays = {k: np.asarray(v) for k, v in session.rows.items()}
     arrays["state"] = arrays["state"].astype(np.float32).reshape(-1, 14)
+    arrays["object_poses"] = arrays["object_poses"].astype(np.float32).reshape(len(arrays["state"]), -1, 7)
     arrays["action"] = arrays["action"].astype(np.float32).reshape(-1, 7)
     arrays["progress"] = arrays["progress"].astype(np.float32)
     arrays["high_level_action"] = np.asarray(high_level, np.float32).reshape(-1, 14)
