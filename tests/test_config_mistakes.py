@@ -48,6 +48,8 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.gate.margin=abc"], "protocol.gate.margin='abc': expected a number"),
     (["protocol.state_model.max_steps=abc"], "protocol.state_model.max_steps must be a whole number >= 1"),
     (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
+    (["protocol.gate=5"], "protocol.gate=5: expected a mapping of its settings (margin, min_task_share, n_boot, seed)"),
+    (["protocol.state_model=5"], "protocol.state_model=5: expected a mapping of its settings (hidden, layers, lr"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
     (["protocol.state_model.lr_schedule=linear"], "protocol.state_model.lr_schedule='linear': expected constant or "
                                                     "cosine"),

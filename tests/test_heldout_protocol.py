@@ -630,6 +630,10 @@ def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trai
     monkeypatch.setattr(ArraySource, "read", lambda *a, **k: pytest.fail("a state-only run read frames"))
     alone = evaluate(False)
     assert alone["prediction"] is None and alone["gate"] is None and alone["train"] is None
+    # what each reading is, first in the values (result.json), before any number
+    assert list(alone)[0] == "readings" and alone["readings"] == {
+        "pixels": "not read (protocol.pixels=false)", "state": alone["state"]["gate"]["verdict"]}
+    assert both["readings"] == {"pixels": both["gate"]["verdict"], "state": both["state"]["gate"]["verdict"]}
     assert alone["protocol"] == {"name": "heldout", "pixels": False, "trained_on": [1, 4], "evaluated_on": [9, 12]}
     assert {e for _, e in source.reads} == set(range(24)) - {4, 5, 6, 7, 16, 17, 18, 19}  # ranks 1-4 and 9-12
     drop = ("seconds",)
@@ -685,6 +689,7 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     _, body = display([alone])
     assert body[0][5] == "not read (protocol.pixels=false)" and body[0][6] == "—" and body[0][9] == "—"
     assert body[0][15].startswith("0.01 (0.90 / 0.50)")
+    assert body[0][2] == "states only" and body[0][16].startswith("falls: 0.0")  # no world model; the verdict said
     # a sweep with pixels beside the state-only one: its runs make the row (pixel and state columns alike)
     source = make_physics_group("varied", 2, 12, 20, 16)
     full = {"metric": "dynamics_diversity", "status": "ok", "created": "9",

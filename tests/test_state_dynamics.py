@@ -180,6 +180,8 @@ def test_a_group_whose_tasks_hold_different_object_counts_reads_and_padding_cost
     assert out["padded_from"] == [2 + 7, 2 + 14] and out["dims"] == 16
     assert out["gate"]["passes"], out["line"]
     assert out["summary"]["skill_vs_last_state"] > 0.8 and "padded from 9/16" in out["line"]
+    assert out["line"].startswith("reads (the gate: the model beats the last and the mean state): one-step state "
+                                  f"error {out['summary']['model']:.3g} (last state")
     # a one-object episode's last-state error is that of its unpadded 9 values, by hand
     row = next(r for r in out["per_episode"] if r["task"] == "one")
     s = states[row["index"]][0][:, :9]
@@ -247,3 +249,25 @@ def test_one_glitched_step_in_a_validation_episode_does_not_move_where_training_
     ratio = np.array(glitch["val_curve"])[:, 1] / np.array(clean["val_curve"])[:, 1]
     assert np.all((ratio >= 0.5) & (ratio <= 2)) and np.median(ratio) == 1.0
     assert glitch["val_loss_mean_of_steps"] > 1e5 * clean["val_loss_mean_of_steps"]
+
+
+def test_the_state_model_runs_on_one_thread_and_gives_the_run_its_threads_back(monkeypatch):
+    """A small MLP: on a loaded 2-core machine two threads made it 17x slower (a user's trial), so it trains and
+    predicts on one whatever the run's `threads`, which it leaves as it found them."""
+    import simeval.measures.dynamics_diversity.state_reading as sr
+
+    seen, fit = [], sr.fit_state_model
+
+    def counting(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(sr, "fit_state_model", counting)
+    states, tasks = _object_group()
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST)
+        assert seen == [1] * len(FAST.seeds) and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

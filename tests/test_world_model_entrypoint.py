@@ -178,6 +178,11 @@ def test_a_window_longer_than_every_episode_of_a_task_is_one_line_naming_the_tas
         "world_model.window.length=40: 2 of 3 tasks have no training episode that holds a window, so the model would "
         "never see them (longest rows: b (28), c (20)); use world_model.window.length=20 or "
         "world_model.window.pad_end=true")
+    # with offsets drawn per epoch, more epochs draw more of them: the message names that remedy too
+    remedy = (r"pad_end=true, or more epochs: these 2 draw [12] window offset\(s\) \(world_model.train.epochs; "
+              r"under protocol=heldout a larger protocol.steps\)$")
+    with pytest.raises(UserError, match=remedy):
+        check_every_task_has_windows(infos, train, WindowSpec(length=40, random_offset=True), seed=0, epochs=2)
     check_every_task_has_windows(infos, train, WindowSpec(length=20))  # every task has a 20-row episode
     check_every_task_has_windows(infos, train, WindowSpec(length=40, pad_end=True))  # padded windows reach them
     # windows may begin 20 rows before row 0: [-20, 20) fits c's 20 rows

@@ -13,6 +13,7 @@ import dataclasses
 import numbers
 import types
 import typing
+from collections.abc import Mapping
 
 
 USER_ERROR_EXIT = 2  # the exit status of a run stopped by a UserError
@@ -119,7 +120,10 @@ def require_folder(key: str, path: object) -> None:
 
 def settings_from_dict(cls, d: dict | None, key: str):
     """A settings dataclass from a config mapping (None: its defaults); a key it does not have is a UserError
-    naming `key` and the valid ones."""
+    naming `key` and the valid ones; so is a value that is not a mapping (`protocol.gate=5`)."""
+    if d is not None and not isinstance(d, Mapping):
+        raise UserError(f"{key}={d!r}: expected a mapping of its settings ({', '.join(cls.__dataclass_fields__)}), "
+                        f"e.g. {key}.{next(iter(cls.__dataclass_fields__))}=...; or null for the defaults")
     d = dict(d or {})
     unknown = set(d) - set(cls.__dataclass_fields__)
     if unknown:

@@ -84,7 +84,10 @@ def check_every_task_has_windows(infos, train_mask: np.ndarray, window: WindowSp
         raise EpisodesUnfit(f"world_model.window.length={window.length}: {len(short)} of {len(longest)} tasks have "
                             "no training episode that holds a window, so the model would never see them (longest "
                             f"rows: {listed}{where}); use world_model.window.length={fits} or "
-                            "world_model.window.pad_end=true")
+                            "world_model.window.pad_end=true" + (
+                                f", or more epochs: these {max(1, epochs)} draw {len(offsets)} window offset(s) "
+                                "(world_model.train.epochs; under protocol=heldout a larger protocol.steps)"
+                                if window.random_offset else ""))
 
 
 def check_frames_not_upsampled(source, image_size: int) -> None:
@@ -184,13 +187,15 @@ def fit_and_evaluate(source, episodes_per_task: int, training: Training, evaluat
     on the held-out frames, per task and for the group (where it does not, its numbers are no reading);
     `values["state"]` is the state-space reading on the same episodes (simeval.measures.dynamics_diversity.
     state_reading), gated on its own. With `evaluation.pixels` False (heldout) no world model is trained nor read:
-    `values["prediction"]`, `["gate"]`, `["train"]` and `["model"]` are None and the state reading is the run's."""
+    `values["prediction"]`, `["gate"]`, `["train"]` and `["model"]` are None and the state reading is the run's.
+    `values["readings"]` (heldout) says first what each reading's numbers are (see `readings`)."""
     device = resolve_device(execution.device)  # a bad value fails here, before any data is read
     execution = replace(execution, device=device)
     if evaluation.protocol not in PROTOCOLS:
         raise UserError(f"protocol={evaluation.protocol!r}: expected one of {', '.join(PROTOCOLS)}")
     if evaluation.protocol == "heldout":
-        return _fit_and_evaluate_heldout(source, episodes_per_task, training, evaluation, execution)
+        values = _fit_and_evaluate_heldout(source, episodes_per_task, training, evaluation, execution)
+        return {"readings": readings(values), **values}
     model_cfg, train_cfg, window = training.model, training.train, training.window
     eval_episodes, heldout_episodes, eval_seed = evaluation.episodes, evaluation.heldout_episodes, evaluation.seed
     videos, video_dir = evaluation.videos, evaluation.video_dir
@@ -621,6 +626,18 @@ def headline(values: dict) -> dict:
         out["state/gate_passes"] = float(state["gate"]["passes"])
         out.update({f"state/{k}": v for k, v in state["summary"].items() if isinstance(v, float)})
     return {"heldout": out}
+
+
+def readings(values: dict) -> dict[str, str]:
+    """What a heldout run's two readings are, before any of their numbers: {"pixels": ..., "state": ...}, each
+    "reads" (its gate passed: its numbers read the group's dynamics), the gate's "no reading: <why>" (its numbers
+    are there, and are no reading of anything) or "not read (<the setting>)"."""
+    gate, state = values.get("gate"), values.get("state")
+    pixels = ("not read (protocol.pixels=false)" if values.get("prediction") is None else
+              gate["verdict"] if gate else "no gate (a run recorded before it)")
+    if not state:
+        return {"pixels": pixels, "state": "not read (protocol.state_model=null)"}
+    return {"pixels": pixels, "state": state["gate"]["verdict"] if state.get("gate") else state["line"]}
 
 
 def summary_line(values: dict) -> str:

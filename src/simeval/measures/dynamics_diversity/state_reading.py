@@ -51,6 +51,8 @@ on a CPU.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,9 +117,8 @@ class StateModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None) -> StateModelConfig:
-        d = dict(d or {})
-        if "seeds" in d:
-            d["seeds"] = tuple(d["seeds"]) if isinstance(d["seeds"], (list, tuple)) else (d["seeds"],)
+        if isinstance(d, Mapping) and "seeds" in d:  # not a mapping: settings_from_dict says so
+            d = {**d, "seeds": tuple(d["seeds"]) if isinstance(d["seeds"], (list, tuple)) else (d["seeds"],)}
         return settings_from_dict(cls, d, "protocol.state_model")
 
 
@@ -388,12 +389,13 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
                                   [present[i] for i in train_idx if tasks[i] == t])
                  for t in set(tasks[i] for i in train_idx)}
     models, training = [], []
-    for seed in cfg.seeds:
-        net, norm, info = fit_state_model(fit, val, cfg, seed)
-        models.append((net, norm))
-        training.append({"seed": int(seed), **info})
-    per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history)
-                   for e in eval_idx]
+    with one_torch_thread():
+        for seed in cfg.seeds:
+            net, norm, info = fit_state_model(fit, val, cfg, seed)
+            models.append((net, norm))
+            training.append({"seed": int(seed), **info})
+        per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history)
+                       for e in eval_idx]
     frames = sum(r["frames"] for r in per_episode)
     model = np.array([[r["model"][k] for r in per_episode] for k in range(len(models))])  # (R, E)
     bases = {b: np.tile([r[b] for r in per_episode], (len(models), 1)) for b in BASELINES}
@@ -402,8 +404,9 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
     line = (g["verdict"] if not g["passes"] else
-            f"one-step state error {summary['model']:.3g} (last state {summary['last_state']:.3g}, mean state "
-            f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill "
+            f"reads (the gate: the model beats the last and the mean state): one-step state error "
+            f"{summary['model']:.3g} (last state {summary['last_state']:.3g}, mean state "
+            f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill vs each "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
             f"{summary['skill_vs_constant_velocity']:.2f}), {dims} dims{padding}, {len(models)} seeds")
     return {"version": VERSION, "dims": int(dims), "padded_from": layouts or None, "summary": summary,
@@ -411,6 +414,21 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line}
+
+
+@contextlib.contextmanager
+def one_torch_thread() -> Iterator[None]:
+    """The state model trains and predicts on one thread, whatever the run's `threads`: it is a small MLP on
+    batches of a few hundred rows, too little work to share, and on a loaded 2-core machine two threads spent their
+    time waiting on each other. Measured: a new user's trial on a machine at load 4-5, 60 steps of it 230.8 s at
+    threads=2 against 13.4 s at threads=1; BBSEA drawer's states-only run at 10 episodes beside a 2-worker
+    collection, threads=2, 74.1 s before this and 36.5 s after (36.9 s at threads=1), 0.0205 each time."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _refuse_unpadded(states: dict, tasks: list[str], idx: list[int]) -> None:

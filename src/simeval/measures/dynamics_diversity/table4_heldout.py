@@ -404,8 +404,9 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
             obj = _milli(r, f"one_step_object_{k}") if passes else "no reading" if has_pixels(r) else "—"
             if obj not in ("—", "no reading") and not r[f"robot_mask_{k}"]:
                 obj += " (no masks: full frame)"
+            preset = f"{r['preset']} ({r['steps']})" if has_pixels(r) else "states only"  # no world model
             body.append([r["pipeline"] if i == 0 else "", r["group"] if i == 0 else "",
-                         f"{r['preset']} ({r['steps']})" if i == 0 else "", str(k), str(r[f"runs_{k}"]), verdict,
+                         preset if i == 0 else "", str(k), str(r[f"runs_{k}"]), verdict,
                          obj, _ci(r, f"one_step_object_skill_last_{k}", 2),
                          _ci(r, f"one_step_object_skill_mean_{k}", 2),
                          _fall(r, counts) if i == 0 else "",
@@ -440,7 +441,7 @@ def _fall_text(verdict: str, number: str) -> str:
         return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
         return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
-    return number if verdict in ("falls", "rises") else f"no fall: {number}"
+    return f"{verdict}: {number}"  # falls, rises, no fall
 
 
 def _state_fall(row: dict) -> str:
@@ -646,8 +647,12 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
             title="object-focused skill vs the last frame")
-    if not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
-               for c in (int(c) for c in r["counts"].split("/"))):  # an empty panel would read as a plotting fault
+    if not any(has_pixels(r) for r in rows):  # states-only runs: the pixel panels are empty, and say why
+        for ax in (ax1, ax2, ax3):
+            ax.text(0.5, 0.5, "not read (protocol.pixels=false)", transform=ax.transAxes, ha="center",
+                    va="center", color="0.35")
+    elif not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
+                 for c in (int(c) for c in r["counts"].split("/"))):  # an empty panel would read as a plotting fault
         ax2.text(0.5, 0.5, "no reading: too few kept pixels\nchange from one frame to the next\n(the last frame is a "
                  "near-exact copy)", transform=ax2.transAxes, ha="center", va="center", color="0.35")
     ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
@@ -680,10 +685,12 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
                     title="reading (line style)", title_fontsize=9, alignment="left")
-    fig.suptitle(title + (f"\n{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([no reading at ...]:"
-                          " the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
-                          if n_gated else "") + ("; the state reading (its own panel) has its own gate" if stated else ""),
-                 fontsize=10)
+    gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([no reading at ...]: the "
+                  "model does not beat the last frame or the mean image; their pixel numbers read nothing)"
+                  if n_gated else "")
+    state_line = "the state reading (its own panel) has its own gate" if stated else ""
+    lines = [title, "; ".join(x for x in (gated_line, state_line) if x)]
+    fig.suptitle("\n".join(x for x in lines if x), fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
     return out
