@@ -682,6 +682,11 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
         {c: v for c, v in old.items() if not c.startswith("state_")}
     assert row["state_model_40"] == fresh[0]["state_model_40"] and row["state_drop"] == fresh[0]["state_drop"]
     assert row["state_runs"].startswith("runs of the state reading only (protocol.pixels=false), beside the kept")
+    # the kept row fails the pixel gate at every count: no model error is shown, its skills are
+    gated_cells = display([row])[1][0]
+    assert gated_cells[5].startswith("no reading") and gated_cells[6] == gated_cells[10] == gated_cells[12] == \
+        gated_cells[14] == "no reading"
+    assert gated_cells[11].startswith("-") and gated_cells[15].startswith("0.0")  # skill vs last; the state reading
     assert len(merged) == len(kept)
     # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
     other = build([_state_only_record(0, k, 40) for k in (10, 20, 40)], n_boot=100)
