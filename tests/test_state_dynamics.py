@@ -271,3 +271,28 @@ def test_the_state_model_runs_on_one_thread_and_gives_the_run_its_threads_back(m
         assert seen == [1] * len(FAST.seeds) and torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_the_state_error_splits_into_the_robots_values_and_the_objects_by_hand():
+    """With the robot's width given, the same errors over the robot's values and over the objects' (a diagnostic of
+    what the reading reads): the parts add up to the whole for the model and every baseline, one episode's objects'
+    last-state error is its squared changes summed by hand, and the reading itself is what it is without the split."""
+    states, tasks = _object_group()
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=2)
+    whole = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST)
+    assert out["summary"] == whole["summary"] and "parts" not in whole
+    assert out["parts"]["robot"]["dims"] == 2 and out["parts"]["objects"]["dims"] == 14
+    for r in out["per_episode"]:
+        robot, objects = r["parts"]["robot"], r["parts"]["objects"]
+        for b in ("last_state", "mean_state", "constant_velocity"):
+            assert robot[b] + objects[b] == pytest.approx(r[b], rel=1e-12)
+        assert np.allclose(np.add(robot["model"], objects["model"]), r["model"], rtol=1e-12)
+    row = next(r for r in out["per_episode"] if r["task"] == "two")
+    s, _, present = states[row["index"]]
+    h = FAST.history
+    change = (s[h + 1:] - s[h:-1])[:, 2:] * present[2:]
+    assert row["parts"]["objects"]["last_state"] == pytest.approx(float((change ** 2).sum()), rel=1e-12)
+    assert row["parts"]["objects"]["last_state"] > 0 and "; of it robot " in out["line"]
+    assert out["parts"]["objects"]["skill_vs_last_state"] == pytest.approx(
+        1 - sum(np.mean(r["parts"]["objects"]["model"]) for r in out["per_episode"])
+        / sum(r["parts"]["objects"]["last_state"] for r in out["per_episode"]))

@@ -37,7 +37,8 @@ from simeval.errors import EpisodesUnfit, UserError
 from simeval.media import write_video
 from simeval.runtime.device import resolve_device
 from simeval.measures.dynamics_diversity.gate import GateConfig, pixel_gate
-from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, state_reading
+from simeval.measures.dynamics_diversity.state_reading import (StateModelConfig, read_states, robot_dims,
+                                                              state_reading)
 from simeval.models.world_model_training import TrainConfig, evaluate, load_checkpoint, train
 from simeval.models.world_model import VERSION, WorldModel, WorldModelConfig, open_loop_video
 
@@ -406,7 +407,8 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
     states = read_states(source, train_idx + eval_idx)
     started = time.perf_counter()
     try:
-        out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig())
+        out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig(),
+                            robot_dims=robot_dims(source, train_idx + eval_idx))
     except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
         why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
         return {"dims": None, "gate": {"passes": False, "verdict": why}, "summary": {}, "line": why,

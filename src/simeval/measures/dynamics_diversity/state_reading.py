@@ -363,14 +363,24 @@ def split_training(tasks: list[str], train_idx: list[int], val_share: float) -> 
     return fit, val
 
 
+def robot_dims(source, episodes) -> int:
+    """Dr: the widest robot state (obs/state) among `episodes` of a source; the state's first Dr values are the
+    robot's (padded), the rest the objects' poses (low_dim_state, pad_states)."""
+    return max(int(np.prod(np.shape(source.read_full(int(e), "state"))[1:], dtype=int)) for e in episodes)
+
+
 def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[str], train_idx: list[int],
                   eval_idx: list[int], cfg: StateModelConfig = StateModelConfig(),
-                  gate_cfg: GateConfig = GateConfig()) -> dict:
+                  gate_cfg: GateConfig = GateConfig(), robot_dims: int | None = None) -> dict:
     """The state-space reading (module docstring) of one group and episode count: `states` from read_states,
     `tasks` every episode's task (indexed like the source), `train_idx` and `eval_idx` the training and held-out
     episodes (disjoint). Returns {dims, summary: {model, last_state, mean_state, constant_velocity: error,
     skill_vs_<b>}, per_episode: [{task, index, frames, model: [R], <b>}], seeds, training: [per seed], gate,
-    line} or {reading: None, why} where there is no state to read."""
+    line} or {reading: None, why} where there is no state to read. With `robot_dims` (Dr) below the state's width,
+    `parts` splits the same errors into the robot's values and the objects' (each part's model and baseline errors
+    per step and skills; per episode in `per_episode[i]["parts"]`): a diagnostic of what the reading reads (in
+    GenSim's own episodes the arm's joint velocities make 95-99% of the last state's error); the gate and the
+    verdict are the whole state's."""
     if set(train_idx) & set(eval_idx):
         raise RuntimeError("an evaluated episode is among the training episodes")
     _refuse_unpadded(states, tasks, [*train_idx, *eval_idx])
@@ -389,18 +399,25 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
                                   [present[i] for i in train_idx if tasks[i] == t])
                  for t in set(tasks[i] for i in train_idx)}
     models, training = [], []
+    parts = ({"robot": np.arange(dims) < robot_dims, "objects": np.arange(dims) >= robot_dims}
+             if robot_dims is not None and 0 < robot_dims < dims else {})
     with one_torch_thread():
         for seed in cfg.seeds:
             net, norm, info = fit_state_model(fit, val, cfg, seed)
             models.append((net, norm))
             training.append({"seed": int(seed), **info})
-        per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history)
+        per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history, parts)
                        for e in eval_idx]
     frames = sum(r["frames"] for r in per_episode)
     model = np.array([[r["model"][k] for r in per_episode] for k in range(len(models))])  # (R, E)
     bases = {b: np.tile([r[b] for r in per_episode], (len(models), 1)) for b in BASELINES}
     summary = _summary(model, bases, frames)
     g = gate(model, {b: bases[b] for b in GATED}, [r["task"] for r in per_episode], gate_cfg)
+    part_summaries = {}
+    for name in parts:
+        part_model = np.array([[r["parts"][name]["model"][k] for r in per_episode] for k in range(len(models))])
+        part_bases = {b: np.tile([r["parts"][name][b] for r in per_episode], (len(models), 1)) for b in BASELINES}
+        part_summaries[name] = {"dims": int(parts[name].sum()), **_summary(part_model, part_bases, frames)}
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
     line = (g["verdict"] if not g["passes"] else
@@ -409,11 +426,17 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill vs each "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
             f"{summary['skill_vs_constant_velocity']:.2f}), {dims} dims{padding}, {len(models)} seeds")
+    if part_summaries:
+        line += "; of it " + ", ".join(
+            f"{name} {p['model']:.3g} (last state {p['last_state']:.3g}, skill "
+            + ("n/a" if p["skill_vs_last_state"] is None else f"{p['skill_vs_last_state']:.2f}") + ")"
+            for name, p in part_summaries.items())
     return {"version": VERSION, "dims": int(dims), "padded_from": layouts or None, "summary": summary,
             "per_episode": per_episode,
             "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
-            "validation_episodes": len(val_idx), "gate": g, "line": line}
+            "validation_episodes": len(val_idx), "gate": g, "line": line,
+            **({"parts": part_summaries} if part_summaries else {})}
 
 
 @contextlib.contextmanager
@@ -442,15 +465,25 @@ def _refuse_unpadded(states: dict, tasks: list[str], idx: list[int]) -> None:
                             "with state_reading.pad_states")
 
 
-def _episode_sums(entry, task: str, index: int, models: list, task_mean: np.ndarray, history: int) -> dict:
-    """One held-out episode's summed one-step errors: each seed's model's, and each baseline's."""
+def _episode_sums(entry, task: str, index: int, models: list, task_mean: np.ndarray, history: int,
+                  parts: dict[str, np.ndarray] | None = None) -> dict:
+    """One held-out episode's summed one-step errors: each seed's model's, and each baseline's; with `parts`
+    ({name: (D,) bool}), the same over each part's values too."""
     s, a, m = _entry(entry)
     cur, changes, act, nxt = _steps(s, a, history)
-    return {"task": task, "index": int(index), "frames": int(len(nxt)),
-            "model": [episode_sums(_predict(net, norm, cur, changes, act, m), nxt, m) for net, norm in models],
-            "last_state": episode_sums(cur, nxt, m),
-            "mean_state": episode_sums(np.broadcast_to(task_mean, nxt.shape), nxt, m),
-            "constant_velocity": episode_sums(cur + changes[:, 0], nxt, m)}
+    predictions = {"model": [_predict(net, norm, cur, changes, act, m) for net, norm in models],
+                   "last_state": cur, "mean_state": np.broadcast_to(task_mean, nxt.shape),
+                   "constant_velocity": cur + changes[:, 0]}
+
+    def sums(keep: np.ndarray | None) -> dict:
+        return {"model": [episode_sums(p, nxt, keep) for p in predictions["model"]],
+                **{b: episode_sums(predictions[b], nxt, keep) for b in BASELINES}}
+
+    out = {"task": task, "index": int(index), "frames": int(len(nxt)), **sums(m)}
+    if parts:
+        present = _present(m, s.shape[1]).astype(bool)
+        out["parts"] = {name: sums(present & mask) for name, mask in parts.items()}
+    return out
 
 
 def _summary(model: np.ndarray, bases: dict[str, np.ndarray], frames: int) -> dict:
