@@ -5,6 +5,8 @@ more diverse, and a state that is noise at every step gets no reading."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -296,3 +298,33 @@ def test_the_state_error_splits_into_the_robots_values_and_the_objects_by_hand()
     assert out["parts"]["objects"]["skill_vs_last_state"] == pytest.approx(
         1 - sum(np.mean(r["parts"]["objects"]["model"]) for r in out["per_episode"])
         / sum(r["parts"]["objects"]["last_state"] for r in out["per_episode"]))
+
+
+def test_the_parts_table_reads_the_runs_split_by_hand(tmp_path):
+    """experiments/state_parts.py: per group, the parts' errors at the fewest and the most episodes, the objects'
+    share of the last state's error and whether the objects beat the last state by the gate's margin at both."""
+    import json
+
+    from helpers import load_script
+
+    parts = load_script(Path(__file__).resolve().parents[1] / "experiments" / "state_parts.py")
+
+    def run(k: int, objects_model: float) -> dict:
+        part = lambda model, last, dims: {"dims": dims, "model": model, "last_state": last,  # noqa: E731
+                                          "skill_vs_last_state": 1 - model / last}
+        state = {"gate": {"verdict": "reads"}, "summary": {"model": 0.5 + objects_model},
+                 "parts": {"robot": part(0.5, 1.0, 14), "objects": part(objects_model, 0.002, 77)}}
+        return {"identity": {"pipeline": "gensim_own", "task_group": "assembling", "episodes": k},
+                "values": {"state": state}}
+
+    for i, (k, objects_model) in enumerate([(10, 0.0025), (40, 0.0018)]):
+        (tmp_path / str(i)).mkdir()
+        (tmp_path / str(i) / "result.json").write_text(json.dumps(run(k, objects_model)))
+    (tmp_path / "old").mkdir()  # a run made before the split is left out
+    (tmp_path / "old" / "result.json").write_text(json.dumps({**run(20, 0.002), "values": {"state": {}}}))
+    [row] = parts.rows(parts.collect([tmp_path]))
+    assert row["counts"] == [10, 40] and row["objects"]["model"] == [0.0025, 0.0018]
+    assert row["objects_share_of_last_state"] == pytest.approx(0.002 / 1.002)
+    assert row["objects"]["skill_vs_last_state"] == pytest.approx([-0.25, 0.1])
+    assert row["objects_beat_last_state"] is False  # -0.25 at 10 episodes
+    assert "| gensim_own / assembling (10 -> 40) | 14 / 77 |" in parts.markdown([row])
