@@ -409,15 +409,17 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
         per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history, parts)
                        for e in eval_idx]
     frames = sum(r["frames"] for r in per_episode)
-    model = np.array([[r["model"][k] for r in per_episode] for k in range(len(models))])  # (R, E)
-    bases = {b: np.tile([r[b] for r in per_episode], (len(models), 1)) for b in BASELINES}
+
+    def sums_of(rows: list[dict]) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # model (R, E), baselines (R, E)
+        return (np.array([[r["model"][k] for r in rows] for k in range(len(models))]),
+                {b: np.tile([r[b] for r in rows], (len(models), 1)) for b in BASELINES})
+
+    model, bases = sums_of(per_episode)
     summary = _summary(model, bases, frames)
     g = gate(model, {b: bases[b] for b in GATED}, [r["task"] for r in per_episode], gate_cfg)
-    part_summaries = {}
-    for name in parts:
-        part_model = np.array([[r["parts"][name]["model"][k] for r in per_episode] for k in range(len(models))])
-        part_bases = {b: np.tile([r["parts"][name][b] for r in per_episode], (len(models), 1)) for b in BASELINES}
-        part_summaries[name] = {"dims": int(parts[name].sum()), **_summary(part_model, part_bases, frames)}
+    part_summaries = {name: {"dims": int(mask.sum()), **_summary(*sums_of([r["parts"][name] for r in per_episode]),
+                                                                   frames)}
+                      for name, mask in parts.items()}
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
     line = (g["verdict"] if not g["passes"] else
