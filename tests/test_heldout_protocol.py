@@ -632,8 +632,9 @@ def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trai
     assert alone["prediction"] is None and alone["gate"] is None and alone["train"] is None
     # what each reading is, first in the values (result.json), before any number
     assert list(alone)[0] == "readings" and alone["readings"] == {
-        "pixels": "not read (protocol.pixels=false)", "state": alone["state"]["gate"]["verdict"]}
-    assert both["readings"] == {"pixels": both["gate"]["verdict"], "state": both["state"]["gate"]["verdict"]}
+        "pixels": "not read (protocol.pixels=false)", "state": "whole state: " + alone["state"]["gate"]["verdict"]}
+    assert both["readings"] == {"pixels": both["gate"]["verdict"],
+                                "state": "whole state: " + both["state"]["gate"]["verdict"]}
     assert alone["protocol"] == {"name": "heldout", "pixels": False, "trained_on": [1, 4], "evaluated_on": [9, 12]}
     assert {e for _, e in source.reads} == set(range(24)) - {4, 5, 6, 7, 16, 17, 18, 19}  # ranks 1-4 and 9-12
     drop = ("seconds",)

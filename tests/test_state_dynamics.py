@@ -121,7 +121,8 @@ def test_a_state_that_is_noise_at_every_step_gets_no_reading():
     states = {e: (rng.normal(size=(30, 3)), rng.uniform(-1, 1, (30, 2))) for e in range(30)}
     out = state_reading(states, ["t"] * 30, list(range(20)), list(range(20, 30)), FAST)
     assert not out["gate"]["passes"]
-    assert out["line"].startswith("no reading: the model does not beat the mean state")
+    assert out["reads"] == "state"
+    assert out["line"].startswith("the whole state (3 values): no reading: the model does not beat the mean state")
 
 
 def test_states_of_different_sizes_without_a_mask_are_a_user_error_naming_both_sizes():
@@ -182,8 +183,9 @@ def test_a_group_whose_tasks_hold_different_object_counts_reads_and_padding_cost
     assert out["padded_from"] == [2 + 7, 2 + 14] and out["dims"] == 16
     assert out["gate"]["passes"], out["line"]
     assert out["summary"]["skill_vs_last_state"] > 0.8 and "padded from 9/16" in out["line"]
-    assert out["line"].startswith("reads (the gate: the model beats the last and the mean state): one-step state "
-                                  f"error {out['summary']['model']:.3g} (last state")
+    assert out["line"].startswith("the whole state (16 values (padded from 9/16)): reads (the gate: the model beats "
+                                  f"the last and the mean state): one-step state error {out['summary']['model']:.3g} "
+                                  "(last state")
     # a one-object episode's last-state error is that of its unpadded 9 values, by hand
     row = next(r for r in out["per_episode"] if r["task"] == "one")
     s = states[row["index"]][0][:, :9]
@@ -275,29 +277,74 @@ def test_the_state_model_runs_on_one_thread_and_gives_the_run_its_threads_back(m
         torch.set_num_threads(before)
 
 
-def test_the_state_error_splits_into_the_robots_values_and_the_objects_by_hand():
-    """With the robot's width given, the same errors over the robot's values and over the objects' (a diagnostic of
-    what the reading reads): the parts add up to the whole for the model and every baseline, one episode's objects'
-    last-state error is its squared changes summed by hand, and the reading itself is what it is without the split."""
+def test_with_the_robots_width_the_reading_is_the_objects_and_the_parts_add_up_by_hand():
+    """With the robot's width given (a store with object poses), the reading's numbers are the objects' values'
+    (version 5); the robot's and the whole state's stand beside, each gated: the parts add up to the whole for the
+    model and every baseline, one episode's objects' last-state error is its squared changes summed by hand, and the
+    whole state's errors are those of the reading made without the split."""
     states, tasks = _object_group()
     out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=2)
     whole = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST)
-    assert out["summary"] == whole["summary"] and "parts" not in whole
+    assert (out["reads"], whole["reads"], out["read_dims"]) == ("objects", "state", 14) and "parts" not in whole
     assert out["parts"]["robot"]["dims"] == 2 and out["parts"]["objects"]["dims"] == 14
-    for r in out["per_episode"]:
+    assert out["summary"] == out["parts"]["objects"]["summary"] and out["gate"] == out["parts"]["objects"]["gate"]
+    for b in ("last_state", "mean_state", "constant_velocity"):  # baselines train nothing: exactly the unsplit's
+        assert out["whole_state"]["summary"][b] == pytest.approx(whole["summary"][b], rel=1e-12)
+    for r, w in zip(out["per_episode"], whole["per_episode"]):
         robot, objects = r["parts"]["robot"], r["parts"]["objects"]
         for b in ("last_state", "mean_state", "constant_velocity"):
-            assert robot[b] + objects[b] == pytest.approx(r[b], rel=1e-12)
-        assert np.allclose(np.add(robot["model"], objects["model"]), r["model"], rtol=1e-12)
+            assert robot[b] + objects[b] == pytest.approx(w[b], rel=1e-12) and r[b] == objects[b]
+        assert r["model"] == objects["model"]
     row = next(r for r in out["per_episode"] if r["task"] == "two")
     s, _, present = states[row["index"]]
     h = FAST.history
     change = (s[h + 1:] - s[h:-1])[:, 2:] * present[2:]
-    assert row["parts"]["objects"]["last_state"] == pytest.approx(float((change ** 2).sum()), rel=1e-12)
-    assert row["parts"]["objects"]["last_state"] > 0 and "; of it robot " in out["line"]
-    assert out["parts"]["objects"]["skill_vs_last_state"] == pytest.approx(
-        1 - sum(np.mean(r["parts"]["objects"]["model"]) for r in out["per_episode"])
-        / sum(r["parts"]["objects"]["last_state"] for r in out["per_episode"]))
+    assert row["last_state"] == pytest.approx(float((change ** 2).sum()), rel=1e-12) and row["last_state"] > 0
+    assert out["summary"]["skill_vs_last_state"] == pytest.approx(
+        1 - sum(np.mean(r["model"]) for r in out["per_episode"]) / sum(r["last_state"] for r in out["per_episode"]))
+    assert out["line"].startswith("objects' poses (14 of 16 values (padded from 9/16)): reads")
+    assert "; beside: robot " in out["line"] and ", whole state " in out["line"]
+
+
+def _arm_and_block_group(block_moves: bool, n_episodes: int = 24, n: int = 30, seed: int = 0):
+    """An arm whose 3 values jitter at random, large (sd 0.5: what no action predicts, as a controller's joint
+    velocities are to a model of the task), and one block whose x moves by 0.03 times the action (or never moves):
+    the whole state's error is the arm's, the block's answer is known."""
+    rng = np.random.default_rng(seed)
+    raw = {}
+    for e in range(n_episodes):
+        a = rng.uniform(-1, 1, (n, 1))
+        arm = rng.normal(0, 0.5, (n, 3))
+        poses = np.zeros((n, 1, 7))
+        poses[..., 6] = 1.0
+        for t in range(n - 1):
+            poses[t + 1] = poses[t]
+            poses[t + 1, 0, 0] += 0.03 * a[t, 0] * block_moves
+        raw[e] = (arm, poses, a)
+    return pad_states(raw), ["t"] * n_episodes
+
+
+def test_an_unpredictable_arm_hides_a_learned_block_in_the_whole_state_and_not_in_the_objects_reading():
+    """Known answer: the block's motion is a fixed response to the action, learned, so the objects' reading reads
+    (skill vs the last state near 1); the arm is noise, so the robot's part and the whole state (the arm's 3 values
+    give all but 0.03% of its last-state error) get no reading beside it."""
+    states, tasks = _arm_and_block_group(block_moves=True)
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=3)
+    assert out["reads"] == "objects" and out["gate"]["passes"], out["line"]
+    assert out["summary"]["skill_vs_last_state"] > 0.9
+    assert not out["parts"]["robot"]["gate"]["passes"] and not out["whole_state"]["gate"]["passes"]
+    assert "robot " in out["line"] and "no reading)" in out["line"]
+
+
+def test_objects_that_never_move_get_no_reading_that_says_so():
+    """RoboGen's held-out steps: the arm moves, its objects do not. The last state is exact for them; the verdict
+    says there is nothing to predict, not that the model failed."""
+    states, tasks = _arm_and_block_group(block_moves=False)
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=3)
+    assert not out["gate"]["passes"] and out["summary"]["last_state"] == 0
+    assert out["gate"]["verdict"] == ("no reading: the objects' poses never change in a held-out step (the last "
+                                      "state is exact; nothing to predict)")
+    assert out["line"].startswith("objects' poses (7 of 10 values): no reading: the objects' poses never change")
 
 
 def test_the_parts_table_reads_the_runs_split_by_hand(tmp_path):
@@ -328,3 +375,8 @@ def test_the_parts_table_reads_the_runs_split_by_hand(tmp_path):
     assert row["objects"]["skill_vs_last_state"] == pytest.approx([-0.25, 0.1])
     assert row["objects_beat_last_state"] is False  # -0.25 at 10 episodes
     assert "| gensim_own / assembling (10 -> 40) | 14 / 77 |" in parts.markdown([row])
+    v5 = {"parts": {"robot": {"dims": 14, "summary": {"model": 0.5}, "gate": {}},
+                    "objects": {"dims": 77, "summary": {"model": 0.002}, "gate": {}}},
+          "whole_state": {"dims": 91, "summary": {"model": 0.502}}, "summary": {"model": 0.002}}
+    split, whole = parts.part_summaries(v5)  # version 5 nests each part's numbers; its summary is the objects'
+    assert split["objects"] == {"dims": 77, "model": 0.002} and whole == {"model": 0.502}

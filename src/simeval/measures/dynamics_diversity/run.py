@@ -627,6 +627,9 @@ def headline(values: dict) -> dict:
     if state.get("gate") is not None:
         out["state/gate_passes"] = float(state["gate"]["passes"])
         out.update({f"state/{k}": v for k, v in state["summary"].items() if isinstance(v, float)})
+        for name, beside in (("robot", (state.get("parts") or {}).get("robot")), ("whole", state.get("whole_state"))):
+            if beside:  # version 5 reads the objects; the robot's and the whole state's are charted beside
+                out.update({f"state_{name}/{k}": v for k, v in beside["summary"].items() if isinstance(v, float)})
     return {"heldout": out}
 
 
@@ -639,7 +642,10 @@ def readings(values: dict) -> dict[str, str]:
               gate["verdict"] if gate else "no gate (a run recorded before it)")
     if not state:
         return {"pixels": pixels, "state": "not read (protocol.state_model=null)"}
-    return {"pixels": pixels, "state": state["gate"]["verdict"] if state.get("gate") else state["line"]}
+    if not state.get("gate"):
+        return {"pixels": pixels, "state": state["line"]}
+    what = {"objects": "objects' poses", "state": "whole state"}.get(state.get("reads"))
+    return {"pixels": pixels, "state": (f"{what}: " if what else "") + state["gate"]["verdict"]}
 
 
 def summary_line(values: dict) -> str:

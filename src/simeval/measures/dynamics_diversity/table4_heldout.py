@@ -198,11 +198,20 @@ def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: in
 
 
 def _state_columns(row: dict, k: int, state: dict | None) -> None:
+    """A count's state reading: what it reads (state_reads_<k>: "objects", or "state" for the whole; "state
+    (version 4)" for runs made before version 5 read the objects' poses apart), its gate and numbers; where it read
+    the objects, the robot's and the whole state's errors, skills and gates beside (state_robot_*, state_whole_*)."""
     if state and state.get("gate"):
+        row[f"state_reads_{k}"] = state.get("reads", "state (version 4)")
         row[f"state_gate_{k}"] = state["gate"]["verdict"]
         row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
         for key, v in state["summary"].items():
             row[f"state_{key}_{k}"] = v
+        for name, beside in (("robot", (state.get("parts") or {}).get("robot")), ("whole", state.get("whole_state"))):
+            if beside and "summary" in beside:
+                row[f"state_{name}_gate_passes_{k}"] = beside["gate"]["passes"]
+                for key in ("model", "last_state", "skill_vs_last_state", "skill_vs_mean_state"):
+                    row[f"state_{name}_{key}_{k}"] = beside["summary"][key]
 
 
 def has_pixels(row: dict) -> bool:
@@ -274,11 +283,13 @@ TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_
 
 
 def is_text(column: str) -> bool:
-    return column in TEXT_COLUMNS or column.startswith(("gate_", "state_gate_")) and "_passes_" not in column
+    return (column in TEXT_COLUMNS or column.startswith(("gate_", "state_gate_")) and "_passes_" not in column
+            or column.startswith("state_reads_"))
 
 
 def is_flag(column: str) -> bool:
-    return column.startswith(("robot_mask_", "gate_passes_", "state_gate_passes_"))
+    return column.startswith(("robot_mask_", "gate_passes_", "state_gate_passes_")) or (
+        column.startswith(("state_robot_gate_passes_", "state_whole_gate_passes_")))
 
 
 def row_gate(row: dict, k: int, margin: float = GateConfig.margin) -> tuple[bool, str]:
@@ -391,7 +402,8 @@ def display(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
               "object-focused one-step (x1e-3/pixel)",
               "its skill vs last frame", "its skill vs mean image", "its fall first->last (x1e-3)",
               "full-frame one-step error", "full-frame skill vs last", "open-loop error", "open-loop skill vs last",
-              "reconstruction", "state reading (one-step state error; skill vs last state / constant velocity)",
+              "reconstruction", "state reading (one-step error of the objects' poses where recorded, else of the "
+              "whole state; skill vs last state / constant velocity)",
               "its fall first->last"]
     moving = has_moving(rows)
     if moving:
@@ -460,10 +472,15 @@ def _state(row: dict, k: int) -> str:
     verdict = row.get(f"state_gate_{k}")
     if verdict is None:
         return "—"
+    reads = STATE_READS.get(row.get(f"state_reads_{k}") or "state (version 4)", row.get(f"state_reads_{k}"))
     if not row[f"state_gate_passes_{k}"]:
-        return verdict
-    return (f"{row[f'state_model_{k}']:.3g} ({row[f'state_skill_vs_last_state_{k}']:.2f} / "
+        return f"{reads}: {verdict}"
+    return (f"{reads}: {row[f'state_model_{k}']:.3g} ({row[f'state_skill_vs_last_state_{k}']:.2f} / "
             f"{row[f'state_skill_vs_constant_velocity_{k}']:.2f})")
+
+
+# what a state cell read (state_reads_<k>), as the table says it
+STATE_READS = {"objects": "objects", "state": "whole state", "state (version 4)": "whole state (v4)"}
 
 
 def has_moving(rows: list[dict]) -> bool:
@@ -667,8 +684,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                     title="moving pixels: skill vs the last frame"
                     + ("\n(intervals cut: " + "; ".join(cut) + ")" if cut else ""))
     if stated:
-        axes[-1].set(ylabel="one-step state error per step (state units, log scale)", yscale="log",
-                     title="state reading: one-step state error\n(hollow: gated; baselines dashed)")
+        axes[-1].set(ylabel="one-step error per step (state units, log scale)", yscale="log",
+                     title="state reading: objects' poses (else whole state)\n(hollow: gated; baselines dashed)")
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
     for ax in axes:
         ax.set(xlabel="training episodes per task", xscale="log")
