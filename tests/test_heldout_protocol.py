@@ -687,14 +687,14 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     gated_cells = display([row])[1][0]
     assert gated_cells[5].startswith("no reading") and gated_cells[6] == gated_cells[10] == gated_cells[12] == \
         gated_cells[14] == "no reading"
-    assert gated_cells[11].startswith("-") and gated_cells[15].startswith("0.0")  # skill vs last; the state reading
+    assert gated_cells[11].startswith("-") and gated_cells[15].startswith("whole state (v4): 0.0")  # state: what it read
     assert len(merged) == len(kept)
     # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
     other = build([_state_only_record(0, k, 40) for k in (10, 20, 40)], n_boot=100)
     alone = {(r["pipeline"], r["group"]): r for r in merge(kept, other)}[("bbsea", "drawer")]
     _, body = display([alone])
     assert body[0][5] == "not read (protocol.pixels=false)" and body[0][6] == "—" and body[0][9] == "—"
-    assert body[0][15].startswith("0.01 (0.90 / 0.50)")
+    assert body[0][15].startswith("whole state (v4): 0.01 (0.90 / 0.50)")  # a record without `reads`
     assert body[0][2] == "states only" and body[0][16].startswith("falls: 0.0")  # no world model; the verdict said
     # a sweep with pixels beside the state-only one: its runs make the row (pixel and state columns alike)
     source = make_physics_group("varied", 2, 12, 20, 16)
@@ -703,6 +703,20 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     state_only = {**recs[0], "identity": {**recs[0]["identity"], "episodes": 4}}
     both = build([state_only, full], n_boot=50)
     assert len(both) == 1 and has_pixels(both[0]) and "state_runs" not in both[0]
+    # ... unless the states-only run read the state with a newer version of the reading: its state columns then
+    own = {**state_only["values"]["state"], "version": 4, "summary": {**state_only["values"]["state"]["summary"],
+                                                                      "model": 0.123}}
+    full_v4 = {**full, "values": {**full["values"], "state": own}}
+    newer = {**state_only, "values": {**state_only["values"], "state": {**state_only["values"]["state"],
+                                                                        "version": 5, "reads": "objects"}}}
+    [mixed] = build([newer, full_v4], n_boot=50)
+    assert has_pixels(mixed) and mixed["state_model_4"] == newer["values"]["state"]["summary"]["model"]
+    assert mixed["state_reads_4"] == "objects" and mixed["state_runs"].startswith("runs of the state reading only")
+    assert {c: v for c, v in mixed.items() if not c.startswith("state_")} == \
+        {c: v for c, v in both[0].items() if not c.startswith("state_")}
+    [same] = build([{**newer, "values": {**newer["values"], "state": {**newer["values"]["state"], "version": 4}}},
+                    full_v4], n_boot=50)  # not newer: the pixel runs' own
+    assert same["state_model_4"] == 0.123 and "state_runs" not in same
     assert plot([alone, merged[("bbsea", "table")]], tmp_path / "f.png").stat().st_size > 10_000
 
 

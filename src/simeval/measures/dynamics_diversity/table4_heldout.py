@@ -129,17 +129,21 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
     rows = []
     for (p, g, pr, steps), by_k in sorted(_cells(records).items(), key=lambda kv: tuple(map(str, kv[0]))):
         counts = sorted(by_k)
-        one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
+        one_setting((p, g, pr), [r for k in counts for r in _own_runs(by_k[k]) if "settings" in r["identity"]])
         row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
         reps_by_k, gates = {}, {}
+        states = {k: _newest_state(by_k[k]) for k in counts}
         for k in counts:
             reps_by_k[k], gates[k] = _count_columns(row, k, by_k[k], n_boot=n_boot, seed=seed, gate_cfg=gate_cfg)
+            if states[k] is not by_k[k][0]:  # a states-only sweep read the state with a newer version
+                _state_columns(row, k, states[k]["values"].get("state"))
+                row["state_runs"] = STATE_BESIDE_PIXELS
         lo, hi = counts[0], counts[-1]
         if lo != hi and row[f"runs_{lo}"] == row[f"runs_{hi}"] and \
                 row[f"heldout_episodes_{lo}"] == row[f"heldout_episodes_{hi}"]:
             if reps_by_k[lo] is not None and reps_by_k[hi] is not None:
                 _fall_columns(row, lo, hi, reps_by_k, gates, gate_cfg.margin)
-            row.update(state_fall(by_k[lo][0]["values"].get("state"), by_k[hi][0]["values"].get("state"), lo, hi,
+            row.update(state_fall(states[lo]["values"].get("state"), states[hi]["values"].get("state"), lo, hi,
                                   n_boot, seed, gate_cfg))
         rows.append(row)
     return rows
@@ -157,21 +161,44 @@ def _cells(records: list[dict]) -> dict:
     for by_k in cells.values():  # one run per seed: a sweep rerun after a kill writes the same runs again
         for k, recs in by_k.items():
             # runs with pixels carry the same state reading as a state-only sweep of the group (tested): where a
-            # count has both, its runs with pixels make the row
-            if any(r["values"].get("prediction") is not None for r in recs):
-                recs = [r for r in recs if r["values"].get("prediction") is not None]
+            # count has both, its runs with pixels make the row, its states-only runs kept last for
+            # _newest_state (a state reading of a newer version than the pixel runs' own)
+            pixels = [r for r in recs if r["values"].get("prediction") is not None]
             newest = {}
-            for rec in sorted(recs, key=lambda r: str(r.get("created", ""))):
+            for rec in sorted(pixels or recs, key=lambda r: str(r.get("created", ""))):
                 newest[int(rec["identity"].get("seed", 0))] = rec
-            by_k[k] = list(newest.values())
+            states_only = sorted((r for r in recs if r["values"].get("prediction") is None and pixels),
+                                 key=lambda r: str(r.get("created", "")))
+            by_k[k] = list(newest.values()) + states_only[-1:]
     return cells
+
+
+def _own_runs(recs: list[dict]) -> list[dict]:
+    """A count's runs that make its row: those with pixels where it has any (not the states-only run _cells keeps
+    beside them), else all."""
+    pixels = [r for r in recs if r["values"].get("prediction") is not None]
+    return pixels or recs
+
+
+def _state_version(rec: dict) -> int:
+    return int(((rec["values"].get("state") or {}).get("version")) or 0)
+
+
+def _newest_state(recs: list[dict]) -> dict:
+    """The record whose state reading a count's state columns show: the row's own first run, unless a later
+    states-only run (last in `recs`, see _cells) read the state with a newer version of the reading."""
+    first, last = recs[0], recs[-1]
+    if last["values"].get("prediction") is None and first["values"].get("prediction") is not None \
+            and _state_version(last) > _state_version(first):
+        return last
+    return first
 
 
 def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: int,
                    gate_cfg: GateConfig) -> tuple[dict | None, dict | None]:
     """One episode count's columns, added to `row`; returns its resampled replicates and its pixel gate (None, None
     for runs of the state reading only, protocol.pixels=false)."""
-    recs = sorted(recs, key=lambda r: int(r["identity"].get("seed", 0)))
+    recs = sorted(_own_runs(recs), key=lambda r: int(r["identity"].get("seed", 0)))
     if any(r["values"].get("prediction") is None for r in recs):
         state = recs[0]["values"].get("state") or {}
         row[f"runs_{k}"] = len(state.get("seeds") or recs)  # its own training seeds; the run's seed trains nothing
@@ -278,6 +305,8 @@ REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
 STATE_ONLY = "runs of the state reading only (protocol.pixels=false)"
 STATE_BESIDE_KEPT = ("runs of the state reading only (protocol.pixels=false), beside the kept row's pixel reading "
                      "(as many held-out episodes per count; its runs may be of episodes collected apart)")
+STATE_BESIDE_PIXELS = ("runs of the state reading only (protocol.pixels=false), a newer version of the reading than "
+                       "the row's runs with pixels carry (as many held-out episodes per count)")
 # fall_verdict: rows written before the gate have none; state_fall_verdict: rows without a state reading
 TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_runs")
 
@@ -515,7 +544,8 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "skill against each baseline rises (interval above 0: more than the baseline's own change); 'no fall' "
             f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
             f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'.")
-    apart = [f"{r['pipeline']}/{r['group']}" for r in rows if r.get("state_runs") == STATE_BESIDE_KEPT]
+    apart = [f"{r['pipeline']}/{r['group']}" for r in rows if r.get("state_runs") in (STATE_BESIDE_KEPT,
+                                                                                       STATE_BESIDE_PIXELS)]
     if apart:
         note += (f" The state reading of {', '.join(apart)} comes from sweeps of the state reading alone "
                  "(protocol.pixels=false) on as many held-out episodes, beside the pixel reading of an earlier "
