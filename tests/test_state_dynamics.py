@@ -306,22 +306,25 @@ def test_with_the_robots_width_the_reading_is_the_objects_and_the_parts_add_up_b
     assert "; beside: robot " in out["line"] and ", whole state " in out["line"]
 
 
-def _arm_and_block_group(block_moves: bool, n_episodes: int = 24, n: int = 30, seed: int = 0):
+def _arm_and_block_group(block_moves, n_episodes: int = 24, n: int = 30, seed: int = 0):
     """An arm whose 3 values jitter at random, large (sd 0.5: what no action predicts, as a controller's joint
     velocities are to a model of the task), and one block whose x moves by 0.03 times the action (or never moves):
     the whole state's error is the arm's, the block's answer is known."""
     rng = np.random.default_rng(seed)
-    raw = {}
+    raw, tasks = {}, []
     for e in range(n_episodes):
+        task, moves = (("t", block_moves) if isinstance(block_moves, bool) else
+                       (("moves", True), ("still", False))[e % 2])
+        tasks.append(task)
         a = rng.uniform(-1, 1, (n, 1))
         arm = rng.normal(0, 0.5, (n, 3))
         poses = np.zeros((n, 1, 7))
         poses[..., 6] = 1.0
         for t in range(n - 1):
             poses[t + 1] = poses[t]
-            poses[t + 1, 0, 0] += 0.03 * a[t, 0] * block_moves
+            poses[t + 1, 0, 0] += 0.03 * a[t, 0] * moves
         raw[e] = (arm, poses, a)
-    return pad_states(raw), ["t"] * n_episodes
+    return pad_states(raw), tasks
 
 
 def test_an_unpredictable_arm_hides_a_learned_block_in_the_whole_state_and_not_in_the_objects_reading():
@@ -380,3 +383,23 @@ def test_the_parts_table_reads_the_runs_split_by_hand(tmp_path):
           "whole_state": {"dims": 91, "summary": {"model": 0.502}}, "summary": {"model": 0.002}}
     split, whole = parts.part_summaries(v5)  # version 5 nests each part's numbers; its summary is the objects'
     assert split["objects"] == {"dims": 77, "model": 0.002} and whole == {"model": 0.502}
+
+
+def test_a_task_whose_objects_stay_still_is_shown_and_not_required_by_the_gate():
+    """BBSEA drawer's open/close-drawer tasks: their objects' poses never move while the other tasks' blocks do. No
+    model beats an exact last state there, so the per-task check shows that task and does not require it; the
+    group reads on the task that moves, the still task's errors still in its sums."""
+    from simeval.measures.dynamics_diversity.gate import gate
+
+    states, tasks = _arm_and_block_group(block_moves="by task")
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=3)
+    g = out["gate"]
+    assert g["passes"] and g["exempt"] == ["still"] and g["tasks"] == 1, out["line"]
+    assert not g["per_task"]["still"]["passes"]  # shown: the model's tiny errors against an exact last state
+    assert "1 of 2 tasks' values all but still (shown, not gated: still)" in out["line"]
+    model = np.array([[r["model"][k] for r in out["per_episode"]] for k in range(len(FAST.seeds))])
+    bases = {b: np.tile([r[b] for r in out["per_episode"]], (len(FAST.seeds), 1)) for b in ("last_state",
+                                                                                             "mean_state")}
+    strict = gate(model, bases, [r["task"] for r in out["per_episode"]])  # every task required: gated
+    assert not strict["passes"] and strict["verdict"].endswith("on 1 of 2 tasks (still)")
+    assert out["summary"]["model"] == pytest.approx(model.mean(0).sum() / out["frames"])  # still task counted

@@ -16,7 +16,9 @@ x_b[r, e] (a baseline does not depend on the seed; it is given per run all the s
                        task's 10 held-out episodes give intervals as wide for a model that learned as for one
                        that did not); the group's reading needs the group to pass and at
                        least `min_task_share` of its tasks to pass (default: every task: a group whose reading
-                       mixes learned and unlearned tasks averages numbers that mean different things)
+                       mixes learned and unlearned tasks averages numbers that mean different things); `exempt`
+                       tasks are checked and shown but not required (the state reading's tasks whose read values
+                       barely move: a model cannot beat an exact last state, and there is nothing to learn there)
 
 Verdict text (`verdict`): "reads" or "no reading: the model does not beat <baseline> (skill <s> [<lo>, <hi>])[ nor
 <baseline> (...)]; needs >= <margin>"; with tasks failing, "no reading: the model does not beat <baseline> on k of
@@ -83,10 +85,13 @@ def _fmt(v: float) -> str:
     return f"{v:.3f}" if np.isfinite(v) else "n/a"
 
 
-def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateConfig = GateConfig()) -> dict:
+def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateConfig = GateConfig(),
+         exempt: tuple[str, ...] = ()) -> dict:
     """The gate of one reading (see the module docstring): `model` (R, E) and each of `baselines` {name: (R, E)}
-    summed squared errors, `tasks` (E,). Returns {passes, verdict, margin, baselines: {name: {skill, interval,
-    passes}}, per_task: {task: {passes, failed, baselines}}, tasks_passing, tasks}."""
+    summed squared errors, `tasks` (E,); `exempt` tasks are checked and reported but not required to pass (the
+    state reading's tasks whose read values do not move: nothing to predict there). Returns {passes, verdict, margin,
+    baselines: {name: {skill, interval, passes}}, per_task: {task: {passes, failed, baselines}}, tasks_passing,
+    tasks, exempt}."""
     x = np.atleast_2d(np.asarray(model, float))
     bases = {k: np.atleast_2d(np.asarray(v, float)) for k, v in baselines.items()}
     tasks = np.asarray(tasks)
@@ -103,8 +108,9 @@ def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateCo
         cols = tasks == t
         per_task[str(t)] = _check(x[:, cols], {k: v[:, cols] for k, v in bases.items()}, tasks[cols], cfg,
                                   interval=False)
-    passing = sum(r["passes"] for r in per_task.values())
-    enough = passing >= cfg.min_task_share * len(per_task) - 1e-9
+    required = {t: r for t, r in per_task.items() if t not in exempt}
+    passing = sum(r["passes"] for r in required.values())
+    enough = passing >= cfg.min_task_share * len(required) - 1e-9
     if not group["passes"]:
         parts = []
         for b in group["failed"]:
@@ -113,19 +119,19 @@ def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateCo
                          f"{_fmt(s['interval'][1])}])")
         verdict = f"no reading: the model does not beat {' nor '.join(parts)}; needs >= {cfg.margin:g}"
     elif not enough:
-        bad = [t for t, r in per_task.items() if not r["passes"]]
+        bad = [t for t, r in required.items() if not r["passes"]]
         worst = {}
         for t in bad:
             for b in per_task[t]["failed"]:
                 worst[b] = worst.get(b, 0) + 1
         b = max(worst, key=worst.get)
         verdict = (f"no reading: the model does not beat {BASELINE_NAMES.get(b, b)} on {len(bad)} of "
-                   f"{len(per_task)} tasks ({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''})")
+                   f"{len(required)} tasks ({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''})")
     else:
         verdict = "reads"
     return {"passes": bool(group["passes"] and enough), "verdict": verdict, "margin": cfg.margin,
             "min_task_share": cfg.min_task_share, "baselines": group["baselines"], "per_task": per_task,
-            "tasks_passing": int(passing), "tasks": len(per_task)}
+            "tasks_passing": int(passing), "tasks": len(required), "exempt": sorted(set(exempt) & set(per_task))}
 
 
 PIXEL_SUMS = {"model": "one_step/model/object", "last": "one_step/last/object", "mean": "one_step/mean/object"}
