@@ -49,6 +49,8 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.state_model.max_steps=abc"], "protocol.state_model.max_steps must be a whole number >= 1"),
     (["+protocol.gate.margn=0.1"], "protocol.gate: unknown key(s) margn; expected margin, min_task_share"),
     (["protocol.gate=5"], "protocol.gate=5: expected a mapping of its settings (margin, min_task_share, n_boot, seed)"),
+    (["protocol.gate=[1,2]"], "override protocol.gate=[1,2]: protocol.gate is a section of settings, not one value; "
+                              "set its keys one by one (protocol.gate.<key>=...; keys: margin, min_task_share)"),
     (["protocol.state_model=5"], "protocol.state_model=5: expected a mapping of its settings (hidden, layers, lr"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
     (["protocol.state_model.lr_schedule=linear"], "protocol.state_model.lr_schedule='linear': expected constant or "

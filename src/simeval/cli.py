@@ -479,6 +479,13 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     typed = _type_mistake(cause)
     if typed is not None:
         return typed
+    if text and text[0].startswith("Error merging override ") and cause_text and \
+            cause_text[0].startswith("Cannot merge DictConfig with"):  # a value given for a whole section
+        override = text[0].removeprefix("Error merging override ")
+        section = str(getattr(cause, "full_key", None) or override.split("=", 1)[0].lstrip("+~"))
+        keys = [str(k) for k in parent.keys()] if hasattr(parent, "keys") else []
+        return (f"override {override}: {section} is a section of settings, not one value; set its keys one by one "
+                f"({section}.<key>=...; keys: {', '.join(keys) if keys else 'see conf/ or --cfg job'})")
     head = text[0] if text else type(exc).__name__
     if head.startswith("Ambiguous value for argument"):  # Hydra's numbered advice is on the lines this drops
         head += "; to sweep over the values add -m (a run per value), for a list write key=[a,b]"
