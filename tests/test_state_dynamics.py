@@ -403,3 +403,21 @@ def test_a_task_whose_objects_stay_still_is_shown_and_not_required_by_the_gate()
     strict = gate(model, bases, [r["task"] for r in out["per_episode"]])  # every task required: gated
     assert not strict["passes"] and strict["verdict"].endswith("on 1 of 2 tasks (still)")
     assert out["summary"]["model"] == pytest.approx(model.mean(0).sum() / out["frames"])  # still task counted
+
+
+def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_known_block():
+    """protocol.state_model.target_scale=change: the predicted change is in units of each value's root mean square
+    one-step change over the training rows (an object's millimetres weigh as the arm's joint velocities), a value
+    that never changes keeps its state deviation; the learned block still reads."""
+    from simeval.measures.dynamics_diversity.state_reading import _Norm
+
+    s = np.array([[0.0, 5.0, 1.0], [1.0, 5.0, 3.0], [3.0, 5.0, 2.0]])  # changes (1, 2), (0, 0), (2, -1)
+    norm = _Norm.fit([(s, np.zeros((3, 1)))], clip=10.0, target_scale="change")
+    np.testing.assert_allclose(norm.unit, [np.sqrt(2.5), 1.0, np.sqrt(2.5)])  # the still value: its sd, 0 -> 1
+    assert norm.clip_targets and _Norm.fit([(s, np.zeros((3, 1)))], clip=10.0).target_sd is None
+    with pytest.raises(UserError, match="target_scale"):
+        StateModelConfig(target_scale="delta")
+    states, tasks = _arm_and_block_group(block_moves=True)
+    cfg = StateModelConfig(max_steps=600, eval_every=50, patience=4, seeds=(0, 1), target_scale="change")
+    out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), cfg, robot_dims=3)
+    assert out["gate"]["passes"] and out["summary"]["skill_vs_last_state"] > 0.9, out["line"]

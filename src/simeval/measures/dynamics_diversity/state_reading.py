@@ -110,12 +110,18 @@ class StateModelConfig:
     # deviations and the MLP's prediction of every value explodes (BBSEA table, 10 episodes: one of 90 held-out
     # episodes gave 11,000 of the model's 11,150 summed error). null: no clipping.
     feature_clip: float | None = 10.0
+    # what the model's predicted change is in units of, per value: "state", its deviation over the training rows
+    # (versions 1-5); "change", the root mean square of its one-step change there (each value's motion weighs the
+    # same in the loss, an object's millimetres as the arm's joint velocities; the targets then clipped to
+    # +-feature_clip). An experiment, not a default: see the results page
+    target_scale: str = "state"
 
     def __post_init__(self) -> None:
         require_whole_fields(self, "protocol.state_model", ("hidden", "layers", "batch_size", "max_steps",
                                                              "eval_every", "history")
                              + (("patience",) if self.patience is not None else ()))
         require_choice("protocol.state_model.lr_schedule", self.lr_schedule, LR_SCHEDULES)
+        require_choice("protocol.state_model.target_scale", self.target_scale, ("state", "change"))
         for key in ("lr", "val_share") + (("feature_clip",) if self.feature_clip is not None else ()):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0:
@@ -240,9 +246,15 @@ class _Norm:
     sd_a: np.ndarray
     masked: bool = False  # the group is padded: the model sees the presence mask
     clip: float | None = None
+    target_sd: np.ndarray | None = None  # the predicted change's unit per value (None: sd)
+    clip_targets: bool = False
+
+    @property
+    def unit(self) -> np.ndarray:
+        return self.sd if self.target_sd is None else self.target_sd
 
     @classmethod
-    def fit(cls, data: list[tuple], clip: float | None = None) -> _Norm:
+    def fit(cls, data: list[tuple], clip: float | None = None, target_scale: str = "state") -> _Norm:
         """Means and deviations over the rows where a value is present (a padded zero is not a value)."""
         entries = [_entry(d) for d in data]
         masked = any(m is not None for _, _, m in entries)
@@ -256,7 +268,16 @@ class _Norm:
         else:
             mu, sd = s.mean(0), s.std(0)
         sd_a = a.std(0)
-        return cls(mu, np.where(sd > 1e-8, sd, 1.0), a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0), masked, clip)
+        sd = np.where(sd > 1e-8, sd, 1.0)
+        target_sd = None
+        if target_scale == "change":
+            d = np.concatenate([np.diff(x, axis=0) for x, _, _ in entries])
+            w = np.concatenate([np.broadcast_to(_present(m, x.shape[1]), (len(x) - 1, x.shape[1]))
+                                for x, _, m in entries])
+            rms = np.sqrt((d ** 2 * w).sum(0) / np.maximum(w.sum(0), 1))
+            target_sd = np.where(rms > 1e-8, rms, sd)
+        return cls(mu, sd, a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0), masked, clip, target_sd,
+                   target_scale == "change" and clip is not None)
 
     def features(self, s, changes, actions, present=None) -> np.ndarray:
         m = len(s)
@@ -281,7 +302,8 @@ def _tensors(data, norm: _Norm, history: int):
         s, a, present = _entry(item)
         cur, changes, actions, nxt = _steps(s, a, history)
         xs.append(norm.features(cur, changes, actions, present))
-        ys.append((nxt - cur) / norm.sd)
+        y = (nxt - cur) / norm.unit
+        ys.append(np.clip(y, -norm.clip, norm.clip) if norm.clip_targets else y)
         ms.append(np.broadcast_to(_present(present, s.shape[1]), cur.shape))
         episode.append(np.full(len(cur), e))
     as_tensor = lambda v: torch.as_tensor(np.concatenate(v), dtype=torch.float32)  # noqa: E731
@@ -302,13 +324,13 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
                     cfg: StateModelConfig, seed: int, read: np.ndarray | None = None) -> tuple[_Net, _Norm, dict]:
     """A model on `train` episodes ((states, actions) each), stopped on `val` (see the module docstring); its best
     read of `val` is of the values `read` ((D,) bool; None: all)."""
-    norm = _Norm.fit(train, cfg.feature_clip)
+    norm = _Norm.fit(train, cfg.feature_clip, cfg.target_scale)
     x, y, mask, _ = _tensors(train, norm, cfg.history)
     xv, yv, mask_v, episode_v = _tensors(val, norm, cfg.history)
     # validation reads the error in the state's own units, as the reading reports it: in normalised units a value
     # that barely moved in training (tiny sd) and moves in a validation episode outweighs everything else, and
     # stopping then follows that one episode (BBSEA table, 40 episodes: best at step 50 of 550, a val loss of 10^4)
-    scale = torch.as_tensor(norm.sd * (1.0 if read is None else np.asarray(read, bool)), dtype=torch.float32)
+    scale = torch.as_tensor(norm.unit * (1.0 if read is None else np.asarray(read, bool)), dtype=torch.float32)
     torch.manual_seed(seed)
     net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
@@ -346,7 +368,7 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
 def _predict(net: _Net, norm: _Norm, s, changes, actions, present=None) -> np.ndarray:
     with torch.no_grad():
         d = net(torch.as_tensor(norm.features(s, changes, actions, present), dtype=torch.float32)).double().numpy()
-    return s + d * norm.sd * _present(present, s.shape[1])
+    return s + d * norm.unit * _present(present, s.shape[1])
 
 
 def episode_sums(pred: np.ndarray, target: np.ndarray, present: np.ndarray | None = None) -> float:
