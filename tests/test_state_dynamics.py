@@ -260,13 +260,13 @@ def test_the_state_model_runs_on_one_thread_and_gives_the_run_its_threads_back(m
     predicts on one whatever the run's `threads`, which it leaves as it found them."""
     import simeval.measures.dynamics_diversity.state_reading as sr
 
-    seen, fit = [], sr.fit_state_model
+    seen, fit = [], sr.fit_state_models
 
     def counting(*args, **kwargs):
         seen.append(torch.get_num_threads())
         return fit(*args, **kwargs)
 
-    monkeypatch.setattr(sr, "fit_state_model", counting)
+    monkeypatch.setattr(sr, "fit_state_models", counting)
     states, tasks = _object_group()
     before = torch.get_num_threads()
     torch.set_num_threads(2)
@@ -288,13 +288,16 @@ def test_with_the_robots_width_the_reading_is_the_objects_and_the_parts_add_up_b
     assert (out["reads"], whole["reads"], out["read_dims"]) == ("objects", "state", 14) and "parts" not in whole
     assert out["parts"]["robot"]["dims"] == 2 and out["parts"]["objects"]["dims"] == 14
     assert out["summary"] == out["parts"]["objects"]["summary"] and out["gate"] == out["parts"]["objects"]["gate"]
-    for b in ("last_state", "mean_state", "constant_velocity"):  # baselines train nothing: exactly the unsplit's
-        assert out["whole_state"]["summary"][b] == pytest.approx(whole["summary"][b], rel=1e-12)
+    # the whole state beside is the unsplit reading's (the model of the step that read the whole best), its gate too
+    assert out["whole_state"]["summary"] == pytest.approx(whole["summary"], rel=1e-12)
+    assert out["whole_state"]["gate"]["verdict"] == whole["gate"]["verdict"]
+    assert [t["whole_state"]["best_step"] for t in out["training"]] == [t["best_step"] for t in whole["training"]]
     for r, w in zip(out["per_episode"], whole["per_episode"]):
         robot, objects = r["parts"]["robot"], r["parts"]["objects"]
         for b in ("last_state", "mean_state", "constant_velocity"):
             assert robot[b] + objects[b] == pytest.approx(w[b], rel=1e-12) and r[b] == objects[b]
-        assert r["model"] == objects["model"]
+        assert r["model"] == objects["model"] and r["parts"]["whole_state"]["model"] == pytest.approx(w["model"])
+        assert robot["model"][0] <= w["model"][0] + 1e-12  # a part of the same model's error
     row = next(r for r in out["per_episode"] if r["task"] == "two")
     s, _, present = states[row["index"]]
     h = FAST.history

@@ -51,8 +51,11 @@ version 4, which read the whole state): the robot's values made 98-100% of the l
 with object poses (GenSim's own: the UR5's joint velocities), so a whole-state fall read how well the arm's response
 to its actions was learned, which any controller-driven arm gives whatever the tasks; the tasks' physics is in how
 the objects move. As the pixel reading's primary number is object-focused (the robot's pixels out). The model is
-trained on the whole state as before (the objects move as the arm moves them: it must see the arm); its best read
-on the validation episodes is of the values read.
+trained on the whole state as before (the objects move as the arm moves them: it must see the arm), once per
+seed; the objects' reading keeps the step whose validation read of the objects is best, and the robot's and the
+whole state's beside it the step whose read of the whole is best (version 4's step: the whole state's numbers beside
+are version 4's to the digit). One step for both would read the arm from a model picked for the objects (RoboGen,
+whose objects never move: any step is as good for them, and the arm's skill fell from 0.78 to 0.32).
 
 Why an MLP written here and not the RSSM of simeval.models.world_model over a state vector: the reading must hold
 where the pixel model fails, so it shares none of its machinery (no latent sampling, no decoder), and a
@@ -324,20 +327,35 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
                     cfg: StateModelConfig, seed: int, read: np.ndarray | None = None) -> tuple[_Net, _Norm, dict]:
     """A model on `train` episodes ((states, actions) each), stopped on `val` (see the module docstring); its best
     read of `val` is of the values `read` ((D,) bool; None: all)."""
+    nets, norm, info = fit_state_models(train, val, cfg, seed, {"read": read})
+    return nets["read"], norm, info["read"]
+
+
+def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[np.ndarray, np.ndarray]],
+                     cfg: StateModelConfig, seed: int, reads: dict[str, np.ndarray | None]
+                     ) -> tuple[dict[str, _Net], _Norm, dict[str, dict]]:
+    """One training run, and for each of `reads` ({name: (D,) bool of the values read, None: all}) the model of its
+    own best validation read: the objects' reading keeps the step that predicts the objects best, the whole state's
+    beside it the step that predicts the whole best (the step version 4 kept), from the same training. Patience
+    (where set) follows the first of `reads`."""
     norm = _Norm.fit(train, cfg.feature_clip, cfg.target_scale)
     x, y, mask, _ = _tensors(train, norm, cfg.history)
     xv, yv, mask_v, episode_v = _tensors(val, norm, cfg.history)
     # validation reads the error in the state's own units, as the reading reports it: in normalised units a value
     # that barely moved in training (tiny sd) and moves in a validation episode outweighs everything else, and
     # stopping then follows that one episode (BBSEA table, 40 episodes: best at step 50 of 550, a val loss of 10^4)
-    scale = torch.as_tensor(norm.unit * (1.0 if read is None else np.asarray(read, bool)), dtype=torch.float32)
+    unit = torch.as_tensor(norm.unit, dtype=torch.float32)
+    keep = {name: None if m is None else torch.as_tensor(np.asarray(m, bool), dtype=torch.float32)
+            for name, m in reads.items()}
     torch.manual_seed(seed)
     net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.max_steps) if cfg.lr_schedule == "cosine"
                 else None)
     gen = torch.Generator().manual_seed(seed)
-    best, best_state, best_step, best_mean, since, step, curve = float("inf"), None, 0, float("nan"), 0, 0, []
+    best = {name: {"val_loss": float("inf"), "state": None, "best_step": 0, "val_loss_mean_of_steps": float("nan"),
+                   "val_curve": []} for name in reads}
+    first, since, step = next(iter(reads)), 0, 0
     while step < cfg.max_steps:
         idx = torch.randint(0, len(x), (min(cfg.batch_size, len(x)),), generator=gen)
         loss = (net(x[idx]) * mask[idx] - y[idx]).pow(2).sum(1).mean()
@@ -349,20 +367,26 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
         step += 1
         if step % cfg.eval_every == 0 or step == cfg.max_steps:
             with torch.no_grad():
-                rows = ((net(xv) * mask_v - yv) * scale).pow(2).sum(1).double().numpy()
-            v = median_episode_error(rows, episode_v)
-            curve.append([step, v])
-            if v < best * 0.99:
-                best, best_state, best_step, since = v, {k: t.clone() for k, t in net.state_dict().items()}, step, 0
-                best_mean = float(rows.mean())
-            else:
-                since += 1
-                if cfg.patience is not None and since >= cfg.patience:
-                    break
-    if best_state is not None:
-        net.load_state_dict(best_state)
-    return net, norm, {"steps_used": step, "best_step": best_step, "val_loss": best, "val_loss_mean_of_steps": best_mean,
-                       "val_curve": curve}
+                se = ((net(xv) * mask_v - yv) * unit).pow(2)
+            for name, m in keep.items():
+                rows = (se if m is None else se * m).sum(1).double().numpy()
+                v, b = median_episode_error(rows, episode_v), best[name]
+                b["val_curve"].append([step, v])
+                if v < b["val_loss"] * 0.99:
+                    b.update(val_loss=v, state={k: t.clone() for k, t in net.state_dict().items()}, best_step=step,
+                             val_loss_mean_of_steps=float(rows.mean()))
+                    since = 0 if name == first else since
+                elif name == first:
+                    since += 1
+            if cfg.patience is not None and since >= cfg.patience:
+                break
+    nets, info = {}, {}
+    for name, b in best.items():
+        model = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
+        model.load_state_dict(b["state"] if b["state"] is not None else net.state_dict())
+        nets[name] = model
+        info[name] = {"steps_used": step, **{k: v for k, v in b.items() if k != "state"}}
+    return nets, norm, info
 
 
 def _predict(net: _Net, norm: _Norm, s, changes, actions, present=None) -> np.ndarray:
@@ -434,36 +458,42 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
                                   [present[i] for i in train_idx if tasks[i] == t])
                  for t in set(tasks[i] for i in train_idx)}
     split = robot_dims is not None and 0 < robot_dims < dims
-    parts = {"robot": np.arange(dims) < robot_dims, "objects": np.arange(dims) >= robot_dims} if split else {}
     reads = "objects" if split else "state"
-    models, training = [], []
+    robot, objects = np.arange(dims) < (robot_dims or 0), np.arange(dims) >= (robot_dims or 0)
+    # {scored part: (the model selection it is read from, its values)}: the objects from the model of the step that
+    # predicted the objects best, the robot and the whole state from the step that predicted the whole best
+    scored = ({"objects": ("objects", objects), "robot": ("whole_state", robot), "whole_state": ("whole_state", None)}
+              if split else {"state": ("state", None)})
+    selections = {"objects": objects, "whole_state": None} if split else {"state": None}
+    models: dict[str, list] = {name: [] for name in selections}
+    training = []
     with one_torch_thread():
         for seed in cfg.seeds:
-            net, norm, info = fit_state_model(fit, val, cfg, seed, parts.get("objects"))
-            models.append((net, norm))
-            training.append({"seed": int(seed), **info})
-        per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history, parts)
+            nets, norm, info = fit_state_models(fit, val, cfg, seed, selections)
+            for name in selections:
+                models[name].append((nets[name], norm))
+            training.append({"seed": int(seed), **info[reads],
+                             **({"whole_state": {k: info["whole_state"][k] for k in ("best_step", "val_loss")}}
+                                if split else {})})
+        per_episode = [_episode_sums(states[e], tasks[e], e, models, task_mean[tasks[e]], cfg.history, scored)
                        for e in eval_idx]
     frames = sum(r["frames"] for r in per_episode)
     episode_tasks = [r["task"] for r in per_episode]
+    n_seeds = len(cfg.seeds)
 
     def read_of(rows: list[dict], dims_read: int) -> dict:  # {dims, summary, gate} of per-episode sums
-        model = np.array([[r["model"][k] for r in rows] for k in range(len(models))])
-        bases = {b: np.tile([r[b] for r in rows], (len(models), 1)) for b in BASELINES}
+        model = np.array([[r["model"][k] for r in rows] for k in range(n_seeds)])
+        bases = {b: np.tile([r[b] for r in rows], (n_seeds, 1)) for b in BASELINES}
         return {"dims": int(dims_read), "summary": _summary(model, bases, frames),
                 "gate": _gate_moving(model, {b: bases[b] for b in GATED}, episode_tasks,
                                      [r["frames"] for r in per_episode], gate_cfg, reads)}
 
     beside = {}
     if split:
-        whole = [{"model": np.add(r["parts"]["robot"]["model"], r["parts"]["objects"]["model"]).tolist(),
-                  **{b: r["parts"]["robot"][b] + r["parts"]["objects"][b] for b in BASELINES}} for r in per_episode]
-        for r in per_episode:  # the values read: the objects'
-            r.update(r["parts"]["objects"])
         beside = {"parts": {name: read_of([r["parts"][name] for r in per_episode], mask.sum())
-                            for name, mask in parts.items()},
-                  "whole_state": read_of(whole, dims)}
-    primary = read_of(per_episode, parts["objects"].sum() if split else dims)
+                            for name, mask in (("robot", robot), ("objects", objects))},
+                  "whole_state": read_of([r["parts"]["whole_state"] for r in per_episode], dims)}
+    primary = read_of(per_episode, objects.sum() if split else dims)
     summary, g = primary["summary"], primary["gate"]
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
@@ -477,7 +507,7 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             f"{summary['model']:.3g} (last state {summary['last_state']:.3g}, mean state "
             f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill vs each "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
-            f"{summary['skill_vs_constant_velocity']:.2f}), {len(models)} seeds")
+            f"{summary['skill_vs_constant_velocity']:.2f}), {n_seeds} seeds")
     if split:
         line += "; beside: " + ", ".join(
             f"{name} {p['summary']['model']:.3g} (last state {p['summary']['last_state']:.3g}, skill "
@@ -542,24 +572,28 @@ def _refuse_unpadded(states: dict, tasks: list[str], idx: list[int]) -> None:
                             "with state_reading.pad_states")
 
 
-def _episode_sums(entry, task: str, index: int, models: list, task_mean: np.ndarray, history: int,
-                  parts: dict[str, np.ndarray] | None = None) -> dict:
-    """One held-out episode's summed one-step errors: each seed's model's, and each baseline's; with `parts`
-    ({name: (D,) bool}), the same over each part's values too."""
+def _episode_sums(entry, task: str, index: int, models: dict[str, list], task_mean: np.ndarray, history: int,
+                  scored: dict[str, tuple[str, np.ndarray | None]]) -> dict:
+    """One held-out episode's summed one-step errors: each seed's model's, and each baseline's, over each `scored`
+    part ({name: (the model selection of `models` it is read from, its values (D,) bool or None: all)}). The first
+    part's sums are the episode's own; with more than one, every part's are in `parts`."""
     s, a, m = _entry(entry)
     cur, changes, act, nxt = _steps(s, a, history)
-    predictions = {"model": [_predict(net, norm, cur, changes, act, m) for net, norm in models],
-                   "last_state": cur, "mean_state": np.broadcast_to(task_mean, nxt.shape),
-                   "constant_velocity": cur + changes[:, 0]}
+    present = _present(m, s.shape[1]).astype(bool)
+    bases = {"last_state": cur, "mean_state": np.broadcast_to(task_mean, nxt.shape),
+             "constant_velocity": cur + changes[:, 0]}
+    predicted = {name: [_predict(net, norm, cur, changes, act, m) for net, norm in seeds]
+                 for name, seeds in models.items()}
 
-    def sums(keep: np.ndarray | None) -> dict:
-        return {"model": [episode_sums(p, nxt, keep) for p in predictions["model"]],
-                **{b: episode_sums(predictions[b], nxt, keep) for b in BASELINES}}
+    def sums(selection: str, values: np.ndarray | None) -> dict:
+        keep = present if values is None else present & values
+        return {"model": [episode_sums(p, nxt, keep) for p in predicted[selection]],
+                **{b: episode_sums(bases[b], nxt, keep) for b in BASELINES}}
 
-    out = {"task": task, "index": int(index), "frames": int(len(nxt)), **sums(m)}
-    if parts:
-        present = _present(m, s.shape[1]).astype(bool)
-        out["parts"] = {name: sums(present & mask) for name, mask in parts.items()}
+    each = {name: sums(*how) for name, how in scored.items()}
+    out = {"task": task, "index": int(index), "frames": int(len(nxt)), **each[next(iter(scored))]}
+    if len(scored) > 1:
+        out["parts"] = each
     return out
 
 
