@@ -584,7 +584,7 @@ def _state_reading(model_error: float, mean_error: float, spread: float, seed: i
 
 
 def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
-    from simeval.measures.dynamics_diversity.table4_heldout import state_fall
+    from simeval.measures.dynamics_diversity.table4_heldout import _fall_text, state_fall
 
     # 0.5 -> 0.2 per step, the mean state unchanged: a fall of 0.3 beyond both baselines' change
     out = state_fall(_state_reading(0.5, 2.0, 0.1), _state_reading(0.2, 2.0, 0.1, seed=1), 10, 40)
@@ -602,6 +602,15 @@ def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
     assert state_fall(_state_reading(0.5, 2.0, 0.1), gated, 10, 40)["state_fall_verdict"] == \
         "no reading: the model does not beat the last state at 40 episodes"
     assert state_fall(None, _state_reading(0.2, 2.0, 0.1), 10, 40) == {}
+    # an objects' reading (version 5) at 10 against a whole state's (version 4) at 40 is no fall of anything
+    v5 = {**_state_reading(0.5, 2.0, 0.1), "version": 5, "reads": "objects"}
+    mixed = state_fall(v5, {**_state_reading(0.2, 2.0, 0.1, seed=1), "version": 4}, 10, 40)
+    assert mixed == {"state_fall_verdict": "no reading: its counts were read by different versions of the state "
+                                           "reading (10: version 5, objects, 40: version 4, state)"}
+    assert _fall_text(mixed["state_fall_verdict"], "") == ("no reading (counts read by different versions: rerun "
+                                                           "the sweep)")
+    assert "state_drop" in state_fall(v5, {**v5, "per_episode": _state_reading(0.2, 2.0, 0.1)["per_episode"]},
+                                      10, 40)
 
 
 def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trains_no_world_model(monkeypatch):

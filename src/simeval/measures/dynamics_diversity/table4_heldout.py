@@ -282,6 +282,10 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
     train) and the task mean state. {} where either count has no state reading or they scored other episodes."""
     if not first or not last or not first.get("per_episode") or not last.get("per_episode"):
         return {}
+    versions = {k: (state.get("version") or 0, state.get("reads", "state")) for k, state in ((lo, first), (hi, last))}
+    if versions[lo] != versions[hi]:  # an objects' error against a whole state's: no fall of anything
+        return {"state_fall_verdict": MIXED_VERSIONS + ", ".join(
+            f"{k}: version {v or '< 4'}, {reads}" for k, (v, reads) in versions.items()) + ")"}
     (keys_a, model_a, frames_a, bases_a), (keys_b, model_b, frames_b, bases_b) = _state_sums(first), _state_sums(last)
     if keys_a != keys_b or model_a.shape != model_b.shape:
         return {}
@@ -479,8 +483,13 @@ def _fall(row: dict, counts: list[int]) -> str:
     return _fall_text(verdict, number)
 
 
+MIXED_VERSIONS = "no reading: its counts were read by different versions of the state reading ("
+
+
 def _fall_text(verdict: str, number: str) -> str:
     """A fall verdict (gate.fall_verdict) as a table cell: the number where it is read."""
+    if verdict.startswith(MIXED_VERSIONS):
+        return "no reading (counts read by different versions: rerun the sweep)"
     if verdict.startswith("no reading: too wide"):
         return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
