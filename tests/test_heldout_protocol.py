@@ -781,3 +781,20 @@ def test_a_store_recorded_without_frames_serves_the_state_reading_and_refuses_th
     assert lines[-1].startswith(f"error: {tmp_path / 'frameless'}") and \
         "recorded without frames (record.cameras=[]), and the pixel reading needs camera 'front': read the state " \
         "alone (protocol.pixels=false)" in lines[-1]
+
+
+def test_state_fall_cells_keep_two_significant_digits_and_the_panel_says_what_each_row_read():
+    """A state error's fall is 1e-5 in one group's units and 1 in another's: its cell keeps 2 significant digits of
+    the interval's larger end (fixed decimals showed BBSEA drawer's objects as 0.0000 [-0.0000, 0.0000]); the state
+    panel's title names what its rows read."""
+    from simeval.measures.dynamics_diversity.table4_heldout import _sig, _state_panel_title
+
+    assert _sig({"v": 1.3e-5, "v_lo": 4e-6, "v_hi": 2.2e-5}, "v") == "0.000013 [0.000004, 0.000022]"
+    assert _sig({"v": 1.33, "v_lo": 0.7, "v_hi": 1.92}, "v") == "1.3 [0.7, 1.9]"
+    assert _sig({"v": None}, "v") == "—"
+    row = lambda p, reads: {"pipeline": p, "group": "g", "counts": "10/40",  # noqa: E731
+                            **({"state_reads_10": reads} if reads else {})}
+    assert _state_panel_title([row("bbsea", "objects")]).startswith("state reading: objects' poses\n")
+    assert _state_panel_title([row("bbsea", "objects"), row("metaworld", "state")]).startswith(
+        "state reading: objects' poses; whole state: metaworld/g\n")
+    assert _state_panel_title([row("bbsea", None)]).startswith("state reading: whole state (v4)\n")

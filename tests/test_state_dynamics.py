@@ -182,8 +182,9 @@ def test_a_group_whose_tasks_hold_different_object_counts_reads_and_padding_cost
     out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), FAST)
     assert out["padded_from"] == [2 + 7, 2 + 14] and out["dims"] == 16
     assert out["gate"]["passes"], out["line"]
-    assert out["summary"]["skill_vs_last_state"] > 0.8 and "padded from 9/16" in out["line"]
-    assert out["line"].startswith("the whole state (16 values (padded from 9/16)): reads (the gate: the model beats "
+    assert out["summary"]["skill_vs_last_state"] > 0.8 and "the tasks' states hold 9/16 values, padded" in out["line"]
+    assert out["line"].startswith("the whole state (16 values; the tasks' states hold 9/16 values, padded): reads (the "
+                                  "gate: the model beats "
                                   f"the last and the mean state): one-step state error {out['summary']['model']:.3g} "
                                   "(last state")
     # a one-object episode's last-state error is that of its unpadded 9 values, by hand
@@ -305,7 +306,7 @@ def test_with_the_robots_width_the_reading_is_the_objects_and_the_parts_add_up_b
     assert row["last_state"] == pytest.approx(float((change ** 2).sum()), rel=1e-12) and row["last_state"] > 0
     assert out["summary"]["skill_vs_last_state"] == pytest.approx(
         1 - sum(np.mean(r["model"]) for r in out["per_episode"]) / sum(r["last_state"] for r in out["per_episode"]))
-    assert out["line"].startswith("objects' poses (14 of 16 values (padded from 9/16)): reads")
+    assert out["line"].startswith("objects' poses (14 of 16 values; the tasks' states hold 9/16 values, padded): reads")
     assert "; beside: robot " in out["line"] and ", whole state " in out["line"]
 
 
@@ -399,7 +400,7 @@ def test_a_task_whose_objects_stay_still_is_shown_and_not_required_by_the_gate()
     g = out["gate"]
     assert g["passes"] and g["exempt"] == ["still"] and g["tasks"] == 1, out["line"]
     assert not g["per_task"]["still"]["passes"]  # shown: the model's tiny errors against an exact last state
-    assert "1 of 2 tasks' values all but still (shown, not gated: still)" in out["line"]
+    assert "its objects almost motionless in 1 of 2 tasks (their checks shown, not required: still)" in out["line"]
     model = np.array([[r["model"][k] for r in out["per_episode"]] for k in range(len(FAST.seeds))])
     bases = {b: np.tile([r[b] for r in out["per_episode"]], (len(FAST.seeds), 1)) for b in ("last_state",
                                                                                              "mean_state")}

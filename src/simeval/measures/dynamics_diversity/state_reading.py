@@ -496,12 +496,13 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     primary = read_of(per_episode, objects.sum() if split else dims)
     summary, g = primary["summary"], primary["gate"]
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
-    padding = f" (padded from {'/'.join(map(str, layouts))})" if layouts else ""
+    padding = f"; the tasks' states hold {'/'.join(map(str, layouts))} values, padded" if layouts else ""
     what = (f"objects' poses ({primary['dims']} of {dims} values{padding})" if split
             else f"the whole state ({dims} values{padding})")
     if g.get("exempt") and g.get("per_task"):
-        what += (f", {len(g['exempt'])} of {len(g['per_task'])} tasks' values all but still (shown, not gated: "
-                 f"{', '.join(g['exempt'][:3])}{', ...' if len(g['exempt']) > 3 else ''})")
+        still = "objects" if split else "values"
+        what += (f", its {still} almost motionless in {len(g['exempt'])} of {len(g['per_task'])} tasks (their checks "
+                 f"shown, not required: {', '.join(g['exempt'][:3])}{', ...' if len(g['exempt']) > 3 else ''})")
     line = (f"{what}: {g['verdict']}" if not g["passes"] else
             f"{what}: reads (the gate: the model beats the last and the mean state): one-step state error "
             f"{summary['model']:.3g} (last state {summary['last_state']:.3g}, mean state "

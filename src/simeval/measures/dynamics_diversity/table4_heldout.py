@@ -502,7 +502,19 @@ def _state_fall(row: dict) -> str:
     verdict = row.get("state_fall_verdict")
     if not verdict:
         return "—"
-    return _fall_text(verdict, _ci({f"v{s}": row.get(f"state_drop{s}") for s in ("", "_lo", "_hi")}, "v", 4))
+    return _fall_text(verdict, _sig({f"v{s}": row.get(f"state_drop{s}") for s in ("", "_lo", "_hi")}, "v"))
+
+
+def _sig(row: dict, name: str) -> str:
+    """`name` with its interval to 2 significant digits of the larger end (a state error's fall is 1e-5 in one
+    group's units and 1 in another's: fixed decimals showed BBSEA drawer's objects as 0.0000 [-0.0000, 0.0000])."""
+    v = row.get(name)
+    if v is None or not np.isfinite(v):
+        return "—"
+    lo, hi = row[name + "_lo"], row[name + "_hi"]
+    scale = max(abs(v), abs(lo), abs(hi))
+    digits = max(0, 1 - int(np.floor(np.log10(scale)))) if scale > 0 else 0
+    return f"{v:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
 def _state(row: dict, k: int) -> str:
@@ -552,7 +564,10 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "A fall (pixels and states alike) is read only where both counts read, its interval excludes 0 and its "
             "skill against each baseline rises (interval above 0: more than the baseline's own change); 'no fall' "
             f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
-            f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'.")
+            f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'. The state "
+            "reading (simeval.measures.dynamics_diversity.state_reading; its cell says what it read: the objects' "
+            "poses where the store records them, else the whole state) is gated the same way against the last and "
+            "the task's mean state, per task where that task's read values move.")
     apart = [f"{r['pipeline']}/{r['group']}" for r in rows if r.get("state_runs") in (STATE_BESIDE_KEPT,
                                                                                        STATE_BESIDE_PIXELS)]
     if apart:
@@ -587,6 +602,21 @@ def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
 
 def _number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _state_panel_title(rows: list[dict]) -> str:
+    """What the state panel's rows read (state_reads_<k> of their first count): the objects' poses, or the whole
+    state for rows whose stores record no separate poses and for rows read before version 5, named."""
+    reads = {f"{r['pipeline']}/{r['group']}": r.get(f"state_reads_{r['counts'].split('/')[0]}") or "state (version 4)"
+             for r in rows}
+    whole = [name for name, what in reads.items() if what != "objects"]
+    if not whole:
+        head = "objects' poses"
+    elif len(whole) == len(reads):
+        head = "whole state" + (" (v4)" if any(w == "state (version 4)" for w in reads.values()) else "")
+    else:
+        head = f"objects' poses; whole state: {', '.join(whole[:3])}{', ...' if len(whole) > 3 else ''}"
+    return f"state reading: {head}\n(hollow: gated; baselines dashed)"
 
 
 def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
@@ -724,7 +754,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                     + ("\n(intervals cut: " + "; ".join(cut) + ")" if cut else ""))
     if stated:
         axes[-1].set(ylabel="one-step error per step (state units, log scale)", yscale="log",
-                     title="state reading: objects' poses (else whole state)\n(hollow: gated; baselines dashed)")
+                     title=_state_panel_title(stated))
     ks = sorted({int(c) for r in rows for c in r["counts"].split("/")})
     for ax in axes:
         ax.set(xlabel="training episodes per task", xscale="log")
