@@ -410,7 +410,7 @@ def test_a_task_whose_objects_stay_still_is_shown_and_not_required_by_the_gate()
 
 
 def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_known_block():
-    """protocol.state_model.target_scale=change: the predicted change is in units of each value's root mean square
+    """protocol.state_model.target_scale=change (the default): the predicted change is in units of each value's root mean square
     one-step change over the training rows (an object's millimetres weigh as the arm's joint velocities), a value
     that never changes keeps its state deviation; the learned block still reads."""
     from simeval.measures.dynamics_diversity.state_reading import _Norm
@@ -418,7 +418,8 @@ def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_k
     s = np.array([[0.0, 5.0, 1.0], [1.0, 5.0, 3.0], [3.0, 5.0, 2.0]])  # changes (1, 2), (0, 0), (2, -1)
     norm = _Norm.fit([(s, np.zeros((3, 1)))], clip=10.0, target_scale="change")
     np.testing.assert_allclose(norm.unit, [np.sqrt(2.5), 1.0, np.sqrt(2.5)])  # the still value: its sd, 0 -> 1
-    assert norm.clip_targets and _Norm.fit([(s, np.zeros((3, 1)))], clip=10.0).target_sd is None
+    assert norm.clip_targets and _Norm.fit([(s, np.zeros((3, 1)))], clip=10.0, target_scale="state").target_sd is None
+    assert StateModelConfig().target_scale == "change"  # the default since version 6
     with pytest.raises(UserError, match="target_scale"):
         StateModelConfig(target_scale="delta")
     states, tasks = _arm_and_block_group(block_moves=True)
