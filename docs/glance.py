@@ -131,7 +131,7 @@ def table4_heldout(ax) -> None:
     states = [r["state_fall_verdict"] for r in rows if r.get("state_fall_verdict")
               and not r["state_fall_verdict"].startswith("no reading")]
     ax.set_title(f"Table 4 held-out: {reads} of {len(verdicts)} counts pass the pixel gate"
-                 + (f";\nstate reading (objects' poses where recorded) falls 10 -> 40 in "
+                 + (f";\nstate reading falls 10 -> 40 in "
                     f"{sum(v == 'falls' for v in states)} of {len(states)} groups read"
                     if states else ""))
 

@@ -82,7 +82,7 @@ def markdown(table: list[dict]) -> str:
     s = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731
     lines = ["# Table 4 held-out: the state reading's error, robot and objects apart", "",
              "One-step error per step at the fewest -> the most episodes (model; skill vs the last state), from "
-             "`experiments/state_parts.py`. The reading (version 5) reads the objects' part; its verdicts, gated "
+             "`experiments/state_parts.py`. The reading (version 5 on) reads the objects' part; its verdicts, gated "
              "with intervals, are in table4_heldout.md.", "",
              "| pipeline / group | dims robot / objects | whole state | robot | objects | objects' share of the last "
              "state's error | objects beat the last state (skill >= 0.05 at both) |",

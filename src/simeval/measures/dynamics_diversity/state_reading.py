@@ -120,8 +120,8 @@ class StateModelConfig:
     # change over the training rows (each value's motion weighs the same in the loss, an object's millimetres as
     # the arm's joint velocities; the targets clipped to +-feature_clip); "state", its deviation there (versions
     # 1-5). Why, measured on the objects' reading (skill vs the last state at 10 / 40 episodes): in state units an
-    # object's one-step change is 1/100 of its deviation and the loss is the arm's, and the objects were not
-    # learned: GenSim-style placement -0.105 / 0.046 (no reading) -> 0.21 / 0.23, GenSim's own assembling
+    # object's RMS one-step change is 3-7% of its deviation, an arm value's 21-56%, so the loss was the arm's
+    # and the objects were not learned: GenSim-style placement -0.105 / 0.046 (no reading) -> 0.21 / 0.23, GenSim's own assembling
     # -0.13 / 0.047 -> 0.098 / 0.32, BBSEA table 0.54 -> 0.82 at 10; the arm's beside no worse (placement's
     # error 0.0266 -> 0.0239 at 10)
     target_scale: str = "change"
