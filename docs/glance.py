@@ -113,7 +113,8 @@ def table4_heldout(ax) -> None:
         skills = {n: _number(r[f"one_step_object_skill_last_{n}"]) for n in markers}
         if r.get("state_fall_verdict"):  # the state reading's verdict on the fall, where the row has one
             verdict = r["state_fall_verdict"].split(" (")[0].split(":")[0]  # "no reading: why" would cross the points
-            ax.text(2.5, i, f"state: {verdict}", va="center", ha="right", fontsize=7, color="0.2")
+            ax.text(2.5, i, f"state: {verdict}", va="center", ha="right", fontsize=7, color="0.2", zorder=5,
+                    bbox={"fc": "white", "ec": "none", "pad": 0.3})  # over the gate line it crosses
         if all(math.isnan(s) for s in skills.values()):
             ax.text(-2, i, "no skill: too few pixels move", va="center", ha="right", fontsize=8, color="0.35")
             continue

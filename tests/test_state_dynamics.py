@@ -422,6 +422,9 @@ def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_k
     assert StateModelConfig().target_scale == "change"  # the default since version 6
     with pytest.raises(UserError, match="target_scale"):
         StateModelConfig(target_scale="delta")
+    old_loss = state_reading(*_object_group(), list(range(16)), list(range(16, 24)),
+                             StateModelConfig(max_steps=100, eval_every=50, seeds=(0,), target_scale="state"))
+    assert old_loss["target_scale"] == "state" and old_loss["line"].endswith("[target_scale=state: versions 1-5's loss]")
     states, tasks = _arm_and_block_group(block_moves=True)
     cfg = StateModelConfig(max_steps=600, eval_every=50, patience=4, seeds=(0, 1), target_scale="change")
     out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), cfg, robot_dims=3)

@@ -283,8 +283,8 @@ def test_a_table_row_refuses_runs_of_different_settings_under_one_preset():
     with pytest.raises(UserError) as e:
         table4.build([rec(10, 200.0, 40), rec(20, 80.0, 20)])
     assert str(e.value) == ("robogen/ground (preset cpu): its runs differ in world_model.window.length "
-                            "(world_model.window.length: 20, 40); a row holds runs of one setting: give --root a "
-                            "folder with one setting's runs")
+                            "(world_model.window.length: 20, 40); a row holds runs of one setting: give the report a "
+                            "folder with one setting's runs (report.runs_dir=..., or --root where a script takes it)")
 
 
 def test_a_table_extended_with_keep_holds_the_earlier_cells_and_the_new_runs(tmp_path):

@@ -517,13 +517,15 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             f"{summary['mean_state']:.3g}, constant velocity {summary['constant_velocity']:.3g}; skill vs each "
             f"{summary['skill_vs_last_state']:.2f} / {summary['skill_vs_mean_state']:.2f} / "
             f"{summary['skill_vs_constant_velocity']:.2f}), {n_seeds} seeds")
+    if cfg.target_scale != "change":  # not this version's loss: the line says so (result.json's target_scale too)
+        line += f" [target_scale={cfg.target_scale}: versions 1-5's loss]"
     if split:
         line += "; beside: " + ", ".join(
             f"{name} {p['summary']['model']:.3g} (last state {p['summary']['last_state']:.3g}, skill "
             + ("n/a" if p["summary"]["skill_vs_last_state"] is None else f"{p['summary']['skill_vs_last_state']:.2f}")
             + (", reads" if p["gate"]["passes"] else ", no reading") + ")"
             for name, p in (("robot", beside["parts"]["robot"]), ("whole state", beside["whole_state"])))
-    return {"version": VERSION, "reads": reads, "dims": int(dims), "read_dims": primary["dims"],
+    return {"version": VERSION, "target_scale": cfg.target_scale, "reads": reads, "dims": int(dims), "read_dims": primary["dims"],
             "padded_from": layouts or None, "summary": summary, "per_episode": per_episode, "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line, **beside}

@@ -55,8 +55,8 @@ def one_setting(row_key: tuple, recs: list[dict]) -> None:
         seen = sorted({repr(f.get(keys[0])) for f in flats})
         named = [k.removeprefix("settings.") for k in keys]
         raise UserError(f"{p}/{g} (preset {pr}): its runs differ in {', '.join(named)} ({named[0]}: "
-                        f"{', '.join(seen)}); a row holds runs of one setting: give --root a folder with one "
-                        "setting's runs")
+                        f"{', '.join(seen)}); a row holds runs of one setting: give the report a folder with one "
+                        "setting's runs (report.runs_dir=..., or --root where a script takes it)")
 
 
 def build(records: list[dict], *, episodes: tuple[int, ...] | list[int] = EPISODES, preset: str | None = None

@@ -604,6 +604,12 @@ def _number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
 
 
+def _still(row: dict, ks: list[int]) -> bool:
+    """Whether a row's state reading read values that never change (its last state exact at every count: RoboGen's
+    objects), whose zero errors a log axis cannot draw."""
+    return all(_number(row.get(f"state_last_state_{k}")) and row[f"state_last_state_{k}"] == 0 for k in ks)
+
+
 def _state_panel_title(rows: list[dict]) -> str:
     """What the state panel's rows read (state_reads_<k> of their first count): the objects' poses, or the whole
     state for rows whose stores record no separate poses and for rows read before version 5, named."""
@@ -696,10 +702,11 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         gated = [str(k) for k in ks if not row_gate(r, k)[0]] if has_pixels(r) else []
         row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
                                label=name + ("" if masked else " (no masks: full frame)")
-                               + (f" [no reading at {'/'.join(gated)}]" if gated else "")
+                               + (f" [pixels: no reading at {'/'.join(gated)}]" if gated else "")
                                + (_missing_readings(r, ks, bool(moving)) if has_pixels(r) else
                                   " (states only: protocol.pixels=false)")
-                               + (" (no state reading)" if stated and r not in stated else "")))
+                               + (" (no state reading)" if stated and r not in stated else "")
+                               + (" (state: objects never move, not drawn)" if r in stated and _still(r, ks) else "")))
         n_gated += bool(gated)
         if r in stated:
             _state_panel(axes[-1], r, ks, color, marker, name)
@@ -774,7 +781,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
                     title="reading (line style)", title_fontsize=9, alignment="left")
-    gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([no reading at ...]: the "
+    gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([pixels: no reading at ...]: the "
                   "model does not beat the last frame or the mean image; their pixel numbers read nothing)"
                   if n_gated else "")
     state_line = "the state reading (its own panel) has its own gate" if stated else ""
