@@ -696,7 +696,8 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     gated_cells = display([row])[1][0]
     assert gated_cells[5].startswith("no reading") and gated_cells[6] == gated_cells[10] == gated_cells[12] == \
         gated_cells[14] == "no reading"
-    assert gated_cells[11].startswith("-") and gated_cells[15].startswith("whole state (v4): 0.0")  # state: what it read
+    assert gated_cells[11].startswith("-")
+    assert gated_cells[15].startswith("whole state (v4): 0.0")  # the state cell says what it read
     assert len(merged) == len(kept)
     # another number of held-out episodes: the kept pixel reading is of other episodes, so it is not borrowed
     other = build([_state_only_record(0, k, 40) for k in (10, 20, 40)], n_boot=100)

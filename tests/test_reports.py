@@ -247,14 +247,14 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
     silent = [r for r in rows if not np.isfinite(r["one_step_moving_skill_last_10"])]
     assert [f"{r['pipeline']}/{r['group']}" for r in silent] == ["gensim/stacking"]
     # every committed row fails the gate at every count (simeval.measures.dynamics_diversity.gate), and its key says so
-    expected = ("gensim/stacking [pixels: no reading at 10/20/40] (second and fourth panels: no reading, under 100 pixels "
-                "moved)")
+    expected = ("gensim/stacking [pixels: no reading at 10/20/40] (second and fourth panels: no reading, under 100 "
+                "pixels moved)")
     assert [k for k in keys if "panel" in k] == [expected]
     rows[0] = {k: v for k, v in rows[0].items() if "moving" not in k}  # runs from before moving pixels were summed
     keys.clear()
     table4_heldout.plot(rows, tmp_path / "f.png")
-    assert (f"{rows[0]['pipeline']}/{rows[0]['group']} [pixels: no reading at 10/20/40] (fourth panel: its runs did not sum "
-            "moving pixels)") in keys
+    assert (f"{rows[0]['pipeline']}/{rows[0]['group']} [pixels: no reading at 10/20/40] (fourth panel: its runs did "
+            "not sum moving pixels)") in keys
 
 
 def test_a_wide_interval_is_cut_at_the_panel_edge_and_named_instead_of_squeezing_the_other_rows():

@@ -410,9 +410,9 @@ def test_a_task_whose_objects_stay_still_is_shown_and_not_required_by_the_gate()
 
 
 def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_known_block():
-    """protocol.state_model.target_scale=change (the default): the predicted change is in units of each value's root mean square
-    one-step change over the training rows (an object's millimetres weigh as the arm's joint velocities), a value
-    that never changes keeps its state deviation; the learned block still reads."""
+    """protocol.state_model.target_scale=change (the default): the predicted change is in units of each value's
+    root mean square one-step change over the training rows (an object's millimetres weigh as the arm's joint
+    velocities), a value that never changes keeps its state deviation; the learned block still reads."""
     from simeval.measures.dynamics_diversity.state_reading import _Norm
 
     s = np.array([[0.0, 5.0, 1.0], [1.0, 5.0, 3.0], [3.0, 5.0, 2.0]])  # changes (1, 2), (0, 0), (2, -1)
@@ -424,7 +424,8 @@ def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_k
         StateModelConfig(target_scale="delta")
     old_loss = state_reading(*_object_group(), list(range(16)), list(range(16, 24)),
                              StateModelConfig(max_steps=100, eval_every=50, seeds=(0,), target_scale="state"))
-    assert old_loss["target_scale"] == "state" and old_loss["line"].endswith("[target_scale=state: versions 1-5's loss]")
+    assert old_loss["target_scale"] == "state"
+    assert old_loss["line"].endswith("[target_scale=state: versions 1-5's loss]")
     states, tasks = _arm_and_block_group(block_moves=True)
     cfg = StateModelConfig(max_steps=600, eval_every=50, patience=4, seeds=(0, 1), target_scale="change")
     out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), cfg, robot_dims=3)

@@ -121,8 +121,9 @@ class StateModelConfig:
     # the arm's joint velocities; the targets clipped to +-feature_clip); "state", its deviation there (versions
     # 1-5). Why, measured on the objects' reading (skill vs the last state at 10 / 40 episodes): in state units an
     # object's RMS one-step change is 3-7% of its deviation, an arm value's 21-56%, so the loss was the arm's
-    # and the objects were not learned: GenSim-style placement -0.105 / 0.046 (no reading) -> 0.21 / 0.23, GenSim's own assembling
-    # -0.13 / 0.047 -> 0.098 / 0.32, BBSEA table 0.54 -> 0.82 at 10; the arm's beside no worse (placement's
+    # and the objects were not learned: GenSim-style placement -0.105 / 0.046 (no reading) -> 0.21 / 0.23,
+    # GenSim's own assembling -0.13 / 0.047 -> 0.098 / 0.32, BBSEA table 0.54 -> 0.82 at 10; the arm's beside no
+    # worse (placement's
     # error 0.0266 -> 0.0239 at 10)
     target_scale: str = "change"
 
@@ -525,7 +526,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             + ("n/a" if p["summary"]["skill_vs_last_state"] is None else f"{p['summary']['skill_vs_last_state']:.2f}")
             + (", reads" if p["gate"]["passes"] else ", no reading") + ")"
             for name, p in (("robot", beside["parts"]["robot"]), ("whole state", beside["whole_state"])))
-    return {"version": VERSION, "target_scale": cfg.target_scale, "reads": reads, "dims": int(dims), "read_dims": primary["dims"],
+    return {"version": VERSION, "target_scale": cfg.target_scale, "reads": reads, "dims": int(dims),
+            "read_dims": primary["dims"],
             "padded_from": layouts or None, "summary": summary, "per_episode": per_episode, "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line, **beside}

@@ -127,12 +127,13 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
     """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring). Runs
     of one seed found twice (a sweep run again: it resumes and evaluates again) count once, the newest."""
     rows = []
-    for (p, g, pr, steps), by_k in sorted(_cells(records).items(), key=lambda kv: tuple(map(str, kv[0]))):
+    for (p, g, pr, steps), cell in sorted(_cells(records).items(), key=lambda kv: tuple(map(str, kv[0]))):
+        by_k = {k: runs for k, (runs, _) in cell.items()}
+        states = {k: state for k, (_, state) in cell.items()}
         counts = sorted(by_k)
-        one_setting((p, g, pr), [r for k in counts for r in _own_runs(by_k[k]) if "settings" in r["identity"]])
+        one_setting((p, g, pr), [r for k in counts for r in by_k[k] if "settings" in r["identity"]])
         row = {"pipeline": p, "group": g, "preset": pr, "steps": steps, "counts": "/".join(map(str, counts))}
         reps_by_k, gates = {}, {}
-        states = {k: _newest_state(by_k[k]) for k in counts}
         for k in counts:
             reps_by_k[k], gates[k] = _count_columns(row, k, by_k[k], n_boot=n_boot, seed=seed, gate_cfg=gate_cfg)
             if states[k] is not by_k[k][0]:  # a states-only sweep read the state with a newer version
@@ -150,7 +151,10 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
 
 
 def _cells(records: list[dict]) -> dict:
-    """{(pipeline, group, preset, steps): {episodes: [one record per seed]}} from the held-out runs that ended ok."""
+    """{(pipeline, group, preset, steps): {episodes: ([one record per seed], the record whose state reading the
+    count shows)}} from the held-out runs that ended ok. Runs with pixels carry the same state reading as a
+    states-only sweep of the group (tested): where a count has both, its runs with pixels make the row, and its
+    state reading is theirs unless the newest states-only run read the state with a newer version of the reading."""
     cells: dict = defaultdict(lambda: defaultdict(list))
     for rec in records:
         ident = rec.get("identity") or {}
@@ -158,47 +162,33 @@ def _cells(records: list[dict]) -> dict:
             continue
         cells[(ident["pipeline"], ident["task_group"], ident["preset"], ident.get("steps"))][
             int(ident["episodes"])].append(rec)
-    for by_k in cells.values():  # one run per seed: a sweep rerun after a kill writes the same runs again
+    out = {}
+    for key, by_k in cells.items():
+        out[key] = {}
         for k, recs in by_k.items():
-            # runs with pixels carry the same state reading as a state-only sweep of the group (tested): where a
-            # count has both, its runs with pixels make the row, its states-only runs kept last for
-            # _newest_state (a state reading of a newer version than the pixel runs' own)
+            recs = sorted(recs, key=lambda r: str(r.get("created", "")))
             pixels = [r for r in recs if r["values"].get("prediction") is not None]
-            newest = {}
-            for rec in sorted(pixels or recs, key=lambda r: str(r.get("created", ""))):
+            newest = {}  # one run per seed: a sweep rerun after a kill writes the same runs again
+            for rec in pixels or recs:
                 newest[int(rec["identity"].get("seed", 0))] = rec
-            states_only = sorted((r for r in recs if r["values"].get("prediction") is None and pixels),
-                                 key=lambda r: str(r.get("created", "")))
-            by_k[k] = list(newest.values()) + states_only[-1:]
-    return cells
-
-
-def _own_runs(recs: list[dict]) -> list[dict]:
-    """A count's runs that make its row: those with pixels where it has any (not the states-only run _cells keeps
-    beside them), else all."""
-    pixels = [r for r in recs if r["values"].get("prediction") is not None]
-    return pixels or recs
+            runs = list(newest.values())
+            state = runs[0]
+            states_only = [r for r in recs if r["values"].get("prediction") is None]
+            if pixels and states_only and _state_version(states_only[-1]) > _state_version(state):
+                state = states_only[-1]
+            out[key][k] = (runs, state)
+    return out
 
 
 def _state_version(rec: dict) -> int:
     return int(((rec["values"].get("state") or {}).get("version")) or 0)
 
 
-def _newest_state(recs: list[dict]) -> dict:
-    """The record whose state reading a count's state columns show: the row's own first run, unless a later
-    states-only run (last in `recs`, see _cells) read the state with a newer version of the reading."""
-    first, last = recs[0], recs[-1]
-    if last["values"].get("prediction") is None and first["values"].get("prediction") is not None \
-            and _state_version(last) > _state_version(first):
-        return last
-    return first
-
-
 def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: int,
                    gate_cfg: GateConfig) -> tuple[dict | None, dict | None]:
     """One episode count's columns, added to `row`; returns its resampled replicates and its pixel gate (None, None
     for runs of the state reading only, protocol.pixels=false)."""
-    recs = sorted(_own_runs(recs), key=lambda r: int(r["identity"].get("seed", 0)))
+    recs = sorted(recs, key=lambda r: int(r["identity"].get("seed", 0)))
     if any(r["values"].get("prediction") is None for r in recs):
         state = recs[0]["values"].get("state") or {}
         row[f"runs_{k}"] = len(state.get("seeds") or recs)  # its own training seeds; the run's seed trains nothing
@@ -781,8 +771,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
                     title="reading (line style)", title_fontsize=9, alignment="left")
-    gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([pixels: no reading at ...]: the "
-                  "model does not beat the last frame or the mean image; their pixel numbers read nothing)"
+    gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([pixels: no reading at "
+                  "...]: the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
                   if n_gated else "")
     state_line = "the state reading (its own panel) has its own gate" if stated else ""
     lines = [title, "; ".join(x for x in (gated_line, state_line) if x)]
