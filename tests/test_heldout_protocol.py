@@ -611,6 +611,12 @@ def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
                                                            "the sweep)")
     assert "state_drop" in state_fall(v5, {**v5, "per_episode": _state_reading(0.2, 2.0, 0.1)["per_episode"]},
                                       10, 40)
+    # one version, but 40's episodes recorded the drawer's moving link (7 more values): no fall of one state
+    apart = state_fall({**v5, "dims": 30, "read_dims": 14}, {**v5, "dims": 37, "read_dims": 21}, 10, 40)
+    assert apart == {"state_fall_verdict": "no reading: its counts read states of different layouts, recorded apart "
+                                           "(10: 14 of 30 values, 40: 21 of 37 values)"}
+    assert _fall_text(apart["state_fall_verdict"], "") == ("no reading (counts read states recorded apart: rerun the "
+                                                           "sweep on one collection)")
 
 
 def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trains_no_world_model(monkeypatch):
@@ -727,6 +733,16 @@ def test_rows_of_the_state_reading_alone_replace_only_a_kept_rows_state_columns_
     [same] = build([{**newer, "values": {**newer["values"], "state": {**newer["values"]["state"], "version": 4}}},
                     full_v4], n_boot=50)  # not newer: the pixel runs' own
     assert same["state_model_4"] == 0.123 and "state_runs" not in same
+    # the same version read after the pixel runs (the episodes collected again with more state): the newer reading
+    later = {**newer, "created": "99", "values": {**newer["values"], "state": {**newer["values"]["state"],
+                                                                               "version": 4}}}
+    [again] = build([later, full_v4], n_boot=50)
+    assert again["state_model_4"] == newer["values"]["state"]["summary"]["model"] != 0.123
+    assert again["state_runs"].startswith("runs of the state reading only") and "read after them" in again["state_runs"]
+    # an older version never replaces the pixel runs' own, however late it was read
+    [old_late] = build([{**later, "values": {**later["values"], "state": {**later["values"]["state"], "version": 3}}},
+                        full_v4], n_boot=50)
+    assert old_late["state_model_4"] == 0.123
     assert plot([alone, merged[("bbsea", "table")]], tmp_path / "f.png").stat().st_size > 10_000
 
 
@@ -799,3 +815,57 @@ def test_state_fall_cells_keep_two_significant_digits_and_the_panel_says_what_ea
     assert _state_panel_title([row("bbsea", "objects"), row("metaworld", "state")]).startswith(
         "state reading: objects' poses; whole state: metaworld/g\n")
     assert _state_panel_title([row("bbsea", None)]).startswith("state reading: whole state (v4)\n")
+
+
+def test_a_state_reading_is_kept_by_its_inputs_so_a_rerun_skips_it_and_other_states_read_again(tmp_path, caplog):
+    """With a checkpoint_dir the state reading is kept as state_reading-<key>.json, keyed by the states read by
+    value: the same run again (a sweep rerun after a kill, or another seed of a sweep with pixels) returns it without
+    training; the same episodes with one value changed, or one more value recorded, read again; a cut-short file
+    is read again and rewritten."""
+    import dataclasses
+    import json
+    import logging
+
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig
+
+    source = make_physics_group("varied", 2, 12, 20, 16)
+    training = dd.Training(WorldModelConfig.from_dict(TINY["model"]), TrainConfig.from_dict(TINY["train"]),
+                           WindowSpec(**TINY["window"]), steps=12)
+    evaluation = dd.Evaluation(protocol="heldout", episodes=(8, 12), pixels=False,
+                               state_model=StateModelConfig(max_steps=40, eval_every=20, seeds=(0,)))
+
+    def read(src, name="ck"):
+        return dd.fit_and_evaluate(src, 4, training, evaluation,
+                                   dd.Execution(progress=False, checkpoint_dir=tmp_path / name))["state"]
+
+    def plain(state):
+        return json.loads(json.dumps({k: v for k, v in state.items() if k not in ("cache", "seconds")},
+                                     default=lambda v: v.tolist()))
+
+    first = read(source)
+    [kept] = (tmp_path / "ck").glob("state_reading-*.json")
+    assert "cache" not in first
+    with caplog.at_level(logging.INFO, logger=dd.__name__):
+        again = read(source)
+    assert again["cache"] == str(kept) and plain(again) == plain(first)
+    assert "state reading: read before, from" in caplog.text
+    fresh = read(source, "other")  # read anew elsewhere: the kept reading is the one a rerun would give
+    assert plain(fresh) == plain(first)
+
+    changed = [dict(a) for a in source.arrays]
+    changed[0]["state"] = changed[0]["state"].copy()
+    changed[0]["state"][3, 0] += 1e-3
+    read(ArraySource(source.infos, changed))
+    one_more = [{**a, "state": np.concatenate([a["state"], a["state"][:, :1]], 1)}
+                for a in source.arrays]  # the same episodes with one more value recorded (as a moving link)
+    read(ArraySource(source.infos, one_more))
+    evaluation = dataclasses.replace(evaluation, state_model=dataclasses.replace(evaluation.state_model, seeds=(1,)))
+    read(source)  # other settings
+    assert len(list((tmp_path / "ck").glob("state_reading-*.json"))) == 4
+    evaluation = dataclasses.replace(evaluation, state_model=dataclasses.replace(evaluation.state_model, seeds=(0,)))
+
+    kept.write_text(kept.read_text()[:100])  # cut short
+    with caplog.at_level(logging.WARNING, logger=dd.__name__):
+        mended = read(source)
+    assert "unreadable" in caplog.text and "cache" not in mended and plain(mended) == plain(first)
+    assert json.loads(kept.read_text())["summary"] == plain(first)["summary"]

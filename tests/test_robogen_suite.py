@@ -189,3 +189,41 @@ def test_collect_stores_ee_delta_episodes_in_parallel_and_resumes(tmp_path):
     again = collect(specs, [0, 1, 2], store, settings, pipeline="robogen", workers=2, progress=False)
     assert again["skipped"] == 4 and [(r["task"], r["seed"]) for r in again["new"]] == [
         ("flush-the-toilet", 2), ("pull-drawer-out", 2)]
+
+
+def _turn(q0: np.ndarray, q1: np.ndarray) -> float:
+    """The angle (radians) of the rotation between two xyzw quaternions."""
+    return float(2 * np.arccos(min(1.0, abs(float(np.dot(q0, q1))))))
+
+
+@pytest.mark.parametrize("task", ["pull-drawer-out", "open-laptop"])
+def test_object_poses_record_each_moving_link_so_an_articulation_moves_the_objects_state(task):
+    """An articulated object's base never moves; its link on the joint does. object_poses gives the base's row, then
+    the link's in its joint frame: setting the joint to a fraction f of its limits slides the link f x travel
+    (prismatic) or turns it f x range (revolute), read from PyBullet's joint limits, not from the poses."""
+    env = make_env(task, image_size=(32, 32), cameras=("front",))
+    try:
+        env.reset(seed=0)
+        c, body = env.world.c, env.inst.objects[0].body_ids[0]
+        lo, hi = c.getJointInfo(body, 0)[8:10]
+        prismatic = c.getJointInfo(body, 0)[2] == c.JOINT_PRISMATIC
+        start = env.object_poses()
+        set_joint_fraction(c, body, 0, joint_fraction(c, body, 0) + 0.5)
+        moved = env.object_poses()
+    finally:
+        env.close()
+    assert start.shape == moved.shape == (2, 7)
+    np.testing.assert_array_equal(start[0], moved[0])  # the fixed base
+    slide, turn = float(np.linalg.norm(moved[1, :3] - start[1, :3])), _turn(start[1, 3:], moved[1, 3:])
+    if prismatic:
+        assert slide == pytest.approx(0.5 * (hi - lo), rel=1e-4) and turn == pytest.approx(0, abs=1e-3)
+    else:  # the joint frame sits on the hinge: it turns in place
+        assert turn == pytest.approx(0.5 * (hi - lo), rel=1e-3) and slide == pytest.approx(0, abs=1e-5)
+
+
+def test_a_stored_episode_of_an_articulation_records_its_link_moving():
+    ep = run_episode(SUITE["open-laptop"], 0, RecordSettings(cameras=(), scene_view_size=(8, 8)), pipeline="robogen")
+    poses = ep.object_poses  # (T + 1, 2, 7): the laptop's base, its lid
+    assert ep.success and poses.shape[1:] == (2, 7)
+    assert np.ptp(poses[:, 0], axis=0).max() == 0  # the base stands still
+    assert _turn(poses[0, 1, 3:], poses[-1, 1, 3:]) > 0.3  # the lid opened (the goal: half its range or more)

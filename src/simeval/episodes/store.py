@@ -20,6 +20,8 @@ Per step (T + 1 rows; datasets under the file root):
                                              render as the frame (simeval's suites; optional: imported data has none)
   obs/state          float32 (T+1, D)        proprioception, names in attrs state_names (D may be 0)
   obs/object_poses   float32 (T+1, N, 7)     object positions + xyzw quaternions, when the source has them
+                                             (simeval's suites: each body, then each of its links on a moving
+                                             joint, as a drawer or a lid, in its joint's frame)
   obs/language       str (T+1,)              per-step language goal, when the source has one (optional)
   action             float32 (T+1, A)        the action taken at each row (row T: padding), see action_space
   reward             float32 (T+1,)          reward of the row's action; `progress` float32 (T+1,) partial

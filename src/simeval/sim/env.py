@@ -78,7 +78,7 @@ from simeval.sim.action_spaces import (  # noqa: F401
     joint_action_space,
     pick_place_action_space,
 )
-from simeval.sim.core.articulated import set_joint_fraction
+from simeval.sim.core.articulated import moving_links, set_joint_fraction
 from simeval.sim.core.geometry import still
 from simeval.sim.core.objects import make_object
 from simeval.sim.core.world import OBS_CAMERAS, PILE_SOLVER_RESIDUAL, SCENE_VIEWS, TABLE_Z, World
@@ -347,10 +347,18 @@ class SimEnv(_gym().Env):
 
     def object_poses(self) -> np.ndarray:
         """(N, 7) position and xyzw quaternion of every object body, in the order of the instance's objects
-        (a pile contributes one row per particle). Privileged: not part of the observation."""
+        (a pile contributes one row per particle), each body's row followed by one per link on a moving joint (its
+        joint frame in the world: an articulated object's lid, door or drawer, a fixture's drawer or button cap), so
+        an articulation shows in the poses although its fixed base never moves. Privileged: not part of the
+        observation."""
         c = self.world.c
-        rows = [np.r_[pos, orn] for o in self.inst.objects for b in o.body_ids
-                for pos, orn in (c.getBasePositionAndOrientation(b),)]
+        rows = []
+        for b in (b for o in self.inst.objects for b in o.body_ids):
+            pos, orn = c.getBasePositionAndOrientation(b)
+            rows.append(np.r_[pos, orn])
+            for k in moving_links(c, b):
+                pos, orn = c.getLinkState(b, k, computeForwardKinematics=True)[4:6]
+                rows.append(np.r_[pos, orn])
         return np.asarray(rows, np.float32).reshape(-1, 7)
 
 

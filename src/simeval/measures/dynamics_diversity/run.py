@@ -32,11 +32,13 @@ from simeval.episodes.dataset import (
     require_ranks,
     window_starts,
 )
-from simeval.episodes.digest import source_digest
+from simeval.episodes.digest import arrays_digest, source_digest
 from simeval.errors import EpisodesUnfit, UserError
 from simeval.media import write_video
+from simeval.results import atomic_write_text
 from simeval.runtime.device import resolve_device
 from simeval.measures.dynamics_diversity.gate import GateConfig, pixel_gate
+from simeval.measures.dynamics_diversity.state_reading import VERSION as STATE_VERSION
 from simeval.measures.dynamics_diversity.state_reading import (StateModelConfig, read_states, robot_dims,
                                                               state_reading)
 from simeval.models.world_model_training import TrainConfig, evaluate, load_checkpoint, train
@@ -323,7 +325,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     lo, hi = evaluation.episodes
     _refuse_training_on_evaluated(source, k, lo, hi, how_to_get_more)
     if not evaluation.pixels:
-        return _states_only(source, k, evaluation, how_to_get_more)
+        return _states_only(source, k, evaluation, how_to_get_more, execution.checkpoint_dir)
     context = 5 if evaluation.context is None else int(evaluation.context)
     check_heldout_settings(steps, horizon, lr, mask_margin, context, exclude_robot_from_loss)
     # the budget: `steps` for every episode count (an epoch count that cannot run short; max_steps stops it)
@@ -373,7 +375,8 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
               "prediction": prediction,
               "gate": pixel_gate([prediction["per_episode"]], evaluation.gate or GateConfig()),
               "state": None if evaluation.state_model is None else
-              _state_reading(source, setup.train_mask, evaluated, evaluation.state_model, evaluation.gate),
+              _state_reading(source, setup.train_mask, evaluated, evaluation.state_model, evaluation.gate,
+                             execution.checkpoint_dir),
               "videos": {task: str(write_video(frames, Path(video_dir) / f"open_loop_{task}.mp4", fps=VIDEO_FPS))
                          for task, frames in clips.items()},
               "train": setup.train_summary(summary, execution.device, compile, execution.capture),
@@ -383,7 +386,7 @@ def _fit_and_evaluate_heldout(source, episodes_per_task: int, training: Training
     return values
 
 
-def _states_only(source, k: int, evaluation: Evaluation, how_to_get_more) -> dict:
+def _states_only(source, k: int, evaluation: Evaluation, how_to_get_more, cache_dir: str | Path | None) -> dict:
     """The heldout protocol with `evaluation.pixels` False: the same training and evaluated episodes as a run with
     pixels (the ranks), the state reading alone; no frame is read, so episodes without frames serve."""
     if evaluation.state_model is None:
@@ -397,24 +400,55 @@ def _states_only(source, k: int, evaluation: Evaluation, how_to_get_more) -> dic
     train_mask, evaluated = rank_mask(ranks, 0, k), rank_mask(ranks, lo, hi)
     return {"protocol": {"name": "heldout", "pixels": False, "trained_on": [1, k], "evaluated_on": [lo + 1, hi]},
             "prediction": None, "gate": None,
-            "state": _state_reading(source, train_mask, evaluated, evaluation.state_model, evaluation.gate),
+            "state": _state_reading(source, train_mask, evaluated, evaluation.state_model, evaluation.gate,
+                                    cache_dir),
             "videos": {}, "train": None, "model": None, "tasks": sorted(set(tasks)), "checkpoint": None}
 
 
 def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: StateModelConfig,
-                   gate: GateConfig | None) -> dict:
+                   gate: GateConfig | None, cache_dir: str | Path | None = None) -> dict:
+    """The state reading of a run (state_reading); with `cache_dir`, kept there as `state_reading-<key>.json`, the
+    key its inputs by value (the states, actions and presence masks read, which episodes train and which are
+    evaluated, the settings, the reading's version), so a sweep run again after a kill skips the counts it read and
+    the seeds of a sweep with pixels, whose state reading is one and the same, train it once."""
     train_idx, eval_idx = np.flatnonzero(train_mask).tolist(), np.flatnonzero(evaluated).tolist()
     states = read_states(source, train_idx + eval_idx)
+    tasks, dims = [i.task for i in source.infos], robot_dims(source, train_idx + eval_idx)
+    gate = gate or GateConfig()
+    cache = None
+    if cache_dir is not None:
+        key = _state_key(states, tasks, train_idx, eval_idx, cfg, gate, dims)
+        cache = Path(cache_dir) / f"state_reading-{key}.json"
+        if cache.exists():
+            try:
+                out = json.loads(cache.read_text())
+            except (OSError, ValueError) as e:  # a file cut short by a full disk: read again, and rewrite it
+                log.warning("state reading: %s unreadable (%s); reading the states again", cache, e)
+            else:
+                log.info("state reading: read before, from %s", cache)
+                return {**out, "cache": str(cache)}
     started = time.perf_counter()
     try:
-        out = state_reading(states, [i.task for i in source.infos], train_idx, eval_idx, cfg, gate or GateConfig(),
-                            robot_dims=robot_dims(source, train_idx + eval_idx))
+        out = state_reading(states, tasks, train_idx, eval_idx, cfg, gate, robot_dims=dims)
     except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
         why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
         return {"dims": None, "gate": {"passes": False, "verdict": why}, "summary": {}, "line": why,
                 "seconds": time.perf_counter() - started}
     out["seconds"] = time.perf_counter() - started
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(cache, json.dumps(out, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
     return out
+
+
+def _state_key(states: dict, tasks: list[str], train_idx: list[int], eval_idx: list[int], cfg: StateModelConfig,
+               gate: GateConfig, robot_dims: int | None) -> str:
+    """16 hex digits of what a state reading reads, by value (simeval.episodes.digest for the arrays)."""
+    data = arrays_digest({f"{i}": a for i, a in enumerate(states[e])} for e in train_idx + eval_idx)
+    text = json.dumps({"version": STATE_VERSION, "data": data, "tasks": [tasks[e] for e in train_idx + eval_idx],
+                       "train": train_idx, "evaluated": eval_idx, "robot_dims": robot_dims, "model": asdict(cfg),
+                       "gate": asdict(gate)}, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
 @dataclass

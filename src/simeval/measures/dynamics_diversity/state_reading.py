@@ -3,9 +3,11 @@ on held-out episodes beside trivial predictors, under the same protocol as the p
 prediction) but blind to rendering (small objects, the arm filling the frame, colours).
 
 State: s_t (D,) = [obs/state_t (the robot's proprioception, what the pipeline records), then per object pose where
-the store has obs/object_poses (T+1, N, 7): x, y, z and the quaternion xyzw, its sign chosen so that w >= 0 at the
-episode's first row and q_t . q_{t-1} >= 0 after (q and -q are one rotation; a sign fixed per row by w >= 0 jumps by
-up to 2 in a value where w crosses 0, as a block turned near 180 degrees about the vertical does)]. Units are the store's (metres, radians): errors of two groups of one pipeline compare.
+the store has obs/object_poses (T+1, N, 7; simeval's suites record each body's and each of its moving links', so
+a drawer's slide or a lid's turn is an object's motion): x, y, z and the quaternion xyzw, its sign chosen so that
+w >= 0 at the episode's first row and q_t . q_{t-1} >= 0 after (q and -q are one rotation; a sign fixed per row by
+w >= 0 jumps by up to 2 in a value where w crosses 0, as a block turned near 180 degrees about the vertical does)].
+Units are the store's (metres, radians): errors of two groups of one pipeline compare.
 
 Where a group's tasks record different sizes (a task group's scenes hold 1-3 objects; robots of different
 proprioception), the robot state is padded to the group's largest Dr and the objects to its largest N, with zeros,

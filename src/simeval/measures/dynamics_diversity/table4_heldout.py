@@ -136,7 +136,7 @@ def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
         reps_by_k, gates = {}, {}
         for k in counts:
             reps_by_k[k], gates[k] = _count_columns(row, k, by_k[k], n_boot=n_boot, seed=seed, gate_cfg=gate_cfg)
-            if states[k] is not by_k[k][0]:  # a states-only sweep read the state with a newer version
+            if states[k] is not by_k[k][0]:  # a states-only sweep read the state after the pixel runs
                 _state_columns(row, k, states[k]["values"].get("state"))
                 row["state_runs"] = STATE_BESIDE_PIXELS
         lo, hi = counts[0], counts[-1]
@@ -154,7 +154,7 @@ def _cells(records: list[dict]) -> dict:
     """{(pipeline, group, preset, steps): {episodes: ([one record per seed], the record whose state reading the
     count shows)}} from the held-out runs that ended ok. Runs with pixels carry the same state reading as a
     states-only sweep of the group (tested): where a count has both, its runs with pixels make the row, and its
-    state reading is theirs unless the newest states-only run read the state with a newer version of the reading."""
+    state reading is theirs unless the newest states-only run is newer (_newer_state)."""
     cells: dict = defaultdict(lambda: defaultdict(list))
     for rec in records:
         ident = rec.get("identity") or {}
@@ -174,7 +174,7 @@ def _cells(records: list[dict]) -> dict:
             runs = list(newest.values())
             state = runs[0]
             states_only = [r for r in recs if r["values"].get("prediction") is None]
-            if pixels and states_only and _state_version(states_only[-1]) > _state_version(state):
+            if pixels and states_only and _newer_state(states_only[-1], runs):
                 state = states_only[-1]
             out[key][k] = (runs, state)
     return out
@@ -182,6 +182,15 @@ def _cells(records: list[dict]) -> dict:
 
 def _state_version(rec: dict) -> int:
     return int(((rec["values"].get("state") or {}).get("version")) or 0)
+
+
+def _newer_state(states_only: dict, pixel_runs: list[dict]) -> bool:
+    """Whether a states-only run's reading replaces the pixel runs' own: a newer version of the reading, or the
+    same version read after them (the episodes collected again with more of the state recorded, as the moving links
+    of articulated objects were; the same episodes read again give the same numbers)."""
+    newest = max(str(r.get("created", "")) for r in pixel_runs)
+    return (_state_version(states_only), str(states_only.get("created", ""))) > (
+        max(_state_version(r) for r in pixel_runs), newest)
 
 
 def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: int,
@@ -276,6 +285,10 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
     if versions[lo] != versions[hi]:  # an objects' error against a whole state's: no fall of anything
         return {"state_fall_verdict": MIXED_VERSIONS + ", ".join(
             f"{k}: version {v or '< 4'}, {reads}" for k, (v, reads) in versions.items()) + ")"}
+    dims = {k: (state.get("dims"), state.get("read_dims")) for k, state in ((lo, first), (hi, last))}
+    if dims[lo] != dims[hi]:  # one count of episodes recorded with more of the state (moving links) than the other
+        return {"state_fall_verdict": MIXED_LAYOUTS + ", ".join(
+            f"{k}: {read} of {whole} values" for k, (whole, read) in dims.items()) + ")"}
     (keys_a, model_a, frames_a, bases_a), (keys_b, model_b, frames_b, bases_b) = _state_sums(first), _state_sums(last)
     if keys_a != keys_b or model_a.shape != model_b.shape:
         return {}
@@ -299,8 +312,9 @@ REQUIRED_COLUMNS = ("pipeline", "group", "preset", "counts")
 STATE_ONLY = "runs of the state reading only (protocol.pixels=false)"
 STATE_BESIDE_KEPT = ("runs of the state reading only (protocol.pixels=false), beside the kept row's pixel reading "
                      "(as many held-out episodes per count; its runs may be of episodes collected apart)")
-STATE_BESIDE_PIXELS = ("runs of the state reading only (protocol.pixels=false), a newer version of the reading than "
-                       "the row's runs with pixels carry (as many held-out episodes per count)")
+STATE_BESIDE_PIXELS = ("runs of the state reading only (protocol.pixels=false), newer than the row's runs with pixels "
+                       "(a newer version of the reading, or the same read after them; as many held-out episodes per "
+                       "count)")
 # fall_verdict: rows written before the gate have none; state_fall_verdict: rows without a state reading
 TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_runs")
 
@@ -474,12 +488,15 @@ def _fall(row: dict, counts: list[int]) -> str:
 
 
 MIXED_VERSIONS = "no reading: its counts were read by different versions of the state reading ("
+MIXED_LAYOUTS = "no reading: its counts read states of different layouts, recorded apart ("
 
 
 def _fall_text(verdict: str, number: str) -> str:
     """A fall verdict (gate.fall_verdict) as a table cell: the number where it is read."""
     if verdict.startswith(MIXED_VERSIONS):
         return "no reading (counts read by different versions: rerun the sweep)"
+    if verdict.startswith(MIXED_LAYOUTS):
+        return "no reading (counts read states recorded apart: rerun the sweep on one collection)"
     if verdict.startswith("no reading: too wide"):
         return "no reading (interval too wide)"
     if verdict.startswith("no reading"):
@@ -556,14 +573,15 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
             f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'. The state "
             "reading (simeval.measures.dynamics_diversity.state_reading; its cell says what it read: the objects' "
-            "poses where the store records them, else the whole state) is gated the same way against the last and "
-            "the task's mean state, per task where that task's read values move.")
-    apart = [f"{r['pipeline']}/{r['group']}" for r in rows if r.get("state_runs") in (STATE_BESIDE_KEPT,
-                                                                                       STATE_BESIDE_PIXELS)]
+            "poses where the store records them, moving links of articulated objects included, else the whole "
+            "state) is gated the same way against the last and the task's mean state, per task where that task's "
+            "read values move.")
+    apart = [f"{r['pipeline']}/{r['group']}" for r in rows
+             if str(r.get("state_runs", "")).startswith(STATE_ONLY + ",")]  # beside a kept row's or newer runs
     if apart:
         note += (f" The state reading of {', '.join(apart)} comes from sweeps of the state reading alone "
-                 "(protocol.pixels=false) on as many held-out episodes, beside the pixel reading of an earlier "
-                 "table's row (CSV column state_runs).")
+                 "(protocol.pixels=false) on as many held-out episodes, beside the row's pixel reading (CSV column "
+                 "state_runs says whose).")
     paths = {"csv": stem.with_suffix(".csv"), "md": stem.with_suffix(".md")}
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")

@@ -311,6 +311,12 @@ def set_joint_fraction(c, body: int, k: int, fraction: float) -> None:
     c.resetJointState(body, k, lo + float(fraction) * (hi - lo))
 
 
+def moving_links(c, body: int) -> list[int]:
+    """The body's links on revolute or prismatic joints (a link index is its joint's), in index order."""
+    moving = (c.JOINT_REVOLUTE, c.JOINT_PRISMATIC)
+    return [k for k in range(c.getNumJoints(body)) if c.getJointInfo(body, k)[2] in moving]
+
+
 def n_joints(obj) -> int:
     return len(design(obj.shape, obj.size, (0, 0, 0, 1)).joints)
 
