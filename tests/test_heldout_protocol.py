@@ -80,7 +80,8 @@ def test_every_episode_count_trains_the_same_steps_and_overlap_is_refused():
     assert run(source, k=2)["train"]["steps"] == run(source, k=6)["train"]["steps"] == 12
     with pytest.raises(UserError, match=r"would train on evaluated episodes.*eval_episodes=\[11,12\]$"):
         run(source, k=10)  # the fix names a range the 12 episodes per task hold, not one past them
-    with pytest.raises(UserError, match=r"with more episodes: collect episodes=22, then eval_episodes=\[13,22\]"):
+    with pytest.raises(UserError, match=r"with more episodes \(the store holds 12 per task, at the fewest\): collect "
+                                         r"episodes=22, then eval_episodes=\[13,22\]"):
         run(source, k=12)
     with pytest.raises(UserError, match="protocol.steps"):
         run(source, k=2, steps=None)

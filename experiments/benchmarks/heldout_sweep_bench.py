@@ -118,8 +118,9 @@ def main(argv: list[str] | None = None) -> None:
         held_eval = 9 * 10 * tasks * rows * heldout_frame_s
         # the state reading trains a fixed 3 seeds x max_steps per run whatever the rows (version 4), so its
         # measured seconds stand for every group's run (the wider states of a many-object group cost more: the
-        # sweeps' own result.json files record each run's, e.g. 15-55 s, GenSim piles' 378 values about 130 s)
-        now_s = 9 * protocol["steps"] * now_step_s + held_eval + 9 * state_s
+        # sweeps' own result.json files record each run's, e.g. 15-55 s, GenSim piles' 378 values about 130 s);
+        # kept by its inputs (state_reading-<key>.json), it is read once per count, not once per seed
+        now_s = 9 * protocol["steps"] * now_step_s + held_eval + 3 * state_s
         groups[name] = {"tasks": tasks, "rows": rows, "paper_steps": paper_steps, "paper_minutes": paper_s / 60,
                         "heldout_steps": 9 * protocol["steps"], "heldout_minutes": (held_train + held_eval) / 60,
                         "heldout_eval_share": held_eval / (held_train + held_eval),

@@ -296,7 +296,7 @@ def _refuse_training_on_evaluated(source, k: int, lo: int, hi: int, how_to_get_m
         return
     have = min(Counter(i.task for i in source.infos).values(), default=0)  # episodes per task in the store
     fix = (f"e.g. eval_episodes=[{k + 1},{min(have, k + 10)}]" if have > k else
-           "with more episodes: "
+           f"with more episodes (the store holds {have} per task, at the fewest): "
            + (how_to_get_more(k + 10) if how_to_get_more is not None else f"collect episodes={k + 10}")
            + f", then eval_episodes=[{k + 1},{k + 10}]")
     raise UserError(f"protocol=heldout: episodes={k} would train on evaluated episodes (eval_episodes="
