@@ -870,3 +870,50 @@ def test_a_state_reading_is_kept_by_its_inputs_so_a_rerun_skips_it_and_other_sta
         mended = read(source)
     assert "unreadable" in caplog.text and "cache" not in mended and plain(mended) == plain(first)
     assert json.loads(kept.read_text())["summary"] == plain(first)["summary"]
+    for damaged in ("{}", "[]", "null"):  # JSON, but not a state reading: read again too
+        kept.write_text(damaged)
+        assert "cache" not in read(source) and json.loads(kept.read_text())["summary"] == plain(first)["summary"]
+
+
+def test_a_task_recorded_with_and_without_its_moving_links_reads_no_state_and_says_why(tmp_path):
+    """A store collected before the suites recorded moving links and topped up after: one task's episodes hold one
+    pose row (the body) or two (the body, then its lid). Padded into one layout the earlier lids would never move;
+    the state reading says no reading, naming the task, an episode and the fix. One recording alone reads (the
+    earlier layout throughout, or the later), and episodes without the suites' metadata (imported) are not judged."""
+    from dataclasses import replace
+
+    from simeval.episodes.dataset import StoreSource
+    from simeval.episodes.store import EpisodeStore, read_episode
+    from simeval.errors import EpisodesUnfit
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig
+
+    paths = write_group(tmp_path / "synthetic", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16,
+                        pipeline="robogen")
+    rng = np.random.default_rng(0)
+
+    def store(name, old_seeds, metadata=True):
+        out, written = EpisodeStore(tmp_path / name), []
+        for p in paths:
+            ep = read_episode(p)
+            n = len(ep.state)
+            lid = np.cumsum(rng.normal(0, 0.01, (n, 1, 7)), 0)
+            poses = np.concatenate([np.zeros((n, 1, 7)), lid], 1).astype(np.float32)
+            old = ep.seed in old_seeds
+            extra = {"objects": {"laptop": {"shape": "laptop", "bodies": 1, **({} if old else {"links": 1})}}}
+            written.append(out.write(replace(ep, object_poses=poses[:, :1] if old else poses,
+                                             extra=extra if metadata else {})))
+        return StoreSource(written, camera=None)
+
+    seeds = sorted({read_episode(p).seed for p in paths})
+    mixed = store("mixed", set(seeds[:4]))
+    with pytest.raises(EpisodesUnfit, match=r"^task \S+: 4 of its episodes were recorded without their moving "
+                                            r"links' poses \(collected before 2026-12-06, e.g. .+episode_\d+\.h5\) "
+                                            r"and 2 with them; collect the group again into an empty store"):
+        dd.refuse_poses_recorded_apart(mixed, list(range(len(mixed.infos))))
+    for one in (store("before", set(seeds)), store("after", set()), store("imported", set(seeds[:4]), False)):
+        dd.refuse_poses_recorded_apart(one, list(range(len(one.infos))))  # one recording, or no metadata: reads
+    ranks = dd.episode_ranks([i.task for i in mixed.infos], [i.seed for i in mixed.infos])
+    state = dd._state_reading(mixed, dd.rank_mask(ranks, 0, 4), dd.rank_mask(ranks, 4, 6),
+                              StateModelConfig(max_steps=20, eval_every=10, seeds=(0,)), None)
+    assert state["line"].startswith("no reading: task ") and not state["gate"]["passes"]

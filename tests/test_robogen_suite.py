@@ -225,5 +225,6 @@ def test_a_stored_episode_of_an_articulation_records_its_link_moving():
     ep = run_episode(SUITE["open-laptop"], 0, RecordSettings(cameras=(), scene_view_size=(8, 8)), pipeline="robogen")
     poses = ep.object_poses  # (T + 1, 2, 7): the laptop's base, its lid
     assert ep.success and poses.shape[1:] == (2, 7)
+    assert [(o["bodies"], o["links"]) for o in ep.extra["objects"].values()] == [(1, 1)]  # what the rows are
     assert np.ptp(poses[:, 0], axis=0).max() == 0  # the base stands still
     assert _turn(poses[0, 1, 3:], poses[-1, 1, 3:]) > 0.3  # the lid opened (the goal: half its range or more)

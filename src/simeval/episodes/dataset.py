@@ -212,9 +212,12 @@ class StoreSource:
                                 "cameras into another store")
             if camera is not None and camera not in m["cameras"]:
                 raise UserError(f"{p}: no camera '{camera}' (has {m['cameras']}); set the camera key to one of them")
+            objects = (m["extra"] or {}).get("objects") or {}
+            bodies = (sum(int(o["bodies"]) for o in objects.values())  # simeval's suites: rows before the links'
+                      if objects and all(isinstance(o, dict) and "bodies" in o for o in objects.values()) else None)
             self.infos.append(EpisodeInfo(task=m["task"], seed=int(m["seed"]), group=m["group"],
                                           n_rows=int(m["n_steps"]), action_space=m["action_space"], path=str(p),
-                                          extra={"variation_id": m.get("variation_id", "")}))
+                                          extra={"variation_id": m.get("variation_id", ""), "bodies": bodies}))
         self._files: dict[int, object] = {}
         self._frame_sizes: dict[int, tuple[int, int]] = {}
         self._with_mask: list[bool] = []

@@ -21,7 +21,9 @@ Per step (T + 1 rows; datasets under the file root):
   obs/state          float32 (T+1, D)        proprioception, names in attrs state_names (D may be 0)
   obs/object_poses   float32 (T+1, N, 7)     object positions + xyzw quaternions, when the source has them
                                              (simeval's suites: each body, then each of its links on a moving
-                                             joint, as a drawer or a lid, in its joint's frame)
+                                             joint, as a drawer or a lid: the world pose of the joint's frame,
+                                             so a hinged lid's row turns in place; extra.objects counts each
+                                             object's bodies and links)
   obs/language       str (T+1,)              per-step language goal, when the source has one (optional)
   action             float32 (T+1, A)        the action taken at each row (row T: padding), see action_space
   reward             float32 (T+1,)          reward of the row's action; `progress` float32 (T+1,) partial

@@ -26,6 +26,7 @@ from simeval.sim.action_spaces import (
     joint_action_space,
     pick_place_action_space,
 )
+from simeval.sim.core.articulated import moving_links
 from simeval.sim.core.world import OBS_CAMERAS, SCENE_VIEWS
 from simeval.sim.closed_loop import act_until_done
 from simeval.sim.env import SimEnv, state_names
@@ -235,6 +236,7 @@ def run_episode(spec: TaskSpec, seed: int, settings: RecordSettings | None = Non
         trace.extra = expert.extra(env, policy, settings)
         trace.final_view = expert.final_view(env, final_frame_size) if final_frame_size else None
         trace.inst, trace.control_hz = env.inst, env.control_hz
+        trace.links = {o.id: sum(len(moving_links(env.world.c, b)) for b in o.body_ids) for o in env.inst.objects}
     finally:
         env.close()
     if not trace.actions:  # an episode with no step cannot be stored; a spec that starts solved is a spec error
@@ -259,6 +261,7 @@ class _Trace:
     final_view: Any = None
     inst: Any = None
     control_hz: float = 0.0
+    links: dict = field(default_factory=dict)  # object id -> its links on moving joints (rows after its bodies')
 
     def add_primitive(self, action: np.ndarray, low: dict) -> None:
         self.high_level_steps.append(len(self.actions))
@@ -292,8 +295,8 @@ class _Trace:
             scene_views=self.views, control_hz=self.control_hz, source="simeval-suite", final_view=self.final_view,
             action_space=action_space, state_names=list(state_names), variation=variation,
             object_poses=np.stack(self.poses).astype(np.float32), robot_mask=robot_masks(rows, cameras),
-            extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids)}
-                               for o in self.inst.objects}, **self.extra}, **high)
+            extra={"objects": {o.id: {"shape": o.shape, "color": o.color, "bodies": len(o.body_ids),
+                                      "links": self.links.get(o.id)} for o in self.inst.objects}, **self.extra}, **high)
 
 
 def robot_masks(rows: list[dict], cameras) -> dict[str, np.ndarray] | None:
