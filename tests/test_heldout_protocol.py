@@ -886,7 +886,7 @@ def test_a_task_recorded_with_and_without_its_moving_links_reads_no_state_and_sa
     from simeval.episodes.store import EpisodeStore, read_episode
     from simeval.errors import EpisodesUnfit
     from simeval.measures.dynamics_diversity.controls.synthetic import write_group
-    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig, read_states, robot_dims
 
     paths = write_group(tmp_path / "synthetic", "diverse", n_tasks=2, episodes=6, n_actions=14, size=16,
                         pipeline="robogen")
@@ -906,13 +906,17 @@ def test_a_task_recorded_with_and_without_its_moving_links_reads_no_state_and_sa
         return StoreSource(written, camera=None)
 
     seeds = sorted({read_episode(p).seed for p in paths})
+    def refuse(src):
+        every = list(range(len(src.infos)))
+        dd.refuse_poses_recorded_apart(src, read_states(src, every), robot_dims(src, every))
+
     mixed = store("mixed", set(seeds[:4]))
     with pytest.raises(EpisodesUnfit, match=r"^task \S+: 4 of its episodes were recorded without their moving "
                                             r"links' poses \(collected before 2026-12-06, e.g. .+episode_\d+\.h5\) "
                                             r"and 2 with them; collect the group again into an empty store"):
-        dd.refuse_poses_recorded_apart(mixed, list(range(len(mixed.infos))))
+        refuse(mixed)
     for one in (store("before", set(seeds)), store("after", set()), store("imported", set(seeds[:4]), False)):
-        dd.refuse_poses_recorded_apart(one, list(range(len(one.infos))))  # one recording, or no metadata: reads
+        refuse(one)  # one recording, or no metadata: reads
     ranks = dd.episode_ranks([i.task for i in mixed.infos], [i.seed for i in mixed.infos])
     state = dd._state_reading(mixed, dd.rank_mask(ranks, 0, 4), dd.rank_mask(ranks, 4, 6),
                               StateModelConfig(max_steps=20, eval_every=10, seeds=(0,)), None)

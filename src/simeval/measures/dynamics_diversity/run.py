@@ -431,7 +431,7 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
                 return {**out, "cache": str(cache)}
     started = time.perf_counter()
     try:
-        refuse_poses_recorded_apart(source, train_idx + eval_idx)
+        refuse_poses_recorded_apart(source, states, dims)
         out = state_reading(states, tasks, train_idx, eval_idx, cfg, gate, robot_dims=dims)
     except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
         why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
@@ -444,21 +444,22 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
     return out
 
 
-def refuse_poses_recorded_apart(source, episodes: list[int]) -> None:
+def refuse_poses_recorded_apart(source, states: dict, robot_dims: int) -> None:
     """An EpisodesUnfit where a task of simeval's suites has episodes recorded with their moving links' poses
     (more pose rows than bodies) and episodes recorded without them (a store collected before 2026-12-06 and topped
     up since): padded into one layout, the earlier episodes' drawers and lids would never move, and the reading
     would be neither's (a newcomer's trial: 7 of 14 episodes per task recorded before read 6x the error; 10 training
-    episodes before and 4 held out after read no model beating the last state)."""
+    episodes before and 4 held out after read no model beating the last state). `states` from read_states: each
+    episode's pose rows are its values past the robot's `robot_dims` (present ones, where padded) / 7."""
     by_task: dict = {}
-    for e in episodes:
+    for e, entry in states.items():
         info = source.infos[e]
         bodies = info.extra.get("bodies")
-        poses = None if bodies is None else source.read_full(int(e), "object_poses")
-        if poses is None:
+        width = int(np.sum(entry[2][robot_dims:])) if len(entry) > 2 else int(entry[0].shape[1]) - robot_dims
+        if bodies is None or width <= 0:
             continue
         with_links = by_task.setdefault(info.task, {True: [], False: []})
-        with_links[int(np.shape(poses)[1]) > int(bodies)].append(info.path or f"seed {info.seed}")
+        with_links[width // 7 > int(bodies)].append(info.path or f"seed {info.seed}")
     for task, split in sorted(by_task.items()):
         if split[True] and split[False]:
             raise EpisodesUnfit(
