@@ -181,13 +181,14 @@ table4-heldout: setup ## Table 4 under protocol=heldout: collect 50 episodes/tas
 report-table4-heldout: setup ## rebuild the protocol=heldout Table 4 from result.json files (KEEP=outputs/tables/table4_heldout.csv: keep the committed rows of groups without runs here; OVERWRITE=1 to replace the committed outputs/tables/table4_heldout.*)
 	$(PY) src/report.py report=table4_heldout $(REPORT_KEEP) $(REPORT_OVERWRITE)
 
-controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png), 12 drawn at random for both readings (outputs/tables/random_controls.*; resumable)
+controls: setup ## the heldout protocol's validity controls at the cpu preset: dynamics, visual, three dose-responses (outputs/tables/control_*, outputs/figures/control_*.png), 12 drawn at random for both readings (outputs/tables/random_controls.*; resumable), a pile's friction for the state reading (outputs/tables/control_pile_state.*)
 	$(PY) src/controls.py dynamics --episodes 10 40
 	$(PY) src/controls.py visual --episodes 10
 	$(PY) src/controls.py dose --episodes 10 --heldout 11 30
 	$(PY) src/controls.py dose_drawer --episodes 10 --heldout 11 30
 	$(PY) src/controls.py dose_push --episodes 10 --heldout 11 30
 	$(PY) src/controls.py random
+	$(PY) src/controls.py pile
 
 .PHONY: control-gensim-own
 control-gensim-own: gensim-env ## the control on GenSim's own episodes (a 4-task generalist vs 1-task specialists): collects 20 episodes of the first four stacking tasks from the checkout (GENSIM_ROOT, else ../shared/gensim beside), then 3 seeds: outputs/tables/control_gensim_own.*, outputs/figures/control_gensim_own.png

@@ -913,7 +913,8 @@ def test_a_task_recorded_with_and_without_its_moving_links_reads_no_state_and_sa
     mixed = store("mixed", set(seeds[:4]))
     with pytest.raises(EpisodesUnfit, match=r"^task \S+: 4 of its episodes were recorded without their moving "
                                             r"links' poses \(collected before 2026-12-06, e.g. .+episode_\d+\.h5\) "
-                                            r"and 2 with them; collect the group again into an empty store"):
+                                            r"and 2 with them; so were 4 of task \S+'s 6; collect the group again "
+                                            r"into an empty store"):
         refuse(mixed)
     for one in (store("before", set(seeds)), store("after", set()), store("imported", set(seeds[:4]), False)):
         refuse(one)  # one recording, or no metadata: reads
@@ -921,3 +922,40 @@ def test_a_task_recorded_with_and_without_its_moving_links_reads_no_state_and_sa
     state = dd._state_reading(mixed, dd.rank_mask(ranks, 0, 4), dd.rank_mask(ranks, 4, 6),
                               StateModelConfig(max_steps=20, eval_every=10, seeds=(0,)), None)
     assert state["line"].startswith("no reading: task ") and not state["gate"]["passes"]
+
+
+def test_a_stores_pile_particles_are_found_from_its_objects_list_and_a_list_that_disagrees_is_named(tmp_path):
+    """StoreSource finds a pile's pose rows from `extra.objects` (each object's bodies and moving links, in the
+    order recorded); read_states reads every pose whole (the protocol) or, for the pile control, leaves the
+    particles' quaternions unread; an objects list naming more rows than the episode recorded is then an error
+    naming the file."""
+    from dataclasses import replace
+
+    from simeval.episodes.dataset import StoreSource, particle_rows
+    from simeval.episodes.store import EpisodeStore, read_episode
+    from simeval.errors import EpisodesUnfit
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+    from simeval.measures.dynamics_diversity.state_reading import read_states
+
+    objects = {"laptop": {"shape": "laptop", "bodies": 1, "links": 1}, "pile": {"shape": "pile", "bodies": 3},
+               "zone": {"shape": "zone", "bodies": 1, "links": None}}
+    assert particle_rows(objects) == (2, 3, 4) and particle_rows({"b": {"shape": "block", "bodies": 2}}) == ()
+    path = write_group(tmp_path / "synthetic", "diverse", n_tasks=1, episodes=2, n_actions=14, size=16,
+                       pipeline="gensim")[0]
+    ep = read_episode(path)
+    poses = np.tile(np.array([0.1, 0.2, 0.3, 0, 0, 0, 1.0], np.float32), (len(ep.state), 6, 1))
+    store = EpisodeStore(tmp_path / "store")
+    good = store.write(replace(ep, object_poses=poses, extra={"objects": objects}))
+    src = StoreSource([good], camera=None)
+    assert src.infos[0].extra["particles"] == (2, 3, 4)
+    assert len(read_states(src, [0])[0]) == 2  # the protocol's reading: every pose whole, no mask
+    s, _, present = read_states(src, [0], particles_by_position=True)[0]
+    dr = ep.state.shape[1]
+    np.testing.assert_array_equal(present[dr:].reshape(6, 7)[:, 3:].any(1), [1, 1, 0, 0, 0, 1])
+    rows = s[:, dr:].reshape(len(s), 6, 7)
+    assert present[dr:].reshape(6, 7)[:, :3].all() and not rows[:, 2:5, 3:].any() and (rows[:, 5, 6] == 1).all()
+    bad = store.write(replace(ep, seed=ep.seed + 1, object_poses=poses[:, :4],
+                              extra={"objects": {**objects, "pile": {"shape": "pile", "bodies": 5}}}))
+    with pytest.raises(EpisodesUnfit, match=r"episode_\d+\.h5: its objects list a pile's particles at pose rows up to "
+                                            r"6, but obs/object_poses holds 4 rows; collect it again"):
+        read_states(StoreSource([bad], camera=None), [0], particles_by_position=True)

@@ -107,3 +107,42 @@ def test_the_controls_table_applies_its_written_criterion(tmp_path):
     assert rc.relevant(s, "state") == rc.relevant(t, "state") and rc.relevant(s, "pixel") != rc.relevant(t, "pixel")
     u = {**s, "protocol": {**s["protocol"], "state_model": {"history": 2}}}
     assert rc.relevant(s, "pixel") == rc.relevant(u, "pixel") and rc.relevant(s, "state") != rc.relevant(u, "state")
+
+
+def test_the_pile_controls_table_applies_the_dynamics_criterion_by_hand(tmp_path, capsys):
+    """Hand-built level records: by position the relative error rises 0.2 -> 0.5 with the friction spread (right),
+    with the quaternions the top level is gated (gated); each relative error is sum(model) / sum(last state)."""
+    import json
+    from pathlib import Path
+
+    from simeval.errors import UserError
+    from simeval.measures.dynamics_diversity.controls import pile_state as pc
+
+    args = type("Args", (), {"out": tmp_path, "episodes": 10, "heldout": [11, 30],
+                             "conf_dir": Path(__file__).resolve().parent.parent / "conf"})()
+    runs = tmp_path / "controls" / "pile" / "runs"
+    runs.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i, name in enumerate(pc.LEVELS):
+        for reads, share in (("position", 0.2 + 0.1 * i), ("pose", 1.0)):
+            base = rng.uniform(1, 2, 20)
+            model = [list(base * share * rng.uniform(0.97, 1.03, 20)) for _ in range(3)]
+            gated = reads == "pose" and name == "friction100"
+            (runs / f"{name}_{reads}.json").write_text(json.dumps({
+                "level": name, "reads": reads, "settings": pc.settings(args), "model": model,
+                "baseline": list(base), "tasks": ["t"] * 20, "read_dims": 150,
+                "gate": {"passes": not gated, "verdict": "no reading: ..." if gated else "reads"},
+                "summary": {"skill_vs_last_state": 1 - share, "model": share, "last_state": 1.0,
+                            "constant_velocity": 0.5, "skill_vs_constant_velocity": 1 - 2 * share}}))
+    table = pc.build(args)
+    pos = table["readings"]["position"]
+    assert pos["verdict"] == "right" and pos["top_minus_bottom"]["interval"][0] > 0
+    rec = json.loads((runs / "friction000_position.json").read_text())
+    assert pos["by_level"]["friction000"]["relative_error"] == pytest.approx(
+        np.sum(rec["model"]) / (3 * np.sum(rec["baseline"])))
+    assert table["readings"]["pose"]["verdict"] == "gated"
+    assert "| particles by position (not the protocol's) |" in pc.markdown(table)
+    (runs / "friction000_position.json").write_text(json.dumps({**rec, "settings": {"other": 1}}))
+    assert "position" not in pc.build(args)["readings"]  # a run of other settings is not read
+    with pytest.raises(UserError, match=r"^--episodes 10 --heldout 5 30: expected 2 <= episodes < first <= last"):
+        pc.main(["--episodes", "10", "--heldout", "5", "30", "--replot"], conf_dir=args.conf_dir)

@@ -194,6 +194,19 @@ class ArraySource:
         return self.arrays[e].get(key) if key == "object_poses" else self.arrays[e][key]
 
 
+def particle_rows(objects: dict) -> tuple[int, ...]:
+    """The rows of obs/object_poses that are a pile's particles, from simeval's suites' `extra.objects` (in the
+    order the rows were recorded: each object's bodies, each followed by its moving links, `links` of them in all;
+    none where recorded before the links were)."""
+    rows, start = [], 0
+    for o in objects.values():
+        n = int(o["bodies"]) + int(o.get("links") or 0)
+        if o.get("shape") == "pile":
+            rows.extend(range(start, start + n))
+        start += n
+    return tuple(rows)
+
+
 class StoreSource:
     """Episodes in the HDF5 store, read lazily: each read opens (once per process) the episode file and slices
     the rows it needs, so a window costs L frames of decompression, not an episode."""
@@ -217,7 +230,8 @@ class StoreSource:
                       if objects and all(isinstance(o, dict) and "bodies" in o for o in objects.values()) else None)
             self.infos.append(EpisodeInfo(task=m["task"], seed=int(m["seed"]), group=m["group"],
                                           n_rows=int(m["n_steps"]), action_space=m["action_space"], path=str(p),
-                                          extra={"variation_id": m.get("variation_id", ""), "bodies": bodies}))
+                                          extra={"variation_id": m.get("variation_id", ""), "bodies": bodies,
+                                                 "particles": particle_rows(objects) if bodies else ()}))
         self._files: dict[int, object] = {}
         self._frame_sizes: dict[int, tuple[int, int]] = {}
         self._with_mask: list[bool] = []

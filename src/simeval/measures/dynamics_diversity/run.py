@@ -450,22 +450,26 @@ def refuse_poses_recorded_apart(source, states: dict, robot_dims: int) -> None:
     up since): padded into one layout, the earlier episodes' drawers and lids would never move, and the reading
     would be neither's (a newcomer's trial: 7 of 14 episodes per task recorded before read 6x the error; 10 training
     episodes before and 4 held out after read no model beating the last state). `states` from read_states: each
-    episode's pose rows are its values past the robot's `robot_dims` (present ones, where padded) / 7."""
+    episode's pose rows are its values past the robot's `robot_dims`, 7 per row (present rows, where padded)."""
     by_task: dict = {}
     for e, entry in states.items():
         info = source.infos[e]
         bodies = info.extra.get("bodies")
-        width = int(np.sum(entry[2][robot_dims:])) if len(entry) > 2 else int(entry[0].shape[1]) - robot_dims
-        if bodies is None or width <= 0:
+        rows = (int(np.sum(entry[2][robot_dims::7])) if len(entry) > 2  # a row present: its x (a particle's too)
+                else (int(entry[0].shape[1]) - robot_dims) // 7)
+        if bodies is None or rows <= 0:
             continue
         with_links = by_task.setdefault(info.task, {True: [], False: []})
-        with_links[width // 7 > int(bodies)].append(info.path or f"seed {info.seed}")
-    for task, split in sorted(by_task.items()):
-        if split[True] and split[False]:
-            raise EpisodesUnfit(
-                f"task {task}: {len(split[False])} of its episodes were recorded without their moving links' poses "
-                f"(collected before 2026-12-06, e.g. {split[False][0]}) and {len(split[True])} with them; collect "
-                "the group again into an empty store (src/collect.py ... store=<new folder>)")
+        with_links[rows > int(bodies)].append(info.path or f"seed {info.seed}")
+    mixed = [(task, split) for task, split in sorted(by_task.items()) if split[True] and split[False]]
+    if mixed:
+        (task, split), others = mixed[0], mixed[1:]
+        also = "" if not others else ("; so were " + ", ".join(
+            f"{len(s[False])} of task {t}'s {len(s[False]) + len(s[True])}" for t, s in others))
+        raise EpisodesUnfit(
+            f"task {task}: {len(split[False])} of its episodes were recorded without their moving links' poses "
+            f"(collected before 2026-12-06, e.g. {split[False][0]}) and {len(split[True])} with them{also}; "
+            "collect the group again into an empty store (src/collect.py ... store=<new folder>)")
 
 
 def _state_key(states: dict, tasks: list[str], train_idx: list[int], eval_idx: list[int], cfg: StateModelConfig,

@@ -177,31 +177,48 @@ def continuous_quaternions(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def read_states(source, episodes) -> dict[int, tuple]:
+def read_states(source, episodes, particles_by_position: bool = False) -> dict[int, tuple]:
     """{e: (states (n, D), actions (n, A))} for the episodes `episodes` (indices) of a source (ArraySource or
     StoreSource: their read_full of "state", "object_poses" (None where not recorded) and "action"); where the
-    episodes' robot states or object counts differ, {e: (states, actions, present (D,) bool)} padded (pad_states)."""
+    episodes' robot states or object counts differ, {e: (states, actions, present (D,) bool)} padded (pad_states).
+    `particles_by_position`: a pile's particles (StoreSource's extra["particles"]) read by their position alone, their
+    quaternions absent: the pile control's alternative (src/controls.py pile), not the protocol's reading, and why,
+    measured there (a pile's particles' friction at four levels of spread): a particle is a 1-2 cm block tumbling
+    as it is pushed, its quaternion's steps 99.4% of the last state's error (0.0306 with them, 0.000187 by position),
+    and the protocol's reading gives no reading at every level. By position the model passed the gate at every level
+    (skill 0.16-0.32 against the last state) and read the most varied level as the least diverse with its interval
+    below 0, a confident wrong order, its error 3x constant velocity's: it had not learned how 150 particle
+    coordinates move, and "no reading" is the right answer."""
     raw = {}
     for e in episodes:
         poses = source.read_full(int(e), "object_poses")
-        raw[int(e)] = (np.asarray(source.read_full(int(e), "state"), np.float64),
-                       None if poses is None or not np.size(poses) else np.asarray(poses, np.float64),
-                       np.asarray(source.read_full(int(e), "action"), np.float64))
+        poses = None if poses is None or not np.size(poses) else np.asarray(poses, np.float64)
+        info = source.infos[int(e)]
+        particles = tuple((info.extra or {}).get("particles") or ()) if particles_by_position else ()
+        if particles and (poses is None or max(particles) >= poses.shape[1]):
+            raise EpisodesUnfit(f"{info.path or f'episode {e}'}: its objects list a pile's particles at pose rows up "
+                                f"to {max(particles)}, but obs/object_poses holds "
+                                f"{0 if poses is None else poses.shape[1]} rows; collect it again")
+        raw[int(e)] = (np.asarray(source.read_full(int(e), "state"), np.float64), poses,
+                       np.asarray(source.read_full(int(e), "action"), np.float64), particles)
     return pad_states(raw)
 
 
 def pad_states(raw: dict[int, tuple]) -> dict[int, tuple]:
-    """{e: (robot state (n, Dr_e), object poses (n, N_e, 7) or None, actions (n, A))} -> read_states's form: one
-    layout, [robot padded to the largest Dr, objects padded to the largest N], with a presence mask only where some
-    episode needed padding (so a group of one layout reads exactly as it would without this step)."""
+    """{e: (robot state (n, Dr_e), object poses (n, N_e, 7) or None, actions (n, A)[, particle rows])} -> read_states's
+    form: one layout, [robot padded to the largest Dr, objects padded to the largest N], with a presence mask only
+    where some episode needed padding or has particles (so a group of one layout and no pile reads exactly as it
+    would without this step). A particle row's quaternion is absent (0, its presence False)."""
     def robot_dims(r):
         return int(np.prod(r.shape[1:])) if r.ndim > 1 else 1
 
-    dr = max(robot_dims(r) for r, _, _ in raw.values())
-    n_obj = max(0 if p is None else p.shape[1] for _, p, _ in raw.values())
-    padded = any(robot_dims(r) != dr or (0 if p is None else p.shape[1]) != n_obj for r, p, _ in raw.values())
+    items = {e: tuple(v) if len(v) > 3 else (*v, ()) for e, v in raw.items()}
+    dr = max(robot_dims(r) for r, _, _, _ in items.values())
+    n_obj = max(0 if p is None else p.shape[1] for _, p, _, _ in items.values())
+    padded = any(robot_dims(r) != dr or (0 if p is None else p.shape[1]) != n_obj or parts
+                 for r, p, _, parts in items.values())
     out = {}
-    for e, (robot, poses, actions) in raw.items():
+    for e, (robot, poses, actions, particles) in items.items():
         if not padded:
             out[e] = (low_dim_state(robot, poses), actions)
             continue
@@ -212,7 +229,11 @@ def pad_states(raw: dict[int, tuple]) -> dict[int, tuple]:
         k = 0 if poses is None else poses.shape[1]
         if k:
             p[:, :k] = poses
-        present = np.concatenate([np.arange(dr) < robot_dims(robot), np.repeat(np.arange(n_obj) < k, 7)])
+        object_present = np.repeat((np.arange(n_obj) < k)[:, None], 7, 1)
+        if particles:
+            p[:, list(particles), 3:] = 0.0
+            object_present[list(particles), 3:] = False
+        present = np.concatenate([np.arange(dr) < robot_dims(robot), object_present.reshape(-1)])
         out[e] = (low_dim_state(r, p if n_obj else None), actions, present)
     return out
 
@@ -441,10 +462,11 @@ def robot_dims(source, episodes) -> int:
 
 def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[str], train_idx: list[int],
                   eval_idx: list[int], cfg: StateModelConfig = StateModelConfig(),
-                  gate_cfg: GateConfig = GateConfig(), robot_dims: int | None = None) -> dict:
+                  gate_cfg: GateConfig = GateConfig(), robot_dims: int | None = None, particles: int = 0) -> dict:
     """The state-space reading (module docstring) of one group and episode count: `states` from read_states,
     `tasks` every episode's task (indexed like the source), `train_idx` and `eval_idx` the training and held-out
-    episodes (disjoint), `robot_dims` (Dr) the width of the robot's values at the state's front (robot_dims()).
+    episodes (disjoint), `robot_dims` (Dr) the width of the robot's values at the state's front (robot_dims()),
+    `particles` the most pose rows of an episode that are a pile's particles (read by position: pad_states).
     Returns {reads, dims, summary: {model, last_state, mean_state, constant_velocity: error, skill_vs_<b>},
     per_episode: [{task, index, frames, model: [R], <b>}], seeds, training: [per seed], gate, line} of the values
     read, or {dims: 0, why} where there is no state. With Dr below the state's width, `reads` is "objects" (the
@@ -508,6 +530,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     summary, g = primary["summary"], primary["gate"]
     layouts = sorted({int(np.sum(m)) for m in present.values() if m is not None})
     padding = f"; the tasks' states hold {'/'.join(map(str, layouts))} values, padded" if layouts else ""
+    if particles:
+        padding += f"; a pile's {particles} particles by position"
     what = (f"objects' poses ({primary['dims']} of {dims} values{padding})" if split
             else f"the whole state ({dims} values{padding})")
     if g.get("exempt") and g.get("per_task"):
@@ -529,8 +553,9 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             + (", reads" if p["gate"]["passes"] else ", no reading") + ")"
             for name, p in (("robot", beside["parts"]["robot"]), ("whole state", beside["whole_state"])))
     return {"version": VERSION, "target_scale": cfg.target_scale, "reads": reads, "dims": int(dims),
-            "read_dims": primary["dims"],
-            "padded_from": layouts or None, "summary": summary, "per_episode": per_episode, "frames": int(frames),
+            "read_dims": primary["dims"], "padded_from": layouts or None,
+            **({"particles": int(particles)} if particles else {}), "summary": summary, "per_episode": per_episode,
+            "frames": int(frames),
             "seeds": [int(s) for s in cfg.seeds], "training": training, "fit_episodes": len(fit_idx),
             "validation_episodes": len(val_idx), "gate": g, "line": line, **beside}
 

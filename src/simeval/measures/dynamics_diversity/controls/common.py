@@ -4,6 +4,7 @@ checkout path."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 from pathlib import Path
 
@@ -61,3 +62,27 @@ def add_output_options(ap, runs: str, made: str) -> None:
     ap.add_argument("--tables", type=Path, default=Path("outputs"), help=f"{made} (default: outputs)")
     ap.add_argument("--replot", action="store_true", help="rebuild from the saved runs only")
     ap.add_argument("--overwrite", action="store_true", help="replace the committed results")
+
+
+def write_table(tables: Path, name: str, text: str, data, overwrite: bool) -> Path:
+    """TABLES/tables/<name>.{md,json} (the markdown `text`, `data` as JSON), refusing to replace a committed one
+    unless `overwrite`; returns the stem."""
+    stem = tables / "tables" / name
+    blob = json.dumps(data, indent=1)
+    refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")], [text.encode(), blob.encode()],
+                                overwrite, "--tables DIR")
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    stem.with_suffix(".md").write_text(text)
+    stem.with_suffix(".json").write_text(blob)
+    return stem
+
+
+def write_outputs(args, name: str, table: dict, markdown, plot) -> None:
+    """A control's table (write_table, from `markdown(table)`) and figure TABLES/figures/<name>.png
+    (`plot(table, path)`), under args.tables, then the table and what was written printed."""
+    text = markdown(table)
+    stem = write_table(args.tables, name, text, table, args.overwrite)
+    figure = args.tables / "figures" / f"{name}.png"
+    plot(table, figure)
+    print(text)
+    print(f"wrote {stem}.md, {stem}.json, {figure}")

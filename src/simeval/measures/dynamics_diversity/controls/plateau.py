@@ -26,7 +26,7 @@ from pathlib import Path
 
 from simeval.cli import OneLineParser
 from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
-                                                                refuse_to_replace_committed)
+                                                                write_table)
 
 FAINT = (170, 110, 100)  # a low-contrast disk on the grey background (128, 128, 128)
 # (colour, training seed, pixel_norm): the table's rows, in its order
@@ -136,11 +136,6 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
                   f"{record['reconstruction']:.2f} ({record['reconstruction_mean_image']:.2f}); {record['gate']} "
                   f"({record['seconds']:.0f} s)", flush=True)
     records = [json.loads(p.read_text()) for p in sorted(runs.glob("row*.json"))]
-    text, data = markdown(records), json.dumps(records, indent=1)
-    stem = args.tables / "tables" / "plateau_diagnosis"
-    refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")], [text.encode(), data.encode()],
-                                args.overwrite, "--tables DIR")
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    stem.with_suffix(".md").write_text(text)
-    stem.with_suffix(".json").write_text(data)
+    text = markdown(records)
+    write_table(args.tables, "plateau_diagnosis", text, records, args.overwrite)
     print(text)

@@ -58,7 +58,7 @@ from pathlib import Path
 
 from simeval.cli import OneLineParser
 from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
-                                                                refuse_to_replace_committed)
+                                                                write_outputs)
 
 DRAW_SEEDS = tuple(range(12))  # fixed before any draw was run; never drop one
 GROUPS = {"shared": ("shared", "dynamics"), "varied": ("varied", "dynamics"), "looks": ("varied", "visual")}
@@ -360,15 +360,4 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
              f"{DRAW_SEEDS[-1]}")
     if not args.replot:
         run_all(args)
-    table = build(args)
-    stem = args.tables / "tables" / "random_controls"
-    text, data = markdown(table), json.dumps(table, indent=1)
-    refuse_to_replace_committed([stem.with_suffix(".md"), stem.with_suffix(".json")],
-                                [text.encode(), data.encode()], args.overwrite, "--tables DIR")
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    stem.with_suffix(".md").write_text(text)
-    stem.with_suffix(".json").write_text(data)
-    figure = args.tables / "figures" / "random_controls.png"
-    plot(table, figure)
-    print(text)
-    print(f"wrote {stem}.md, {stem}.json, {figure}")
+    write_outputs(args, "random_controls", build(args), markdown, plot)
