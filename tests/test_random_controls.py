@@ -143,6 +143,38 @@ def test_the_pile_controls_table_applies_the_dynamics_criterion_by_hand(tmp_path
     assert table["readings"]["pose"]["verdict"] == "gated"
     assert "| particles by position (not the protocol's) |" in pc.markdown(table)
     (runs / "friction000_position.json").write_text(json.dumps({**rec, "settings": {"other": 1}}))
-    assert "position" not in pc.build(args)["readings"]  # a run of other settings is not read
+    with pytest.raises(UserError, match=r"^no run friction000_position under .+ with these settings \(--episodes 10 "
+                                        r"--heldout 11 30\): run python src/controls.py pile with them$"):
+        pc.build(args)  # a run of other settings is not read, and a table without it is not made
     with pytest.raises(UserError, match=r"^--episodes 10 --heldout 5 30: expected 2 <= episodes < first <= last"):
         pc.main(["--episodes", "10", "--heldout", "5", "30", "--replot"], conf_dir=args.conf_dir)
+
+
+def test_the_pile_control_refuses_a_file_for_a_folder_and_committed_runs_of_other_settings(tmp_path):
+    """--out/--tables naming a file (or a folder inside one) is one line before any work; a run that would replace
+    a committed run record of other settings is refused before the collection (without --overwrite)."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    from simeval.errors import UserError
+    from simeval.measures.dynamics_diversity.controls import pile_state as pc
+
+    conf = Path(__file__).resolve().parent.parent / "conf"
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    for option in ("--out", "--tables"):
+        with pytest.raises(UserError, match=rf"^{option} {afile}/sub: {afile} is a file, not a folder; give a folder$"):
+            pc.main([option, str(afile / "sub")], conf_dir=conf)
+    runs = tmp_path / "controls" / "pile" / "runs"
+    runs.mkdir(parents=True)
+    (runs / "friction000_pose.json").write_text(json.dumps({"settings": {"episodes": 10}}))
+    git = ["git", "-C", str(tmp_path), "-c", "user.email=t@t", "-c", "user.name=t"]
+    subprocess.run(git[:3] + ["init", "-q"], check=True)
+    subprocess.run(git + ["add", "controls"], check=True)
+    subprocess.run(git + ["commit", "-qm", "runs"], check=True)
+    with pytest.raises(UserError, match=r"friction000_pose.json is a committed run of other settings .+ write "
+                                        r"elsewhere with --out DIR, or replace the committed runs with --overwrite$"):
+        pc.main(["--episodes", "3", "--heldout", "4", "6", "--out", str(tmp_path), "--tables", str(tmp_path)],
+                conf_dir=conf)
+    assert not (tmp_path / "control_episodes").exists()  # refused before collecting

@@ -187,7 +187,7 @@ def read_states(source, episodes, particles_by_position: bool = False) -> dict[i
     as it is pushed, its quaternion's steps 99.4% of the last state's error (0.0306 with them, 0.000187 by position),
     and the protocol's reading gives no reading at every level. By position the model passed the gate at every level
     (skill 0.16-0.32 against the last state) and read the most varied level as the least diverse with its interval
-    below 0, a confident wrong order, its error 3x constant velocity's: it had not learned how 150 particle
+    below 0, a confident wrong order, its error 2.7-3.4x constant velocity's: it had not learned how 150 particle
     coordinates move, and "no reading" is the right answer."""
     raw = {}
     for e in episodes:

@@ -86,3 +86,14 @@ def write_outputs(args, name: str, table: dict, markdown, plot) -> None:
     plot(table, figure)
     print(text)
     print(f"wrote {stem}.md, {stem}.json, {figure}")
+
+
+def require_folders(**options: Path) -> None:
+    """A one-line error where an output option (--out, --tables) names a file, or a folder inside one: found before
+    a control runs, not when it writes its table at the end."""
+    for name, path in options.items():
+        p = Path(path)
+        while not p.exists() and p != p.parent:
+            p = p.parent
+        if p.exists() and not p.is_dir():
+            fail(f"error: --{name} {path}: {p} is a file, not a folder; give a folder")

@@ -8,7 +8,8 @@ GenSim-style sweep-pile-into-zone (simeval's suite: 50 particles pushed by a spa
 four levels of how much its particles' friction varies per episode: drawn from 0.425 +- level x 0.375 (0 to 1; the
 dose_push control's range), seeds 0 .. 29 at every level (the same starting layouts; the pushes follow the pile, so
 the actions part after the first). Each level is one group: the state reading is trained on seeds 0 .. --episodes-1
-and scored on the held-out seeds --heldout (1-based, default 11-30), with the heldout protocol's state model, seeds
+and scored on the held-out episodes --heldout (1-based: default 11-30, seeds 10-29), with the heldout protocol's
+state model, seeds
 and gate (conf/protocol/heldout.yaml), read twice: as the protocol reads it (every particle's pose, its quaternion
 too) and with the particles read by their position alone (read_states(particles_by_position=True), the
 alternative this control was built to test).
@@ -34,8 +35,8 @@ import time
 from pathlib import Path
 
 from simeval.cli import OneLineParser
-from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
-                                                                write_outputs)
+from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset, require_folders,
+                                                                tracked, write_outputs)
 from simeval.measures.dynamics_diversity.controls.random_sweep import ORDER_MARGIN, VERDICTS, verdict_of
 
 TASK = ("gensim", "sweep-pile-into-zone")
@@ -105,11 +106,20 @@ def run_all(args) -> None:
 
     runs = args.out / "controls" / "pile" / "runs"
     want = settings(args)
+    saved = {}
+    for name in LEVELS:
+        for reads in READS:
+            path = runs / f"{name}_{reads}.json"
+            saved[path] = path.exists() and json.loads(path.read_text()).get("settings") == want
+            if path.exists() and not saved[path] and not args.overwrite and tracked(path):  # before any work
+                fail(f"error: {path} is a committed run of other settings (--episodes, --heldout or the protocol's "
+                     "state model); write elsewhere with --out DIR, or replace the committed runs with --overwrite")
     sources = collect_levels(args.out, args.heldout[1], args.workers)
     for name in LEVELS:
         for reads in READS:
             path = runs / f"{name}_{reads}.json"
-            if path.exists() and json.loads(path.read_text()).get("settings") == want:
+            if saved[path]:
+                print(f"{name} {reads}: saved already ({path.name}), reused", flush=True)
                 continue
             record = {"level": name, "reads": reads, "settings": want,
                       **read_level(sources[name], reads, args.episodes, tuple(args.heldout), want["protocol"])}
@@ -138,11 +148,13 @@ def build(args) -> dict:
         return resample.percentile(resample.replicates(model, base, resample.draws(len(model), tasks, 2000, seed)))
 
     names = list(LEVELS)
+    missing = [f"{n}_{reads}" for reads in READS for n in names if (n, reads) not in records]
+    if missing:  # a table of some levels or one reading would read as the control's verdict
+        fail(f"error: no run {', '.join(missing)} under {runs} with these settings (--episodes {args.episodes} "
+             f"--heldout {args.heldout[0]} {args.heldout[1]}): run python src/controls.py pile with them")
     out = {"task": "/".join(TASK), "levels": LEVELS, "settings": want, "readings": {}}
     for reads in READS:
-        recs = [records.get((n, reads)) for n in names]
-        if not all(recs):
-            continue
+        recs = [records[(n, reads)] for n in names]
         top, bottom = recs[-1], recs[0]
         order = order_between_groups(arrays(top), arrays(bottom))
         steps = {f"{b}_minus_{a}": order_between_groups(arrays(rb), arrays(ra))
@@ -156,8 +168,6 @@ def build(args) -> dict:
             "top_minus_bottom": {"difference": order["difference"], "interval": order["interval"]},
             "steps": {k: {"difference": v["difference"], "interval": v["interval"]} for k, v in steps.items()},
             "verdict": verdict_of("dynamics", top["gate"], bottom["gate"], order)}
-    if not out["readings"]:
-        fail(f"error: no runs of every level under {runs} with these settings: run python src/controls.py pile")
     return out
 
 
@@ -165,8 +175,10 @@ def markdown(table: dict) -> str:
     names = list(table["levels"])
     lines = ["# Control: a pile whose particles' friction varies (state reading)", "",
              f"{table['task']}, four levels of the particles' friction spread per episode (0.425 +- level x 0.375), "
-             f"trained on {table['settings']['episodes']} episodes, scored on held-out seeds "
-             f"{table['settings']['heldout'][0]}-{table['settings']['heldout'][1]}; relative one-step error = model / "
+             f"trained on {table['settings']['episodes']} episodes, scored on held-out episodes "
+             f"{table['settings']['heldout'][0]}-{table['settings']['heldout'][1]} (seeds "
+             f"{table['settings']['heldout'][0] - 1}-{table['settings']['heldout'][1] - 1}); relative one-step error "
+             "= model / "
              "last state. Verdict (criterion in simeval.measures.dynamics_diversity.controls.pile_state): "
              f"{', '.join(VERDICTS)}; right where the top level's relative error exceeds the bottom's (95% interval "
              f"above 0), no order within +-{ORDER_MARGIN}. Built by `python src/controls.py pile`.", "",
@@ -201,7 +213,7 @@ def plot(table: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(6, 5))
     levels = list(table["levels"].values())
     for (reads, r), color in zip(table["readings"].items(), ("tab:blue", "tab:gray")):
         points = list(r["by_level"].values())
@@ -213,14 +225,16 @@ def plot(table: dict, path: Path) -> None:
             ax.errorbar([x], [v["relative_error"]], yerr=[[v["relative_error"] - lo], [hi - v["relative_error"]]],
                         fmt="o", color=color, mfc=color if v["passes"] else "white", capsize=3)
     ax.plot([], [], "o", color="k", mfc="white", label="hollow: that level's gate fails (no reading)")
+    ax.plot([], [], ":", color="k", lw=0.6, label="1: the model no better than the last state")
     ax.set_xlabel("particles' friction spread (level: 0.425 +- level x 0.375)")
     ax.set_ylabel("relative one-step error (model / last state)")
     ax.set_title(f"{table['task']}: state reading by friction spread\n(higher: harder to predict, more diverse)",
                  fontsize=9)
     from simeval.writing.figures import save_figure
 
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    ax.axhline(1.0, color="k", lw=0.6, ls=":")  # the model no better than the last state
+    fig.legend(loc="lower center", ncol=1, fontsize=8)  # below the axes: inside, it covered the error bars
+    fig.tight_layout(rect=(0, 0.2, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path, dpi=120)  # without dates: a rebuild from the same runs gives the same bytes
     plt.close(fig)
@@ -231,11 +245,13 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--episodes", type=int, default=10, help="training episodes per level (default: 10)")
     ap.add_argument("--heldout", type=int, nargs=2, default=[11, 30], metavar=("FIRST", "LAST"),
-                    help="held-out seeds, 1-based inclusive (default: 11 30)")
-    ap.add_argument("--workers", type=int, default=2, help="collection processes (default: 2)")
+                    help="held-out episodes, 1-based inclusive: seeds FIRST-1 .. LAST-1 (default: 11 30)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="collection processes, 0: one per core (default: 2); episodes go to OUT/control_episodes")
     add_output_options(ap, "controls/pile/runs", "the table under TABLES/tables, the figure under TABLES/figures")
     args = ap.parse_args(argv)
     args.conf_dir = conf_dir
+    require_folders(out=args.out, tables=args.tables)  # before the collection and the readings, not after
     first, last = args.heldout
     if not 2 <= args.episodes < first <= last:
         fail(f"error: --episodes {args.episodes} --heldout {first} {last}: expected 2 <= episodes < first <= last "

@@ -57,7 +57,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from simeval.cli import OneLineParser
-from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset,
+from simeval.measures.dynamics_diversity.controls.common import (add_output_options, fail, preset, require_folders,
                                                                 write_outputs)
 
 DRAW_SEEDS = tuple(range(12))  # fixed before any draw was run; never drop one
@@ -354,6 +354,7 @@ def main(argv=None, conf_dir: Path = Path("conf")) -> None:
     add_output_options(ap, "controls/random/runs", "the table under TABLES/tables, the figure under TABLES/figures")
     args = ap.parse_args(argv)
     args.conf_dir = conf_dir
+    require_folders(out=args.out, tables=args.tables)
     bad = sorted(set(args.draws) - set(DRAW_SEEDS))
     if bad:
         fail(f"error: --draws {' '.join(map(str, bad))}: not among the fixed draw seeds {DRAW_SEEDS[0]}.."
