@@ -71,6 +71,11 @@ def test_fall_verdicts():
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (-0.02, 0.04)}, reads, 10.0) == "no fall"
     assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-0.15, -0.05)}, reads, 10.0) == "rises"
     assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.03, 0.04)}, reads, 10.0) == "no fall"
+    # a change that excludes 0 but lies within the margin is no change to read, either sign (before: "falls"/"rises")
+    assert fall_verdict((-0.24, -0.42, -0.07), {"last": (-0.1, -0.06)}, reads, 10.0) == "no fall"
+    assert fall_verdict((0.24, 0.07, 0.42), {"last": (0.06, 0.1)}, reads, 10.0) == "no fall"
+    # a skill that cannot rise (0.999 against the mean state at every count) does not veto a fall beyond the margin
+    assert fall_verdict((1.0, 0.6, 1.5), {"last": (0.05, 0.15), "mean": (0.0001, 0.0003)}, reads, 10.0) == "falls"
     # intervals that contain 0 and reach past both bounds cannot tell a fall from none
     wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.03, 0.2), "mean": (-0.1, 0.2)}, reads, 10.0)
     assert wide.startswith("no reading: too wide") and "+-0.05 of the error at 10 episodes, 0.5" in wide

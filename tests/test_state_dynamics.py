@@ -252,7 +252,8 @@ def test_one_glitched_step_in_a_validation_episode_does_not_move_where_training_
     _, _, glitch = fit_state_model(fit, val[:2] + [(glitched, a)] + val[3:], FAST, seed=0)
     assert (glitch["best_step"], glitch["steps_used"]) == (clean["best_step"], clean["steps_used"])
     ratio = np.array(glitch["val_curve"])[:, 1] / np.array(clean["val_curve"])[:, 1]
-    assert np.all((ratio >= 0.5) & (ratio <= 2)) and np.median(ratio) == 1.0
+    assert np.all((ratio >= 0.5) & (ratio <= 2)) and (ratio == 1.0).sum() >= len(ratio) // 2
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.01)
     assert glitch["val_loss_mean_of_steps"] > 1e5 * clean["val_loss_mean_of_steps"]
 
 
@@ -430,6 +431,49 @@ def test_the_change_target_scale_is_each_values_rms_step_by_hand_and_reads_the_k
     cfg = StateModelConfig(max_steps=600, eval_every=50, patience=4, seeds=(0, 1), target_scale="change")
     out = state_reading(states, tasks, list(range(16)), list(range(16, 24)), cfg, robot_dims=3)
     assert out["gate"]["passes"] and out["summary"]["skill_vs_last_state"] > 0.9, out["line"]
+
+
+def _arm_and_glider_group(n_episodes: int = 24, n: int = 30, seed: int = 0):
+    """An arm jittering at random (sd 0.5) and a block gliding at its own constant speed per episode (steps of
+    0.002-0.01, its positions spread over +-0.3): only the block's last step predicts its next one, exactly."""
+    rng = np.random.default_rng(seed)
+    raw = {}
+    for e in range(n_episodes):
+        poses = np.zeros((n, 1, 7))
+        poses[..., 6] = 1.0
+        poses[:, 0, 0] = rng.uniform(-0.3, 0.3) + rng.uniform(-0.01, 0.01) * np.arange(n)
+        raw[e] = (rng.normal(0, 0.5, (n, 3)), poses, rng.uniform(-1, 1, (n, 1)))
+    return pad_states(raw), ["t"] * n_episodes
+
+
+def test_the_past_changes_enter_in_each_values_rms_step_by_hand_and_a_glider_is_read_from_its_velocity():
+    """protocol.state_model.input_scale=change (version 7, the default): the past changes the model sees are in the
+    same units as the change it predicts, each value's RMS step (by hand: the changes' part of the features); in
+    state units (versions 1-6) a block's steps entered at 1-3% of its spread beside an arm's at 100%, and a block
+    that glides at its own speed (known answer: constant velocity is exact) was read at skill 0.41 vs the last state,
+    its velocity all but unseen; in step units it reads at 0.99."""
+    from simeval.measures.dynamics_diversity.state_reading import _Norm
+
+    s = np.array([[0.0, 5.0, 1.0], [1.0, 5.0, 3.0], [3.0, 5.0, 2.0]])  # changes (1, 2), (0, 0), (2, -1)
+    data = [(s, np.zeros((3, 1)))]
+    rms, sd = np.array([np.sqrt(2.5), 1.0, np.sqrt(2.5)]), s.std(0)
+    sd[1] = 1.0  # a value that never changes: deviation 1, and its step unit that deviation
+    changes = np.array([[[2.0, 0.0, -1.0]]])  # one row, one past change
+    x = _Norm.fit(data, clip=None).features(s[:1], changes, np.zeros((1, 1, 1)))
+    np.testing.assert_allclose(x[0, 3:6], changes[0, 0] / rms)
+    x_old = _Norm.fit(data, clip=None, input_scale="state").features(s[:1], changes, np.zeros((1, 1, 1)))
+    np.testing.assert_allclose(x_old[0, 3:6], changes[0, 0] / sd)
+    assert StateModelConfig().input_scale == "change"
+    with pytest.raises(UserError, match="input_scale"):
+        StateModelConfig(input_scale="rms")
+    states, tasks = _arm_and_glider_group()
+    read = {scale: state_reading(states, tasks, list(range(16)), list(range(16, 24)),
+                                 StateModelConfig(**{**FAST.__dict__, "input_scale": scale}), robot_dims=3)
+            for scale in ("state", "change")}
+    assert read["change"]["summary"]["skill_vs_last_state"] > 0.95, read["change"]["line"]
+    assert read["state"]["summary"]["skill_vs_last_state"] < 0.7, read["state"]["line"]
+    assert read["state"]["input_scale"] == "state"
+    assert "[input_scale=state: versions 1-6's inputs]" in read["state"]["line"]
 
 
 def test_a_piles_particles_are_read_by_position_their_quaternions_absent_by_hand():

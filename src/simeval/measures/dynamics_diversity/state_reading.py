@@ -14,13 +14,15 @@ proprioception), the robot state is padded to the group's largest Dr and the obj
 and each episode carries a presence mask m (D,): the model also sees m, its predicted change is m * f(...), and every
 error (model and baselines) sums over present values only, so a padded value costs no predictor anything.
 
-    model      s^_{t+1} = s_t + u * f([ (s_t - mu) / sd, (s_{t-j+1} - s_{t-j}) / sd, (a_{t-j+1} - mu_a) / sd_a
+    model      s^_{t+1} = s_t + u * f([ (s_t - mu) / sd, (s_{t-j+1} - s_{t-j}) / v, (a_{t-j+1} - mu_a) / sd_a
                                              for j = 1 .. H ])
                f an MLP (SiLU), trained with Adam on the mean squared error of the change in units u,
                clip((s_{t+1} - s_t) / u, +-feature_clip) (mu, sd, mu_a, sd_a: means and deviations over the
                training episodes' rows; sd = 1 where a dimension never changes; u the root mean square of each
                value's one-step change over those rows, sd where it never changes (`target_scale=change`; `state`:
-               u = sd, versions 1-5); each normalised input clipped to +-feature_clip). H = `history` past changes and actions: from them the model can infer
+               u = sd, versions 1-5); v the past changes' unit, the same RMS step (`input_scale=change`; `state`:
+               v = sd, versions 1-6); each normalised input clipped to +-feature_clip). H = `history` past changes
+               and actions: from them the model can infer
                in context how this episode's actions move things (a varied group's per-episode knobs), as the
                RSSM's recurrent state can
     baselines  last state         s^_{t+1} = s_t
@@ -81,13 +83,14 @@ from simeval.errors import (EpisodesUnfit, UserError, require_choice, require_wh
                             settings_from_dict)
 from simeval.measures.dynamics_diversity.gate import GateConfig, gate
 
-# 6: the change predicted in units of each value's RMS step (target_scale=change; 1-5: of its deviation);
+# 7: the past changes the model sees in units of each value's RMS step as well (input_scale=change; 1-6: of its
+# deviation); 6: the change predicted in units of each value's RMS step (target_scale=change; 1-5: of its deviation);
 # 5: the objects' poses read where recorded, the robot's and the whole state beside (4 read the whole state);
 # 4: trained to the cap at a cosine rate, the best read of the validation episodes' median error kept (3: stopped
 # after 10 reads of the mean over their steps without a 1% improvement); 3: quaternion signs
 # continuous in time (2: w >= 0 per row); 2: validation read in the state's units (1 read it in normalised units);
 # the random controls' saved runs say which
-VERSION = 6
+VERSION = 7
 BASELINES = ("last_state", "mean_state", "constant_velocity")
 # what the gate requires the model to beat: the analogues of the pixel reading's last frame and mean image. Not
 # constant velocity: where each episode's dynamics are drawn anew (a diverse group) no model trained on other
@@ -128,6 +131,12 @@ class StateModelConfig:
     # worse (placement's
     # error 0.0266 -> 0.0239 at 10)
     target_scale: str = "change"
+    # what the past changes the model sees are in units of, per value: "change", the same RMS step as the predicted
+    # change (the model reads a value's last step in the unit it predicts the next one in); "state", its deviation
+    # (versions 1-6). Why, measured: in state units an object's past steps entered at 3-7% of an arm value's scale,
+    # so the model hardly saw the objects' velocity and was worse than constant velocity (GenSim's own groups'
+    # objects, skill vs constant velocity -2.40 to -0.30; the pile control by position 2.4x it, in scratch)
+    input_scale: str = "change"
 
     def __post_init__(self) -> None:
         require_whole_fields(self, "protocol.state_model", ("hidden", "layers", "batch_size", "max_steps",
@@ -135,6 +144,7 @@ class StateModelConfig:
                              + (("patience",) if self.patience is not None else ()))
         require_choice("protocol.state_model.lr_schedule", self.lr_schedule, LR_SCHEDULES)
         require_choice("protocol.state_model.target_scale", self.target_scale, ("state", "change"))
+        require_choice("protocol.state_model.input_scale", self.input_scale, ("state", "change"))
         for key in ("lr", "val_share") + (("feature_clip",) if self.feature_clip is not None else ()):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0:
@@ -282,13 +292,19 @@ class _Norm:
     clip: float | None = None
     target_sd: np.ndarray | None = None  # the predicted change's unit per value (None: sd)
     clip_targets: bool = False
+    input_sd: np.ndarray | None = None  # the past changes' unit per value (None: sd)
 
     @property
     def unit(self) -> np.ndarray:
         return self.sd if self.target_sd is None else self.target_sd
 
+    @property
+    def input_unit(self) -> np.ndarray:
+        return self.sd if self.input_sd is None else self.input_sd
+
     @classmethod
-    def fit(cls, data: list[tuple], clip: float | None = None, target_scale: str = "change") -> _Norm:
+    def fit(cls, data: list[tuple], clip: float | None = None, target_scale: str = "change",
+            input_scale: str = "change") -> _Norm:
         """Means and deviations over the rows where a value is present (a padded zero is not a value)."""
         entries = [_entry(d) for d in data]
         masked = any(m is not None for _, _, m in entries)
@@ -303,19 +319,20 @@ class _Norm:
             mu, sd = s.mean(0), s.std(0)
         sd_a = a.std(0)
         sd = np.where(sd > 1e-8, sd, 1.0)
-        target_sd = None
-        if target_scale == "change":
+        step = None
+        if "change" in (target_scale, input_scale):
             d = np.concatenate([np.diff(x, axis=0) for x, _, _ in entries])
             w = np.concatenate([np.broadcast_to(_present(m, x.shape[1]), (len(x) - 1, x.shape[1]))
                                 for x, _, m in entries])
             rms = np.sqrt((d ** 2 * w).sum(0) / np.maximum(w.sum(0), 1))
-            target_sd = np.where(rms > 1e-8, rms, sd)
-        return cls(mu, sd, a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0), masked, clip, target_sd,
-                   target_scale == "change" and clip is not None)
+            step = np.where(rms > 1e-8, rms, sd)
+        return cls(mu, sd, a.mean(0), np.where(sd_a > 1e-8, sd_a, 1.0), masked, clip,
+                   step if target_scale == "change" else None, target_scale == "change" and clip is not None,
+                   step if input_scale == "change" else None)
 
     def features(self, s, changes, actions, present=None) -> np.ndarray:
         m = len(s)
-        parts = [(s - self.mu) / self.sd, (changes / self.sd).reshape(m, -1),
+        parts = [(s - self.mu) / self.sd, (changes / self.input_unit).reshape(m, -1),
                  ((actions - self.mu_a) / self.sd_a).reshape(m, -1)]
         if self.clip is not None:
             parts = [np.clip(p, -self.clip, self.clip) for p in parts]
@@ -369,7 +386,7 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
     own best validation read: the objects' reading keeps the step that predicts the objects best, the whole state's
     beside it the step that predicts the whole best (the step version 4 kept), from the same training. Patience
     (where set) follows the first of `reads`."""
-    norm = _Norm.fit(train, cfg.feature_clip, cfg.target_scale)
+    norm = _Norm.fit(train, cfg.feature_clip, cfg.target_scale, cfg.input_scale)
     x, y, mask, _ = _tensors(train, norm, cfg.history)
     # validation reads the true change (unclipped): a clipped target would hide the error of a jump
     xv, yv, mask_v, episode_v = _tensors(val, norm, cfg.history, for_training=False)
@@ -546,13 +563,16 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
             f"{summary['skill_vs_constant_velocity']:.2f}), {n_seeds} seeds")
     if cfg.target_scale != "change":  # not this version's loss: the line says so (result.json's target_scale too)
         line += f" [target_scale={cfg.target_scale}: versions 1-5's loss]"
+    if cfg.input_scale != "change":
+        line += f" [input_scale={cfg.input_scale}: versions 1-6's inputs]"
     if split:
         line += "; beside: " + ", ".join(
             f"{name} {p['summary']['model']:.3g} (last state {p['summary']['last_state']:.3g}, skill "
             + ("n/a" if p["summary"]["skill_vs_last_state"] is None else f"{p['summary']['skill_vs_last_state']:.2f}")
             + (", reads" if p["gate"]["passes"] else ", no reading") + ")"
             for name, p in (("robot", beside["parts"]["robot"]), ("whole state", beside["whole_state"])))
-    return {"version": VERSION, "target_scale": cfg.target_scale, "reads": reads, "dims": int(dims),
+    return {"version": VERSION, "target_scale": cfg.target_scale, "input_scale": cfg.input_scale, "reads": reads,
+            "dims": int(dims),
             "read_dims": primary["dims"], "padded_from": layouts or None,
             **({"particles": int(particles)} if particles else {}), "summary": summary, "per_episode": per_episode,
             "frames": int(frames),
