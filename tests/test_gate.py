@@ -65,17 +65,20 @@ def test_config_mistakes_are_user_errors():
 
 def test_fall_verdicts():
     reads = {10: {"passes": True}, 40: {"passes": True}}
-    # errors of 10 at 10 episodes: "no fall" needs the fall within +-0.5 (5% of 10) or a skill's rise within +-0.05
+    # errors of 10 at 10 episodes: "no fall" needs the fall within +-0.5 (5% of 10) or the fall of the error relative
+    # to a baseline within +-0.05 of it (gate.relative_fall_interval)
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (0.02, 0.1)}, reads, 10.0) == "falls"
-    # the skill against the mean image did not rise, to within 0.05: the fall is the mean image's own change
+    # the error relative to the mean image did not fall, to within 0.05: the fall is the mean image's own change
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (-0.02, 0.04)}, reads, 10.0) == "no fall"
     assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-0.15, -0.05)}, reads, 10.0) == "rises"
     assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.03, 0.04)}, reads, 10.0) == "no fall"
     # a change that excludes 0 but lies within the margin is no change to read, either sign (before: "falls"/"rises")
     assert fall_verdict((-0.24, -0.42, -0.07), {"last": (-0.1, -0.06)}, reads, 10.0) == "no fall"
     assert fall_verdict((0.24, 0.07, 0.42), {"last": (0.06, 0.1)}, reads, 10.0) == "no fall"
-    # a skill that cannot rise (0.999 against the mean state at every count) does not veto a fall beyond the margin
-    assert fall_verdict((1.0, 0.6, 1.5), {"last": (0.05, 0.15), "mean": (0.0001, 0.0003)}, reads, 10.0) == "falls"
+    # a fall of 1-15% of the error, against a mean state 1,000x the model's: relative to it the error falls by 1-15%
+    # too, so no "no fall" (the skill's rise the rule read before, 0.00001-0.00015, was always within 0.05)
+    assert fall_verdict((0.8, 0.1, 1.5), {"last": (-0.02, 0.15), "mean": (0.01, 0.15)}, reads, 10.0).startswith(
+        "no reading: too wide")
     # intervals that contain 0 and reach past both bounds cannot tell a fall from none
     wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.03, 0.2), "mean": (-0.1, 0.2)}, reads, 10.0)
     assert wide.startswith("no reading: too wide") and "+-0.05 of the error at 10 episodes, 0.5" in wide
@@ -83,6 +86,18 @@ def test_fall_verdicts():
     gated = {10: {"passes": False, "verdict": "no reading: the model does not beat the last frame"}, 40: reads[40]}
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15)}, gated, 10.0) == \
         "no reading: the model does not beat the last frame at 10 episodes"
+
+
+def test_the_relative_fall_is_a_share_of_the_relative_error_at_the_fewest_episodes_by_hand():
+    from simeval.measures.dynamics_diversity.gate import relative_fall_interval
+
+    # relative errors 0.001 and 0.002 at the fewest, 0.0009 and 0.001 at the most: shares 0.1 and 0.5 of them
+    lo, hi = relative_fall_interval(np.array([1.0, 2.0]), np.array([1000.0, 1000.0]), np.array([0.9, 1.0]),
+                                    np.array([1000.0, 1000.0]))
+    assert (lo, hi) == pytest.approx((0.1 + 0.025 * 0.4, 0.1 + 0.975 * 0.4))
+    # a baseline that halves its own error between the counts: a model error that halves too falls by nothing
+    assert relative_fall_interval(np.full(3, 2.0), np.full(3, 4.0), np.full(3, 1.0), np.full(3, 2.0)) == \
+        pytest.approx((0.0, 0.0))
 
 
 def test_a_model_that_outputs_the_mean_image_gets_no_reading():

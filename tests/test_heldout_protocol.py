@@ -620,6 +620,27 @@ def test_the_state_readings_fall_by_hand_falls_flat_too_wide_and_missing():
                                                            "sweep on one collection)")
 
 
+def test_a_state_reading_made_with_other_inputs_says_so_in_its_cell_and_is_no_fall_against_the_protocols():
+    """A sweep with protocol.state_model.input_scale=state (versions 1-6's inputs) in the runs_dir: its cells say
+    "[input_scale=state]" (a user's trial: the table showed whichever sweep was newest, silently), and a count read
+    with one setting against a count read with the other gives no fall."""
+    from simeval.measures.dynamics_diversity.table4_heldout import _state, _state_columns, state_fall
+
+    old = {**_state_reading(0.5, 2.0, 0.1), "version": 7, "reads": "objects", "target_scale": "change",
+           "input_scale": "state", "summary": {"model": 0.5, "skill_vs_last_state": 0.5,
+                                               "skill_vs_constant_velocity": 0.5}}
+    now = {**old, "input_scale": "change", "per_episode": _state_reading(0.2, 2.0, 0.1, seed=1)["per_episode"]}
+    row: dict = {}
+    _state_columns(row, 10, old)
+    _state_columns(row, 40, now)
+    assert _state(row, 10) == "objects [input_scale=state]: 0.5 (0.50 / 0.50)"
+    assert _state(row, 40) == "objects: 0.5 (0.50 / 0.50)" and "state_inputs_40" not in row
+    assert state_fall(old, now, 10, 40)["state_fall_verdict"] == (
+        "no reading: its counts were read by different versions of the state reading (10: version 7, objects, "
+        "input_scale=state, 40: version 7, objects)")
+    assert state_fall(old, {**now, "input_scale": "state"}, 10, 40)["state_fall_verdict"] == "falls"
+
+
 def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trains_no_world_model(monkeypatch):
     """protocol.pixels=false: the same training and evaluated episodes, the same state reading to the last digit as
     the run that also trains the world model, and no world model built nor frame read."""

@@ -153,37 +153,40 @@ def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig(
     return gate(arrays["model"], {"last": arrays["last"], "mean": arrays["mean"]}, [t for t, _ in order], cfg)
 
 
-def fall_verdict(model_fall: tuple[float, float, float], skill_rise: dict[str, tuple[float, float]],
+def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str, tuple[float, float]],
                  gates: dict[int, dict], first_error: float, margin: float = GateConfig.margin) -> str:
     """Whether a fall of the error from the fewest to the most training episodes is read: `model_fall` (point, lo,
-    hi) of error_first - error_last; `skill_rise` {baseline: (lo, hi)} the interval of the model's skill against
-    that baseline at the most episodes minus at the fewest (1 - error / baseline error, on the same resamples: a
-    fall beyond what the baseline's own change gives, at any scale; the mean image or mean state changes with the
-    training episodes, a copy of the last frame or state does not); `gates` {count: gate} of each count;
-    `first_error` the model's error at the fewest.
+    hi) of error_first - error_last; `relative_fall` {baseline: (lo, hi)} the interval of the fall of the model's
+    relative error against that baseline (error / baseline error) as a share of it at the fewest episodes,
+    1 - relative_last / relative_first, on the same resamples (relative_fall_interval): a fall beyond what the
+    baseline's own change gives, in the unit of the margin (the mean image or mean state changes with the training
+    episodes, a copy of the last frame or state does not: against it, the share is the fall's own);
+    `gates` {count: gate} of each count; `first_error` the model's error at the fewest.
 
         "no reading: ... at k episodes"   a count is gated
         "no fall"                         the fall's interval lies within +-margin * first_error (read first)
-        "falls" / "rises"                 the fall's interval and every skill rise's exclude zero on the same side
-        "no fall"                         one baseline's skill rise within +-margin: no change beyond that
+        "falls" / "rises"                 the fall's interval and every relative fall's exclude zero on the same side
+        "no fall"                         one baseline's relative fall within +-margin: no change beyond that
                                           baseline's own, to within the gate's margin
         "no reading: too wide ..."        otherwise: an interval that contains zero and reaches past the margin
                                           cannot tell a fall from none (as the random controls' "too wide")
 
-    Why skills and not differences of errors: a baseline far worse than the model (a mean state with 40x its error)
-    changes by more than the model's whole error when the training episodes change its mean, so a difference of
-    falls would call any fall of a good model "no fall"; the skill compares the two at their own scales."""
+    Why relative errors and not differences of errors: a baseline far worse than the model (a mean state with 40x
+    its error) changes by more than the model's whole error when the training episodes change its mean, so a
+    difference of falls would call any fall of a good model "no fall"; the relative error compares the two at their
+    own scales. Why its share and not the skill's rise (1 - relative error, lo -> hi; until 2026-12-07): against a
+    baseline 1,000x the model's error (the mean state) the skill is 0.999 at every count and its rise never reaches
+    the margin, so any fall that did not read "falls" read "no fall" (GenSim's own assembling, a state fall of 8%
+    [1%, 15%] of its error); the share is that of the error at the fewest episodes, as the margin on the fall."""
     for k in sorted(gates):
         if not gates[k]["passes"]:
             return f"{gates[k]['verdict']} at {k} episodes"
     _, lo, hi = model_fall
-    rises = list(skill_rise.values())
+    rises = list(relative_fall.values())
     bound = margin * abs(first_error)
     # the margin first: a change whose whole interval lies within it is no change to read, whichever its sign, as
     # the gate's margin makes a model that beats a baseline by less than it no reading (GenSim-style stacking's state
     # error rose 2.4% [0.7%, 4.2%] from 10 to 40 episodes: "rises" before this order, a confident reading of nothing)
-    # (not a skill's rise within the margin: the skill against the mean state is 0.999-1.00 at every count, its rise
-    # never reaches the margin, and a fall beyond what it gives is read by its interval below)
     if -bound <= lo and hi <= bound:
         return "no fall"
     if lo > 0 and all(r[0] > 0 for r in rises):
@@ -192,9 +195,18 @@ def fall_verdict(model_fall: tuple[float, float, float], skill_rise: dict[str, t
         return "rises"
     if any(-margin <= a and b <= margin for a, b in rises):
         return "no fall"
-    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its skill's rise against a "
+    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its relative fall against a "
             f"baseline contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g}, "
-            f"or +-{margin:g} of skill)")
+            f"or +-{margin:g} of the relative error)")
+
+
+def relative_fall_interval(model_first: np.ndarray, base_first: np.ndarray, model_last: np.ndarray,
+                           base_last: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """The interval of 1 - (model_last / base_last) / (model_first / base_first) over paired resamples (each
+    array (B,): the same draws at both counts): the fall of the model's error relative to a baseline's, as a share
+    of it at the fewest episodes (fall_verdict's `relative_fall`)."""
+    share = 1 - (model_last / base_last) / (model_first / base_first)
+    return resample.percentile(share, level=level)
 
 
 def relative_error(model: np.ndarray, baseline: np.ndarray) -> float:

@@ -133,9 +133,10 @@ class StateModelConfig:
     target_scale: str = "change"
     # what the past changes the model sees are in units of, per value: "change", the same RMS step as the predicted
     # change (the model reads a value's last step in the unit it predicts the next one in); "state", its deviation
-    # (versions 1-6). Why, measured: in state units an object's past steps entered at 3-7% of an arm value's scale,
-    # so the model hardly saw the objects' velocity and was worse than constant velocity (GenSim's own groups'
-    # objects, skill vs constant velocity -2.40 to -0.30; the pile control by position 2.4x it, in scratch)
+    # (versions 1-6; result.json's version stays this code's, its input_scale says which). Why, measured: in state
+    # units an object's past steps entered at 3-7% of an arm value's scale, so the model hardly saw the objects'
+    # velocity and was worse than constant velocity (GenSim's own groups' objects at 40 episodes, skill vs constant
+    # velocity -1.55 to -0.38 -> -0.68 to +0.01 at version 7; the pile control by position 3x its error -> 2.3x)
     input_scale: str = "change"
 
     def __post_init__(self) -> None:

@@ -35,7 +35,7 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.stats import resample
-from simeval.measures.dynamics_diversity.gate import GateConfig, fall_verdict, gate
+from simeval.measures.dynamics_diversity.gate import GateConfig, fall_verdict, gate, relative_fall_interval
 from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.measures.dynamics_diversity.table4 import one_setting
 from simeval.writing.tables import read_csv, to_csv, to_markdown
@@ -229,6 +229,8 @@ def _state_columns(row: dict, k: int, state: dict | None) -> None:
     the objects, the robot's and the whole state's errors, skills and gates beside (state_robot_*, state_whole_*)."""
     if state and state.get("gate"):
         row[f"state_reads_{k}"] = state.get("reads", "state (version 4)")
+        if _settings(state):  # read with another setting than the protocol's: the cell says so
+            row[f"state_inputs_{k}"] = _settings(state)
         row[f"state_gate_{k}"] = state["gate"]["verdict"]
         row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
         for key, v in state["summary"].items():
@@ -238,6 +240,13 @@ def _state_columns(row: dict, k: int, state: dict | None) -> None:
                 row[f"state_{name}_gate_passes_{k}"] = beside["gate"]["passes"]
                 for key in ("model", "last_state", "skill_vs_last_state", "skill_vs_mean_state"):
                     row[f"state_{name}_{key}_{k}"] = beside["summary"][key]
+
+
+def _settings(state: dict) -> str:
+    """The state model's settings a reading was made with where they are not the protocol's (target_scale and
+    input_scale other than "change": versions 1-6's loss or inputs), e.g. "input_scale=state"; "" otherwise."""
+    return ", ".join(f"{key}={state[key]}" for key in ("target_scale", "input_scale")
+                     if state.get(key, "change") != "change")
 
 
 def has_pixels(row: dict) -> bool:
@@ -253,10 +262,10 @@ def _fall_columns(row: dict, lo: int, hi: int, reps_by_k: dict, gates: dict, mar
         row[f"drop_{kind}"] = row[f"{kind}_{lo}"] - row[f"{kind}_{hi}"]
         row[f"drop_{kind}_lo"], row[f"drop_{kind}_hi"] = resample.percentile(
             reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
-    # the primary number's fall, read only where both counts pass the gate and its skill against each
-    # baseline rises on the same resamples (the mean image changes with the training episodes)
-    rise = {b: resample.percentile(1 - reps_by_k[hi][PRIMARY] / reps_by_k[hi][f"{PRIMARY}_{b}"]
-                                   - (1 - reps_by_k[lo][PRIMARY] / reps_by_k[lo][f"{PRIMARY}_{b}"]))
+    # the primary number's fall, read only where both counts pass the gate and its error relative to each
+    # baseline falls on the same resamples (the mean image changes with the training episodes)
+    rise = {b: relative_fall_interval(reps_by_k[lo][PRIMARY], reps_by_k[lo][f"{PRIMARY}_{b}"],
+                                      reps_by_k[hi][PRIMARY], reps_by_k[hi][f"{PRIMARY}_{b}"])
             for b in ("last", "mean")}
     row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
                                         row[f"drop_{PRIMARY}_hi"]), rise, {k: gates[k] for k in (lo, hi)},
@@ -277,14 +286,17 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
                gate_cfg: GateConfig = GateConfig()) -> dict:
     """The state reading's fall from `lo` to `hi` training episodes, read as the pixels' (fall_verdict): the
     one-step state error per step, resampled over the state model's seeds and, within task, the held-out episodes,
-    the same draws at both counts (the same episodes); its skill's rise against the last state (which does not
-    train) and the task mean state. {} where either count has no state reading or they scored other episodes."""
+    the same draws at both counts (the same episodes); its error's fall relative to the last state (which does not
+    train) and the task mean state, as a share (gate.relative_fall_interval). {} where either count has no state
+    reading or they scored other episodes."""
     if not first or not last or not first.get("per_episode") or not last.get("per_episode"):
         return {}
-    versions = {k: (state.get("version") or 0, state.get("reads", "state")) for k, state in ((lo, first), (hi, last))}
+    versions = {k: (state.get("version") or 0, state.get("reads", "state"), _settings(state))
+                for k, state in ((lo, first), (hi, last))}
     if versions[lo] != versions[hi]:  # an objects' error against a whole state's: no fall of anything
         return {"state_fall_verdict": MIXED_VERSIONS + ", ".join(
-            f"{k}: version {v or '< 4'}, {reads}" for k, (v, reads) in versions.items()) + ")"}
+            f"{k}: version {v or '< 4'}, {reads}" + (f", {settings}" if settings else "")
+            for k, (v, reads, settings) in versions.items()) + ")"}
     dims = {k: (state.get("dims"), state.get("read_dims")) for k, state in ((lo, first), (hi, last))}
     if dims[lo] != dims[hi]:  # one count of episodes recorded with more of the state (moving links) than the other
         return {"state_fall_verdict": MIXED_LAYOUTS + ", ".join(
@@ -295,8 +307,8 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
     draws = resample.draws(model_a.shape[0], [t for t, _ in keys_a], n_boot, seed)
     error = {k: resample.replicates(m, f, draws) for k, m, f in ((lo, model_a, frames_a), (hi, model_b, frames_b))}
     fall = error[lo] - error[hi]
-    rise = {b: resample.percentile(error[lo] / resample.replicates(bases_a[b], frames_a, draws)
-                                   - error[hi] / resample.replicates(bases_b[b], frames_b, draws))
+    rise = {b: relative_fall_interval(error[lo], resample.replicates(bases_a[b], frames_a, draws),
+                                      error[hi], resample.replicates(bases_b[b], frames_b, draws))
             for b in ("last_state", "mean_state")}
     point = resample.ratio(model_a, frames_a) - resample.ratio(model_b, frames_b)
     lo_hi = resample.percentile(fall)
@@ -321,7 +333,7 @@ TEXT_COLUMNS = (*REQUIRED_COLUMNS, "fall_verdict", "state_fall_verdict", "state_
 
 def is_text(column: str) -> bool:
     return (column in TEXT_COLUMNS or column.startswith(("gate_", "state_gate_")) and "_passes_" not in column
-            or column.startswith("state_reads_"))
+            or column.startswith(("state_reads_", "state_inputs_")))
 
 
 def is_flag(column: str) -> bool:
@@ -530,6 +542,8 @@ def _state(row: dict, k: int) -> str:
     if verdict is None:
         return "—"
     reads = STATE_READS.get(row.get(f"state_reads_{k}") or "state (version 4)", row.get(f"state_reads_{k}"))
+    if row.get(f"state_inputs_{k}"):
+        reads += f" [{row[f'state_inputs_{k}']}]"
     if not row[f"state_gate_passes_{k}"]:
         return f"{reads}: {verdict}"
     return (f"{reads}: {row[f'state_model_{k}']:.3g} ({row[f'state_skill_vs_last_state_{k}']:.2f} / "
@@ -569,9 +583,10 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             f"object-focused one-step skill is >= {GateConfig.margin:g} against both the last frame and the mean "
             "image with its interval above 0, for the group and each task; elsewhere its number is 'no reading'. "
             "A fall (pixels and states alike) is read only where both counts read, its interval excludes 0 and its "
-            "skill against each baseline rises (interval above 0: more than the baseline's own change); 'no fall' "
-            f"only where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes or a "
-            f"skill's rise within +-{GateConfig.margin:g}, else 'no reading (interval too wide)'. The state "
+            "error relative to each baseline falls (interval above 0: more than the baseline's own change); 'no "
+            f"fall' where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes (read "
+            f"first) or its relative error's fall within +-{GateConfig.margin:g} of it, else 'no reading (interval "
+            "too wide)'. The state "
             "reading (simeval.measures.dynamics_diversity.state_reading; its cell says what it read: the objects' "
             "poses where the store records them, moving links of articulated objects included, else the whole "
             "state) is gated the same way against the last and the task's mean state, per task where that task's "
