@@ -79,6 +79,10 @@ def test_fall_verdicts():
     # too, so no "no fall" (the skill's rise the rule read before, 0.00001-0.00015, was always within 0.05)
     assert fall_verdict((0.8, 0.1, 1.5), {"last": (-0.02, 0.15), "mean": (0.01, 0.15)}, reads, 10.0).startswith(
         "no reading: too wide")
+    # the error falls, and falls less than the mean state's own error does (a newcomer's case): no reading, named
+    opposite = fall_verdict((1.0, 0.6, 1.5), {"last": (0.05, 0.15), "mean": (-0.3, -0.1)}, reads, 10.0)
+    assert opposite.startswith("no reading: the fall and its excess over a baseline's own change point opposite ways")
+    assert "[-0.3, -0.1]" in opposite
     # intervals that contain 0 and reach past both bounds cannot tell a fall from none
     wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.03, 0.2), "mean": (-0.1, 0.2)}, reads, 10.0)
     assert wide.startswith("no reading: too wide") and "+-0.05 of the error at 10 episodes, 0.5" in wide

@@ -639,6 +639,10 @@ def test_a_state_reading_made_with_other_inputs_says_so_in_its_cell_and_is_no_fa
         "no reading: its counts were read by different versions of the state reading (10: version 7, objects, "
         "input_scale=state, 40: version 7, objects)")
     assert state_fall(old, {**now, "input_scale": "state"}, 10, 40)["state_fall_verdict"] == "falls"
+    from simeval.measures.dynamics_diversity.table4_heldout import _fall_text
+    from simeval.measures.dynamics_diversity.gate import OPPOSITE
+    assert _fall_text(OPPOSITE + " (...)", "") == ("no reading (the fall and a baseline's own change point opposite "
+                                                  "ways)")
 
 
 def test_the_state_reading_alone_is_the_reading_a_run_with_pixels_gives_and_trains_no_world_model(monkeypatch):

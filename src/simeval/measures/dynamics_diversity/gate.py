@@ -153,6 +153,9 @@ def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig(
     return gate(arrays["model"], {"last": arrays["last"], "mean": arrays["mean"]}, [t for t, _ in order], cfg)
 
 
+OPPOSITE = "no reading: the fall and its excess over a baseline's own change point opposite ways"
+
+
 def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str, tuple[float, float]],
                  gates: dict[int, dict], first_error: float, margin: float = GateConfig.margin) -> str:
     """Whether a fall of the error from the fewest to the most training episodes is read: `model_fall` (point, lo,
@@ -168,6 +171,8 @@ def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str
         "falls" / "rises"                 the fall's interval and every relative fall's exclude zero on the same side
         "no fall"                         one baseline's relative fall within +-margin: no change beyond that
                                           baseline's own, to within the gate's margin
+        OPPOSITE                          every interval excludes zero, the fall's and a relative error's on
+                                          opposite sides: the error falls as a baseline's own falls more
         "no reading: too wide ..."        otherwise: an interval that contains zero and reaches past the margin
                                           cannot tell a fall from none (as the random controls' "too wide")
 
@@ -195,6 +200,9 @@ def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str
         return "rises"
     if any(-margin <= a and b <= margin for a, b in rises):
         return "no fall"
+    if (lo > 0 or hi < 0) and all(a > 0 or b < 0 for a, b in rises):  # every interval excludes 0, not on one side
+        return (f"{OPPOSITE} (the fall's interval [{lo:+.3g}, {hi:+.3g}]; the relative error's against each "
+                "baseline: " + ", ".join(f"[{a:+.3g}, {b:+.3g}]" for a, b in rises) + ")")
     return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its relative fall against a "
             f"baseline contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g}, "
             f"or +-{margin:g} of the relative error)")

@@ -35,7 +35,8 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.stats import resample
-from simeval.measures.dynamics_diversity.gate import GateConfig, fall_verdict, gate, relative_fall_interval
+from simeval.measures.dynamics_diversity.gate import (OPPOSITE, GateConfig, fall_verdict, gate,
+                                                      relative_fall_interval)
 from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.measures.dynamics_diversity.table4 import one_setting
 from simeval.writing.tables import read_csv, to_csv, to_markdown
@@ -511,6 +512,8 @@ def _fall_text(verdict: str, number: str) -> str:
         return "no reading (counts read states recorded apart: rerun the sweep on one collection)"
     if verdict.startswith("no reading: too wide"):
         return "no reading (interval too wide)"
+    if verdict.startswith(OPPOSITE):
+        return "no reading (the fall and a baseline's own change point opposite ways)"
     if verdict.startswith("no reading"):
         return "no reading (gated at " + verdict.rsplit(" at ", 1)[-1] + ")"
     return f"{verdict}: {number}"  # falls, rises, no fall
@@ -591,6 +594,9 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "poses where the store records them, moving links of articulated objects included, else the whole "
             "state) is gated the same way against the last and the task's mean state, per task where that task's "
             "read values move.")
+    if any(k.startswith("state_inputs_") and r[k] for r in rows for k in r):
+        note += (" A state cell marked [input_scale=state] or [target_scale=state] was read with that setting of "
+                 "protocol.state_model (versions 1-6's inputs or loss), not the protocol's.")
     apart = [f"{r['pipeline']}/{r['group']}" for r in rows
              if str(r.get("state_runs", "")).startswith(STATE_ONLY + ",")]  # beside a kept row's or newer runs
     if apart:
