@@ -25,6 +25,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
+from simeval.measures.dynamics_diversity.gate import TOO_WIDE  # noqa: E402  the verdict a fall too uncertain reads
+
 ROOT = Path(__file__).resolve().parents[1]
 TABLES = ROOT / "outputs" / "tables"
 FIGURE3 = ROOT / "outputs" / "figures" / "figure3" / "agreement.csv"
@@ -103,9 +105,6 @@ def _gate_verdicts() -> list[str]:
     return [[c.strip() for c in x.strip("|").split("|")][column] for x in lines[2:]]
 
 
-TOO_WIDE = "no reading: too wide"  # gate.fall_verdict's verdict where an interval cannot tell a fall from none
-
-
 def table4_heldout(ax) -> None:
     rows = _rows("table4_heldout.csv")
     verdicts = _gate_verdicts()
@@ -115,8 +114,8 @@ def table4_heldout(ax) -> None:
         c = COLOURS[r["pipeline"]]
         skills = {n: _number(r[f"one_step_object_skill_last_{n}"]) for n in markers}
         if r.get("state_fall_verdict"):  # the state reading's verdict on the fall, where the row has one
-            verdict = r["state_fall_verdict"].split(" (")[0].split(":")[0]  # "no reading: why" would cross the points
-            verdict = "too wide" if r["state_fall_verdict"].startswith(TOO_WIDE) else verdict
+            verdict = ("too wide" if r["state_fall_verdict"].startswith(TOO_WIDE)  # "no reading: why" would cross
+                       else r["state_fall_verdict"].split(" (")[0].split(":")[0])  # the points
             ax.text(2.5, i, f"state: {verdict}", va="center", ha="right", fontsize=7, color="0.2", zorder=5,
                     bbox={"fc": "white", "ec": "none", "pad": 0.3})  # over the gate line it crosses
         if all(math.isnan(s) for s in skills.values()):

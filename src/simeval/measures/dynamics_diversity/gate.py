@@ -154,6 +154,7 @@ def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig(
 
 
 OPPOSITE = "no reading: the fall and its excess over a baseline's own change point opposite ways"
+TOO_WIDE = "no reading: too wide"
 
 
 def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str, tuple[float, float]],
@@ -173,7 +174,7 @@ def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str
                                           baseline's own, to within the gate's margin
         OPPOSITE                          every interval excludes zero, the fall's and a relative error's on
                                           opposite sides: the error falls as a baseline's own falls more
-        "no reading: too wide ..."        otherwise: an interval that contains zero and reaches past the margin
+        TOO_WIDE ...                      otherwise: an interval that contains zero and reaches past the margin
                                           cannot tell a fall from none (as the random controls' "too wide")
 
     Why relative errors and not differences of errors: a baseline far worse than the model (a mean state with 40x
@@ -187,23 +188,23 @@ def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str
         if not gates[k]["passes"]:
             return f"{gates[k]['verdict']} at {k} episodes"
     _, lo, hi = model_fall
-    rises = list(relative_fall.values())
+    relative = list(relative_fall.values())
     bound = margin * abs(first_error)
     # the margin first: a change whose whole interval lies within it is no change to read, whichever its sign, as
     # the gate's margin makes a model that beats a baseline by less than it no reading (GenSim-style stacking's state
     # error rose 2.4% [0.7%, 4.2%] from 10 to 40 episodes: "rises" before this order, a confident reading of nothing)
     if -bound <= lo and hi <= bound:
         return "no fall"
-    if lo > 0 and all(r[0] > 0 for r in rises):
+    if lo > 0 and all(a > 0 for a, _ in relative):
         return "falls"
-    if hi < 0 and all(r[1] < 0 for r in rises):
+    if hi < 0 and all(b < 0 for _, b in relative):
         return "rises"
-    if any(-margin <= a and b <= margin for a, b in rises):
+    if any(-margin <= a and b <= margin for a, b in relative):
         return "no fall"
-    if (lo > 0 or hi < 0) and all(a > 0 or b < 0 for a, b in rises):  # every interval excludes 0, not on one side
+    if (lo > 0 or hi < 0) and all(a > 0 or b < 0 for a, b in relative):  # every interval excludes 0, not on one side
         return (f"{OPPOSITE} (the fall's interval [{lo:+.3g}, {hi:+.3g}]; the relative error's against each "
-                "baseline: " + ", ".join(f"[{a:+.3g}, {b:+.3g}]" for a, b in rises) + ")")
-    return (f"no reading: too wide (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its relative fall against a "
+                "baseline: " + ", ".join(f"[{a:+.3g}, {b:+.3g}]" for a, b in relative) + ")")
+    return (f"{TOO_WIDE} (the fall's interval [{lo:+.3g}, {hi:+.3g}] or its relative fall against a "
             f"baseline contains 0 and reaches past +-{margin:g} of the error at {min(gates)} episodes, {bound:.3g}, "
             f"or +-{margin:g} of the relative error)")
 

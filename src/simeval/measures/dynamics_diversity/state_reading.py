@@ -22,9 +22,8 @@ error (model and baselines) sums over present values only, so a padded value cos
                value's one-step change over those rows, sd where it never changes (`target_scale=change`; `state`:
                u = sd, versions 1-5); v the past changes' unit, the same RMS step (`input_scale=change`; `state`:
                v = sd, versions 1-6); each normalised input clipped to +-feature_clip). H = `history` past changes
-               and actions: from them the model can infer
-               in context how this episode's actions move things (a varied group's per-episode knobs), as the
-               RSSM's recurrent state can
+               and actions: from them the model can infer in context how this episode's actions move things (a
+               varied group's per-episode knobs), as the RSSM's recurrent state can
     baselines  last state         s^_{t+1} = s_t
                mean state         s^_{t+1} = the task's mean state over its training episodes' rows
                constant velocity  s^_{t+1} = s_t + (s_t - s_{t-1})

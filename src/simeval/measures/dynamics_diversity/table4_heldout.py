@@ -35,7 +35,7 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.stats import resample
-from simeval.measures.dynamics_diversity.gate import (OPPOSITE, GateConfig, fall_verdict, gate,
+from simeval.measures.dynamics_diversity.gate import (OPPOSITE, TOO_WIDE, GateConfig, fall_verdict, gate,
                                                       relative_fall_interval)
 from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.measures.dynamics_diversity.table4 import one_setting
@@ -230,8 +230,9 @@ def _state_columns(row: dict, k: int, state: dict | None) -> None:
     the objects, the robot's and the whole state's errors, skills and gates beside (state_robot_*, state_whole_*)."""
     if state and state.get("gate"):
         row[f"state_reads_{k}"] = state.get("reads", "state (version 4)")
-        if _settings(state):  # read with another setting than the protocol's: the cell says so
-            row[f"state_inputs_{k}"] = _settings(state)
+        settings = _settings(state)
+        if settings:  # read with another setting than the protocol's: the cell says so
+            row[f"state_inputs_{k}"] = settings
         row[f"state_gate_{k}"] = state["gate"]["verdict"]
         row[f"state_gate_passes_{k}"] = state["gate"]["passes"]
         for key, v in state["summary"].items():
@@ -265,11 +266,11 @@ def _fall_columns(row: dict, lo: int, hi: int, reps_by_k: dict, gates: dict, mar
             reps_by_k[lo][kind] - reps_by_k[hi][kind], max_missing=max_missing(kind))
     # the primary number's fall, read only where both counts pass the gate and its error relative to each
     # baseline falls on the same resamples (the mean image changes with the training episodes)
-    rise = {b: relative_fall_interval(reps_by_k[lo][PRIMARY], reps_by_k[lo][f"{PRIMARY}_{b}"],
+    relative = {b: relative_fall_interval(reps_by_k[lo][PRIMARY], reps_by_k[lo][f"{PRIMARY}_{b}"],
                                       reps_by_k[hi][PRIMARY], reps_by_k[hi][f"{PRIMARY}_{b}"])
             for b in ("last", "mean")}
     row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
-                                        row[f"drop_{PRIMARY}_hi"]), rise, {k: gates[k] for k in (lo, hi)},
+                                        row[f"drop_{PRIMARY}_hi"]), relative, {k: gates[k] for k in (lo, hi)},
                                        row[f"{PRIMARY}_{lo}"], margin)
 
 
@@ -308,13 +309,13 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
     draws = resample.draws(model_a.shape[0], [t for t, _ in keys_a], n_boot, seed)
     error = {k: resample.replicates(m, f, draws) for k, m, f in ((lo, model_a, frames_a), (hi, model_b, frames_b))}
     fall = error[lo] - error[hi]
-    rise = {b: relative_fall_interval(error[lo], resample.replicates(bases_a[b], frames_a, draws),
+    relative = {b: relative_fall_interval(error[lo], resample.replicates(bases_a[b], frames_a, draws),
                                       error[hi], resample.replicates(bases_b[b], frames_b, draws))
             for b in ("last_state", "mean_state")}
     point = resample.ratio(model_a, frames_a) - resample.ratio(model_b, frames_b)
     lo_hi = resample.percentile(fall)
     gates = {k: state["gate"] for k, state in ((lo, first), (hi, last))}
-    verdict = fall_verdict((point, *lo_hi), rise, gates, resample.ratio(model_a, frames_a), gate_cfg.margin)
+    verdict = fall_verdict((point, *lo_hi), relative, gates, resample.ratio(model_a, frames_a), gate_cfg.margin)
     return {"state_drop": point, "state_drop_lo": lo_hi[0], "state_drop_hi": lo_hi[1],
             "state_fall_verdict": verdict}
 
@@ -510,7 +511,7 @@ def _fall_text(verdict: str, number: str) -> str:
         return "no reading (counts read by different versions: rerun the sweep)"
     if verdict.startswith(MIXED_LAYOUTS):
         return "no reading (counts read states recorded apart: rerun the sweep on one collection)"
-    if verdict.startswith("no reading: too wide"):
+    if verdict.startswith(TOO_WIDE):
         return "no reading (interval too wide)"
     if verdict.startswith(OPPOSITE):
         return "no reading (the fall and a baseline's own change point opposite ways)"

@@ -9,10 +9,9 @@ four levels of how much its particles' friction varies per episode: drawn from 0
 dose_push control's range), seeds 0 .. 29 at every level (the same starting layouts; the pushes follow the pile, so
 the actions part after the first). Each level is one group: the state reading is trained on seeds 0 .. --episodes-1
 and scored on the held-out episodes --heldout (1-based: default 11-30, seeds 10-29), with the heldout protocol's
-state model, seeds
-and gate (conf/protocol/heldout.yaml), read twice: as the protocol reads it (every particle's pose, its quaternion
-too) and with the particles read by their position alone (read_states(particles_by_position=True), the
-alternative this control was built to test).
+state model, seeds and gate (conf/protocol/heldout.yaml), read twice: as the protocol reads it (every particle's
+pose, its quaternion too) and with the particles read by their position alone (read_states(particles_by_position=
+True), the alternative this control was built to test).
 
 The criterion, the random controls' dynamics family (random_sweep.verdict_of), fixed before the first run: the
 relative one-step error (model / last state; gate.relative_error) of the top level minus the bottom level's, with
@@ -178,8 +177,7 @@ def markdown(table: dict) -> str:
              f"trained on {table['settings']['episodes']} episodes, scored on held-out episodes "
              f"{table['settings']['heldout'][0]}-{table['settings']['heldout'][1]} (seeds "
              f"{table['settings']['heldout'][0] - 1}-{table['settings']['heldout'][1] - 1}); relative one-step error "
-             "= model / "
-             "last state. Verdict (criterion in simeval.measures.dynamics_diversity.controls.pile_state): "
+             "= model / last state. Verdict (criterion in simeval.measures.dynamics_diversity.controls.pile_state): "
              f"{', '.join(VERDICTS)}; right where the top level's relative error exceeds the bottom's (95% interval "
              f"above 0), no order within +-{ORDER_MARGIN}. Built by `python src/controls.py pile`.", "",
              "| reading | " + " | ".join(f"{n}: relative error [95%] (skill vs last state; gate)" for n in names)
