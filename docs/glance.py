@@ -116,8 +116,9 @@ def table4_heldout(ax) -> None:
         if r.get("state_fall_verdict"):  # the state reading's verdict on the fall, where the row has one
             verdict = ("too wide" if r["state_fall_verdict"].startswith(TOO_WIDE)  # "no reading: why" would cross
                        else r["state_fall_verdict"].split(" (")[0].split(":")[0])  # the points
-            ax.text(2.5, i, f"state: {verdict}", va="center", ha="right", fontsize=7, color="0.2", zorder=5,
-                    bbox={"fc": "white", "ec": "none", "pad": 0.3})  # over the gate line it crosses
+            # a column of its own right of the axes: inside, "no reading" crossed the gate line and the skill's 0
+            ax.text(1.02, i, f"state: {verdict}", va="center", ha="left", fontsize=7, color="0.2",
+                    transform=ax.get_yaxis_transform())
         if all(math.isnan(s) for s in skills.values()):
             ax.text(-2, i, "no skill: too few pixels move", va="center", ha="right", fontsize=8, color="0.35")
             continue
@@ -131,7 +132,7 @@ def table4_heldout(ax) -> None:
     ax.set_ylim(len(rows) - 0.5, -0.7)
     ax.set_xlabel("object-focused one-step skill vs last frame")
     ax.legend(handles=[Line2D([], [], marker=m, ls="", mfc="none", color="0.3", label=f"{n} episodes")
-                       for n, m in markers.items()], fontsize=8, loc="upper left")
+                       for n, m in markers.items()], fontsize=8, loc="lower left")
     # read: every count passed the state gate (a fall too uncertain to tell is a read group's verdict)
     states = [v for v in (r.get("state_fall_verdict") for r in rows)
               if v and (not v.startswith("no reading") or v.startswith(TOO_WIDE))]

@@ -68,6 +68,9 @@ def test_fall_verdicts():
     # errors of 10 at 10 episodes: "no fall" needs the fall within +-0.5 (5% of 10) or the fall of the error relative
     # to a baseline within +-0.05 of it (gate.relative_fall_interval)
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (0.02, 0.1)}, reads, 10.0) == "falls"
+    for bad in ({}, {10: {"passes": True}}, {10: {"passes": True}, 40: {"verdict": "x"}}):  # internal: said plainly
+        with pytest.raises(ValueError, match="a fall needs the gate"):
+            fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15)}, bad, 10.0)
     # the error relative to the mean image did not fall, to within 0.05: the fall is the mean image's own change
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15), "mean": (-0.02, 0.04)}, reads, 10.0) == "no fall"
     assert fall_verdict((-1.0, -1.5, -0.5), {"last": (-0.15, -0.05)}, reads, 10.0) == "rises"

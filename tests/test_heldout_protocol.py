@@ -635,6 +635,11 @@ def test_a_state_reading_made_with_other_inputs_says_so_in_its_cell_and_is_no_fa
     _state_columns(row, 40, now)
     assert _state(row, 10) == "objects [input_scale=state]: 0.5 (0.50 / 0.50)"
     assert _state(row, 40) == "objects: 0.5 (0.50 / 0.50)" and "state_inputs_40" not in row
+    from simeval.measures.dynamics_diversity.table4_heldout import _state_settings_key
+    assert _state_settings_key(row, [10, 40]) == " [state at 10: input_scale=state]"  # the figure's key says so too
+    assert _state_settings_key({**row, "state_inputs_20": "input_scale=state"}, [10, 20, 40]) == \
+        " [state at 10/20: input_scale=state]"
+    assert _state_settings_key({}, [10, 40]) == ""
     assert state_fall(old, now, 10, 40)["state_fall_verdict"] == (
         "no reading: its counts were read by different versions of the state reading (10: version 7, objects, "
         "input_scale=state, 40: version 7, objects)")

@@ -184,6 +184,9 @@ def fall_verdict(model_fall: tuple[float, float, float], relative_fall: dict[str
     baseline 1,000x the model's error (the mean state) the skill is 0.999 at every count and its rise never reaches
     the margin, so any fall that did not read "falls" read "no fall" (GenSim's own assembling, a state fall of 8%
     [1%, 15%] of its error); the share is that of the error at the fewest episodes, as the margin on the fall."""
+    if len(gates) < 2 or any("passes" not in g for g in gates.values()):  # a caller's fault, said as such
+        raise ValueError(f"fall_verdict: a fall needs the gate (with its 'passes') of two counts or more, got "
+                         f"{ {k: sorted(g) for k, g in gates.items()} }")
     for k in sorted(gates):
         if not gates[k]["passes"]:
             return f"{gates[k]['verdict']} at {k} episodes"

@@ -655,6 +655,17 @@ def _state_panel_title(rows: list[dict]) -> str:
     return f"state reading: {head}\n(hollow: gated; baselines dashed)"
 
 
+def _state_settings_key(r: dict, ks: list[int]) -> str:
+    """What a row's key in the figure adds where a count's state reading was made with other settings than the
+    protocol's, as its table cell does ("[input_scale=state]"): " [state at 10/20: input_scale=state]"; "" where
+    none was (a figure that showed both versions' points unmarked read as one reading)."""
+    marked = {k: r[f"state_inputs_{k}"] for k in ks if r.get(f"state_inputs_{k}")}
+    by_setting: dict[str, list[str]] = {}
+    for k, setting in marked.items():
+        by_setting.setdefault(setting, []).append(str(k))
+    return "".join(f" [state at {'/'.join(counts)}: {setting}]" for setting, counts in by_setting.items())
+
+
 def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
     """A row's state reading against training episodes: the model's one-step error (hollow where its count fails
     the state gate) beside the last state (dash-dot) and the task mean state (dashed)."""
@@ -736,7 +747,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                                + (_missing_readings(r, ks, bool(moving)) if has_pixels(r) else
                                   " (states only: protocol.pixels=false)")
                                + (" (no state reading)" if stated and r not in stated else "")
-                               + (" (state: objects never move, not drawn)" if r in stated and _still(r, ks) else "")))
+                               + (" (state: objects never move, not drawn)" if r in stated and _still(r, ks) else "")
+                               + _state_settings_key(r, ks)))
         n_gated += bool(gated)
         if r in stated:
             _state_panel(axes[-1], r, ks, color, marker, name)
