@@ -114,9 +114,10 @@ def table4_heldout(ax) -> None:
         c = COLOURS[r["pipeline"]]
         skills = {n: _number(r[f"one_step_object_skill_last_{n}"]) for n in markers}
         if r.get("state_fall_verdict"):  # the state reading's verdict on the fall, where the row has one
-            verdict = ("too wide" if r["state_fall_verdict"].startswith(TOO_WIDE)  # "no reading: why" would cross
-                       else r["state_fall_verdict"].split(" (")[0].split(":")[0])  # the points
-            # a column of its own right of the axes: inside, "no reading" crossed the gate line and the skill's 0
+            # the verdict's head only ("no reading: why ..." is a sentence), in a column of its own right of the
+            # axes: inside, "state: no reading" crossed the gate line
+            verdict = ("too wide" if r["state_fall_verdict"].startswith(TOO_WIDE)
+                       else r["state_fall_verdict"].split(" (")[0].split(":")[0])
             ax.text(1.02, i, f"state: {verdict}", va="center", ha="left", fontsize=7, color="0.2",
                     transform=ax.get_yaxis_transform())
         if all(math.isnan(s) for s in skills.values()):

@@ -267,8 +267,8 @@ def _fall_columns(row: dict, lo: int, hi: int, reps_by_k: dict, gates: dict, mar
     # the primary number's fall, read only where both counts pass the gate and its error relative to each
     # baseline falls on the same resamples (the mean image changes with the training episodes)
     relative = {b: relative_fall_interval(reps_by_k[lo][PRIMARY], reps_by_k[lo][f"{PRIMARY}_{b}"],
-                                      reps_by_k[hi][PRIMARY], reps_by_k[hi][f"{PRIMARY}_{b}"])
-            for b in ("last", "mean")}
+                                          reps_by_k[hi][PRIMARY], reps_by_k[hi][f"{PRIMARY}_{b}"])
+                for b in ("last", "mean")}
     row["fall_verdict"] = fall_verdict((row[f"drop_{PRIMARY}"], row[f"drop_{PRIMARY}_lo"],
                                         row[f"drop_{PRIMARY}_hi"]), relative, {k: gates[k] for k in (lo, hi)},
                                        row[f"{PRIMARY}_{lo}"], margin)
@@ -310,8 +310,8 @@ def state_fall(first: dict | None, last: dict | None, lo: int, hi: int, n_boot: 
     error = {k: resample.replicates(m, f, draws) for k, m, f in ((lo, model_a, frames_a), (hi, model_b, frames_b))}
     fall = error[lo] - error[hi]
     relative = {b: relative_fall_interval(error[lo], resample.replicates(bases_a[b], frames_a, draws),
-                                      error[hi], resample.replicates(bases_b[b], frames_b, draws))
-            for b in ("last_state", "mean_state")}
+                                          error[hi], resample.replicates(bases_b[b], frames_b, draws))
+                for b in ("last_state", "mean_state")}
     point = resample.ratio(model_a, frames_a) - resample.ratio(model_b, frames_b)
     lo_hi = resample.percentile(fall)
     gates = {k: state["gate"] for k, state in ((lo, first), (hi, last))}
@@ -659,10 +659,10 @@ def _state_settings_key(r: dict, ks: list[int]) -> str:
     """What a row's key in the figure adds where a count's state reading was made with other settings than the
     protocol's, as its table cell does ("[input_scale=state]"): " [state at 10/20: input_scale=state]"; "" where
     none was (a figure that showed both versions' points unmarked read as one reading)."""
-    marked = {k: r[f"state_inputs_{k}"] for k in ks if r.get(f"state_inputs_{k}")}
     by_setting: dict[str, list[str]] = {}
-    for k, setting in marked.items():
-        by_setting.setdefault(setting, []).append(str(k))
+    for k in ks:
+        if r.get(f"state_inputs_{k}"):
+            by_setting.setdefault(r[f"state_inputs_{k}"], []).append(str(k))
     return "".join(f" [state at {'/'.join(counts)}: {setting}]" for setting, counts in by_setting.items())
 
 
