@@ -827,7 +827,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                   "...]: the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
                   if n_gated else "")
     state_line = "the state reading (its own panel) has its own gate" if stated else ""
-    lines = [title, "; ".join(x for x in (gated_line, state_line) if x)]
+    lines = [title, gated_line, state_line]  # one line each: joined, they ran past the figure's edges
     fig.suptitle("\n".join(x for x in lines if x), fontsize=10)
     out = save_figure(fig, path, dpi=120)
     plt.close(fig)
