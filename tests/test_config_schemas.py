@@ -177,3 +177,52 @@ def test_a_profiles_values_are_checked_whichever_stages_run(override, message):
         check_profile(OmegaConf.to_container(composed("paper", [override]).profile, resolve=True))
     for name in ("quick", "cpu", "paper"):
         check_profile(OmegaConf.to_container(composed("paper", [f"profile={name}"]).profile, resolve=True))
+
+
+SECTIONS = {"protocol.gate": "gate", "protocol.state_model": "state_model"}  # key in conf/protocol/heldout.yaml
+
+
+def test_each_settings_section_is_in_the_diversity_config_and_lists_only_settings_its_dataclass_takes():
+    from simeval.cli import SETTINGS_SECTIONS
+
+    import yaml
+
+    assert set(SETTINGS_SECTIONS) == set(SECTIONS)
+    heldout = yaml.safe_load((CONF / "protocol" / "heldout.yaml").read_text())
+    cfg = composed("diversity")
+    for section, (module, name) in SETTINGS_SECTIONS.items():
+        fields = {f.name for f in dataclasses.fields(getattr(__import__(module, fromlist=[name]), name))}
+        listed = set(heldout[SECTIONS[section]])
+        assert listed < fields, section  # some settings are left out of the yaml: what the error lines are for
+        assert set(OmegaConf.select(cfg, section)) == listed
+
+
+@pytest.mark.parametrize("section, key, default, value", [("protocol.gate", "n_boot", 1000, 500),
+                                                          ("protocol.gate", "seed", 0, 7),
+                                                          ("protocol.state_model", "lr", 1e-3, 0.01),
+                                                          ("protocol.state_model", "hidden", 128, 64)])
+def test_a_setting_the_yaml_leaves_out_names_its_default_and_the_plus_that_sets_it(section, key, default, value):
+    from simeval.measures.dynamics_diversity.gate import GateConfig
+    from simeval.measures.dynamics_diversity.state_reading import StateModelConfig
+
+    with pytest.raises(ConfigCompositionException) as e:
+        composed("diversity", [f"{section}.{key}={value}"])
+    assert composition_error_line(e.value) == (f"override {section}.{key}: a setting the config does not list "
+                                               f"(default {default!r}); to set it, write +{section}.{key}={value}")
+    cfg = composed("diversity", [f"+{section}.{key}={value}"])  # the advice, followed, sets it
+    settings = {"protocol.gate": GateConfig, "protocol.state_model": StateModelConfig}[section].from_dict(
+        OmegaConf.to_container(OmegaConf.select(cfg, section)))
+    assert getattr(settings, key) == value
+
+
+def test_an_unknown_key_of_a_settings_section_lists_the_yaml_keys_and_those_set_with_a_plus():
+    import yaml
+
+    listed = list(yaml.safe_load((CONF / "protocol" / "heldout.yaml").read_text())["gate"])
+    with pytest.raises(ConfigCompositionException) as e:
+        composed("diversity", ["protocol.gate.nope=1"])
+    assert composition_error_line(e.value) == (f"override protocol.gate.nope: no such key (valid here: "
+                                               f"{', '.join(listed)}; with a leading +: n_boot, seed)")
+    with pytest.raises(ConfigCompositionException) as e:  # a typo of a left-out setting: no '+' of the typo itself
+        composed("diversity", ["protocol.gate.n_bot=1"])
+    assert "(did you mean +protocol.gate.n_boot? valid here: " in composition_error_line(e.value)

@@ -467,13 +467,21 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     if text and text[0].startswith("Could not override") and not_there and parent is not None and key is not None:
         full_key = getattr(cause, "full_key", None) or key
         valid = [str(k) for k in parent.keys() if k != "hydra"]
-        close = difflib.get_close_matches(str(key), valid, n=2, cutoff=0.6)
         prefix = str(full_key)[: -len(str(key))]  # "world_model." of "world_model.unimix"
+        append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
+        defaults = _settings_defaults(prefix.rstrip("."))
+        unlisted = [f for f in defaults if f not in valid]
+        if str(key) in unlisted:  # read by the section's settings dataclass at its default: the yaml leaves it out
+            return (f"override {full_key}: a setting the config does not list (default {defaults[str(key)]!r}); "
+                    f"to set it, write {append}")
+        also = f"; with a leading +: {', '.join(unlisted)}" if unlisted else ""
+        close = difflib.get_close_matches(str(key), valid + unlisted, n=2, cutoff=0.6)
+        close = [f"+{prefix}{k}" if k in unlisted else k for k in close]
         close = close or [f"{prefix}{k}.{key}" for k in _holding(parent, str(key))]  # a level left out
         mean = f"did you mean {' or '.join(close)}? " if close else ""
-        if close:  # a typo: '+key=...' would add the misspelt key, which nothing reads, and the run would go on
-            return f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)})"
-        append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
+        if close or unlisted:  # a typo, or a section whose settings refuse other keys: '+key=...' would add a key
+            # nothing reads and the run would go on without it, or stop later on it
+            return f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}{also})"
         return (f"override {full_key}: no such key ({mean}valid here: {', '.join(valid)}); to add a new key, "
                 f"write {append}")
     typed = _type_mistake(cause)
@@ -498,6 +506,27 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
     if options:
         head = f"{head}; valid: {', '.join(sorted(str(o) for o in options))}"
     return f"{head} {cause_text[0]}" if cause_text else head
+
+
+# Config sections read by a settings dataclass (errors.settings_from_dict) whose yaml lists only the settings a run
+# records: the others (the gate's bootstrap size and seed, the state model's width, rate, ...) stay at their defaults
+# and are set with a leading '+'. Listing them in the yaml would change every committed run's recorded protocol.
+SETTINGS_SECTIONS = {
+    "protocol.gate": ("simeval.measures.dynamics_diversity.gate", "GateConfig"),
+    "protocol.state_model": ("simeval.measures.dynamics_diversity.state_reading", "StateModelConfig"),
+}
+
+
+def _settings_defaults(section: str) -> dict[str, Any]:
+    """Field -> default of the settings dataclass that reads config `section` ({} for a section without one)."""
+    import dataclasses
+    import importlib
+
+    if section not in SETTINGS_SECTIONS:
+        return {}
+    module, name = SETTINGS_SECTIONS[section]
+    fields = dataclasses.fields(getattr(importlib.import_module(module), name))
+    return {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory() for f in fields}
 
 
 def _holding(parent: Any, key: str) -> list[str]:
