@@ -52,6 +52,11 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
     (["protocol.gate=[1,2]"], "override protocol.gate=[1,2]: protocol.gate is a section of settings, not one value; "
                               "set its keys one by one (protocol.gate.<key>=...; keys: margin, min_task_share)"),
     (["protocol.state_model=5"], "protocol.state_model=5: expected a mapping of its settings (hidden, layers, lr"),
+    (["protocol.state_model=5"], "with a leading + for one the yaml does not list); or null for no state reading"),
+    (["+protocol.gate.n_boot=0"], "protocol.gate.n_boot must be a whole number >= 100, got 0"),
+    (["protocol=paper", "+protocol.gate.n_boot=500"], "protocol.gate: a setting of protocol=heldout, which "
+                                                      "protocol=paper does not read"),
+    (["protocol=paper", "+protocol.pixels=false"], "protocol.pixels: a setting of protocol=heldout"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
     (["protocol.state_model.lr_schedule=linear"], "protocol.state_model.lr_schedule='linear': expected constant or "
                                                     "cosine"),

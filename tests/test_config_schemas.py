@@ -190,7 +190,8 @@ def test_each_settings_section_is_in_the_diversity_config_and_lists_only_setting
     assert set(SETTINGS_SECTIONS) == set(SECTIONS)
     heldout = yaml.safe_load((CONF / "protocol" / "heldout.yaml").read_text())
     cfg = composed("diversity")
-    for section, (module, name) in SETTINGS_SECTIONS.items():
+    for section, (module, name, owner) in SETTINGS_SECTIONS.items():
+        assert owner == "protocol=heldout"  # the default protocol: composed here
         fields = {f.name for f in dataclasses.fields(getattr(__import__(module, fromlist=[name]), name))}
         listed = set(heldout[SECTIONS[section]])
         assert listed < fields, section  # some settings are left out of the yaml: what the error lines are for
@@ -226,3 +227,30 @@ def test_an_unknown_key_of_a_settings_section_lists_the_yaml_keys_and_those_set_
     with pytest.raises(ConfigCompositionException) as e:  # a typo of a left-out setting: no '+' of the typo itself
         composed("diversity", ["protocol.gate.n_bot=1"])
     assert "(did you mean +protocol.gate.n_boot? valid here: " in composition_error_line(e.value)
+
+
+def test_the_heldout_only_settings_are_the_keys_the_paper_protocol_lacks():
+    import yaml
+
+    from simeval.measures.dynamics_diversity.run import HELDOUT_ONLY
+
+    keys = {name: set(yaml.safe_load((CONF / "protocol" / f"{name}.yaml").read_text()))
+            for name in ("heldout", "paper")}
+    assert set(HELDOUT_ONLY) == keys["heldout"] - keys["paper"] and keys["paper"] < keys["heldout"]
+
+
+@pytest.mark.parametrize("override, section", [("protocol.gate.n_boot=500", "gate"),
+                                               ("protocol.state_model.lr=0.1", "state_model")])
+def test_a_heldout_section_set_under_the_paper_protocol_says_which_protocol_has_it(override, section):
+    with pytest.raises(ConfigCompositionException) as e:
+        composed("diversity", ["protocol=paper", override])
+    assert composition_error_line(e.value) == (f"override {override.split('=')[0]}: protocol=paper has no {section} "
+                                               "(a section of protocol=heldout); drop it, or add protocol=heldout")
+
+
+def test_a_plus_on_a_key_the_config_has_says_to_drop_the_plus():
+    with pytest.raises(ConfigCompositionException) as e:
+        composed("diversity", ["+protocol.gate.margin=0.1"])
+    line = composition_error_line(e.value)
+    assert line.endswith("; to set it, drop the +: protocol.gate.margin=0.1")
+    assert composed("diversity", ["protocol.gate.margin=0.1"]).protocol.gate.margin == 0.1  # the advice, followed

@@ -468,6 +468,12 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
         full_key = getattr(cause, "full_key", None) or key
         valid = [str(k) for k in parent.keys() if k != "hydra"]
         prefix = str(full_key)[: -len(str(key))]  # "world_model." of "world_model.unimix"
+        if str(full_key) in SETTINGS_SECTIONS:  # a section the chosen option (protocol=paper) does not have
+            owner = SETTINGS_SECTIONS[str(full_key)][2]
+            group, _, _ = owner.partition("=")
+            override = text[0].removeprefix("Could not override ").strip(" .'")
+            return (f"override {override}: {group}={parent.get('name')} has no {key} (a section of {owner}); drop "
+                    f"it, or add {owner}")
         append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
         defaults = _settings_defaults(prefix.rstrip("."))
         unlisted = [f for f in defaults if f not in valid]
@@ -495,6 +501,9 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
         return (f"override {override}: {section} is a section of settings, not one value; set its keys one by one "
                 f"({section}.<key>=...; keys: {', '.join(keys) if keys else 'see conf/ or --cfg job'})")
     head = text[0] if text else type(exc).__name__
+    if head.startswith("Could not append to config"):  # '+key=' of a key the config has: Hydra's advice, one line
+        plain = next((ln.split(": ", 1)[1] for ln in text[1:] if ln.startswith("Either remove + prefix")), None)
+        return f"{head.removesuffix('.')}; to set it, drop the +: {plain.strip(chr(39))}" if plain else head
     if head.startswith("Ambiguous value for argument"):  # Hydra's numbered advice is on the lines this drops
         head += "; to sweep over the values add -m (a run per value), for a list write key=[a,b]"
     if (head.startswith("Could not override") and "No match in the defaults list" in head and config_name
@@ -511,9 +520,10 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
 # Config sections read by a settings dataclass (errors.settings_from_dict) whose yaml lists only the settings a run
 # records: the others (the gate's bootstrap size and seed, the state model's width, rate, ...) stay at their defaults
 # and are set with a leading '+'. Listing them in the yaml would change every committed run's recorded protocol.
-SETTINGS_SECTIONS = {
-    "protocol.gate": ("simeval.measures.dynamics_diversity.gate", "GateConfig"),
-    "protocol.state_model": ("simeval.measures.dynamics_diversity.state_reading", "StateModelConfig"),
+SETTINGS_SECTIONS = {  # section -> (module, settings dataclass, the config choice that has the section)
+    "protocol.gate": ("simeval.measures.dynamics_diversity.gate", "GateConfig", "protocol=heldout"),
+    "protocol.state_model": ("simeval.measures.dynamics_diversity.state_reading", "StateModelConfig",
+                             "protocol=heldout"),
 }
 
 
@@ -524,7 +534,7 @@ def _settings_defaults(section: str) -> dict[str, Any]:
 
     if section not in SETTINGS_SECTIONS:
         return {}
-    module, name = SETTINGS_SECTIONS[section]
+    module, name, _ = SETTINGS_SECTIONS[section]
     fields = dataclasses.fields(getattr(importlib.import_module(module), name))
     return {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory() for f in fields}
 

@@ -118,12 +118,14 @@ def require_folder(key: str, path: object) -> None:
         raise UserError(f"{key}={path}: the folder is not writable")
 
 
-def settings_from_dict(cls, d: dict | None, key: str):
+def settings_from_dict(cls, d: dict | None, key: str, null: str = "the defaults"):
     """A settings dataclass from a config mapping (None: its defaults); a key it does not have is a UserError
-    naming `key` and the valid ones; so is a value that is not a mapping (`protocol.gate=5`)."""
+    naming `key` and the valid ones; so is a value that is not a mapping (`protocol.gate=5`). `null`: what null
+    stands for at `key`, named in that error."""
     if d is not None and not isinstance(d, Mapping):
         raise UserError(f"{key}={d!r}: expected a mapping of its settings ({', '.join(cls.__dataclass_fields__)}), "
-                        f"e.g. {key}.{next(iter(cls.__dataclass_fields__))}=...; or null for the defaults")
+                        f"set one by one ({key}.<setting>=..., with a leading + for one the yaml does not list); "
+                        f"or null for {null}")
     d = dict(d or {})
     unknown = set(d) - set(cls.__dataclass_fields__)
     if unknown:

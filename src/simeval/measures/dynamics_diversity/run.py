@@ -251,6 +251,8 @@ PROTOCOLS = {
     "heldout": "simeval's readings: prediction of held-out episodes (41-50) from actions, the same gradient steps "
                "for every episode count, beside last-frame and mean-image baselines",
 }
+# conf/protocol/heldout.yaml's keys that conf/protocol/paper.yaml lacks: read only under protocol=heldout
+HELDOUT_ONLY = ("gate", "state_model", "pixels", "model")
 
 
 def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size: int, steps: int) -> int:
@@ -795,6 +797,11 @@ class DiversityRun:
         train_cfg = TrainConfig.from_dict({**self.world_model["train"], "seed": int(self.seed)})
         window = WindowSpec(**self.world_model["window"])
         check_eval_context(int(self.evaluation["context"]), window)
+        ignored = [k for k in HELDOUT_ONLY if k in self.protocol] if self.protocol["name"] != "heldout" else []
+        if ignored:  # given with '+': the run would go on without them
+            raise UserError(f"protocol.{ignored[0]}: a setting of protocol=heldout, which protocol="
+                            f"{self.protocol['name']} does not read (it has no gate, state reading or pixel "
+                            "standardisation); drop it, or add protocol=heldout")
         if self.protocol["name"] == "heldout":
             check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
                                    self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)

@@ -160,7 +160,7 @@ class StateModelConfig:
     def from_dict(cls, d: dict | None) -> StateModelConfig:
         if isinstance(d, Mapping) and "seeds" in d:  # not a mapping: settings_from_dict says so
             d = {**d, "seeds": tuple(d["seeds"]) if isinstance(d["seeds"], (list, tuple)) else (d["seeds"],)}
-        return settings_from_dict(cls, d, "protocol.state_model")
+        return settings_from_dict(cls, d, "protocol.state_model", null="no state reading")
 
 
 def low_dim_state(state: np.ndarray, object_poses: np.ndarray | None) -> np.ndarray:

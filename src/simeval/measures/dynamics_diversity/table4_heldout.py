@@ -123,7 +123,10 @@ def cell_replicates(sums: dict[str, np.ndarray], draws) -> tuple[dict[str, float
     return point, reps
 
 
-def build(records: list[dict], *, n_boot: int = 2000, seed: int = 0,
+N_BOOT = 2000  # the table's bootstrap draws, shared by every count of a row (paired falls)
+
+
+def build(records: list[dict], *, n_boot: int = N_BOOT, seed: int = 0,
           gate_cfg: GateConfig = GateConfig()) -> list[dict]:
     """One row per (pipeline, group, preset, steps) with runs of protocol=heldout (see the module docstring). Runs
     of one seed found twice (a sweep run again: it resumes and evaluates again) count once, the newest."""
@@ -586,7 +589,9 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
             "error (< 0: worse than the baseline). Gate (simeval.measures.dynamics_diversity.gate): a count reads only where the "
             f"object-focused one-step skill is >= {GateConfig.margin:g} against both the last frame and the mean "
             "image with its interval above 0, for the group and each task; elsewhere its number is 'no reading'. "
-            "A fall (pixels and states alike) is read only where both counts read, its interval excludes 0 and its "
+            f"The gate's interval is its own bootstrap (protocol.gate.n_boot={GateConfig.n_boot} draws), the "
+            f"columns' {N_BOOT} draws shared by every count (paired falls): the same skill's two intervals differ in "
+            "the last digits. A fall (pixels and states alike) is read only where both counts read, its interval excludes 0 and its "
             "error relative to each baseline falls (interval above 0: more than the baseline's own change); 'no "
             f"fall' where the fall lies within +-{GateConfig.margin:g} of the error at the fewest episodes (read "
             f"first) or its relative error's fall within +-{GateConfig.margin:g} of it, else 'no reading (interval "
@@ -670,9 +675,11 @@ def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
     """A row's state reading against training episodes: the model's one-step error (hollow where its count fails
     the state gate) beside the last state (dash-dot) and the task mean state (dashed)."""
     have = [k for k in ks if _number(r.get(f"state_model_{k}"))]
-    ax.plot(have, [r[f"state_model_{k}"] for k in have], "-", color=color, lw=1)
+    # the model above its baselines: a gated count is gated because its error is the last state's, and a baseline
+    # marker drawn over its hollow one filled it
+    ax.plot(have, [r[f"state_model_{k}"] for k in have], "-", color=color, lw=1, zorder=3)
     for k in have:
-        ax.plot([k], [r[f"state_model_{k}"]], marker=marker, ms=6, color=color,
+        ax.plot([k], [r[f"state_model_{k}"]], marker=marker, ms=6, color=color, zorder=4,
                 mfc=color if r.get(f"state_gate_passes_{k}") else "white")
     for base, ls, alpha in (("last_state", "-.", 1.0), ("mean_state", "--", 0.5)):
         ax.plot(have, [r[f"state_{base}_{k}"] for k in have], ls, marker=marker, ms=3, lw=0.9, color=color,
