@@ -239,13 +239,18 @@ def test_the_heldout_only_settings_are_the_keys_the_paper_protocol_lacks():
     assert set(HELDOUT_ONLY) == keys["heldout"] - keys["paper"] and keys["paper"] < keys["heldout"]
 
 
-@pytest.mark.parametrize("override, section", [("protocol.gate.n_boot=500", "gate"),
-                                               ("protocol.state_model.lr=0.1", "state_model")])
-def test_a_heldout_section_set_under_the_paper_protocol_says_which_protocol_has_it(override, section):
+@pytest.mark.parametrize("override, section, form", [
+    ("protocol.gate.n_boot=500", "gate", "+protocol.gate.n_boot="),  # a setting the heldout yaml leaves out
+    ("protocol.gate.margin=0.1", "gate", "protocol.gate.margin="),
+    ("protocol.state_model.lr=0.1", "state_model", "+protocol.state_model.lr=")])
+def test_a_heldout_section_set_under_the_paper_protocol_says_which_protocol_has_it(override, section, form):
     with pytest.raises(ConfigCompositionException) as e:
         composed("diversity", ["protocol=paper", override])
-    assert composition_error_line(e.value) == (f"override {override.split('=')[0]}: protocol=paper has no {section} "
-                                               "(a section of protocol=heldout); drop it, or add protocol=heldout")
+    assert composition_error_line(e.value, "diversity", CONF) == (
+        f"override {override.split('=')[0]}: protocol=paper has no {section} (a section of protocol=heldout); drop "
+        f"it, or run it with protocol=heldout: protocol=heldout {form}...")
+    value = override.split("=")[1]
+    assert composed("diversity", ["protocol=heldout", form + value])  # the advice, followed, composes
 
 
 def test_a_plus_on_a_key_the_config_has_says_to_drop_the_plus():

@@ -378,12 +378,14 @@ HYDRA_FLAGS_WITH_VALUE = {"--cfg", "-c", "--package", "-p", "--info", "-i", "--c
                           "-cn", "--config-dir", "-cd", "--experimental-rerun"}
 
 
-def config_mistakes(args: list[str], conf_dir: Path) -> str | None:
+def config_mistakes(args: list[str], conf_dir: Path, config_name: str | None = None) -> str | None:
     """One line for what Hydra would report as a multi-line block and exit 1 on: an override it cannot parse, a
     config-group choice with no file (`world_model=nope`), or a chosen group file that is not valid YAML. None
     when it finds nothing (Hydra still checks everything else). Group files are also looked up in the
     `file://` folders of a `hydra.searchpath=[...]` override; with a `pkg://` entry the group check is left
-    to Hydra, which can see inside packages."""
+    to Hydra, which can see inside packages. With `config_name` (the primary config), also a setting of a section
+    the chosen option lacks (`protocol=paper +protocol.pixels=false`): with '+' Hydra would compose it and the run
+    would stop on it only after Hydra made its folder."""
     import yaml
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
@@ -424,7 +426,72 @@ def config_mistakes(args: list[str], conf_dir: Path) -> str | None:
                 mark = getattr(e, "problem_mark", None)
                 where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
                 return f"{path}:{where} is not valid YAML ({getattr(e, 'problem', None) or e})"
+    if config_name is not None:
+        return _section_of_another_option(parsed, conf_dir, config_name)
     return None
+
+
+def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: str) -> str | None:
+    """`group.section...=v` where the group's chosen option (its override, else the primary config's default) has
+    no `section` and another option of the group has it: one line that names that option and the override as it
+    would take it. Left to the run when the group is swept (one of its runs may take it)."""
+    chosen = {o.key_or_group: str(o.value()) for o in parsed
+              if not o.is_sweep_override() and (conf_dir / o.key_or_group).is_dir() and o.package is None}
+    for o in parsed:
+        group, _, rest = o.key_or_group.partition(".")
+        section = rest.partition(".")[0]
+        if o.is_delete() or o.is_sweep_override() or not section or not (conf_dir / group).is_dir():
+            continue
+        option = chosen.get(group) or _default_choice(conf_dir / f"{config_name}.yaml", group)
+        if option is None or section in _option_keys(conf_dir / group / f"{option}.yaml"):
+            continue
+        owners = sorted(p.stem for p in (conf_dir / group).glob("*.yaml") if section in _option_keys(p))
+        if not owners:
+            continue
+        owner = f"{group}={owners[0]}"
+        value = o.input_line.split("=", 1)[1]
+        return (f"{'+' if o.is_add() else ''}{o.key_or_group}={value}: {group}={option} has no {section} (a section "
+                f"of {owner}); drop it, or run it with {owner}: {owner} {owner_form(conf_dir, owner, o.key_or_group)}"
+                f"{value}")
+    return None
+
+
+def _option_keys(path: Path) -> set[str]:
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return set()
+    return set(data) if isinstance(data, dict) else set()
+
+
+def _default_choice(primary: Path, group: str) -> str | None:
+    """The option the primary config's defaults list chooses for `group` (None when it chooses none there)."""
+    import yaml
+
+    try:
+        entries = (yaml.safe_load(primary.read_text()) or {}).get("defaults") or []
+    except (OSError, yaml.YAMLError):
+        return None
+    return next((str(e[group]) for e in entries if isinstance(e, dict) and group in e), None)
+
+
+def owner_form(conf_dir: Path, owner: str, key: str) -> str:
+    """`key=` as the option `owner` (protocol=heldout) takes it: plain where its yaml lists the key, with a leading
+    '+' where it leaves it to the settings' default (SETTINGS_SECTIONS)."""
+    import yaml
+
+    group, _, option = owner.partition("=")
+    try:
+        node: Any = yaml.safe_load((conf_dir / group / f"{option}.yaml").read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return f"{key}="
+    for part in key.split(".")[1:]:
+        if not isinstance(node, dict) or part not in node:
+            return f"+{key}="
+        node = node[part]
+    return f"{key}="
 
 
 def _unparseable(override: str) -> bool:
@@ -472,8 +539,9 @@ def composition_error_line(exc: BaseException, config_name: str | None = None,
             owner = SETTINGS_SECTIONS[str(full_key)][2]
             group, _, _ = owner.partition("=")
             override = text[0].removeprefix("Could not override ").strip(" .'")
+            form = owner_form(conf_dir, owner, override) if conf_dir is not None else f"{override}="
             return (f"override {override}: {group}={parent.get('name')} has no {key} (a section of {owner}); drop "
-                    f"it, or add {owner}")
+                    f"it, or run it with {owner}: {owner} {form}...")
         append = next((ln.split(" use ", 1)[1] for ln in text[1:] if ln.startswith("To append")), f"+{full_key}=...")
         defaults = _settings_defaults(prefix.rstrip("."))
         unlisted = [f for f in defaults if f not in valid]
@@ -621,7 +689,7 @@ def launch(main: Callable[[], Any]) -> None:
     allow_multirun_anywhere()
     custom_search_path = any(a.startswith(("--config-dir", "-cd", "--config-path", "-cp")) for a in sys.argv[1:])
     if not custom_search_path and os.environ.get("HYDRA_FULL_ERROR") != "1":
-        mistake = config_mistakes(sys.argv[1:], entry_conf_dir())
+        mistake = config_mistakes(sys.argv[1:], entry_conf_dir(), Path(sys.argv[0]).stem)
         if mistake:
             _fail(mistake)
     register_run_suffix_resolver()  # ${run_suffix:} in conf/hydra/default.yaml: unique run folders

@@ -801,7 +801,8 @@ class DiversityRun:
         if ignored:  # given with '+': the run would go on without them
             raise UserError(f"protocol.{ignored[0]}: a setting of protocol=heldout, which protocol="
                             f"{self.protocol['name']} does not read (it has no gate, state reading or pixel "
-                            "standardisation); drop it, or add protocol=heldout")
+                            "standardisation); drop it, or run it with protocol=heldout alone (not in a sweep over "
+                            "both protocols)")
         if self.protocol["name"] == "heldout":
             check_heldout_settings(self.protocol["steps"], self.protocol["horizon"], self.protocol["lr"],
                                    self.mask_margin, int(self.evaluation["context"]), self.exclude_robot)
