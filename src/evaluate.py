@@ -248,7 +248,7 @@ def _check_dynamics_overrides(cfg, count: int, seed: int) -> None:
     args = ["pipeline=custom", f"pipeline.name={cfg.episodes.pipeline}", f"task_group={cfg.episodes.group}",
             f"episodes={count}", f"seed={seed}",
             *([f"debug={cfg.dynamics.debug}"] if cfg.dynamics.debug != "none" else []), *cfg.dynamics.overrides]
-    line = config_mistakes(args, entry_conf_dir())
+    line = config_mistakes(args, entry_conf_dir(), "diversity")
     if line is None:
         try:
             composed = compose("diversity", overrides=args)

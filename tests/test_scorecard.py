@@ -115,7 +115,9 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
     # checked before any stage runs (here the dynamics stage would run; with too few episodes it would not run at
     # all), the key one level too high pointed to where it lives
     for bad, says in (("dynamics.overrides=['world_model.unimix=0.1']", "did you mean world_model.model.unimix?"),
-                      ("dynamics.overrides=['protocol.steps=0']", "dynamics.overrides: protocol.steps=0")):
+                      ("dynamics.overrides=['protocol.steps=0']", "dynamics.overrides: protocol.steps=0"),
+                      ("dynamics.overrides=['protocol=paper','+protocol.pixels=false']",
+                       "+protocol.pixels=false: protocol=paper has no pixels (a section of protocol=heldout)")):
         one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad, f"out={tmp_path / 'card2'}"), says)
         assert not (tmp_path / "card2").exists()
 
