@@ -59,8 +59,14 @@ def one_line_exit_2(r: subprocess.CompletedProcess) -> str:
                                                       "protocol=heldout: protocol=heldout +protocol.gate.n_boot=500"),
     (["protocol=paper", "+protocol.pixels=false"], "drop it, or run it with protocol=heldout: protocol=heldout "
                                                    "protocol.pixels=false"),  # heldout lists pixels: no '+'
-    (["-m", "protocol=paper,heldout", "+protocol.gate.n_boot=500"], "protocol.gate: a setting of protocol=heldout, "
-                                                                    "which protocol=paper does not read"),
+    # in either order, before the heldout job runs (as the run's own check, it would refuse only the paper job)
+    (["-m", "protocol=heldout,paper", "+protocol.gate.n_boot=500"], "this sweep runs protocol=paper; drop it, or "
+                                                                    "sweep protocol=heldout alone: protocol=heldout "
+                                                                    "+protocol.gate.n_boot=500"),
+    (["-m", "protocol=paper,heldout", "protocol.gate.margin=0.1"], "sweep protocol=heldout alone: protocol=heldout "
+                                                                   "protocol.gate.margin=0.1"),
+    (["protocol=paper", "protocol.pixels=false"], "protocol=paper has no pixels (a setting of protocol=heldout)"),
+    (["-m", "episodes=10,20", "--cfg", "job"], "-m and --cfg: one at a time"),
     (["protocol.state_model.val_share=1"], "protocol.state_model.val_share=1: expected a share in (0, 1)"),
     (["protocol.state_model.lr_schedule=linear"], "protocol.state_model.lr_schedule='linear': expected constant or "
                                                     "cosine"),
@@ -106,11 +112,13 @@ def test_generalization_names_the_bad_value_before_training(args, expected, tmp_
 
 
 @pytest.mark.parametrize("setting", ["+protocol.gate.n_boot=500", "+protocol.pixels=false"])
-def test_a_heldout_setting_under_the_paper_protocol_stops_before_hydra_makes_a_run_folder(setting, tmp_path):
-    # with '+' Hydra composes it; refused only in the run, a kill in that second would leave an empty run folder
-    line = one_line_exit_2(run("diversity", "protocol=paper", setting, cwd=tmp_path))
+@pytest.mark.parametrize("protocol", [["protocol=paper"], ["-m", "protocol=heldout,paper"]])
+def test_a_heldout_setting_under_the_paper_protocol_stops_before_hydra_makes_a_folder(setting, protocol, tmp_path):
+    # with '+' Hydra composes it; refused only in the run, a kill in that second would leave an empty run folder,
+    # and a sweep's heldout job would run first
+    line = one_line_exit_2(run("diversity", *protocol, setting, cwd=tmp_path))
     assert line.startswith(f"error: {setting}: protocol=paper has no ")
-    assert not (tmp_path / "run").exists()
+    assert not (tmp_path / "run").exists() and not (tmp_path / "sweep").exists()
 
 
 def test_the_protocol_a_setting_is_checked_against_is_the_configs_default_when_not_given(tmp_path):
@@ -122,6 +130,8 @@ def test_the_protocol_a_setting_is_checked_against_is_the_configs_default_when_n
     assert config_mistakes(["+protocol.gate.margin=0.2"], conf, "main") == (
         "+protocol.gate.margin=0.2: protocol=a has no gate (a section of protocol=b); drop it, or run it with "
         "protocol=b: protocol=b protocol.gate.margin=0.2")
+    assert config_mistakes(["+protocol.gate.margin=0.2", "protocol=b,a"], conf, "main").startswith(
+        "+protocol.gate.margin=0.2: protocol=a has no gate (a section of protocol=b), and this sweep runs protocol=a")
     assert config_mistakes(["protocol=b", "+protocol.gate.seed=1"], conf, "main") is None  # b has the section
     assert config_mistakes(["+protocol.nope=1"], conf, "main") is None  # no option has it: left to Hydra and the run
     assert config_mistakes(["+protocol.gate.margin=0.2"], conf) is None  # no primary config named: not checked

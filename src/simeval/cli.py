@@ -373,6 +373,10 @@ def entry_conf_dir() -> Path:
     return Path(sys.argv[0]).resolve().parent.parent / "conf"
 
 
+# Hydra's flags that choose what the command does, of which it takes one (flag -> the mode it chooses)
+HYDRA_MODE_FLAGS = {"-m": "multirun", "--multirun": "multirun", "--cfg": "cfg", "-c": "cfg", "--info": "info",
+                    "-i": "info", "--shell-completion": "shell", "-sc": "shell", "--run": "run", "-r": "run"}
+
 # Hydra's own flags whose value is the next argument (`--cfg job`), not an override
 HYDRA_FLAGS_WITH_VALUE = {"--cfg", "-c", "--package", "-p", "--info", "-i", "--config-path", "-cp", "--config-name",
                           "-cn", "--config-dir", "-cd", "--experimental-rerun"}
@@ -432,38 +436,48 @@ def config_mistakes(args: list[str], conf_dir: Path, config_name: str | None = N
 
 
 def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: str) -> str | None:
-    """`group.section...=v` where the group's chosen option (its override, else the primary config's default) has
-    no `section` and another option of the group has it: one line that names that option and the override as it
-    would take it. Left to the run when the group is swept (one of its runs may take it)."""
-    chosen = {o.key_or_group: str(o.value()) for o in parsed
-              if not o.is_sweep_override() and (conf_dir / o.key_or_group).is_dir() and o.package is None}
+    """`group.key...=v` where the group's chosen option (its override, else the primary config's default; in a sweep
+    over the group, any of its options) has no `key` and another option of the group has it: one line that names
+    that option and the override as it would take it. In a sweep, a job of the other option would take it and the
+    first job of this one refuse it only after the jobs before it had run."""
+    chosen = {o.key_or_group: [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
+              for o in parsed if (conf_dir / o.key_or_group).is_dir() and o.package is None and not o.is_delete()}
     for o in parsed:
         group, _, rest = o.key_or_group.partition(".")
-        section = rest.partition(".")[0]
-        if o.is_delete() or o.is_sweep_override() or not section or not (conf_dir / group).is_dir():
+        key = rest.partition(".")[0]
+        if o.is_delete() or not key or not (conf_dir / group).is_dir():
             continue
-        option = chosen.get(group) or _default_choice(conf_dir / f"{config_name}.yaml", group)
-        if option is None or section in _option_keys(conf_dir / group / f"{option}.yaml"):
+        options = chosen.get(group) or [_default_choice(conf_dir / f"{config_name}.yaml", group)]
+        option = next((v for v in options if v is not None and v != "null"
+                       and key not in _option_keys(conf_dir / group / f"{v}.yaml")), None)
+        if option is None:
             continue
-        owners = sorted(p.stem for p in (conf_dir / group).glob("*.yaml") if section in _option_keys(p))
+        owners = sorted(p.stem for p in (conf_dir / group).glob("*.yaml") if key in _option_keys(p))
         if not owners:
             continue
         owner = f"{group}={owners[0]}"
         value = o.input_line.split("=", 1)[1]
-        return (f"{'+' if o.is_add() else ''}{o.key_or_group}={value}: {group}={option} has no {section} (a section "
-                f"of {owner}); drop it, or run it with {owner}: {owner} {owner_form(conf_dir, owner, o.key_or_group)}"
-                f"{value}")
+        what = "a section" if isinstance(_option_keys(conf_dir / group / f"{owners[0]}.yaml")[key], dict) else \
+            "a setting"
+        given = f"{'+' if o.is_add() else ''}{o.key_or_group}={value}"
+        if len(options) > 1:
+            return (f"{given}: {group}={option} has no {key} ({what} of {owner}), and this sweep runs {group}="
+                    f"{option}; drop it, or sweep {owner} alone: {owner} {owner_form(conf_dir, owner, o.key_or_group)}"
+                    f"{value}")
+        return (f"{given}: {group}={option} has no {key} ({what} of {owner}); drop it, or run it with {owner}: "
+                f"{owner} {owner_form(conf_dir, owner, o.key_or_group)}{value}")
     return None
 
 
-def _option_keys(path: Path) -> set[str]:
+def _option_keys(path: Path) -> dict[str, Any]:
+    """A group option's top-level keys and their values ({} for a file that is not there or not a mapping)."""
     import yaml
 
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except (OSError, yaml.YAMLError):
-        return set()
-    return set(data) if isinstance(data, dict) else set()
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
 def _default_choice(primary: Path, group: str) -> str | None:
@@ -686,6 +700,10 @@ def launch(main: Callable[[], Any]) -> None:
     from simeval.results import register_run_suffix_resolver
 
     refuse_secrets_on_command_line(sys.argv)
+    modes = [a for a in sys.argv[1:] if a.split("=", 1)[0] in HYDRA_MODE_FLAGS]
+    if len({HYDRA_MODE_FLAGS[m.split("=", 1)[0]] for m in modes}) > 1:  # Hydra raises a ValueError's traceback
+        _fail(f"{' and '.join(modes)}: one at a time (to see a sweep's config, give --cfg job with one value of "
+              f"each swept key, without -m)")
     allow_multirun_anywhere()
     custom_search_path = any(a.startswith(("--config-dir", "-cd", "--config-path", "-cp")) for a in sys.argv[1:])
     if not custom_search_path and os.environ.get("HYDRA_FULL_ERROR") != "1":
