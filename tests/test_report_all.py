@@ -255,6 +255,47 @@ def test_a_committed_table_is_drawn_again_from_its_csv_alone_with_runs_dir_null(
         "OVERWRITE=1)\n"), r.stderr
 
 
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_a_report_that_would_drop_committed_rows_names_the_keep_that_keeps_them(tmp_path):
+    """A report of one sweep's runs, over a committed table of many groups, would write a table of that row alone:
+    the refusal says how many rows would go and which key keeps them; asked to, it replaces them and says so."""
+    from simeval.measures.dynamics_diversity import table4_heldout
+    from simeval.writing.tables import rows_lost
+
+    committed_csv = ROOT / "outputs" / "tables" / "table4_heldout.csv"
+    rows = table4_heldout.read_rows(committed_csv)
+    shutil.copy(committed_csv, tmp_path / "table4_heldout.csv")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    subprocess.run([*git, "add", "table4_heldout.csv"], cwd=tmp_path, check=True)
+    subprocess.run([*git, "commit", "-qm", "committed"], cwd=tmp_path, check=True)
+    one = tmp_path / "one" / "table4_heldout"
+    one.parent.mkdir()
+    table4_heldout.write(rows[:1], one)  # another sweep's table: one group
+    args = [str(ROOT / "src" / "report.py"), "report=table4_heldout", "report.runs_dir=null",
+            f"report.keep=[{one}.csv]", f"report.out={tmp_path / 'table4_heldout'}",
+            f"report.figure={tmp_path / 'one' / 'figure.png'}"]
+    r = py(*args, cwd=tmp_path)
+    others = [f"{row['pipeline']}/{row['group']}" for row in rows[1:4]]
+    assert r.returncode == 2 and r.stderr == (
+        f"error: {tmp_path / 'table4_heldout.csv'} is a committed result and would be replaced by a table of the "
+        f"kept tables alone; {len(rows) - 1} of its {len(rows)} rows would go (groups without runs here: "
+        f"{', '.join(others)} and {len(rows) - 4} more); report.keep=[{tmp_path / 'table4_heldout.csv'}] keeps "
+        "them; write elsewhere (report.out= and report.figure=) or replace it with overwrite=true (make: "
+        "OVERWRITE=1)\n"), r.stderr
+    r = py(*args[:3], f"report.keep=[{one}.csv,{tmp_path / 'table4_heldout.csv'}]", *args[4:], cwd=tmp_path)
+    assert r.returncode == 2 and "rows would go" not in r.stderr  # kept: none would go (still committed)
+    r = py(*args, "overwrite=true", cwd=tmp_path)
+    assert r.returncode == 0 and f"replaced as asked: {len(rows) - 1} of its {len(rows)} rows went" in r.stdout
+    assert len(table4_heldout.read_rows(tmp_path / "table4_heldout.csv")) == 1
+
+    def key(row):
+        return tuple(str(row.get(c)) for c in table4_heldout.ROW_KEY)
+
+    assert rows_lost(committed_csv, [], rows, table4_heldout.read_rows, key) == ""  # every row still there
+    assert rows_lost(one.with_suffix(".csv"), [], [], table4_heldout.read_rows, key) == ""  # not committed
+
+
 def test_runs_dir_null_without_a_kept_table_or_for_another_report_is_one_line(tmp_path):
     r = py(str(ROOT / "src" / "report.py"), "report=table5", "report.runs_dir=null", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr == (

@@ -21,7 +21,8 @@ import sys
 from pathlib import Path
 
 from simeval.errors import UserError
-from simeval.writing.tables import Rebuilt, ReportWords, kept_only_hint, read_kept, refuse_committed
+from simeval.writing.tables import (Rebuilt, ReportWords, kept_only_hint, read_kept, refuse_committed, replaced_notes,
+                                    rows_lost)
 from simeval.measures.generalization.table5 import rebuild_table5
 from simeval.results import read_results
 
@@ -45,8 +46,6 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     if not records:  # with keep too: a mistyped root must not pass for "nothing new"
         raise UserError(f"no {table4.METRIC} result.json under {root}: run the world models first "
                         "(make table4, or src/diversity.py), or give the folder that holds them")
-    replaced = [*_with(Path(out), (".csv", ".md", ".tex")), *_with(Path(figure).with_suffix(""), (".png", ".pdf"))]
-    refuse_committed(replaced, overwrite, words.overwrite, words.elsewhere)
     presets = sorted({str(r["identity"].get("preset")) for r in records})
     if preset and preset not in presets:
         raise UserError(f"preset {preset}: no {table4.METRIC} run of that preset under {root} (its runs' presets: "
@@ -54,11 +53,16 @@ def rebuild_table4(root: str | Path, out: str | Path, figure: str | Path, *, epi
     rows = table4.build(records, episodes=episodes, preset=preset)
     for rows_of_file in kept:
         rows = table4.merge([r for r in rows_of_file if not preset or r["preset"] in ("", preset)], rows, episodes)
+    lost = rows_lost(Path(out).with_suffix(".csv"), keep, [r for r in rows if r["preset"]], table4.read_rows,
+                     lambda r: (r["pipeline"], r["group"], r["preset"]) if r["preset"] else None, words.keep)
+    replaced = [*_with(Path(out), (".csv", ".md", ".tex")), *_with(Path(figure).with_suffix(""), (".png", ".pdf"))]
+    refuse_committed(replaced, overwrite, words.overwrite, words.elsewhere, lost=lost)
     unused = table4.unused_episodes(records, episodes)
     written = table4.write(rows, out, episodes, unused)
     figures = table4.plot(rows, figure)
     notes = [f"runs trained on {', '.join(map(str, unused))} episodes per task are not in the table "
              f"({words.episodes} {','.join(map(str, episodes))} chose its columns)"] if unused else []
+    notes += replaced_notes(lost)
     return Rebuilt([*written.values(), *figures], written["md"].read_text(), notes)
 
 
@@ -74,14 +78,18 @@ def rebuild_table4_heldout(root: str | Path | None, out: str | Path, figure: str
                         "src/diversity.py (protocol=heldout is its default) first, or give the folder that holds them"
                         + kept_only_hint(keep, words.keep, Path(out).with_suffix(".csv")))
     out, figure = Path(out), Path(figure)
-    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, words.overwrite,
-                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk")
     rows = table4_heldout.build(records)
     for rows_of_file in kept:  # the rows merged so far win: the first file that has a row gives it
         rows = table4_heldout.merge(rows_of_file, rows)
+    lost = rows_lost(out.with_suffix(".csv"), keep, rows, table4_heldout.read_rows,
+                     lambda r: tuple(str(r.get(c)) for c in table4_heldout.ROW_KEY), words.keep)
+    refuse_committed([out.with_suffix(".csv"), out.with_suffix(".md"), figure], overwrite, words.overwrite,
+                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk",
+                     lost=lost)
     written = table4_heldout.write(rows, out)
     table4_heldout.plot(rows, figure, "held-out prediction (protocol=heldout)")
-    return Rebuilt([*written.values(), figure], written["md"].read_text())
+    return Rebuilt([*written.values(), figure], written["md"].read_text(),
+                   replaced_notes(lost))
 
 
 KINDS = ("table3", "figure4", "table4", "table4_heldout", "table5", "html", "all")

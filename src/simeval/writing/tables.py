@@ -6,6 +6,7 @@ import csv
 import io
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -128,10 +129,11 @@ class ReportWords:
 
 
 def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewhere: str = "another output path",
-                     source: str = "the runs on disk") -> None:
+                     source: str = "the runs on disk", lost: str = "") -> None:
     """A report of the runs on disk must not replace a committed result unless asked: raises a UserError naming the
     first committed file among `paths`, what would replace it (`source`: "the kept tables alone" for a redraw) and
-    how to proceed (`flag`, or `elsewhere`: the keys that write elsewhere), unless `overwrite`."""
+    how to proceed (`flag`, or `elsewhere`: the keys that write elsewhere), unless `overwrite`. `lost`
+    (rows_lost's words): the committed rows the new table would not have, and how to keep them."""
     from simeval.errors import UserError
 
     if overwrite:
@@ -139,8 +141,40 @@ def refuse_committed(paths, overwrite: bool, flag: str = "--overwrite", elsewher
     hit = committed(paths)
     if hit:
         kind = "figure" if Path(hit[0]).suffix in (".png", ".pdf") else "table"
-        raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of {source}; write "
-                        f"elsewhere ({elsewhere}) or replace it with {flag}")
+        raise UserError(f"{hit[0]} is a committed result and would be replaced by a {kind} of {source}"
+                        f"{'; ' + lost if lost else ''}; write elsewhere ({elsewhere}) or replace it with {flag}")
+
+
+def rows_lost(csv: str | Path, keep, rows: list[dict], read_rows: Callable[[Path], list[dict]],
+              key: Callable[[dict], tuple], keep_key: str = "keep") -> str:
+    """Words for the rows of a committed table `csv` that the new `rows` would not have (groups whose runs are on
+    another machine: a report of one sweep would write a table of its row alone), naming the `keep_key` that keeps
+    them; "" where none would go, `csv` is not committed, or is kept already."""
+    from simeval.errors import UserError
+
+    csv = Path(csv)
+    if not committed([csv]) or any(Path(k).resolve() == csv.resolve() for k in keep):
+        return ""
+    try:
+        old = [r for r in read_rows(csv) if key(r) is not None]  # None: a row no run makes (the paper's values)
+    except UserError:  # not a table of this kind: refuse_committed still names it
+        return ""
+    new = {key(r) for r in rows}
+    gone = [r for r in old if key(r) not in new]
+    if not gone:
+        return ""
+    return (f"{len(gone)} of its {len(old)} rows would go (groups without runs here: {_names(gone)}); "
+            f"{keep_key}=[{csv}] keeps them")
+
+
+def replaced_notes(lost: str) -> list[str]:
+    """The note of a report that replaced a committed table, as asked, without some of its rows (rows_lost)."""
+    return [f"replaced as asked: {lost.replace(' would go', ' went', 1)}"] if lost else []
+
+
+def _names(rows: list[dict]) -> str:
+    names = [f"{r.get('pipeline')}/{r.get('group')}" for r in rows]
+    return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
 
 
 def kept_only_hint(keep, keep_key: str = "keep", committed: str | os.PathLike | None = None) -> str:

@@ -28,7 +28,7 @@ from simeval.writing.paper_groups import suite_group
 from simeval.writing.paper_values import TABLE5 as PAPER, paper_table5
 from simeval.writing.paper_values import TABLE5_MEANING
 from simeval.writing.tables import (Rebuilt, ReportWords, kept_only_hint, read_csv, read_kept, refuse_committed,
-                                    write_table)
+                                    replaced_notes, rows_lost, write_table)
 from simeval.results import identity_difference, read_results, rolled_out
 
 METRIC = "generalization"
@@ -502,12 +502,15 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
         raise UserError(f"no {METRIC} result.json under {root}: run the policies first (make table5, or "
                         "src/generalization.py), or give the folder that holds them"
                         + kept_only_hint(keep, keep_key, Path(out).with_suffix(".csv")))
-    refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
-                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, words.overwrite,
-                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk")
     rows = build(records, policy=policy)
     for rows_of_file in kept:
         rows = merge([r for r in rows_of_file if policy in (None, r["policy"]) or not r["runs"]], rows)
+    lost = rows_lost(Path(out).with_suffix(".csv"), keep, rows, read_rows,
+                     lambda r: (r["pipeline"], r["group"], r["policy"]) if r["runs"] else None, keep_key)
+    refuse_committed([*(Path(f"{stem}{x}") for stem in (out, f"{out}_detail") for x in (".csv", ".md", ".tex")),
+                      *(Path(figure).with_suffix(x) for x in (".png", ".pdf"))], overwrite, words.overwrite,
+                     words.elsewhere, source="the kept tables alone" if root is None else "the runs on disk",
+                     lost=lost)
     lines = detail_lines(detail_rows(records, policy=policy))
     for lines_of_file in kept_detail:
         lines = merge_detail([c for c in lines_of_file if policy in (None, c[2].removesuffix(CHANCE_NOTE))], lines)
@@ -515,5 +518,6 @@ def rebuild_table5(root: str | Path | None, out: str | Path, figure: str | Path,
     written = write(rows, out)
     detail = write_detail(lines, f"{out}_detail")
     figures = plot(rows, figure)
-    return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text())
+    return Rebuilt([*written.values(), *detail.values(), *figures], written["md"].read_text(),
+                   replaced_notes(lost))
 
