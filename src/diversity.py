@@ -20,7 +20,8 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from simeval.runtime.captured import training_device
-    from simeval.measures.dynamics_diversity.run import VERSION, DiversityRun, Execution, episode_source, headline
+    from simeval.measures.dynamics_diversity.run import (VERSION, DiversityRun, Execution, episode_source, headline,
+                                                         tasks_not_stored)
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 
@@ -41,6 +42,12 @@ def main(cfg: DictConfig) -> None:
                                              episodes_needed=measure.episodes_needed,
                                              debug_overlay=HydraConfig.get().runtime.choices.get("debug") or "none",
                                              collect_extra=searchpath)
+    read = sorted({info.task for info in source.infos})
+    missing = tasks_not_stored(read, cfg.task_group, cfg.pipeline.get("suite"))
+    if missing:
+        log.warning("%s/%s: the store holds %d of the group's %d tasks (%s); the reading is of those only (not "
+                    "read: %s)", cfg.pipeline.name, cfg.task_group, len(read), len(read) + len(missing),
+                    ", ".join(read), ", ".join(missing))
     with run.logger() as logger:
         execution = Execution(checkpoint_dir=cfg.checkpoint_dir, device=device, compile=cfg.compile,
                               capture=cfg.capture, progress=bool(cfg.progress), how_to_get_more=how_to_get_more)

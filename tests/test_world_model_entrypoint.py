@@ -112,6 +112,8 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
             f"checkpoint_dir={tmp_path}/ck", "progress=false", "protocol=paper", "eval_episodes=[1,3]", "heldout_episodes=null",
             "hydra.sweep.dir=" + str(tmp_path / "sweep"), "-m", "episodes=2,3", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
+    assert ("gensim/stacking: the store holds 1 of the group's 6 tasks (stack-two-blocks); the reading is of those "
+            "only (not read: ") in r.stdout + r.stderr
     recs = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").rglob("result.json"))]
     assert [rec["identity"]["episodes"] for rec in recs] == [2, 3]
     for rec in recs:
@@ -131,21 +133,38 @@ def test_sweep_on_collected_simulator_episodes(tiny_sim_store, tmp_path):
 
 
 def test_too_few_episodes_names_the_collect_command_for_this_store_and_group(tiny_sim_store, tmp_path):
-    """Following the hint must fill the store the run reads (not the collector's default) with the run's group,
-    recorded as the run's debug overlay records (debug=tiny: 32x32 frames; without it collect records 64x64)."""
+    """Following the hint must fill the store the run reads (not the collector's default) with the tasks it holds
+    (collected with tasks=stack-two-blocks: not the group's other five, which would change what the next reading
+    reads), recorded as the run's debug overlay records (debug=tiny: 32x32 frames; without it collect records
+    64x64)."""
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
             "protocol=paper", "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
     assert r.stderr.strip() == (
         "error: task 'stack-two-blocks' has 3 episodes; training on 5 and evaluating on episodes 1-40 needs 40 per "
-        f"task (collect them: python src/collect.py pipeline=gensim task_group=stacking episodes=40 "
+        f"task (collect them: python src/collect.py pipeline=gensim 'tasks=[stack-two-blocks]' episodes=40 "
         f"store={tiny_sim_store} debug=tiny)")
     r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={tiny_sim_store}", "episodes=5",
             "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)  # protocol=heldout: 41-50
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and (
         f"evaluating on episodes 41-50 needs 50 per task (collect them: python src/collect.py pipeline=gensim "
-        f"task_group=stacking episodes=50 store={tiny_sim_store} debug=tiny; or evaluate episodes the store has "
+        f"'tasks=[stack-two-blocks]' episodes=50 store={tiny_sim_store} debug=tiny; or evaluate episodes the store has "
         "past the training ones, eval_episodes=[6,LAST], or use protocol=paper)") in r.stderr, r.stderr
+
+
+def test_a_damaged_episode_is_named_with_the_command_that_collects_the_stores_tasks_again(tiny_sim_store, tmp_path):
+    import shutil
+
+    store = tmp_path / "store"
+    shutil.copytree(tiny_sim_store, store)
+    damaged = sorted((store / "gensim" / "stack-two-blocks").glob("episode_*.h5"))[1]
+    damaged.write_bytes(damaged.read_bytes()[:1000])
+    r = run("debug=tiny", "pipeline=gensim", "task_group=stacking", f"store={store}", "episodes=2",
+            "protocol=paper", "eval_episodes=[1,3]", "progress=false", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-2000:]
+    assert r.stderr.startswith(f"error: {damaged}") and r.stderr.rstrip().endswith(
+        "collecting again moves it aside and makes it anew: python src/collect.py pipeline=gensim "
+        f"'tasks=[stack-two-blocks]' episodes=3 store={store} debug=tiny"), r.stderr
 
 
 def test_a_compile_value_that_is_not_true_or_false_is_one_line(tmp_path):

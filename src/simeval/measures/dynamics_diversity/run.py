@@ -598,12 +598,36 @@ def how_to_get_episodes(store: str | Path, pipeline: str, group: str, suite: str
                 "store with src/import_data.py")
     from simeval.sim.tasks.spec import suite_dir, load_suite
 
-    groups = sorted({s.group for s in load_suite(suite_dir(suite))})
+    specs = load_suite(suite_dir(suite))
+    groups = sorted({s.group for s in specs})
     into = f" store={store}{extra}"
     if group in groups or group == "all":
-        return f"collect them: python src/collect.py pipeline={pipeline} task_group={group} episodes={episodes}{into}"
+        # a store collected with tasks=[...] gets those tasks again, not the whole group: that would change what
+        # the next reading reads
+        stored = stored_tasks(store, pipeline, group)
+        which = f"'tasks=[{','.join(stored)}]'" if stored and set(stored) < {
+            s.name for s in specs if group in ("all", s.group)} else f"task_group={group}"
+        return f"collect them: python src/collect.py pipeline={pipeline} {which} episodes={episodes}{into}"
     return (f"the {suite} suite's groups are {', '.join(groups)} (collect one with python src/collect.py "
             f"pipeline={pipeline} task_group={groups[0]} episodes={episodes}{into}), or import episodes of yours")
+
+
+def stored_tasks(store: str | Path, pipeline: str, group: str) -> list[str]:
+    """The tasks of a pipeline's group (`all`: every group) that the store holds episodes of, from the files it can
+    read (a damaged one is skipped: the caller's error names it); [] without a store."""
+    from simeval.episodes.store import EpisodeStore, read_meta
+
+    if not Path(store).is_dir():
+        return []
+    tasks = set()
+    for path in EpisodeStore(store).paths(pipeline):
+        try:
+            meta = read_meta(path)
+        except (UserError, OSError):  # EpisodeFormatError is a UserError
+            continue
+        if group in ("all", meta["group"]):
+            tasks.add(str(meta["task"]))
+    return sorted(tasks)
 
 
 COLLECT_DEFAULTS = {"record.image_size": [64, 64], "record.cameras": ["front", "top"]}  # conf/collect.yaml's
@@ -663,6 +687,18 @@ def episode_source(store: str | Path, pipeline: str, group: str, camera: str | N
     extra = (f" debug={debug_overlay}" if debug_overlay != "none" else "") + collect_extra
     source = store_source(store, pipeline, group, camera, suite, episodes_needed, extra, own_code)
     return source, lambda n: how_to_get_episodes(store, pipeline, group, suite, n, extra, own_code)
+
+
+def tasks_not_stored(tasks_read, group: str, suite: str | None) -> list[str]:
+    """The tasks of a simeval suite's `group` (`all`: every group) that are not among `tasks_read` (a store
+    collected with tasks=[...]): a reading of part of a group, which the run says beside its numbers. [] for a
+    pipeline without a suite (its group is whatever its episodes hold)."""
+    if not suite:
+        return []
+    from simeval.sim.tasks.spec import load_suite, suite_dir
+
+    names = {s.name for s in load_suite(suite_dir(suite)) if group in ("all", s.group)}
+    return sorted(names - {str(t) for t in tasks_read})
 
 
 def load_model(checkpoint: str | Path, device: str | torch.device | None = "auto") -> tuple[WorldModel, dict]:
