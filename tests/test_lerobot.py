@@ -130,6 +130,35 @@ def test_an_export_loads_in_lerobots_own_dataset_with_the_stores_values(lerobot_
         assert _psnr(back.rgb["wrist"], ep.rgb["wrist"]) >= MIN_PSNR_DB
 
 
+def test_a_round_trip_keeps_the_stores_tasks_and_groups_where_the_instructions_vary(tmp_path):
+    """A LeRobot task is an instruction: a pipeline whose instructions vary per episode (a colour, a direction)
+    came back from its own export as a task per instruction, each with an episode or two, and in group "all".
+    The export writes simeval's task and group beside (columns lerobot's own reader reads past)."""
+    import dataclasses
+
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+
+    write_group(tmp_path / "src", "diverse", n_tasks=2, episodes=3, n_actions=6, size=32, pipeline="syn")
+    store, words = EpisodeStore(tmp_path / "store"), ("left", "right", "up")
+    mine = [dataclasses.replace(ep, description=f"push the disk {words[ep.seed]}")
+            for ep in _episodes(tmp_path / "src", "syn")]
+    for ep in mine:
+        store.write(ep)
+    out = tmp_path / "exported"
+    res = subprocess.run([sys.executable, str(ROOT / "src" / "export_data.py"), "episodes.pipeline=syn",
+                          f"episodes.store={tmp_path / 'store'}", f"out={out}", "fps=10",
+                          f"hydra.run.dir={tmp_path / 'ex'}"], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    _lerobot("read", str(out), str(tmp_path / "read.npz"))  # lerobot's own reader loads it, extra columns and all
+    theirs = np.load(tmp_path / "read.npz")
+    assert int(theirs["num_episodes"]) == 6 and set(theirs["tasks"]) == {ep.description for ep in mine}
+    assert _import(tmp_path, out, "name=back", store="store2").returncode == 0
+    back = _episodes(tmp_path / "store2", "back")
+    assert sorted((e.task, e.group, e.description) for e in back) == sorted(
+        (e.task, e.group, e.description) for e in mine)
+    assert len({e.task for e in back}) == 2 and {e.group for e in back} == {"diverse"}
+
+
 def _write_v21(dst: Path, given: dict) -> None:
     """The v2.1 layout (one parquet and one mp4 per episode, meta/*.jsonl) as lerobot 0.4.4's converter reads it."""
     import av
@@ -319,3 +348,10 @@ def test_export_mistakes_are_one_line(lerobot_written, tmp_path):
     for fps in ("abc", "-3", "0"):
         one_line_error(export("episodes.pipeline=mine", f"out={tmp_path / 'z'}", f"fps={fps}"), "fps=")
     assert (tmp_path / "taken" / "notes.txt").read_text() == "mine"
+    # frames too narrow for the encoder: it died of SIGFPE (exit -8, nothing printed), now one line
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+
+    write_group(tmp_path / "store", "diverse", n_tasks=1, episodes=1, n_actions=4, size=16, pipeline="small")
+    one_line_error(export("episodes.pipeline=small", f"out={tmp_path / 'small'}", "fps=10"), "frames of 16x16",
+                   "needs at least 4 rows and 26 columns")
+    assert not (tmp_path / "small").exists()

@@ -21,8 +21,9 @@ Mapping into the store (simeval.episodes.store's rows), frame t of an episode of
   dataset's last action (no transition reads it); reward[t] = next.reward[t] (0 without it); success: any
   next.success, else, where next.reward is 0/1 only, any reward of 1; otherwise unknown (success_known
   False), as the authors' GenSim files; progress unknown; control_hz = fps; the episode's task text (its first
-  task) is the description and names the task (task_name); seed = episode_index; the action space's kind is
-  "lerobot:<robot_type>" and its dims the action's names.
+  task) is the description and names the task (task_name), unless the episode's row has simeval/task (and
+  simeval/group), which simeval's export writes: a round trip keeps the store's tasks and groups; seed =
+  episode_index; the action space's kind is "lerobot:<robot_type>" and its dims the action's names.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import json
 import logging
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,9 @@ WRITES = "v3.0"
 LEROBOT_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 CAMERA_PREFIX = "observation.images."
 ENV_STATE = "observation.environment_state"
+# columns of meta/episodes that simeval's export adds (lerobot reads past them): a LeRobot task is an instruction,
+# and a pipeline whose instructions vary per episode (colours, objects) would come back as a task per instruction
+SIMEVAL_KEYS = {"task": "simeval/task", "group": "simeval/group"}
 
 
 def _names(feature: dict, n: int) -> list[str]:
@@ -139,6 +143,7 @@ class EpisodeEntry:
     length: int
     data_file: Path
     videos: dict[str, tuple[Path, float]]  # camera key -> (mp4, the episode's first timestamp in it)
+    simeval: dict[str, str] = field(default_factory=dict)  # task, group: what simeval's export wrote (SIMEVAL_KEYS)
 
 
 def _read_parquet(path: Path, columns: list[str] | None = None):
@@ -184,7 +189,8 @@ def episode_entries(info: LeRobotInfo) -> list[EpisodeEntry]:
                     data = root / info.data_path.format(chunk_index=int(row["data/chunk_index"]),
                                                         file_index=int(row["data/file_index"]))
                     out.append(EpisodeEntry(int(row["episode_index"]), list(row.get("tasks") or []),
-                                            int(row["length"]), data, videos))
+                                            int(row["length"]), data, videos,
+                                            {k: str(row[c]) for k, c in SIMEVAL_KEYS.items() if row.get(c)}))
                 except (KeyError, TypeError, ValueError) as e:
                     raise EpisodeFormatError(f"{f}: episode row without {e} (has {sorted(row)[:8]} ...)") from e
         return sorted(out, key=lambda e: e.index)
@@ -196,7 +202,8 @@ def episode_entries(info: LeRobotInfo) -> list[EpisodeEntry]:
             videos = {c.key: (root / info.video_path.format(episode_chunk=chunk, video_key=c.key, episode_index=i),
                               0.0) for c in info.cameras if c.video}
             out.append(EpisodeEntry(i, list(row.get("tasks") or []), int(row["length"]),
-                                    root / info.data_path.format(episode_chunk=chunk, episode_index=i), videos))
+                                    root / info.data_path.format(episode_chunk=chunk, episode_index=i), videos,
+                                    {k: str(row[c]) for k, c in SIMEVAL_KEYS.items() if row.get(c)}))
         except (KeyError, TypeError, ValueError) as e:
             raise EpisodeFormatError(f"{root / 'meta' / 'episodes.jsonl'}: an episode without {e}") from e
     return sorted(out, key=lambda e: e.index)
@@ -324,7 +331,7 @@ def import_lerobot(root: str | os.PathLike, *, image_size: tuple[int, int] | Non
         log.info("%s: features not imported: %s", root, ", ".join(info.ignored))
     for entry in episode_entries(info):
         text = entry.tasks[0] if entry.tasks else f"episode {entry.index}"
-        task = task_name(text)
+        task = entry.simeval.get("task") or task_name(text)  # simeval's export: the task its episodes had
         if stored is not None and stored(pipeline, task, entry.index):
             yield Stored(pipeline, task, entry.index)
             continue
@@ -353,7 +360,7 @@ def import_lerobot(root: str | os.PathLike, *, image_size: tuple[int, int] | Non
         views = [frames[0] for frames in rgb.values()]
         yield Episode(
             pipeline=pipeline, task=task, description=text, group=(groups or {}).get(task, (groups or {}).get(
-                text, "all")), seed=entry.index, rgb=rgb,
+                text, entry.simeval.get("group", "all"))), seed=entry.index, rgb=rgb,
             state=np.concatenate(state, axis=1) if state else np.zeros((n, 0), np.float32),
             action=_column(rows, "action", entry.data_file, len(action_names)).astype(np.float32),
             reward=reward, is_first=np.arange(n) == 0, is_terminal=np.arange(n) == n - 1, success=success,
@@ -373,6 +380,11 @@ VIDEO_OPTIONS = {"g": "2", "crf": "30"}  # lerobot 0.4.4's encode_video_frames d
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 
 
+# the smallest frames SVT-AV1 (PyAV's libsvtav1) encodes here: a width of 24 or a height of 2 kills the process with
+# SIGFPE inside the encoder (measured 2026-12-07 with the pinned av: widths 16-24 crash, 26-64 encode; heights 4-64)
+MIN_VIDEO_WIDTH, MIN_VIDEO_HEIGHT = 26, 4
+
+
 class _VideoWriter:
     """One camera's frames of every exported episode, one after another in one AV1 mp4, as lerobot encodes them."""
 
@@ -383,6 +395,10 @@ class _VideoWriter:
         if height % 2 or width % 2:
             raise UserError(f"{path}: frames of {height}x{width}: AV1 in yuv420p needs an even height and width "
                             "(image_size=[H, W] on import or collection)")
+        if width < MIN_VIDEO_WIDTH or height < MIN_VIDEO_HEIGHT:  # SVT-AV1 dies of SIGFPE: no Python error at all
+            raise UserError(f"{path}: frames of {height}x{width}: the AV1 encoder lerobot uses (SVT-AV1) needs at "
+                            f"least {MIN_VIDEO_HEIGHT} rows and {MIN_VIDEO_WIDTH} columns (record.image_size=[H, W] "
+                            "on collection, image_size= on import)")
         path.parent.mkdir(parents=True, exist_ok=True)
         os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration per file unless told not to
         self.container = av.open(str(path), "w")
@@ -500,7 +516,8 @@ def _episode_row(ep: Episode, episode: int, index: int, rate: float, starts: dic
     """One row of meta/episodes/*.parquet: where the episode's frames and each camera's video span lie."""
     n = ep.n_steps
     row = {"episode_index": episode, "tasks": [ep.description], "length": n, "data/chunk_index": 0,
-           "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
+           "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n,
+           SIMEVAL_KEYS["task"]: ep.task, SIMEVAL_KEYS["group"]: ep.group}
     for c, start in starts.items():
         row.update({f"videos/{CAMERA_PREFIX}{c}/chunk_index": 0, f"videos/{CAMERA_PREFIX}{c}/file_index": 0,
                     f"videos/{CAMERA_PREFIX}{c}/from_timestamp": start,
