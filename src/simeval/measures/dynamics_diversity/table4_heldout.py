@@ -657,7 +657,7 @@ def _state_panel_title(rows: list[dict]) -> str:
         head = "whole state" + (" (v4)" if any(w == "state (version 4)" for w in reads.values()) else "")
     else:
         head = f"objects' poses; whole state: {', '.join(whole[:3])}{', ...' if len(whole) > 3 else ''}"
-    return f"state reading: {head}\n(hollow: gated; baselines dashed)"
+    return f"state reading: {head}\n(x: a gated count; baselines dashed)"
 
 
 def _state_settings_key(r: dict, ks: list[int]) -> str:
@@ -672,15 +672,15 @@ def _state_settings_key(r: dict, ks: list[int]) -> str:
 
 
 def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
-    """A row's state reading against training episodes: the model's one-step error (hollow where its count fails
-    the state gate) beside the last state (dash-dot) and the task mean state (dashed)."""
+    """A row's state reading against training episodes: the model's one-step error (a black x over it where its
+    count fails the state gate; hollow markers are the open loop's in the skill panels) beside the last state
+    (dash-dot) and the task mean state (dashed)."""
     have = [k for k in ks if _number(r.get(f"state_model_{k}"))]
     # the model above its baselines: a gated count is gated because its error is the last state's, and a baseline
-    # marker drawn over its hollow one filled it
-    ax.plot(have, [r[f"state_model_{k}"] for k in have], "-", color=color, lw=1, zorder=3)
-    for k in have:
-        ax.plot([k], [r[f"state_model_{k}"]], marker=marker, ms=6, color=color, zorder=4,
-                mfc=color if r.get(f"state_gate_passes_{k}") else "white")
+    # marker drawn over its mark hid it
+    ax.plot(have, [r[f"state_model_{k}"] for k in have], "-", marker=marker, ms=6, color=color, lw=1, zorder=3)
+    gated = [k for k in have if not r.get(f"state_gate_passes_{k}")]
+    ax.plot(gated, [r[f"state_model_{k}"] for k in gated], "x", ms=7, mew=1.5, color="black", zorder=4)
     for base, ls, alpha in (("last_state", "-.", 1.0), ("mean_state", "--", 0.5)):
         ax.plot(have, [r[f"state_{base}_{k}"] for k in have], ls, marker=marker, ms=3, lw=0.9, color=color,
                 alpha=alpha, label=f"{name}: {base.replace('_', ' ')}")
@@ -826,6 +826,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                          label="last-frame / last-state baseline"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
                          label="mean-image / mean-state baseline")]
+    if stated:
+        style_keys.append(Line2D([], [], color="black", marker="x", ms=7, mew=1.5, ls="",
+                                 label="state reading: a count its gate fails"))
     fig.legend(handles=row_keys, loc="outside lower center", ncol=-(-len(row_keys) // 5), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
