@@ -80,15 +80,22 @@ def test_fall_verdicts():
     assert fall_verdict((0.24, 0.07, 0.42), {"last": (0.06, 0.1)}, reads, 10.0) == "no fall"
     # a fall of 1-15% of the error, against a mean state 1,000x the model's: relative to it the error falls by 1-15%
     # too, so no "no fall" (the skill's rise the rule read before, 0.00001-0.00015, was always within 0.05)
-    assert fall_verdict((0.8, 0.1, 1.5), {"last": (-0.02, 0.15), "mean": (0.01, 0.15)}, reads, 10.0).startswith(
-        "no reading: too wide")
+    # the verdict names which interval is too wide, and that the fall's own excludes 0
+    assert fall_verdict((0.8, 0.1, 1.5), {"last": (-0.02, 0.15), "mean": (0.01, 0.15)}, reads, 10.0) == (
+        "no reading: too wide (its relative fall against the last [-0.02, +0.15] contains 0 and reaches past +-0.05; "
+        "the fall's interval [+0.1, +1.5] excludes 0)")
+    assert fall_verdict((0.8, 0.1, 1.5), {"mean_state": (-0.02, 0.15)}, reads, 10.0).startswith(
+        "no reading: too wide (its relative fall against the mean state [-0.02, +0.15]")
     # the error falls, and falls less than the mean state's own error does (a newcomer's case): no reading, named
     opposite = fall_verdict((1.0, 0.6, 1.5), {"last": (0.05, 0.15), "mean": (-0.3, -0.1)}, reads, 10.0)
     assert opposite.startswith("no reading: the fall and its excess over a baseline's own change point opposite ways")
     assert "[-0.3, -0.1]" in opposite
     # intervals that contain 0 and reach past both bounds cannot tell a fall from none
     wide = fall_verdict((0.1, -0.3, 2.0), {"last": (-0.03, 0.2), "mean": (-0.1, 0.2)}, reads, 10.0)
-    assert wide.startswith("no reading: too wide") and "+-0.05 of the error at 10 episodes, 0.5" in wide
+    assert wide == ("no reading: too wide (the fall's interval [-0.3, +2] contains 0 and reaches past +-0.05 of the "
+                    "error at 10 episodes, 0.5; its relative fall against the last [-0.03, +0.2] contains 0 and "
+                    "reaches past +-0.05; its relative fall against the mean [-0.1, +0.2] contains 0 and reaches past "
+                    "+-0.05)")
     assert fall_verdict((0.1, -0.3, 0.4), {"last": (-0.03, 0.4)}, reads, 1.0).startswith("no reading: too wide")
     gated = {10: {"passes": False, "verdict": "no reading: the model does not beat the last frame"}, 40: reads[40]}
     assert fall_verdict((1.0, 0.5, 1.5), {"last": (0.05, 0.15)}, gated, 10.0) == \
