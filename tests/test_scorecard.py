@@ -117,7 +117,7 @@ def test_scorecard_mistakes_are_one_line(user, tmp_path):
     for bad, says in (("dynamics.overrides=['world_model.unimix=0.1']", "did you mean world_model.model.unimix?"),
                       ("dynamics.overrides=['protocol.steps=0']", "dynamics.overrides: protocol.steps=0"),
                       ("dynamics.overrides=['protocol=paper','+protocol.pixels=false']",
-                       "+protocol.pixels=false: protocol=paper has no pixels (a section of protocol=heldout)")):
+                       "+protocol.pixels=false: protocol=paper has no pixels (a setting of protocol=heldout)")):
         one_line_error(_run(user, evaluate, "episodes.pipeline=mine", bad, f"out={tmp_path / 'card2'}"), says)
         assert not (tmp_path / "card2").exists()
 
