@@ -432,6 +432,10 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
                 log.info("state reading: read before, from %s", cache)
                 return {**out, "cache": str(cache)}
     started = time.perf_counter()
+    # it shows no progress of its own (seconds to two minutes at cpu): a log that stopped here is not a hung run;
+    # a run killed in it reads it again, from the start
+    log.info("state reading: training %d state models (up to %d steps each) on %d episodes", len(cfg.seeds),
+             cfg.max_steps, len(train_idx))
     try:
         refuse_poses_recorded_apart(source, states, dims)
         out = state_reading(states, tasks, train_idx, eval_idx, cfg, gate, robot_dims=dims)
