@@ -135,6 +135,16 @@ def test_the_protocol_a_setting_is_checked_against_is_the_configs_default_when_n
     assert config_mistakes(["protocol=b", "+protocol.gate.seed=1"], conf, "main") is None  # b has the section
     assert config_mistakes(["+protocol.nope=1"], conf, "main") is None  # no option has it: left to Hydra and the run
     assert config_mistakes(["+protocol.gate.margin=0.2"], conf) is None  # no primary config named: not checked
+    (conf / "protocol" / "c.yaml").write_text("defaults:\n  - b\n  - _self_\nname: c\n")
+    assert config_mistakes(["protocol=c", "protocol.gate.margin=0.2"], conf, "main") is None  # b's keys, by defaults
+
+
+@pytest.mark.parametrize("entry, args", [
+    ("diversity", ["pipeline=gensim_own", "pipeline.root=/x"]),  # root comes from gensim's yaml, by its defaults
+    ("quality", ["judge=replay", "judge.provider.base_url=http://127.0.0.1:1/v1"]),  # replay's defaults: openai
+    ("diversity", ["world_model=tiny", "world_model.model.deter=8"])])
+def test_keys_an_option_takes_from_its_defaults_or_groups_left_to_hydra_are_not_refused(entry, args):
+    assert config_mistakes(args, ROOT / "conf", entry) is None
 
 
 def test_a_group_file_that_is_not_yaml_is_named_with_its_line(tmp_path):

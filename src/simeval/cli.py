@@ -445,20 +445,20 @@ def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: s
     for o in parsed:
         group, _, rest = o.key_or_group.partition(".")
         key = rest.partition(".")[0]
-        if o.is_delete() or not key or not (conf_dir / group).is_dir():
+        if o.is_delete() or not key or group not in CHECKED_GROUPS or not (conf_dir / group).is_dir():
             continue
         options = chosen.get(group) or [_default_choice(conf_dir / f"{config_name}.yaml", group)]
-        option = next((v for v in options if v is not None and v != "null"
-                       and key not in _option_keys(conf_dir / group / f"{v}.yaml")), None)
+        keys = {v: _option_keys(conf_dir / group, v) for v in options if v is not None and v != "null"}
+        option = next((v for v, have in keys.items() if have is not None and key not in have), None)
         if option is None:
             continue
-        owners = sorted(p.stem for p in (conf_dir / group).glob("*.yaml") if key in _option_keys(p))
+        every = {p.stem: _option_keys(conf_dir / group, p.stem) for p in sorted((conf_dir / group).glob("*.yaml"))}
+        owners = [name for name, have in every.items() if have and key in have]
         if not owners:
             continue
         owner = f"{group}={owners[0]}"
         value = o.input_line.split("=", 1)[1]
-        what = "a section" if isinstance(_option_keys(conf_dir / group / f"{owners[0]}.yaml")[key], dict) else \
-            "a setting"
+        what = "a section" if isinstance(every[owners[0]][key], dict) else "a setting"
         given = f"{'+' if o.is_add() else ''}{o.key_or_group}={value}"
         if len(options) > 1:
             return (f"{given}: {group}={option} has no {key} ({what} of {owner}), and this sweep runs {group}="
@@ -469,15 +469,34 @@ def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: s
     return None
 
 
-def _option_keys(path: Path) -> dict[str, Any]:
-    """A group option's top-level keys and their values ({} for a file that is not there or not a mapping)."""
+# the config groups whose options' keys _section_of_another_option compares before Hydra composes: those whose
+# options differ in sections a run reads (protocol=paper has no gate); any other group is left to Hydra
+CHECKED_GROUPS = ("protocol",)
+
+
+def _option_keys(group_dir: Path, option: str, seen: tuple[str, ...] = ()) -> dict[str, Any] | None:
+    """A group option's top-level keys and their values, with those of the options of the same group its defaults
+    list takes (judge=replay's `- openai`); None where it cannot tell without Hydra (a default from another group
+    or package, a file that is not there or not a mapping, a cycle)."""
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = yaml.safe_load((group_dir / f"{option}.yaml").read_text()) or {}
     except (OSError, yaml.YAMLError):
-        return {}
-    return data if isinstance(data, dict) else {}
+        return None
+    if not isinstance(data, dict) or option in seen:
+        return None
+    keys = {k: v for k, v in data.items() if k != "defaults"}
+    for entry in data.get("defaults") or []:
+        if entry == "_self_":
+            continue
+        if not isinstance(entry, str) or entry.startswith(("/", "override ", "optional ")) or "@" in entry:
+            return None
+        base = _option_keys(group_dir, entry, (*seen, option))
+        if base is None:
+            return None
+        keys = {**base, **keys}
+    return keys
 
 
 def _default_choice(primary: Path, group: str) -> str | None:
