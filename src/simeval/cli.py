@@ -499,26 +499,27 @@ def _option_keys(group_dir: Path, option: str, seen: tuple[str, ...] = ()) -> di
     return keys
 
 
-def _default_choice(primary: Path, group: str) -> str | None:
-    """The option the primary config's defaults list chooses for `group` (None when it chooses none there)."""
+def _defaults_entries(config: Path) -> list:
+    """A config file's defaults list ([] for a file that is not there, not YAML or without one)."""
     import yaml
 
     try:
-        entries = (yaml.safe_load(primary.read_text()) or {}).get("defaults") or []
-    except (OSError, yaml.YAMLError):
-        return None
-    return next((str(e[group]) for e in entries if isinstance(e, dict) and group in e), None)
+        return (yaml.safe_load(config.read_text()) or {}).get("defaults") or []
+    except (OSError, yaml.YAMLError, AttributeError):
+        return []
+
+
+def _default_choice(primary: Path, group: str) -> str | None:
+    """The option the primary config's defaults list chooses for `group` (None when it chooses none there)."""
+    return next((str(e[group]) for e in _defaults_entries(primary) if isinstance(e, dict) and group in e), None)
 
 
 def owner_form(conf_dir: Path, owner: str, key: str) -> str:
     """`key=` as the option `owner` (protocol=heldout) takes it: plain where its yaml lists the key, with a leading
     '+' where it leaves it to the settings' default (SETTINGS_SECTIONS)."""
-    import yaml
-
     group, _, option = owner.partition("=")
-    try:
-        node: Any = yaml.safe_load((conf_dir / group / f"{option}.yaml").read_text()) or {}
-    except (OSError, yaml.YAMLError):
+    node: Any = _option_keys(conf_dir / group, option)
+    if node is None:
         return f"{key}="
     for part in key.split(".")[1:]:
         if not isinstance(node, dict) or part not in node:
@@ -540,13 +541,7 @@ def _unparseable(override: str) -> bool:
 
 def defaults_groups(config: Path) -> list[str]:
     """The config groups a primary config's defaults list chooses from (hydra/* and optional overlays left out)."""
-    import yaml
-
-    try:
-        entries = (yaml.safe_load(config.read_text()) or {}).get("defaults") or []
-    except (OSError, yaml.YAMLError):
-        return []
-    names = [next(iter(e)) for e in entries if isinstance(e, dict) and e]
+    names = [next(iter(e)) for e in _defaults_entries(config) if isinstance(e, dict) and e]
     return [n for n in names if not n.startswith(("hydra", "optional ", "override "))]
 
 
