@@ -876,6 +876,7 @@ def test_a_state_reading_is_kept_by_its_inputs_so_a_rerun_skips_it_and_other_sta
     first = read(source)
     [kept] = (tmp_path / "ck").glob("state_reading-*.json")
     assert "cache" not in first
+    assert [p.name for p in (tmp_path / "ck").iterdir()] == [kept.name]  # its training's saves gone once kept
     with caplog.at_level(logging.INFO, logger=dd.__name__):
         again = read(source)
     assert again["cache"] == str(kept) and plain(again) == plain(first)

@@ -526,3 +526,66 @@ def test_a_pile_whose_particles_tumble_reads_by_position_and_not_with_their_quat
     assert row["last_state"] == pytest.approx(float(((p[t + 1, 1:, :3] - p[t, 1:, :3]) ** 2).sum()), rel=1e-12)
     whole = state_reading(pad_states(raw), tasks, list(range(16)), list(range(16, 24)), FAST, robot_dims=1)
     assert not whole["gate"]["passes"] and whole["summary"]["last_state"] > 50 * out["summary"]["last_state"]
+
+
+STATE_RESUME_SCRIPT = """
+import json, logging, os, signal, sys
+import numpy as np
+import torch
+torch.set_num_threads(1)
+logging.basicConfig(level=logging.INFO)
+import simeval.measures.dynamics_diversity.state_reading as S
+kill_at, reads = int(sys.argv[2]), 0
+read = S.median_episode_error
+
+def read_or_die(rows, episode):  # a kill -9 as the training reaches its `kill_at`-th validation read: mid-seed
+    global reads
+    reads += 1
+    if reads == kill_at:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return read(rows, episode)
+
+S.median_episode_error = read_or_die
+rng = np.random.default_rng(0)
+states = {}
+for e in range(16):
+    a = rng.uniform(-1, 1, (20, 2))
+    states[e] = (np.cumsum(np.r_[np.zeros((1, 2)), 0.1 * a[:-1]], 0), a)
+out = S.state_reading(states, ["t"] * 16, list(range(12)), list(range(12, 16)),
+                      S.StateModelConfig(max_steps=200, eval_every=20, seeds=(0, 1)),
+                      checkpoints=None if sys.argv[1] == "-" else sys.argv[1])
+print(json.dumps({k: out[k] for k in ("summary", "per_episode", "training")}))
+"""
+
+
+def test_a_state_reading_killed_mid_training_resumes_where_it_stopped_and_ends_as_an_uninterrupted_one(tmp_path):
+    """kill -9 in the second seed's training (its 4th of 10 validation reads): the first seed's training is kept
+    whole, the second resumes from its 3rd read, and the reading equals one never interrupted, to the bit."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root / "src")}
+    script = tmp_path / "read.py"
+    script.write_text(STATE_RESUME_SCRIPT)
+    ck = tmp_path / "ck"
+    whole = subprocess.run([sys.executable, str(script), "-", "-1"], env=env, capture_output=True, text=True,
+                           check=True)
+    killed = subprocess.run([sys.executable, str(script), str(ck), "14"], env=env, capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL and killed.stdout == ""
+    first, second = (torch.load(ck / f"seed-{s}.pt", weights_only=True) for s in (0, 1))
+    assert first["step"] == 200 and second["step"] == 60  # seed 0 done; seed 1 saved at its 3rd read
+    resumed = subprocess.run([sys.executable, str(script), str(ck), "-1"], env=env, capture_output=True, text=True,
+                             check=True)
+    assert "resumed from" in resumed.stderr and "at step 60" in resumed.stderr
+    assert json.loads(resumed.stdout) == json.loads(whole.stdout)
+    ck_damaged = tmp_path / "damaged"
+    ck_damaged.mkdir()
+    (ck_damaged / "seed-0.pt").write_bytes(b"not a checkpoint")
+    (ck_damaged / "seed-1.pt").write_bytes((ck / "seed-1.pt").read_bytes()[:3000])  # cut short
+    mended = subprocess.run([sys.executable, str(script), str(ck_damaged), "-1"], env=env, capture_output=True,
+                            text=True, check=True)
+    assert mended.stderr.count("unreadable") == 2 and json.loads(mended.stdout) == json.loads(whole.stdout)

@@ -12,6 +12,7 @@ import hashlib
 import json
 import logging
 import math
+import shutil
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
@@ -412,15 +413,18 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
     """The state reading of a run (state_reading); with `cache_dir`, kept there as `state_reading-<key>.json`, the
     key its inputs by value (the states, actions and presence masks read, which episodes train and which are
     evaluated, the settings, the reading's version), so a sweep run again after a kill skips the counts it read and
-    the seeds of a sweep with pixels, whose state reading is one and the same, train it once."""
+    the seeds of a sweep with pixels, whose state reading is one and the same, train it once; its models' training
+    is saved beside it in `state_reading-<key>/` as it goes (removed once the reading is kept), so a run killed
+    mid-reading resumes at the seed and step it reached."""
     train_idx, eval_idx = np.flatnonzero(train_mask).tolist(), np.flatnonzero(evaluated).tolist()
     states = read_states(source, train_idx + eval_idx)
     tasks, dims = [i.task for i in source.infos], robot_dims(source, train_idx + eval_idx)
     gate = gate or GateConfig()
-    cache = None
+    cache = training = None
     if cache_dir is not None:
         key = _state_key(states, tasks, train_idx, eval_idx, cfg, gate, dims)
         cache = Path(cache_dir) / f"state_reading-{key}.json"
+        training = Path(cache_dir) / f"state_reading-{key}"
         if cache.exists():
             try:
                 out = json.loads(cache.read_text())
@@ -432,13 +436,12 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
                 log.info("state reading: read before, from %s", cache)
                 return {**out, "cache": str(cache)}
     started = time.perf_counter()
-    # it shows no progress of its own (seconds to two minutes at cpu): a log that stopped here is not a hung run;
-    # a run killed in it reads it again, from the start
+    # it shows no progress of its own (seconds to two minutes at cpu): a log that stopped here is not a hung run
     log.info("state reading: training %d state models (up to %d steps each) on %d episodes", len(cfg.seeds),
              cfg.max_steps, len(train_idx))
     try:
         refuse_poses_recorded_apart(source, states, dims)
-        out = state_reading(states, tasks, train_idx, eval_idx, cfg, gate, robot_dims=dims)
+        out = state_reading(states, tasks, train_idx, eval_idx, cfg, gate, robot_dims=dims, checkpoints=training)
     except UserError as e:  # its settings were checked before any data was read: this is the data's, a reading
         why = f"no reading: {e}"  # that cannot be made, not a failed run (the pixel reading still stands)
         return {"dims": None, "gate": {"passes": False, "verdict": why}, "summary": {}, "line": why,
@@ -447,6 +450,7 @@ def _state_reading(source, train_mask: np.ndarray, evaluated: np.ndarray, cfg: S
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(cache, json.dumps(out, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
+        shutil.rmtree(training, ignore_errors=True)
     return out
 
 

@@ -71,8 +71,11 @@ on a CPU.
 from __future__ import annotations
 
 import contextlib
+import logging
+import pickle
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -81,6 +84,9 @@ from torch import nn
 from simeval.errors import (EpisodesUnfit, UserError, require_choice, require_whole, require_whole_fields,
                             settings_from_dict)
 from simeval.measures.dynamics_diversity.gate import GateConfig, gate
+from simeval.runtime.checkpoints import save_checkpoint
+
+log = logging.getLogger(__name__)
 
 # 7: the past changes the model sees in units of each value's RMS step as well (input_scale=change; 1-6: of its
 # deviation); 6: the change predicted in units of each value's RMS step (target_scale=change; 1-5: of its deviation);
@@ -380,12 +386,15 @@ def fit_state_model(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[
 
 
 def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple[np.ndarray, np.ndarray]],
-                     cfg: StateModelConfig, seed: int, reads: dict[str, np.ndarray | None]
-                     ) -> tuple[dict[str, _Net], _Norm, dict[str, dict]]:
+                     cfg: StateModelConfig, seed: int, reads: dict[str, np.ndarray | None],
+                     checkpoint: str | Path | None = None) -> tuple[dict[str, _Net], _Norm, dict[str, dict]]:
     """One training run, and for each of `reads` ({name: (D,) bool of the values read, None: all}) the model of its
     own best validation read: the objects' reading keeps the step that predicts the objects best, the whole state's
     beside it the step that predicts the whole best (the step version 4 kept), from the same training. Patience
-    (where set) follows the first of `reads`."""
+    (where set) follows the first of `reads`. With `checkpoint` (a file, its caller's to key by the inputs) the
+    training is saved there at every validation read and resumed from it: a run killed mid-training goes on from its
+    last read and ends as an uninterrupted one would, to the bit (the batches' generator and the rate's schedule are
+    saved with the weights)."""
     norm = _Norm.fit(train, cfg.feature_clip, cfg.target_scale, cfg.input_scale)
     x, y, mask, _ = _tensors(train, norm, cfg.history)
     # validation reads the true change (unclipped): a clipped target would hide the error of a jump
@@ -405,7 +414,11 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
     best = {name: {"val_loss": float("inf"), "state": None, "best_step": 0, "val_loss_mean_of_steps": float("nan"),
                    "val_curve": []} for name in reads}
     first, since, step = next(iter(reads)), 0, 0
-    while step < cfg.max_steps:
+    if checkpoint is not None:
+        resumed = _load_training(checkpoint, net, opt, schedule, gen, reads)
+        if resumed is not None:
+            best, since, step = resumed
+    while step < cfg.max_steps and not (cfg.patience is not None and since >= cfg.patience):
         idx = torch.randint(0, len(x), (min(cfg.batch_size, len(x)),), generator=gen)
         loss = (net(x[idx]) * mask[idx] - y[idx]).pow(2).sum(1).mean()
         opt.zero_grad()
@@ -427,8 +440,8 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
                     since = 0 if name == first else since
                 elif name == first:
                     since += 1
-            if cfg.patience is not None and since >= cfg.patience:
-                break
+            if checkpoint is not None:
+                _save_training(checkpoint, net, opt, schedule, gen, best, since, step)
     nets, info = {}, {}
     for name, b in best.items():
         model = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
@@ -436,6 +449,36 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
         nets[name] = model
         info[name] = {"steps_used": step, **{k: v for k, v in b.items() if k != "state"}}
     return nets, norm, info
+
+
+def _save_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, best: dict, since: int,
+                   step: int) -> None:
+    save_checkpoint(path, {"net": net.state_dict(), "opt": opt.state_dict(),
+                           "schedule": None if schedule is None else schedule.state_dict(),
+                           "generator": gen.get_state(), "best": best, "since": since, "step": step})
+
+
+def _load_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, reads: dict
+                   ) -> tuple[dict, int, int] | None:
+    """(best, since, step) of a saved training, its weights, optimiser, schedule and generator restored in place;
+    None where there is none, or it cannot be read (a damaged file: trained again from the start, said in the log)."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        saved = torch.load(path, weights_only=True)
+        if set(saved["best"]) != set(reads):
+            raise ValueError(f"it reads {sorted(saved['best'])}, this run {sorted(reads)}")
+        net.load_state_dict(saved["net"])
+        opt.load_state_dict(saved["opt"])
+        if schedule is not None:
+            schedule.load_state_dict(saved["schedule"])
+        gen.set_state(saved["generator"])
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError, EOFError, pickle.UnpicklingError) as e:
+        log.warning("state reading: %s unreadable (%s); training this seed from the start", path, e)
+        return None
+    log.info("state reading: resumed from %s at step %d", path, saved["step"])
+    return saved["best"], int(saved["since"]), int(saved["step"])
 
 
 def _predict(net: _Net, norm: _Norm, s, changes, actions, present=None) -> np.ndarray:
@@ -479,7 +522,8 @@ def robot_dims(source, episodes) -> int:
 
 def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[str], train_idx: list[int],
                   eval_idx: list[int], cfg: StateModelConfig = StateModelConfig(),
-                  gate_cfg: GateConfig = GateConfig(), robot_dims: int | None = None, particles: int = 0) -> dict:
+                  gate_cfg: GateConfig = GateConfig(), robot_dims: int | None = None, particles: int = 0,
+                  checkpoints: str | Path | None = None) -> dict:
     """The state-space reading (module docstring) of one group and episode count: `states` from read_states,
     `tasks` every episode's task (indexed like the source), `train_idx` and `eval_idx` the training and held-out
     episodes (disjoint), `robot_dims` (Dr) the width of the robot's values at the state's front (robot_dims()),
@@ -489,7 +533,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     read, or {dims: 0, why} where there is no state. With Dr below the state's width, `reads` is "objects" (the
     values after the robot's) and `parts` gives the robot's and the objects' {dims, summary, gate} and `whole_state`
     the whole state's, each gated on its own (per episode in `per_episode[i]["parts"]`); otherwise `reads` is
-    "state", the whole."""
+    "state", the whole. With `checkpoints` (a folder, the caller's to key by the inputs) each seed's training is
+    saved there as `seed-<s>.pt` and resumed from it (fit_state_models)."""
     if set(train_idx) & set(eval_idx):
         raise RuntimeError("an evaluated episode is among the training episodes")
     _refuse_unpadded(states, tasks, [*train_idx, *eval_idx])
@@ -519,7 +564,8 @@ def state_reading(states: dict[int, tuple[np.ndarray, np.ndarray]], tasks: list[
     training = []
     with one_torch_thread():
         for seed in cfg.seeds:
-            nets, norm, info = fit_state_models(fit, val, cfg, seed, selections)
+            nets, norm, info = fit_state_models(fit, val, cfg, seed, selections,
+                                                None if checkpoints is None else Path(checkpoints) / f"seed-{seed}.pt")
             for name in selections:
                 models[name].append((nets[name], norm))
             training.append({"seed": int(seed), **info[reads],
