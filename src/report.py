@@ -8,6 +8,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from simeval.cli import exit_cleanly_on_user_error, launch
+from simeval.errors import UserError
 
 log = logging.getLogger("report")
 
@@ -19,8 +20,10 @@ def main(cfg: DictConfig) -> None:
 
     spec = OmegaConf.to_container(cfg.report, resolve=True)
     if spec.get("kind") == "all":  # one line per step; a failed step does not stop the others, but sets the status
-        if rebuild_all(spec, overwrite=cfg.overwrite, made_under=cfg.paths.root):
-            raise SystemExit(2)
+        failed = rebuild_all(spec, overwrite=cfg.overwrite, made_under=cfg.paths.root)
+        if failed:
+            raise UserError(f"report=all: {len(failed)} of its steps not written ({', '.join(failed)}); each step's "
+                            "line above says why")
         return
     done = rebuild(spec, overwrite=cfg.overwrite)
     print(done.markdown)

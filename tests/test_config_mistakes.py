@@ -111,7 +111,11 @@ def test_generalization_names_the_bad_value_before_training(args, expected, tmp_
     assert expected in one_line_exit_2(run("generalization", *args, cwd=tmp_path))
 
 
-@pytest.mark.parametrize("setting", ["+protocol.gate.n_boot=500", "+protocol.pixels=false"])
+# the held-out budget and loss too: protocol=paper once listed them as null, so a value given there was taken and
+# never read (a fresh-clone trial's protocol=paper protocol.steps=100 ran on the preset's epochs, exit 0)
+@pytest.mark.parametrize("setting", ["+protocol.gate.n_boot=500", "+protocol.pixels=false", "protocol.steps=100",
+                                     "protocol.lr=0.5", "protocol.horizon=2", "protocol.mask_margin=3",
+                                     "protocol.exclude_robot_from_loss=true"])
 @pytest.mark.parametrize("protocol", [["protocol=paper"], ["-m", "protocol=heldout,paper"]])
 def test_a_heldout_setting_under_the_paper_protocol_stops_before_hydra_makes_a_folder(setting, protocol, tmp_path):
     # with '+' Hydra composes it; refused only in the run, a kill in that second would leave an empty run folder,
@@ -230,6 +234,11 @@ def run_plain(entrypoint: str, *args: str, cwd: Path) -> subprocess.CompletedPro
      "cache_dir=a_file/sub: cannot create the folder"),
     ("text_diversity", ["pipeline.source=suite", "hydra.run.dir=a_file"],
      "a_file: File exists; a folder is needed there"),
+    # a folder no one can make (a fresh-clone trial's paths.root=/sys/simeval: pathlib's chain of tracebacks)
+    ("text_diversity", ["pipeline.source=suite", "hydra.run.dir=/proc/simeval/run"],
+     "error: /proc/simeval: No such file or directory; the run's folder cannot be made there: set paths.root"),
+    ("diversity", ["paths.root=/proc/simeval", "-m", "episodes=2,4"],
+     "error: /proc/simeval: No such file or directory; the run's folder cannot be made there"),
 ])
 def test_quality_and_text_diversity_name_bad_values_and_paths(entrypoint, args, expected, tmp_path):
     (tmp_path / "a_file").write_text("")

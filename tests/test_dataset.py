@@ -219,3 +219,40 @@ def test_a_damaged_dataset_header_is_found_when_the_source_opens_before_any_trai
     with pytest.raises(EpisodeFormatError, match=f"{paths[1]}: damaged episode .*delete it and re-run"):
         StoreSource(paths, "front")
     StoreSource(paths[:1], "front").close()  # the intact one opens
+
+
+@pytest.mark.parametrize("camera", ["front", None])
+def test_an_episode_whose_arrays_differ_in_rows_or_hold_nan_is_named_before_any_training(tmp_path, camera):
+    """A fresh-clone trial's episodes: `action` cut to fewer rows than the observations (an IndexError deep in the
+    state reading, a broadcast error in the pixel one) and obs/state NaN in ten rows (a training of NaN loss whose
+    verdict blamed the model): each is one error naming the file, when the source opens."""
+    import h5py
+
+    from simeval.episodes.dataset import StoreSource
+    from simeval.episodes.episode import EpisodeFormatError
+    from simeval.measures.dynamics_diversity.controls.synthetic import write_group
+
+    paths = write_group(tmp_path, "diverse", n_tasks=1, episodes=3, n_actions=9, size=16)
+    with h5py.File(paths[1], "r+") as f:
+        action = f["action"][()]
+        del f["action"]
+        f.create_dataset("action", data=action[:4])
+    with h5py.File(paths[2], "r+") as f:
+        f["obs/state"][3:5] = np.nan
+    with pytest.raises(EpisodeFormatError, match=rf"{paths[1]}: damaged episode: its arrays' rows differ \(.*"
+                                                 r"action 4.*; n_steps says 10\)"):
+        StoreSource(paths[:2], camera)
+    with pytest.raises(EpisodeFormatError, match=rf"{paths[2]}: obs/state holds NaN or inf in 2 of its 10 rows "
+                                                 r"\(first at row 3\)"):
+        StoreSource([paths[0], paths[2]], camera)
+    StoreSource(paths[:1], camera).close()  # the intact one opens
+
+
+def test_an_array_source_with_nan_or_rows_that_differ_is_refused_naming_the_episode():
+    info = EpisodeInfo(task="t", seed=3, group="g", n_rows=5, action_space={})
+    ok = {"image": np.zeros((5, 4, 4, 3), np.uint8), "state": np.zeros((5, 2)), "action": np.zeros((5, 1))}
+    ArraySource([info], [ok])
+    with pytest.raises(UserError, match=r"t seed 3: damaged episode: its arrays' rows differ \(image 5, state 4"):
+        ArraySource([info], [{**ok, "state": np.zeros((4, 2))}])
+    with pytest.raises(UserError, match=r"t seed 3: action holds NaN or inf in 1 of its 5 rows \(first at row 2\)"):
+        ArraySource([info], [{**ok, "action": np.array([[0.0], [0], [np.inf], [0], [0]])}])

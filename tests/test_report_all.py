@@ -98,8 +98,10 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
     bad.write_text("{not json")
     r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert r.stderr.splitlines()[0] == (f"Table 4: error: cannot read {Path('outputs/runs/x/result.json')}: "
+    assert r.stdout.splitlines()[0] == (f"Table 4: not written: cannot read {Path('outputs/runs/x/result.json')}: "
                                         "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)")
+    assert r.stderr == ("error: report=all: 2 of its steps not written (Table 4, Table 5); each step's line above "
+                        "says why\n")
     r = report_all("report.steps=[table6]", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr == ("error: report.steps=['table6']: unknown step 'table6'; give some of "
                                               "table3, table4, table4_heldout, table5, figure4, html\n")
@@ -107,16 +109,18 @@ def test_missing_or_broken_inputs_are_one_line_each(tmp_path):
         r = report_all(f"report.steps={steps}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr.startswith("error: report.steps=") and f": {why}; give some" in r.stderr
     r = report_all("report.steps=table4", cwd=tmp_path)  # one step, not a list: that step
-    assert r.returncode == 2 and r.stdout == "" and r.stderr.startswith("Table 4: error: cannot read ")
+    assert r.returncode == 2 and r.stdout.startswith("Table 4: not written: cannot read ")
+    assert r.stderr.startswith("error: report=all: 1 of its steps not written (Table 4)") and r.stderr.count("\n") == 1
     # a runs folder the user named that is not there (or is a file) is an error, not "nothing run yet"
     (tmp_path / "README.md").write_text("x")
     r = report_all("report.steps=[table4,html]", "report.table4.runs_dir=/nonexistent",
                    "report.html.runs_dir=README.md", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr.splitlines() == [
-        ("Table 4: error: report.table4.runs_dir=/nonexistent: no such folder; give the folder that holds the runs' "
-         "result.json files (`make table4` trains the world models)"),
-        ("HTML report: error: report.html.runs_dir=README.md: is a file, not a folder of runs; give the folder that "
-         "holds the runs' result.json files")]
+    assert r.returncode == 2 and r.stdout.splitlines() == [
+        ("Table 4: not written: report.table4.runs_dir=/nonexistent: no such folder; give the folder that holds the "
+         "runs' result.json files (`make table4` trains the world models)"),
+        ("HTML report: not written: report.html.runs_dir=README.md: is a file, not a folder of runs; give the folder "
+         "that holds the runs' result.json files")]
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("error: report=all: 2 of its steps not written")
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
@@ -176,13 +180,15 @@ def test_reports_never_replace_committed_results_unless_asked(outputs, tmp_path)
     before = {p: p.read_bytes() for p in (outputs / "tables").iterdir()}
     r = report_all("report.steps=[table4,table5]", cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert r.stderr.splitlines() == [  # one line per failed step, each naming the keys that write elsewhere
-        f"Table 4: error: {Path('outputs/tables/table4.csv')} is a committed result and would be replaced by a table "
-        "of the runs on disk; write elsewhere (report.table4.out= and report.table4.figure=) or replace it with "
+    assert r.stdout.splitlines() == [  # one line per step not written, each naming the keys that write elsewhere
+        f"Table 4: not written: {Path('outputs/tables/table4.csv')} is a committed result and would be replaced by a "
+        "table of the runs on disk; write elsewhere (report.table4.out= and report.table4.figure=) or replace it with "
         "overwrite=true (make: OVERWRITE=1)",
-        f"Table 5: error: {Path('outputs/tables/table5.csv')} is a committed result and would be replaced by a table "
-        "of the runs on disk; write elsewhere (report.table5.out= and report.table5.figure=) or replace it with "
+        f"Table 5: not written: {Path('outputs/tables/table5.csv')} is a committed result and would be replaced by a "
+        "table of the runs on disk; write elsewhere (report.table5.out= and report.table5.figure=) or replace it with "
         "overwrite=true (make: OVERWRITE=1)"]
+    assert r.stderr == ("error: report=all: 2 of its steps not written (Table 4, Table 5); each step's line above "
+                        "says why\n")  # the one error line
     for value in ("maybe", "yess"):  # anything but true/false (or yes/no, on/off, 1/0) is refused before a write
         r = report_all("report.steps=[table4,table5]", f"overwrite={value}", cwd=tmp_path)
         assert r.returncode == 2 and r.stderr == f"error: overwrite='{value}': expected true or false\n", r.stderr

@@ -140,7 +140,9 @@ def test_bad_sources_give_clear_errors(tmp_path):
         load_tasks("custom", tasks_path=str(tmp_path / "nope.yaml"))
     bad = tmp_path / "bad.yaml"
     bad.write_text("a: [1, 2\n")
-    with pytest.raises(TaskSourceError, match="cannot parse .*bad.yaml"):
+    with pytest.raises(TaskSourceError, match=r"cannot parse .*bad.yaml: line 2, column 1: expected ',' or ']', but "
+                                              r"got '<stream end>' \(while parsing a flow sequence at line 1, column "
+                                              r"4\)$"):
         load_tasks("custom", tasks_path=str(bad))
     nontext = tmp_path / "nontext.yaml"
     nontext.write_text(yaml.safe_dump({"g": ["fine", 42]}))

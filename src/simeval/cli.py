@@ -702,11 +702,27 @@ def _one_line_composition_errors() -> None:
                     raise
                 _fail(f"{e.filename}: {e.strerror}; a folder is needed there (hydra.run.dir, hydra.sweep.dir or a "
                       f"*_dir setting names a file?)")
+            except OSError as e:
+                if os.environ.get("HYDRA_FULL_ERROR") == "1" or not _hydra_making_a_folder(e):
+                    raise
+                _fail(f"{e.filename}: {e.strerror}; the run's folder cannot be made there: set paths.root "
+                      "(or hydra.run.dir / hydra.sweep.dir) to a folder you can write")
 
         return original(guarded)
 
     run_and_report.simeval_one_line = True
     hydra_utils.run_and_report = run_and_report
+
+
+def _hydra_making_a_folder(e: BaseException) -> bool:
+    """Whether `e` came from a mkdir that Hydra called (its run or sweep folder, made before any simeval code runs),
+    not from a run's own work: the frames after the last of Hydra's are pathlib's."""
+    import traceback
+
+    frames = traceback.extract_tb(e.__traceback__)
+    last = next((i for i in range(len(frames) - 1, -1, -1) if not frames[i].filename.endswith("pathlib.py")), None)
+    return (last is not None and last < len(frames) - 1 and f"{os.sep}hydra{os.sep}" in frames[last].filename
+            and frames[-1].name == "mkdir")
 
 
 def launch(main: Callable[[], Any]) -> None:

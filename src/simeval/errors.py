@@ -30,6 +30,17 @@ def read_refusal(path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
+def yaml_problem(e: Exception) -> str:
+    """A YAML parse error as one clause: "line L, column C: <problem> (<context> at line l, column c)". PyYAML's
+    own text is five lines whose first ("while parsing a flow sequence") is all a one-line error would keep."""
+    problem, mark = getattr(e, "problem", None), getattr(e, "problem_mark", None)
+    if not problem or mark is None:
+        return " ".join(str(e).split())
+    context, at = getattr(e, "context", None), getattr(e, "context_mark", None)
+    where = f" ({context} at line {at.line + 1}, column {at.column + 1})" if context and at is not None else ""
+    return f"line {mark.line + 1}, column {mark.column + 1}: {problem}{where}"
+
+
 class UserError(ValueError):
     """A fixable input mistake. Subclasses ValueError so callers that catch ValueError keep working."""
 

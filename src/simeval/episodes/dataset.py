@@ -31,9 +31,10 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -171,9 +172,8 @@ class ArraySource:
             raise ValueError("one array dict per episode")
         self.infos, self.arrays = infos, arrays
         for info, a in zip(infos, arrays):
-            n = {k: len(v) for k, v in a.items()}
-            if set(n.values()) != {info.n_rows}:
-                raise UserError(f"{info.task} seed {info.seed}: expected {info.n_rows} rows in every array, got {n}")
+            refuse_unfit_arrays(info, {k: np.asarray(v) for k, v in a.items() if v is not None},
+                                {k: a[k] for k in ("state", "action", "object_poses") if a.get(k) is not None})
 
     def frame_size(self, e: int) -> tuple[int, int]:
         """(H, W) of episode e's frames."""
@@ -205,6 +205,26 @@ def particle_rows(objects: dict) -> tuple[int, ...]:
             rows.extend(range(start, start + n))
         start += n
     return tuple(rows)
+
+
+def refuse_unfit_arrays(info: EpisodeInfo, per_row: Mapping[str, Any], numbers: Mapping[str, np.ndarray]) -> None:
+    """An EpisodeFormatError naming the episode where an array of `per_row` ({name: anything with .shape}) has
+    another number of rows than its info's n_rows, or one of `numbers` holds NaN or inf: either would otherwise
+    surface as an IndexError deep in a reading, or as a training whose loss is NaN and a verdict that blames the
+    model (a fresh-clone trial's episodes: `action` cut to 30 of 61 rows; obs/state NaN in rows 10-19)."""
+    where = info.path or f"{info.task} seed {info.seed}"
+    rows = {k: int(v.shape[0]) for k, v in per_row.items()}
+    if any(n != info.n_rows for n in rows.values()):
+        raise EpisodeFormatError(
+            f"{where}: damaged episode: its arrays' rows differ ({', '.join(f'{k} {n}' for k, n in rows.items())}; "
+            f"n_steps says {info.n_rows}); delete it and make it again (src/collect.py or src/import_data.py)")
+    for k, a in numbers.items():
+        bad = ~np.isfinite(np.asarray(a, float)).reshape(len(a), -1).all(1) if len(a) else np.zeros(0, bool)
+        if bad.any():
+            at = np.flatnonzero(bad)
+            raise EpisodeFormatError(
+                f"{where}: {k} holds NaN or inf in {len(at)} of its {len(a)} rows (first at row {at[0]}); no model "
+                "can train on it: delete the episode and make it again, or fix what wrote it")
 
 
 class StoreSource:
@@ -252,6 +272,10 @@ class StoreSource:
                 d = f[key]
                 if d.chunks is not None:
                     d.id.get_num_chunks()
+            per_row = [k for k in (*frames, "obs/state", "action", "obs/object_poses",
+                                   *(() if self.camera is None else (f"obs/robot_mask/{self.camera}",))) if k in f]
+            refuse_unfit_arrays(self.infos[e], {k: f[k] for k in per_row},
+                                {k: f[k][()] for k in ("obs/state", "action", "obs/object_poses") if k in f})
             if self.camera is not None:
                 self._frame_sizes[e] = tuple(f[f"obs/rgb/{self.camera}"].shape[1:3])
             self._with_mask.append(self.camera is not None and f"obs/robot_mask/{self.camera}" in f)

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from simeval.errors import UserError
+from simeval.errors import UserError, yaml_problem
 
 ALL_GROUPS = "all"
 
@@ -58,7 +58,7 @@ def read_structured(path: str | os.PathLike) -> Any:
         if suffix == ".csv":
             return list(csv.DictReader(text.splitlines()))
     except (yaml.YAMLError, json.JSONDecodeError, csv.Error, UnicodeDecodeError) as e:
-        raise TaskSourceError(f"cannot parse {path}: {e}") from e
+        raise TaskSourceError(f"cannot parse {path}: {yaml_problem(e)}") from e
     raise TaskSourceError(f"{path}: unsupported file type '{suffix}' (expected .yaml, .yml, .json or .csv)")
 
 

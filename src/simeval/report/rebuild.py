@@ -17,7 +17,6 @@ drawn again from the kept CSVs alone, after a change to the plotting code or on 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from simeval.errors import UserError
@@ -219,9 +218,10 @@ def missing_inputs(step: str, spec: dict, made_under: str | Path | None = None) 
     return None
 
 
-def say_line(line: str, error: bool = False) -> None:
-    """A step's line of report=all: errors to stderr, the rest to stdout, each at once (a long step follows)."""
-    print(line, file=sys.stderr if error else sys.stdout, flush=True)
+def say_line(line: str) -> None:
+    """A step's line of report=all, at once (a long step follows); the one error line of a step not written is the
+    door's, on stderr."""
+    print(line, flush=True)
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -232,9 +232,9 @@ def rebuild_all(spec: dict, overwrite: bool = False, made_under: str | Path | No
                 say=say_line) -> list[str]:
     """report=all (`make report`): each step of `spec["steps"]` (STEPS) as its own report, with its settings at
     spec[step]. Says one line per step: what it wrote, or why it was skipped (no inputs: missing_inputs, with
-    `made_under`), or its error (a UserError: a result.json it cannot read, a committed file it would replace
-    without `overwrite`, a runs folder that is not there), and goes on; returns the titles of the steps that failed
-    (the door exits 2 after the others ran; each failure is its own line)."""
+    `made_under`), or why it was not written (a UserError: a result.json it cannot read, a committed file it would
+    replace without `overwrite`, a runs folder that is not there), and goes on; returns the titles of the steps not
+    written (the door then stops with one error line naming them, exit 2, after the others ran)."""
     steps = spec.get("steps")
     steps = [steps] if isinstance(steps, str) else list(steps or ())
     unknown = [s for s in steps if s not in STEPS]
@@ -252,7 +252,7 @@ def rebuild_all(spec: dict, overwrite: bool = False, made_under: str | Path | No
                 continue
             done = rebuild(spec[step], overwrite, key=f"report.{step}")
         except UserError as e:
-            say(f"{title}: error: {str(e).strip().splitlines()[0]}", error=True)
+            say(f"{title}: not written: {str(e).strip().splitlines()[0]}")
             failed.append(title)
             continue
         for note in done.notes:

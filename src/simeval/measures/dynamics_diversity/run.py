@@ -254,6 +254,10 @@ PROTOCOLS = {
 }
 # conf/protocol/heldout.yaml's keys that conf/protocol/paper.yaml lacks: read only under protocol=heldout
 HELDOUT_ONLY = ("gate", "state_model", "pixels", "model")
+# heldout.yaml's keys that paper.yaml lacks too, but that debug=tiny sets (steps, horizon) whichever protocol runs:
+# under protocol=paper they are refused where given on the command line (simeval.cli's check, before Hydra), and
+# otherwise left unread
+HELDOUT_BUDGET = ("steps", "lr", "horizon", "mask_margin", "exclude_robot_from_loss")
 
 
 def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size: int, steps: int) -> int:
@@ -905,13 +909,13 @@ class DiversityRun:
         when it has none); the open-loop videos go to the logger too."""
         model_cfg, train_cfg, window = self.configs
         paper = self.protocol["name"] == "paper"
-        training = Training(model_cfg, train_cfg, window, steps=self.protocol["steps"], lr=self.protocol["lr"],
+        training = Training(model_cfg, train_cfg, window, steps=self.protocol.get("steps"), lr=self.protocol.get("lr"),
                             exclude_robot_from_loss=self.exclude_robot)
         evaluation = Evaluation(
             protocol=self.protocol["name"], episodes=self.eval_episodes,
             heldout_episodes=self.heldout_episodes if paper else None, seed=int(self.evaluation["seed"]),
             context=int(self.evaluation["context"]), batch_size=int(self.evaluation["batch_size"]),
-            horizon=self.protocol["horizon"], mask_margin=self.mask_margin,
+            horizon=self.protocol.get("horizon"), mask_margin=self.mask_margin,
             gate=None if paper else GateConfig.from_dict(self.protocol.get("gate")),
             state_model=None if paper or self.protocol.get("state_model") is None else
             StateModelConfig.from_dict(self.protocol["state_model"]), pixels=self.pixels, videos=videos,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import yaml
 
+from simeval.errors import yaml_problem
 from simeval.pipelines.task_records import TaskText, TaskSourceError, read_list, require_text
 
 PIPELINE = "robogen"
@@ -35,7 +36,7 @@ def load_robogen_checkout(root: str | os.PathLike, text_template: str = DEFAULT_
         try:
             config = yaml.safe_load(path.read_text(encoding="utf-8"))
         except yaml.YAMLError as e:
-            raise TaskSourceError(f"cannot parse {path}: {e}") from e
+            raise TaskSourceError(f"cannot parse {path}: {yaml_problem(e)}") from e
         if not isinstance(config, list):
             continue  # other YAML files (e.g. distractor configs) are not task configs
         meta = next((d for d in config if isinstance(d, dict) and "task_description" in d), None)
