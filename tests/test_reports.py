@@ -262,6 +262,39 @@ def test_the_heldout_figure_draws_every_row_past_ten_in_its_own_colour(monkeypat
             "not sum moving pixels)") in keys
 
 
+def test_the_heldout_figure_of_states_only_rows_is_the_state_panel_and_rows_sharing_a_group_name_their_preset(
+        monkeypatch, tmp_path):
+    """A fresh-clone trial's figures: a states-only sweep drew three empty pixel panels beside its one reading; a
+    tiny sweep kept beside the committed rows gave two keys "robogen/table_top"; the open-loop style was keyed in a
+    figure with no open-loop line."""
+    from simeval.writing import figures
+    from simeval.measures.dynamics_diversity import table4_heldout
+
+    rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
+    saved = {}
+
+    def keep(fig, path, **kwargs):
+        saved.update(titles=[ax.get_title() for ax in fig.axes if ax.axison],
+                     rows=[t.get_text() for t in fig.legends[0].get_texts()],
+                     styles=[t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()])
+        return path
+
+    monkeypatch.setattr(figures, "save_figure", keep)
+    states_only = [{k: v for k, v in r.items() if k in ("pipeline", "group", "counts") or k.startswith("state")}
+                   for r in rows[:2]]  # as a sweep of protocol.pixels=false gives them
+    assert not any(table4_heldout.has_pixels(r) for r in states_only)
+    table4_heldout.plot(states_only, tmp_path / "f.png")
+    assert len(saved["titles"]) == 1 and saved["titles"][0].startswith("state reading")
+    assert "model, open loop (skill panels)" not in saved["styles"]
+
+    tiny = {**rows[-1], "preset": "tiny", "steps": 40}
+    table4_heldout.plot([rows[-1], tiny], tmp_path / "f.png")
+    name = f"{rows[-1]['pipeline']}/{rows[-1]['group']}"
+    assert [k.split(" [")[0] for k in saved["rows"]] == [f"{name} ({rows[-1]['preset']}, {rows[-1]['steps']} steps)",
+                                                         f"{name} (tiny, 40 steps)"]
+    assert "model, open loop (skill panels)" in saved["styles"]  # the committed rows have open-loop lines
+
+
 def test_a_wide_interval_is_cut_at_the_panel_edge_and_named_instead_of_squeezing_the_other_rows():
     """By hand: points -0.5 .. 0.7 (spread 1.2, pad 0.15 -> -0.68 .. 0.88); b's interval reaches -1.7 and is cut,
     a's highest end 0.75 sets the top; 4% of the span (1.43) above and below."""

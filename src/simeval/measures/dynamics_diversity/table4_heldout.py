@@ -603,7 +603,7 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     if any(k.startswith("state_inputs_") and r[k] for r in rows for k in r):
         note += (" A state cell marked [input_scale=state] or [target_scale=state] was read with that setting of "
                  "protocol.state_model (versions 1-6's inputs or loss), not the protocol's.")
-    apart = [f"{r['pipeline']}/{r['group']}" for r in rows
+    apart = [name for name, r in zip(row_names(rows), rows)
              if str(r.get("state_runs", "")).startswith(STATE_ONLY + ",")]  # beside a kept row's or newer runs
     if apart:
         note += (f" The state reading of {', '.join(apart)} comes from sweeps of the state reading alone "
@@ -613,6 +613,15 @@ def write(rows: list[dict], stem: str | Path) -> dict[str, Path]:
     atomic_write_text(paths["csv"], to_csv(columns, csv_rows))
     atomic_write_text(paths["md"], to_markdown(header, body) + "\n" + note + "\n")
     return paths
+
+
+def row_names(rows: list[dict]) -> list[str]:
+    """Each row's name, pipeline/group, with its preset and steps where another row has the same pipeline/group
+    (a user's tiny sweep kept beside the committed cpu row: two keys "robogen/table_top" told apart by counts alone)."""
+    plain = [f"{r['pipeline']}/{r['group']}" for r in rows]
+    return [name if plain.count(name) == 1 else
+            f"{name} ({r['preset']}, {r['steps']} steps)" if has_pixels(r) else f"{name} (states only)"
+            for name, r in zip(plain, rows)]
 
 
 def _missing_readings(row: dict, counts: list[int], moving_panel: bool) -> str:
@@ -686,14 +695,47 @@ def _state_panel(ax, r: dict, ks: list[int], color, marker, name: str) -> None:
                 alpha=alpha, label=f"{name}: {base.replace('_', ' ')}")
 
 
+def _pixel_axes(ax1, ax2, ax3, rows: list[dict]) -> None:
+    """The pixel panels' scales, ticks, labels and titles (plot), and a note where a panel has nothing to draw."""
+    from matplotlib.ticker import FuncFormatter
+
+    # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
+    ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
+            title="object-focused one-step error (primary; model: 95% CI)")
+    ax1.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.01, 1, 10 rather than 10^-2 ..
+    ax1.yaxis.set_minor_formatter(FuncFormatter(  # .. and 2, 3, 4 (not 2x10^0) where it spans under a decade
+        lambda v, _: f"{v:g}" if np.log10(max(ax1.get_ylim()) / min(ax1.get_ylim())) < 1 else ""))
+    ax2.axhline(0, color="0.5", lw=0.8)
+    # symlog: one group's -800 (a redraw of still pixels) left every other group's -1 .. -70 a flat line at 0
+    ax2.set_yscale("symlog", linthresh=1)
+    ax2.set_ylim(top=1.5)  # a skill is at most 1; symlog's autoscale left two empty decades above it
+    # symlog's own ticks are 0 and powers of ten: skills between -1 and 1 (most of them) could not be read
+    bottom = ax2.get_ylim()[0]
+    ax2.set_yticks([1, 0.5, 0, -0.5, -1] + [-(10.0 ** k) for k in range(1, 6) if -(10.0 ** k) >= bottom])
+    ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
+            title="object-focused skill vs the last frame")
+    if not any(has_pixels(r) for r in rows):  # no row has a reading at all: say why the panels are empty
+        for ax in (ax1, ax2, ax3):
+            ax.text(0.5, 0.5, "not read (protocol.pixels=false)", transform=ax.transAxes, ha="center",
+                    va="center", color="0.35")
+    elif not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
+                 for c in (int(c) for c in r["counts"].split("/"))):  # an empty panel would read as a plotting fault
+        ax2.text(0.5, 0.5, "no reading: too few kept pixels\nchange from one frame to the next\n(the last frame is a "
+                 "near-exact copy)", transform=ax2.transAxes, ha="center", va="center", color="0.35",
+                 bbox={"facecolor": "white", "edgecolor": "none"})  # the zero line ran through its middle line
+    ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
+
+
 def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     """Per row, against training episodes: the object-focused one-step error per kept pixel (the primary number;
     the full frame's when the episodes carry no robot masks) with its interval and the row's two baselines on the
     same pixels (left), its skill against the last frame beside the open loop's (second), the full-frame one-step
     error (third) and, where the runs summed them, the moving pixels' skill against the last frame (fourth: what the
     model predicts of the motion outside the robot; a row without a skill reading says why in its key) and, where any
-    row has one, the state reading's one-step error beside the last and the mean state (last panel); more than three
-    panels wrap onto two rows. A row has one colour and one marker shape in every panel, a reading one line style; in
+    row has one, the state reading's one-step error beside the last and the mean state (last panel; alone where no
+    row has a pixel reading); more than three panels wrap onto two rows. Rows of one pipeline/group are told apart
+    by preset (row_names). A row has one colour and one marker shape in every panel, a reading one line style; in
     the fourth panel an interval far wider than the points' spread is cut at the edge and named in its title
     (simeval.writing.figures.cut_wide_intervals).
     Saved without dates or versions (simeval.writing.figures.save_figure), so a rebuild from the same runs gives the
@@ -705,7 +747,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
-    from matplotlib.ticker import FuncFormatter, NullFormatter
+    from matplotlib.ticker import NullFormatter
 
     from simeval.writing.figures import cut_wide_intervals, distinct_colors, row_markers, save_figure
 
@@ -724,7 +766,10 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     moving = [r for r in rows if all(np.isfinite(r.get(f"one_step_moving_skill_last_{k}", np.nan))
                                      for k in (int(c) for c in r["counts"].split("/")))]
     stated = [r for r in rows if any(_number(r.get(f"state_model_{c}")) for c in r["counts"].split("/"))]
-    n_panels = 3 + bool(moving) + bool(stated)
+    # states-only rows alone: the state panel alone (three empty pixel panels that each said "not read" were most
+    # of a figure with one reading in it)
+    pixel_panels = 3 if any(has_pixels(r) for r in rows) or not stated else 0
+    n_panels = pixel_panels + bool(moving) + bool(stated)
     # the rows' keys below the panels (inside, the first panel's covered its own baselines' lines), the line
     # styles' in a cell of their own after the panels; more than four cells wrap onto two rows, since five panels
     # in one row made a strip too wide to read at a page's width
@@ -739,13 +784,14 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     for spare in axes[n_panels + 1:]:
         spare.remove()
     axes = axes[:n_panels]
-    ax1, ax2, ax3 = axes[:3]
+    ax1, ax2, ax3 = axes[:3] if pixel_panels else (None, None, None)
     n_gated = 0  # rows with a count that fails the gate (simeval.measures.dynamics_diversity.gate)
     row_keys, moving_drawn = [], []  # one key per row for the whole figure (below); the moving panel's lines
     # a row: its colour and its marker shape in every panel (two of tab20's shades alone were hard to tell apart)
-    for r, color, marker in zip(rows, distinct_colors(len(rows)), row_markers(len(rows)), strict=True):
+    open_loop = False  # whether an open-loop line is drawn: its style's key only then
+    for r, name, color, marker in zip(rows, row_names(rows), distinct_colors(len(rows)), row_markers(len(rows)),
+                                      strict=True):
         ks = [int(c) for c in r["counts"].split("/")]
-        name = f"{r['pipeline']}/{r['group']}"
         masked = all(r.get(f"robot_mask_{k}") for k in ks) or not has_pixels(r)
         gated = [str(k) for k in ks if not row_gate(r, k)[0]] if has_pixels(r) else []
         row_keys.append(Line2D([], [], color=color, marker=marker, ms=5,
@@ -767,8 +813,8 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
         ax1.plot(ks, [r[f"one_step_object_mean_{k}"] * 1e3 for k in ks], "--", marker=marker, ms=3, lw=0.9,
                  color=color, alpha=0.5, label=f"{name}: mean image")
         bars(ax2, r, "one_step_object_skill_last", ks, "-", color, marker, f"{name}: one step (object-focused)")
-        bars(ax2, r, "open_loop_object_skill_last", ks, ":", color, marker, f"{name}: open loop (object-focused)",
-             hollow=True, shift=1.04)
+        open_loop |= bars(ax2, r, "open_loop_object_skill_last", ks, ":", color, marker,
+                          f"{name}: open loop (object-focused)", hollow=True, shift=1.04) is not None
         bars(ax3, r, "one_step", ks, "-", color, marker, name)
         if r in moving:
             drawn = [bars(axes[3], r, "one_step_moving_skill_last", ks, "-", color, marker, f"{name}: one step")]
@@ -776,31 +822,9 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                 drawn.append(bars(axes[3], r, "open_loop_moving_skill_last", ks, ":", color, marker,
                                   f"{name}: open loop", hollow=True, shift=1.04))
             moving_drawn += [(name, *d) for d in drawn if d is not None]
-    # log scale: the last-frame baselines (~0.005) and the mean images (up to ~16) differ by 10^3-10^4
-    ax1.set(ylabel="per kept pixel and channel (x1e-3, log scale)", yscale="log",
-            title="object-focused one-step error (primary; model: 95% CI)")
-    ax1.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.01, 1, 10 rather than 10^-2 ..
-    ax1.yaxis.set_minor_formatter(FuncFormatter(  # .. and 2, 3, 4 (not 2x10^0) where it spans under a decade
-        lambda v, _: f"{v:g}" if np.log10(max(ax1.get_ylim()) / min(ax1.get_ylim())) < 1 else ""))
-    ax2.axhline(0, color="0.5", lw=0.8)
-    # symlog: one group's -800 (a redraw of still pixels) left every other group's -1 .. -70 a flat line at 0
-    ax2.set_yscale("symlog", linthresh=1)
-    ax2.set_ylim(top=1.5)  # a skill is at most 1; symlog's autoscale left two empty decades above it
-    # symlog's own ticks are 0 and powers of ten: skills between -1 and 1 (most of them) could not be read
-    bottom = ax2.get_ylim()[0]
-    ax2.set_yticks([1, 0.5, 0, -0.5, -1] + [-(10.0 ** k) for k in range(1, 6) if -(10.0 ** k) >= bottom])
-    ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    ax2.set(ylabel="skill vs last frame (1 - model / baseline;\nsymlog: linear within [-1, 1])",
-            title="object-focused skill vs the last frame")
-    if not any(has_pixels(r) for r in rows):  # states-only runs: the pixel panels are empty, and say why
-        for ax in (ax1, ax2, ax3):
-            ax.text(0.5, 0.5, "not read (protocol.pixels=false)", transform=ax.transAxes, ha="center",
-                    va="center", color="0.35")
-    elif not any(np.isfinite(r.get(f"one_step_object_skill_last_{c}", np.nan)) for r in rows
-                 for c in (int(c) for c in r["counts"].split("/"))):  # an empty panel would read as a plotting fault
-        ax2.text(0.5, 0.5, "no reading: too few kept pixels\nchange from one frame to the next\n(the last frame is a "
-                 "near-exact copy)", transform=ax2.transAxes, ha="center", va="center", color="0.35")
-    ax3.set(ylabel="sum over pixels per frame", title="full-frame one-step error (robot included)")
+            open_loop |= len(drawn) > 1 and drawn[1] is not None
+    if pixel_panels:
+        _pixel_axes(ax1, ax2, ax3, rows)
     if moving:
         axes[3].axhline(0, color="0.5", lw=0.8)
         # one row's wide interval (few moving pixels) had squeezed the other rows into a strip: cut, and said
@@ -820,12 +844,13 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
     # two keys for the whole figure: a row keeps its colour in every panel and a reading its line style, so one
     # list of rows and one of styles replace four legends that each repeated every row (up to 60 entries)
     style_keys = [Line2D([], [], color="0.3", marker="o", ms=5, ls="-", label="model, one step (95% CI)"),
-                  Line2D([], [], color="0.3", marker="o", ms=5, mfc="white", ls=":",
-                         label="model, open loop (skill panels)"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="-.",
                          label="last-frame / last-state baseline"),
                   Line2D([], [], color="0.3", marker="o", ms=3, lw=0.9, ls="--", alpha=0.5,
                          label="mean-image / mean-state baseline")]
+    if open_loop:
+        style_keys.insert(1, Line2D([], [], color="0.3", marker="o", ms=5, mfc="white", ls=":",
+                                    label="model, open loop (skill panels)"))
     if stated:
         style_keys.append(Line2D([], [], color="black", marker="x", ms=7, mew=1.5, ls="",
                                  label="state reading: a count its gate fails"))
