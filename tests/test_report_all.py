@@ -287,7 +287,7 @@ def test_a_report_that_would_drop_committed_rows_names_the_keep_that_keeps_them(
         f"error: {tmp_path / 'table4_heldout.csv'} is a committed result and would be replaced by a table of the "
         f"kept tables alone; {len(rows) - 1} of its {len(rows)} rows would go (groups without runs here: "
         f"{', '.join(others)} and {len(rows) - 4} more); report.keep=[{tmp_path / 'table4_heldout.csv'}] keeps "
-        "them; write elsewhere (report.out= and report.figure=) or replace it with overwrite=true (make: "
+        f"them (make: KEEP={tmp_path / 'table4_heldout.csv'}); write elsewhere (report.out= and report.figure=) or replace it with overwrite=true (make: "
         "OVERWRITE=1)\n"), r.stderr
     r = py(*args[:3], f"report.keep=[{one}.csv,{tmp_path / 'table4_heldout.csv'}]", *args[4:], cwd=tmp_path)
     assert r.returncode == 2 and "rows would go" not in r.stderr  # kept: none would go (still committed)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from simeval.errors import UserError
@@ -176,8 +177,10 @@ def test_capture_is_true_or_false_and_needs_a_gpu_one_line_each(tmp_path):
     r = run("debug=tiny", "capture=maybe", f"store={tmp_path}/store", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.strip() == "error: capture='maybe': expected true or false", r.stderr[-2000:]
     r = run("debug=tiny", "capture=true", "device=cpu", f"store={tmp_path}/store", cwd=tmp_path)
+    fix = ("capture=false or device=cuda" if torch.cuda.is_available() else
+           "capture=false (this machine has no CUDA GPU)")
     assert r.returncode == 2 and r.stderr.strip() == ("error: capture=true needs a CUDA GPU (device=cpu resolves to "
-                                                      "cpu here); use capture=false or device=cuda"), r.stderr[-2000:]
+                                                      f"cpu here); use {fix}"), r.stderr[-2000:]
     assert not (tmp_path / "store").exists()  # refused before any data is read
 
 

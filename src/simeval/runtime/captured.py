@@ -38,7 +38,9 @@ from simeval.runtime.device import to_device
 
 def capture_needs_cuda(where: str) -> UserError:
     """The one error for capture=true without a GPU; `where`: what the device was, e.g. "device=auto resolves to cpu"."""
-    return UserError(f"capture=true needs a CUDA GPU ({where}); use capture=false or device=cuda")
+    fix = ("use capture=false or device=cuda" if torch.cuda.is_available() else
+           "use capture=false (this machine has no CUDA GPU)")  # device=cuda would only fail next
+    return UserError(f"capture=true needs a CUDA GPU ({where}); {fix}")
 
 
 def training_device(device: str, capture: bool) -> torch.device:

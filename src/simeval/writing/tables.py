@@ -164,7 +164,7 @@ def rows_lost(csv: str | Path, keep, rows: list[dict], read_rows: Callable[[Path
     if not gone:
         return ""
     return (f"{len(gone)} of its {len(old)} rows would go (groups without runs here: {_names(gone)}); "
-            f"{keep_key}=[{csv}] keeps them")
+            f"{keep_key}=[{csv}] keeps them (make: KEEP={csv})")
 
 
 def replaced_notes(lost: str) -> list[str]:
