@@ -366,3 +366,15 @@ def test_a_kept_table_given_without_brackets_is_one_path():
     assert kept_paths({"keep": "outputs/tables/table5.csv"}) == ["outputs/tables/table5.csv"]
     assert kept_paths({"keep": ["a.csv", "b.csv"]}) == ["a.csv", "b.csv"]
     assert kept_paths({"keep": None}) == [] and kept_paths({}) == []
+
+
+def test_a_gated_count_whose_skill_vs_the_last_frame_is_undefined_says_why_in_its_gate_cell():
+    """Under 100 kept pixels moved: the table shows '—' for the skill against the last frame, and the gate's cell
+    said "does not beat the last frame (skill -7282...)" beside it (a fresh-clone trial's tiny row)."""
+    from simeval.measures.dynamics_diversity import table4_heldout
+
+    row = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")[0]
+    assert table4_heldout.row_gate(row, 10) == (False, row["gate_10"])  # a skill shown: the run's own verdict
+    row["one_step_object_skill_last_10"] = float("nan")
+    assert table4_heldout.row_gate(row, 10) == (False, "no reading: under 100 kept pixels moved (the last frame is a "
+                                                       "near-exact copy; no skill against it is defined)")

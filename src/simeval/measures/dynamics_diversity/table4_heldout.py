@@ -351,7 +351,13 @@ def row_gate(row: dict, k: int, margin: float = GateConfig.margin) -> tuple[bool
     written before the gate, the group's gate from the row's skills and their intervals (no per-task check); a row
     without a pixel reading (protocol.pixels=false) says so."""
     if f"gate_{k}" in row:
-        return bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
+        passes, verdict = bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
+        if not passes and has_pixels(row) and not _number(row.get(f"one_step_object_skill_last_{k}")):
+            # the run's gate quoted a skill the table shows as undefined ('—': under MIN_MOVING_PIXELS moved; a
+            # fresh-clone trial's tiny row read "skill -7282" beside it): the gate's cell says why instead
+            return False, (f"no reading: under {MIN_MOVING_PIXELS} kept pixels moved (the last frame is a near-exact "
+                           "copy; no skill against it is defined)")
+        return passes, verdict
     if not has_pixels(row):
         return False, "not read (protocol.pixels=false)"
     failed = []
