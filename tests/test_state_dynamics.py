@@ -560,7 +560,8 @@ print(json.dumps({k: out[k] for k in ("summary", "per_episode", "training")}))
 
 def test_a_state_reading_killed_mid_training_resumes_where_it_stopped_and_ends_as_an_uninterrupted_one(tmp_path):
     """kill -9 in the second seed's training (its 4th of 10 validation reads): the first seed's training is kept
-    whole, the second resumes from its 3rd read, and the reading equals one never interrupted, to the bit."""
+    whole, the second resumes from its 3rd read, and the reading equals one never interrupted, to the bit. A save
+    that cannot be read (cut short; or weights that load before an optimiser that does not) trains afresh."""
     import json
     import os
     import signal
@@ -584,7 +585,10 @@ def test_a_state_reading_killed_mid_training_resumes_where_it_stopped_and_ends_a
     assert json.loads(resumed.stdout) == json.loads(whole.stdout)
     ck_damaged = tmp_path / "damaged"
     ck_damaged.mkdir()
-    (ck_damaged / "seed-0.pt").write_bytes(b"not a checkpoint")
+    partial = torch.load(ck / "seed-0.pt", weights_only=True)  # weights that load, then an optimiser that does not
+    partial["net"] = {k: v + 1 for k, v in partial["net"].items()}
+    partial["opt"] = {"not": "adam's"}
+    torch.save(partial, ck_damaged / "seed-0.pt")
     (ck_damaged / "seed-1.pt").write_bytes((ck / "seed-1.pt").read_bytes()[:3000])  # cut short
     mended = subprocess.run([sys.executable, str(script), str(ck_damaged), "-1"], env=env, capture_output=True,
                             text=True, check=True)

@@ -405,18 +405,24 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
     unit = torch.as_tensor(norm.unit, dtype=torch.float32)
     keep = {name: None if m is None else torch.as_tensor(np.asarray(m, bool), dtype=torch.float32)
             for name, m in reads.items()}
-    torch.manual_seed(seed)
-    net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.max_steps) if cfg.lr_schedule == "cosine"
-                else None)
-    gen = torch.Generator().manual_seed(seed)
+
+    def start() -> tuple:  # the training's first state, from the seed alone
+        torch.manual_seed(seed)
+        net = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+        schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.max_steps)
+                    if cfg.lr_schedule == "cosine" else None)
+        return net, opt, schedule, torch.Generator().manual_seed(seed)
+
+    net, opt, schedule, gen = start()
     best = {name: {"val_loss": float("inf"), "state": None, "best_step": 0, "val_loss_mean_of_steps": float("nan"),
                    "val_curve": []} for name in reads}
     first, since, step = next(iter(reads)), 0, 0
-    if checkpoint is not None:
+    if checkpoint is not None and Path(checkpoint).exists():
         resumed = _load_training(checkpoint, net, opt, schedule, gen, reads)
-        if resumed is not None:
+        if resumed is None:  # a damaged save may have been restored in part before it failed: start afresh
+            net, opt, schedule, gen = start()
+        else:
             best, since, step = resumed
     while step < cfg.max_steps and not (cfg.patience is not None and since >= cfg.patience):
         idx = torch.randint(0, len(x), (min(cfg.batch_size, len(x)),), generator=gen)
@@ -460,11 +466,8 @@ def _save_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Genera
 
 def _load_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, reads: dict
                    ) -> tuple[dict, int, int] | None:
-    """(best, since, step) of a saved training, its weights, optimiser, schedule and generator restored in place;
-    None where there is none, or it cannot be read (a damaged file: trained again from the start, said in the log)."""
-    path = Path(path)
-    if not path.exists():
-        return None
+    """(best, since, step) of the training saved at `path`, its weights, optimiser, schedule and generator restored
+    in place; None where it cannot be read (a damaged file: trained again from the start, said in the log)."""
     try:
         saved = torch.load(path, weights_only=True)
         if set(saved["best"]) != set(reads):
