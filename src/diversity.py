@@ -21,7 +21,7 @@ def main(cfg: DictConfig) -> None:
 
     from simeval.runtime.captured import training_device
     from simeval.measures.dynamics_diversity.run import (VERSION, DiversityRun, Execution, episode_source, headline,
-                                                         tasks_not_stored)
+                                                         refuse_heldout_settings_given, tasks_not_stored)
     from simeval.pipelines.registry import own_code_args
     from simeval.results import RunFolder
 
@@ -30,6 +30,7 @@ def main(cfg: DictConfig) -> None:
         require_folder("checkpoint_dir", cfg.checkpoint_dir)
     run = RunFolder.of(cfg)
     measure = DiversityRun.from_config(run.config)
+    refuse_heldout_settings_given(list(HydraConfig.get().overrides.task), measure.protocol["name"])
     torch.set_num_threads(cfg.threads)
     device = training_device(cfg.device, cfg.capture)  # a bad value or a missing GPU stops here, before any data
     # episodes_needed checks every protocol.* value first, so a bad one stops here, before the store is read

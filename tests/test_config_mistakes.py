@@ -125,6 +125,33 @@ def test_a_heldout_setting_under_the_paper_protocol_stops_before_hydra_makes_a_f
     assert not (tmp_path / "run").exists() and not (tmp_path / "sweep").exists()
 
 
+def test_a_glob_sweep_over_the_protocol_is_checked_like_a_list_and_does_not_crash_the_check(tmp_path):
+    # Hydra expands glob() with its config loader, which does not exist before Hydra runs (a trial's traceback)
+    assert config_mistakes(["-m", "protocol=glob(*)"], ROOT / "conf", "diversity") is None
+    line = one_line_exit_2(run("diversity", "-m", "protocol=glob(*)", "protocol.steps=100", cwd=tmp_path))
+    assert "and this sweep runs protocol=paper" in line
+    assert config_mistakes(["-m", "protocol=glob(*,exclude=paper)", "protocol.steps=100"], ROOT / "conf",
+                           "diversity") is None
+
+
+def test_without_the_pre_hydra_check_the_run_still_refuses_a_heldout_setting_under_the_paper_protocol(tmp_path):
+    """Another config folder (--config-dir) skips the check before Hydra; the run reads its own overrides."""
+    (tmp_path / "mine").mkdir()
+    line = one_line_exit_2(run("diversity", "--config-dir", str(tmp_path / "mine"), "protocol=paper",
+                               "++protocol.lr=0.1", cwd=tmp_path))
+    assert line == ("error: ++protocol.lr=0.1: protocol=paper has no lr (a setting of protocol=heldout); drop it, or "
+                    "run it with protocol=heldout")
+
+
+def test_an_os_error_of_a_runs_own_work_is_not_said_to_be_hydras_run_folder(tmp_path):
+    from simeval.cli import _hydra_making_a_folder
+
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(FileExistsError) as e:
+        (tmp_path / "a_file").mkdir(parents=True)  # a mkdir of simeval's (or a test's), not Hydra's
+    assert not _hydra_making_a_folder(e.value)
+
+
 def test_the_protocol_a_setting_is_checked_against_is_the_configs_default_when_not_given(tmp_path):
     conf = tmp_path / "conf"
     (conf / "protocol").mkdir(parents=True)

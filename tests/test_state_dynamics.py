@@ -583,13 +583,26 @@ def test_a_state_reading_killed_mid_training_resumes_where_it_stopped_and_ends_a
                              check=True)
     assert "resumed from" in resumed.stderr and "at step 60" in resumed.stderr
     assert json.loads(resumed.stdout) == json.loads(whole.stdout)
-    ck_damaged = tmp_path / "damaged"
-    ck_damaged.mkdir()
+    import io
+
+    def mended(files: dict[str, bytes]) -> str:  # a reading from saves `files`: the uninterrupted one; its log
+        folder = tmp_path / f"damaged-{len(list(tmp_path.glob('damaged-*')))}"
+        folder.mkdir()
+        for name, data in files.items():
+            (folder / name).write_bytes(data)
+        r = subprocess.run([sys.executable, str(script), str(folder), "-1"], env=env, capture_output=True, text=True,
+                           check=True)
+        assert json.loads(r.stdout) == json.loads(whole.stdout)
+        return r.stderr
+
+    saves = {name: (ck / name).read_bytes() for name in ("seed-0.pt", "seed-1.pt")}
+    log = mended({"seed-0.pt": b"not a checkpoint", "seed-1.pt": saves["seed-1.pt"][:3000]})  # garbage; cut short
+    assert log.count("unreadable") == 2 and "Re-running" not in log  # torch's advice to load unsafely: not ours
     partial = torch.load(ck / "seed-0.pt", weights_only=True)  # weights that load, then an optimiser that does not
     partial["net"] = {k: v + 1 for k, v in partial["net"].items()}
     partial["opt"] = {"not": "adam's"}
-    torch.save(partial, ck_damaged / "seed-0.pt")
-    (ck_damaged / "seed-1.pt").write_bytes((ck / "seed-1.pt").read_bytes()[:3000])  # cut short
-    mended = subprocess.run([sys.executable, str(script), str(ck_damaged), "-1"], env=env, capture_output=True,
-                            text=True, check=True)
-    assert mended.stderr.count("unreadable") == 2 and json.loads(mended.stdout) == json.loads(whole.stdout)
+    buffer = io.BytesIO()
+    torch.save(partial, buffer)
+    assert mended({"seed-0.pt": buffer.getvalue()}).count("unreadable") == 1
+    log = mended({"seed-0.pt": saves["seed-1.pt"]})  # another seed's save copied over this one's
+    assert "unreadable (ValueError: saved by seed 1, not 0)" in log

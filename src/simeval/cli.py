@@ -415,8 +415,8 @@ def config_mistakes(args: list[str], conf_dir: Path, config_name: str | None = N
         # hydra/* groups (launchers, sweepers) also come from installed plugins, not only from conf/
         if o.is_delete() or not groups or o.package is not None or o.key_or_group.startswith("hydra/"):
             continue
-        values = [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
         options = sorted({p.stem for g in groups for p in g.glob("*.yaml")})
+        values = _choices(o, options)
         for v in values:
             if v == "null":
                 continue
@@ -435,12 +435,22 @@ def config_mistakes(args: list[str], conf_dir: Path, config_name: str | None = N
     return None
 
 
+def _choices(o: Any, options: list[str]) -> list[str]:
+    """The values an override gives its key or group: one, or each of a sweep's; a glob() sweep matched against the
+    group's `options` (Hydra expands it with its config loader, which does not exist before Hydra runs)."""
+    from hydra.core.override_parser.types import Glob
+
+    if isinstance(o.value(), Glob):
+        return o.value().filter(options)
+    return [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
+
+
 def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: str) -> str | None:
     """`group.key...=v` where the group's chosen option (its override, else the primary config's default; in a sweep
     over the group, any of its options) has no `key` and another option of the group has it: one line that names
     that option and the override as it would take it. In a sweep, a job of the other option would take it and the
     first job of this one refuse it only after the jobs before it had run."""
-    chosen = {o.key_or_group: [str(v) for v in o.sweep_iterator()] if o.is_sweep_override() else [str(o.value())]
+    chosen = {o.key_or_group: _choices(o, sorted(p.stem for p in (conf_dir / o.key_or_group).glob("*.yaml")))
               for o in parsed if (conf_dir / o.key_or_group).is_dir() and o.package is None and not o.is_delete()}
     for o in parsed:
         group, _, rest = o.key_or_group.partition(".")
@@ -697,14 +707,12 @@ def _one_line_composition_errors() -> None:
                     raise
                 # SystemExit: not an Exception, so Hydra's printer lets it pass
                 _fail(composition_error_line(e, Path(sys.argv[0]).stem, entry_conf_dir()))
-            except (FileExistsError, NotADirectoryError) as e:  # e.g. hydra.run.dir naming a file: Hydra makes
-                if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the run folder before any simeval code runs
-                    raise
-                _fail(f"{e.filename}: {e.strerror}; a folder is needed there (hydra.run.dir, hydra.sweep.dir or a "
-                      f"*_dir setting names a file?)")
-            except OSError as e:
+            except OSError as e:  # Hydra makes the run or sweep folder before any simeval code runs
                 if os.environ.get("HYDRA_FULL_ERROR") == "1" or not _hydra_making_a_folder(e):
-                    raise
+                    raise  # a run's own: its traceback, not words about folders it is not about
+                if isinstance(e, (FileExistsError, NotADirectoryError)):  # e.g. hydra.run.dir naming a file
+                    _fail(f"{e.filename}: {e.strerror}; a folder is needed there (paths.root, hydra.run.dir or "
+                          "hydra.sweep.dir names a file?)")
                 _fail(f"{e.filename}: {e.strerror}; the run's folder cannot be made there: set paths.root "
                       "(or hydra.run.dir / hydra.sweep.dir) to a folder you can write")
 

@@ -260,6 +260,20 @@ HELDOUT_ONLY = ("gate", "state_model", "pixels", "model")
 HELDOUT_BUDGET = ("steps", "lr", "horizon", "mask_margin", "exclude_robot_from_loss")
 
 
+def refuse_heldout_settings_given(overrides: list[str], protocol: str) -> None:
+    """A UserError for a command-line override of a HELDOUT_BUDGET key under another protocol, which would run
+    without reading it. simeval.cli refuses these before Hydra, except with HYDRA_FULL_ERROR=1 or another config
+    folder (--config-dir), where it does not check: the run itself does, from Hydra's record of its overrides."""
+    if protocol == "heldout":
+        return
+    for given in overrides:
+        key = given.lstrip("+").split("=", 1)[0]
+        section, _, name = key.partition(".")
+        if section == "protocol" and name.split(".")[0] in HELDOUT_BUDGET and not given.startswith("~"):
+            raise UserError(f"{given}: protocol={protocol} has no {name.split('.')[0]} (a setting of "
+                            f"protocol=heldout); drop it, or run it with protocol=heldout")
+
+
 def budget_epochs(n_rows, train_mask: np.ndarray, window: WindowSpec, batch_size: int, steps: int) -> int:
     """Epochs enough for `steps` gradient steps however the epochs' random offsets cut the windows: steps divided
     by the fewest batches any offset gives, rounded up (training stops at `steps` through max_steps)."""

@@ -419,7 +419,7 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
                    "val_curve": []} for name in reads}
     first, since, step = next(iter(reads)), 0, 0
     if checkpoint is not None and Path(checkpoint).exists():
-        resumed = _load_training(checkpoint, net, opt, schedule, gen, reads)
+        resumed = _load_training(checkpoint, net, opt, schedule, gen, reads, seed)
         if resumed is None:  # a damaged save may have been restored in part before it failed: start afresh
             net, opt, schedule, gen = start()
         else:
@@ -447,7 +447,7 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
                 elif name == first:
                     since += 1
             if checkpoint is not None:
-                _save_training(checkpoint, net, opt, schedule, gen, best, since, step)
+                _save_training(checkpoint, net, opt, schedule, gen, best, since, step, seed)
     nets, info = {}, {}
     for name, b in best.items():
         model = _Net(x.shape[1], y.shape[1], cfg.hidden, cfg.layers)
@@ -458,18 +458,20 @@ def fit_state_models(train: list[tuple[np.ndarray, np.ndarray]], val: list[tuple
 
 
 def _save_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, best: dict, since: int,
-                   step: int) -> None:
+                   step: int, seed: int) -> None:
     save_checkpoint(path, {"net": net.state_dict(), "opt": opt.state_dict(),
                            "schedule": None if schedule is None else schedule.state_dict(),
-                           "generator": gen.get_state(), "best": best, "since": since, "step": step})
+                           "generator": gen.get_state(), "best": best, "since": since, "step": step, "seed": seed})
 
 
-def _load_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, reads: dict
+def _load_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Generator, reads: dict, seed: int
                    ) -> tuple[dict, int, int] | None:
     """(best, since, step) of the training saved at `path`, its weights, optimiser, schedule and generator restored
     in place; None where it cannot be read (a damaged file: trained again from the start, said in the log)."""
     try:
         saved = torch.load(path, weights_only=True)
+        if saved.get("seed") != seed:  # another seed's file copied or renamed here
+            raise ValueError(f"saved by seed {saved.get('seed')}, not {seed}")
         if set(saved["best"]) != set(reads):
             raise ValueError(f"it reads {sorted(saved['best'])}, this run {sorted(reads)}")
         net.load_state_dict(saved["net"])
@@ -478,7 +480,11 @@ def _load_training(path: str | Path, net: _Net, opt, schedule, gen: torch.Genera
             schedule.load_state_dict(saved["schedule"])
         gen.set_state(saved["generator"])
     except (OSError, RuntimeError, ValueError, KeyError, TypeError, EOFError, pickle.UnpicklingError) as e:
-        log.warning("state reading: %s unreadable (%s); training this seed from the start", path, e)
+        # torch's own words for an unpickling failure advise loading the file unsafely: not advice to pass on
+        why = ("not a save torch reads safely" if isinstance(e, pickle.UnpicklingError) else
+               str(e).strip().splitlines()[0] if str(e).strip() else "empty or cut short")
+        log.warning("state reading: %s unreadable (%s: %s); training this seed from the start", path,
+                    type(e).__name__, why)
         return None
     log.info("state reading: resumed from %s at step %d", path, saved["step"])
     return saved["best"], int(saved["since"]), int(saved["step"])
