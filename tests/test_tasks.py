@@ -172,3 +172,9 @@ def test_simeval_suite_is_a_named_source_only():
     assert all(t.text.startswith(f"Task: {t.name} \n Description: ") for t in tasks)
     with pytest.raises(SourceNotConfigured):  # auto never falls back to the suite
         load_tasks("gensim", suite="gensim")
+
+
+def test_a_task_file_that_is_a_folder_is_named_as_one(tmp_path):
+    with pytest.raises(TaskSourceError, match=rf"^{tmp_path} is a folder; give a task file \(.yaml, .yml, .json or "
+                                              r"\.csv\)$"):
+        load_tasks("custom", tasks_path=str(tmp_path))

@@ -223,8 +223,9 @@ def refuse_unfit_arrays(info: EpisodeInfo, per_row: Mapping[str, Any], numbers: 
         if bad.any():
             at = np.flatnonzero(bad)
             raise EpisodeFormatError(
-                f"{where}: {k} holds NaN or inf in {len(at)} of its {len(a)} rows (first at row {at[0]}); no model "
-                "can train on it: delete the episode and make it again, or fix what wrote it")
+                f"{where}: {k} holds NaN or inf in {len(at)} of its {len(a)} rows (first at row {at[0]}), which no "
+                "reading can use: delete the episode and make it again, or fix what wrote it (the store's episodes "
+                "are checked when it opens, whether this run reads them or not)")
 
 
 class StoreSource:

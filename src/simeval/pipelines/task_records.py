@@ -46,6 +46,8 @@ class TaskText:
 def read_structured(path: str | os.PathLike) -> Any:
     """Parse a YAML, JSON or CSV file (CSV -> list of row dicts). Errors name the file."""
     path = Path(path)
+    if path.is_dir():
+        raise TaskSourceError(f"{path} is a folder; give a task file (.yaml, .yml, .json or .csv)")
     if not path.is_file():
         raise TaskSourceError(f"task file not found: {path}")
     suffix = path.suffix.lower()

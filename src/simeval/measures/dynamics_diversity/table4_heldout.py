@@ -859,7 +859,7 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                                     label="model, open loop (skill panels)"))
     if stated:
         style_keys.append(Line2D([], [], color="black", marker="x", ms=7, mew=1.5, ls="",
-                                 label="state reading: a count its gate fails"))
+                                 label="state reading: a gated count (its gate fails)"))
     fig.legend(handles=row_keys, loc="outside lower center", ncol=-(-len(row_keys) // 5), fontsize=8,
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
