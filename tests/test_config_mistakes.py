@@ -165,6 +165,8 @@ def test_the_protocol_a_setting_is_checked_against_is_the_configs_default_when_n
         "+protocol.gate.margin=0.2: protocol=a has no gate (a section of protocol=b), and this sweep runs protocol=a")
     assert config_mistakes(["protocol=b", "+protocol.gate.seed=1"], conf, "main") is None  # b has the section
     assert config_mistakes(["+protocol.nope=1"], conf, "main") is None  # no option has it: left to Hydra and the run
+    assert config_mistakes(["++protocol.gate.margin=0.2"], conf, "main").startswith(
+        "++protocol.gate.margin=0.2: protocol=a has no gate")  # as given
     assert config_mistakes(["+protocol.gate.margin=0.2"], conf) is None  # no primary config named: not checked
     (conf / "protocol" / "c.yaml").write_text("defaults:\n  - b\n  - _self_\nname: c\n")
     assert config_mistakes(["protocol=c", "protocol.gate.margin=0.2"], conf, "main") is None  # b's keys, by defaults

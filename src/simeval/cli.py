@@ -469,7 +469,7 @@ def _section_of_another_option(parsed: list[Any], conf_dir: Path, config_name: s
         owner = f"{group}={owners[0]}"
         value = o.input_line.split("=", 1)[1]
         what = "a section" if isinstance(every[owners[0]][key], dict) else "a setting"
-        given = f"{'+' if o.is_add() else ''}{o.key_or_group}={value}"
+        given = f"{'++' if o.is_force_add() else '+' if o.is_add() else ''}{o.key_or_group}={value}"
         if len(options) > 1:
             return (f"{given}: {group}={option} has no {key} ({what} of {owner}), and this sweep runs {group}="
                     f"{option}; drop it, or sweep {owner} alone: {owner} {owner_form(conf_dir, owner, o.key_or_group)}"
