@@ -370,11 +370,16 @@ def test_a_kept_table_given_without_brackets_is_one_path():
 
 def test_a_gated_count_whose_skill_vs_the_last_frame_is_undefined_says_why_in_its_gate_cell():
     """Under 100 kept pixels moved: the table shows '—' for the skill against the last frame, and the gate's cell
-    said "does not beat the last frame (skill -7282...)" beside it (a fresh-clone trial's tiny row)."""
-    from simeval.measures.dynamics_diversity import table4_heldout
+    said "does not beat the last frame (skill -7282...)" beside it (a fresh-clone trial's tiny row). The run's gate
+    and the table's read the same sums (gate_of_sums): by hand, a model 10x a near-exact copy's error."""
+    import numpy as np
 
-    row = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")[0]
-    assert table4_heldout.row_gate(row, 10) == (False, row["gate_10"])  # a skill shown: the run's own verdict
-    row["one_step_object_skill_last_10"] = float("nan")
-    assert table4_heldout.row_gate(row, 10) == (False, "no reading: under 100 kept pixels moved (the last frame is a "
-                                                       "near-exact copy; no skill against it is defined)")
+    from simeval.measures.dynamics_diversity.gate import gate_of_sums
+
+    sums = {"model": np.full((2, 4), 10.0), "last": np.full((2, 4), 1.0), "mean": np.full((2, 4), 5.0)}
+    quoted = gate_of_sums(sums, ["a", "a", "b", "b"])  # no moving pixels summed: the gate's own words
+    assert not quoted["passes"] and "does not beat the last frame (skill -9" in quoted["verdict"]
+    for moved, says_why in ((12.0, True), (13.0, False)):  # 8 episode-runs: 96 moved (under 100), then 104
+        g = gate_of_sums({**sums, "moving": np.full((2, 4), moved)}, ["a", "a", "b", "b"])
+        assert not g["passes"] and (g["verdict"] == "no reading: under 100 kept pixels moved (the last frame is a "
+                                    "near-exact copy; no skill against it is defined)") == says_why

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simeval.errors import UserError, require_whole_fields, settings_from_dict
+from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.stats import resample
 
 BASELINE_NAMES = {"last": "the last frame", "mean": "the mean image", "last_state": "the last state",
@@ -136,20 +137,38 @@ def gate(model: np.ndarray, baselines: dict[str, np.ndarray], tasks, cfg: GateCo
 PIXEL_SUMS = {"model": "one_step/model/object", "last": "one_step/last/object", "mean": "one_step/mean/object"}
 
 
+# the held-out frames' moving kept pixels, summed over runs and episodes (records made before they were summed lack it)
+MOVING_PIXELS = "one_step/moving_pixels"
+
+
 def pixel_gate(per_episode_runs: list[list[dict]], cfg: GateConfig = GateConfig()) -> dict:
     """The gate of the pixel reading on the protocol's primary number (the object-focused one-step error: robot
     pixels out where the episodes carry masks) from R runs' `per_episode` lists
     (simeval.measures.dynamics_diversity.prediction; every run on the same held-out episodes)."""
     order = sorted((e["task"], int(e["seed"])) for e in per_episode_runs[0])
-    arrays = {k: np.zeros((len(per_episode_runs), len(order))) for k in PIXEL_SUMS}
+    keys = {**PIXEL_SUMS, **({"moving": MOVING_PIXELS} if all(MOVING_PIXELS in e["sums"] for run in per_episode_runs
+                                                              for e in run) else {})}
+    arrays = {k: np.zeros((len(per_episode_runs), len(order))) for k in keys}
     for r, run in enumerate(per_episode_runs):
         where = {(e["task"], int(e["seed"])): e["sums"] for e in run}
         if sorted(where) != order:
             raise UserError("gate: the runs of one reading were evaluated on different held-out episodes")
         for j, ep in enumerate(order):
-            for k, key in PIXEL_SUMS.items():
+            for k, key in keys.items():
                 arrays[k][r, j] = where[ep][key]
-    return gate(arrays["model"], {"last": arrays["last"], "mean": arrays["mean"]}, [t for t, _ in order], cfg)
+    return gate_of_sums(arrays, [t for t, _ in order], cfg)
+
+
+def gate_of_sums(sums: dict[str, np.ndarray], tasks, cfg: GateConfig = GateConfig()) -> dict:
+    """The pixel gate of per-episode sums {model, last, mean: (R, E); moving: (R, E) moving kept pixels, optional},
+    as the run (pixel_gate) and the held-out table read it. A failed gate where under MIN_MOVING_PIXELS kept pixels
+    moved says that, not the skill against the last frame it would quote: that skill is undefined there (the table
+    shows '—'; a fresh-clone trial's tiny run quoted "skill -7282" beside it)."""
+    g = gate(sums["model"], {"last": sums["last"], "mean": sums["mean"]}, tasks, cfg)
+    if not g["passes"] and "moving" in sums and np.sum(sums["moving"]) < MIN_MOVING_PIXELS:
+        g["verdict"] = (f"no reading: under {MIN_MOVING_PIXELS} kept pixels moved (the last frame is a near-exact "
+                        "copy; no skill against it is defined)")
+    return g
 
 
 OPPOSITE = "no reading: the fall and its excess over a baseline's own change point opposite ways"

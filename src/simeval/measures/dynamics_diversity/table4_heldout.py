@@ -35,8 +35,8 @@ import numpy as np
 
 from simeval.errors import UserError
 from simeval.stats import resample
-from simeval.measures.dynamics_diversity.gate import (OPPOSITE, TOO_WIDE, GateConfig, fall_verdict, gate,
-                                                      relative_fall_interval)
+from simeval.measures.dynamics_diversity.gate import (MOVING_PIXELS, OPPOSITE, PIXEL_SUMS, TOO_WIDE, GateConfig,
+                                                      fall_verdict, gate_of_sums, relative_fall_interval)
 from simeval.measures.dynamics_diversity.prediction import MIN_MOVING_PIXELS
 from simeval.measures.dynamics_diversity.table4 import one_setting
 from simeval.writing.tables import read_csv, to_csv, to_markdown
@@ -215,8 +215,8 @@ def _count_columns(row: dict, k: int, recs: list[dict], *, n_boot: int, seed: in
     row[f"runs_{k}"] = len(recs)
     row[f"heldout_episodes_{k}"] = len(tasks)
     row[f"robot_mask_{k}"] = all(r["values"]["prediction"].get("robot_mask") for r in recs)
-    g = gate(sums["one_step/model/object"], {b: sums[f"one_step/{b}/object"] for b in ("last", "mean")},
-             tasks, gate_cfg)
+    g = gate_of_sums({**{k: sums[key] for k, key in PIXEL_SUMS.items()},
+                      **({"moving": sums[MOVING_PIXELS]} if MOVING_PIXELS in sums else {})}, tasks, gate_cfg)
     row[f"gate_{k}"], row[f"gate_passes_{k}"] = g["verdict"], g["passes"]
     _state_columns(row, k, recs[0]["values"].get("state"))  # the same in every seed's run (its own seeds inside)
     for name, v in point.items():
@@ -351,13 +351,7 @@ def row_gate(row: dict, k: int, margin: float = GateConfig.margin) -> tuple[bool
     written before the gate, the group's gate from the row's skills and their intervals (no per-task check); a row
     without a pixel reading (protocol.pixels=false) says so."""
     if f"gate_{k}" in row:
-        passes, verdict = bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
-        if not passes and has_pixels(row) and not _number(row.get(f"one_step_object_skill_last_{k}")):
-            # the run's gate quoted a skill the table shows as undefined ('—': under MIN_MOVING_PIXELS moved; a
-            # fresh-clone trial's tiny row read "skill -7282" beside it): the gate's cell says why instead
-            return False, (f"no reading: under {MIN_MOVING_PIXELS} kept pixels moved (the last frame is a near-exact "
-                           "copy; no skill against it is defined)")
-        return passes, verdict
+        return bool(row[f"gate_passes_{k}"]), row[f"gate_{k}"]
     if not has_pixels(row):
         return False, "not read (protocol.pixels=false)"
     failed = []
