@@ -54,6 +54,11 @@ ENV_STATE = "observation.environment_state"
 SIMEVAL_KEYS = {"task": "simeval/task", "group": "simeval/group"}
 
 
+def _simeval_columns(row: dict) -> dict[str, str]:
+    """{task, group} of an episode's row where simeval's export wrote them (SIMEVAL_KEYS); {} in anyone else's."""
+    return {k: str(row[c]) for k, c in SIMEVAL_KEYS.items() if row.get(c)}
+
+
 def _names(feature: dict, n: int) -> list[str]:
     """A feature's per-dimension names: lerobot writes a list, older datasets {"motors": [...]}; else x0, x1, ..."""
     names = feature.get("names")
@@ -190,7 +195,7 @@ def episode_entries(info: LeRobotInfo) -> list[EpisodeEntry]:
                                                         file_index=int(row["data/file_index"]))
                     out.append(EpisodeEntry(int(row["episode_index"]), list(row.get("tasks") or []),
                                             int(row["length"]), data, videos,
-                                            {k: str(row[c]) for k, c in SIMEVAL_KEYS.items() if row.get(c)}))
+                                            _simeval_columns(row)))
                 except (KeyError, TypeError, ValueError) as e:
                     raise EpisodeFormatError(f"{f}: episode row without {e} (has {sorted(row)[:8]} ...)") from e
         return sorted(out, key=lambda e: e.index)
@@ -203,7 +208,7 @@ def episode_entries(info: LeRobotInfo) -> list[EpisodeEntry]:
                               0.0) for c in info.cameras if c.video}
             out.append(EpisodeEntry(i, list(row.get("tasks") or []), int(row["length"]),
                                     root / info.data_path.format(episode_chunk=chunk, episode_index=i), videos,
-                                    {k: str(row[c]) for k, c in SIMEVAL_KEYS.items() if row.get(c)}))
+                                    _simeval_columns(row)))
         except (KeyError, TypeError, ValueError) as e:
             raise EpisodeFormatError(f"{root / 'meta' / 'episodes.jsonl'}: an episode without {e}") from e
     return sorted(out, key=lambda e: e.index)
