@@ -383,3 +383,19 @@ def test_a_gated_count_whose_skill_vs_the_last_frame_is_undefined_says_why_in_it
         g = gate_of_sums({**sums, "moving": np.full((2, 4), moved)}, ["a", "a", "b", "b"])
         assert not g["passes"] and (g["verdict"] == "no reading: under 100 kept pixels moved (the last frame is a "
                                     "near-exact copy; no skill against it is defined)") == says_why
+
+
+def test_the_heldout_figures_title_gives_the_gates_reason_too_few_pixels_moved_where_a_row_has_it(monkeypatch,
+                                                                                                    tmp_path):
+    from simeval.writing import figures
+    from simeval.measures.dynamics_diversity import table4_heldout
+
+    rows = table4_heldout.read_rows(ROOT / "outputs" / "tables" / "table4_heldout.csv")
+    titles = []
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path, **kw: titles.append(fig._suptitle.get_text()))
+    table4_heldout.plot(rows, tmp_path / "f.png")
+    rows[0]["gate_10"] = ("no reading: under 100 kept pixels moved (the last frame is a near-exact copy; no skill "
+                          "against it is defined)")
+    table4_heldout.plot(rows, tmp_path / "f.png")
+    assert "the model does not beat the last frame or the mean image;" in titles[0]
+    assert "the model does not beat the last frame or the mean image, or under 100 kept pixels moved;" in titles[1]

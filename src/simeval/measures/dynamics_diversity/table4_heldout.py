@@ -858,9 +858,14 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> Path:
                frameon=False, title="row (colour and marker)", title_fontsize=8, alignment="left")
     key_cell.legend(handles=style_keys, loc="upper left", ncol=1, fontsize=9, frameon=False, handlelength=4,
                     title="reading (line style)", title_fontsize=9, alignment="left")
+    # the reason the gate gave: a count where too few pixels moved has no skill to beat (a trial's tiny sweep's title
+    # said "does not beat" beside its cells' "under 100 kept pixels moved")
+    still = any(has_pixels(r) and row_gate(r, int(k))[1].startswith(f"no reading: under {MIN_MOVING_PIXELS} kept")
+                for r in rows for k in r["counts"].split("/"))
+    why = ("the model does not beat the last frame or the mean image" if not still else
+           f"the model does not beat the last frame or the mean image, or under {MIN_MOVING_PIXELS} kept pixels moved")
     gated_line = (f"{n_gated} of {len(rows)} rows have counts that fail the pixel gate ([pixels: no reading at "
-                  "...]: the model does not beat the last frame or the mean image; their pixel numbers read nothing)"
-                  if n_gated else "")
+                  f"...]: {why}; their pixel numbers read nothing)" if n_gated else "")
     state_line = "the state reading (its own panel) has its own gate" if stated else ""
     lines = [title, gated_line, state_line]  # one line each: joined, they ran past the figure's edges
     fig.suptitle("\n".join(x for x in lines if x), fontsize=10)
